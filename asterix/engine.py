@@ -752,3 +752,98 @@ def _rebind_expansion(
         for const in fn.__code__.co_names:
             if const.startswith("expansion"):
                 namespace[const] = expansion
+
+
+# --- skipping items without decoding them (the plot-extraction path) ---------------------
+
+Skipper = Callable[[bytes, int, int], int]
+
+
+def skipper(variation: Variation) -> int | Skipper:
+    """How to step over an item: its size in octets when fixed, else a function of the bytes.
+
+    The function returns the position after the item and raises Malformed when it does not
+    fit before ``end``.
+    """
+    bits = spec.fixed_bits(variation)
+    if bits is not None:
+        return bits // 8
+    if isinstance(variation, Extended):
+        sizes = [
+            (sum(_field_bits(f) for f in extent) + 1) // 8 for extent in variation.extents
+        ]
+        if not variation.last_has_fx:
+            sizes[-1] = sum(_field_bits(f) for f in variation.extents[-1]) // 8
+        return _fx_chain_skipper(tuple(sizes), variation.last_has_fx, repeat=False)
+    if isinstance(variation, Repetitive):
+        inner = spec.fixed_bits(variation.variation)
+        assert inner is not None
+        if not variation.counter_octets:
+            return _fx_chain_skipper(((inner + 1) // 8,), True, repeat=True)
+        counter, size = variation.counter_octets, inner // 8
+
+        def skip_repetitive(b: bytes, p: int, end: int) -> int:
+            if p + counter > end:
+                raise _short(p, counter, end)
+            q = p + counter + int.from_bytes(b[p : p + counter]) * size
+            if q > end:
+                raise _short(p, q - p, end)
+            return q
+
+        return skip_repetitive
+    if isinstance(variation, Explicit):
+        return _skip_explicit
+    if isinstance(variation, Compound):
+        slots = tuple(None if s is None else skipper(s.variation) for s in variation.slots)
+        fixed = variation.fspec_octets
+
+        def skip_compound(b: bytes, p: int, end: int) -> int:
+            q = _read_fspec(b, p, end, fixed, len(slots), "compound")
+            for index in _fspec_slots(b[p:q], bool(fixed)):
+                step = slots[index] if index < len(slots) else None
+                if step is None:
+                    raise Malformed(p, f"FSPEC names undefined subfield {index + 1}")
+                q = q + step if isinstance(step, int) else step(b, q, end)
+            if q > end:
+                raise _short(p, q - p, end)
+            return q
+
+        return skip_compound
+    raise spec.SpecError(f"cannot skip {type(variation).__name__}")
+
+
+def _field_bits(f: Named | Spare) -> int:
+    bits = f.bits if isinstance(f, Spare) else spec.fixed_bits(f.variation)
+    assert bits is not None
+    return bits
+
+
+def _fx_chain_skipper(sizes: tuple[int, ...], last_has_fx: bool, repeat: bool) -> Skipper:
+    """Units of the given sizes, each ending in an FX bit that says another follows.
+
+    Extended items: the units are the extents, the last one may have no FX bit. FX
+    repetition: one unit size, repeated while FX is set.
+    """
+    last = len(sizes) - 1
+
+    def skip(b: bytes, p: int, end: int) -> int:
+        q, unit = p, 0
+        while True:
+            q += sizes[min(unit, last)]
+            if q > end:
+                raise _short(p, q - p, end)
+            if unit == last and not last_has_fx:
+                return q
+            if not b[q - 1] & 1:
+                return q
+            if unit == last and not repeat:
+                raise Malformed(q - 1, "FX set in the last extent")
+            unit += 1
+
+    return skip
+
+
+def _skip_explicit(b: bytes, p: int, end: int) -> int:
+    if p >= end or b[p] < 1 or p + b[p] > end:
+        raise Malformed(p, "explicit item does not fit")
+    return p + b[p]
