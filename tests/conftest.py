@@ -1,0 +1,18 @@
+"""Shared test helpers: where the shared sample data lives."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data" / "asterix"
+
+
+def shared_file(relative: str) -> Path:
+    """A file of ../shared/data/asterix, or a skip saying why it is missing."""
+    path = SHARED_DATA / relative
+    if not path.is_file():
+        pytest.skip(f"{path} is absent: the shared sample data (GPL/LGPL) is not beside the repo")
+    return path

@@ -1,0 +1,127 @@
+"""``tracker-service decode``: every record of a capture as JSON lines, or a summary."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+from asterix import Block, DecodeError
+from asterix.codec import decode_blocks
+from asterix.containers import ContainerError, Datagram, read_file
+from tracker_service.ingest import DuplicateFilter
+
+# The item holding each category's time of day, for the summary's time span.
+TIME_OF_DAY_ITEM = {21: "073", 34: "030", 48: "140", 62: "070", 65: "030"}
+
+
+@dataclass
+class Summary:
+    records: Counter[str] = field(default_factory=Counter)
+    blocks: Counter[str] = field(default_factory=Counter)
+    sources: Counter[str] = field(default_factory=Counter)
+    datagrams: int = 0
+    duplicate_datagrams: int = 0
+    duplicate_records: int = 0
+    unsupported_blocks: Counter[str] = field(default_factory=Counter)
+    errors: Counter[str] = field(default_factory=Counter)
+    capture_time: list[float] = field(default_factory=list)
+    time_of_day: dict[str, list[float]] = field(default_factory=dict)
+
+    def add_time(self, bucket: list[float], value: float) -> None:
+        if bucket:
+            bucket[0], bucket[1] = min(bucket[0], value), max(bucket[1], value)
+        else:
+            bucket.extend((value, value))
+
+    def add_record(self, cat: int, items: dict[str, Any], duplicate: bool) -> None:
+        key = f"{cat:03d}"
+        self.records[key] += 1
+        self.duplicate_records += duplicate
+        source = items.get("010")
+        if isinstance(source, dict):
+            self.sources[f"{key} {source.get('SAC')}/{source.get('SIC')}"] += 1
+        tod = items.get(TIME_OF_DAY_ITEM.get(cat, ""))
+        if isinstance(tod, float):
+            self.add_time(self.time_of_day.setdefault(key, []), tod)
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "datagrams": self.datagrams,
+            "duplicate_datagrams": self.duplicate_datagrams,
+            "blocks": dict(sorted(self.blocks.items())),
+            "records": dict(sorted(self.records.items())),
+            "duplicate_records": self.duplicate_records,
+            "records_by_source": dict(sorted(self.sources.items())),
+            "unsupported_blocks": dict(sorted(self.unsupported_blocks.items())),
+            "capture_time": self.capture_time or None,
+            "time_of_day": dict(sorted(self.time_of_day.items())),
+            "errors": sum(self.errors.values()),
+            "errors_by_reason": dict(self.errors.most_common(20)),
+        }
+
+
+def _error_json(event: DecodeError | ContainerError) -> str:
+    if isinstance(event, ContainerError):
+        return json.dumps({"error": "container", "offset": event.offset, "reason": event.reason})
+    return json.dumps(
+        {"error": "decode", "offset": event.offset, "category": event.category,
+         "reason": event.reason}
+    )
+
+
+def run_decode(path: Path, summary_only: bool, out: TextIO, err: TextIO) -> int:
+    summary = Summary()
+    duplicates = DuplicateFilter()
+    block_number = 0
+    write = out.write
+    for unit in read_file(path):
+        if not isinstance(unit, Datagram):
+            summary.errors[unit.reason.split(":")[0]] += 1
+            err.write(_error_json(unit) + "\n")
+            continue
+        summary.datagrams += 1
+        if unit.time is not None:
+            summary.add_time(summary.capture_time, unit.time)
+        duplicate = duplicates.is_duplicate(unit.payload, unit.time)
+        summary.duplicate_datagrams += duplicate
+        for event in decode_blocks(unit.payload, unit.offset):
+            if isinstance(event, DecodeError):
+                summary.errors[event.reason.split(":")[0]] += 1
+                err.write(_error_json(event) + "\n")
+                continue
+            block_number += 1
+            key = f"{event.cat:03d}"
+            summary.blocks[key] += 1
+            if not event.supported:
+                summary.unsupported_blocks[key] += 1
+                continue
+            for index, items in enumerate(event.records):
+                summary.add_record(event.cat, items, duplicate)
+                if summary_only:
+                    continue
+                record: dict[str, Any] = {
+                    "cat": event.cat,
+                    "block": block_number,
+                    "record": index,
+                    "time": unit.time,
+                    "items": items,
+                }
+                if duplicate:
+                    record["duplicate"] = True
+                write(json.dumps(record) + "\n")
+    if summary_only:
+        json.dump(summary.as_json(), out, indent=2)
+        out.write("\n")
+    return 0
+
+
+def main(path: str, summary_only: bool) -> int:
+    file = Path(path)
+    if not file.is_file():
+        print(f"tracker-service decode: {path}: no such file", file=sys.stderr)
+        return 2
+    return run_decode(file, summary_only, sys.stdout, sys.stderr)
