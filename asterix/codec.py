@@ -134,7 +134,9 @@ def decode_blocks(data: bytes, offset: int = 0) -> Iterator[Block | DecodeError]
         length = int.from_bytes(data[pos + 1 : pos + 3])
         if length < 3 or pos + length > size:
             yield DecodeError(
-                offset + pos, cat, f"block length {length} does not fit the {size - pos} octets left"
+                offset + pos,
+                cat,
+                f"block length {length} does not fit the {size - pos} octets left",
             )
             return
         end = pos + length
@@ -152,7 +154,9 @@ def decode_blocks(data: bytes, offset: int = 0) -> Iterator[Block | DecodeError]
             try:
                 items, p = category.decode_record(data, p, end)
             except Malformed as exc:
-                error = DecodeError(offset + exc.offset, cat, f"record {len(records)}: {exc.reason}")
+                error = DecodeError(
+                    offset + exc.offset, cat, f"record {len(records)}: {exc.reason}"
+                )
                 break
             records.append(items)
         yield Block(cat, offset + pos, records)

@@ -19,7 +19,6 @@ from typing import Any
 from asterix import spec
 from asterix.spec import (
     Bds,
-    Case,
     Compound,
     Content,
     Element,
@@ -41,7 +40,7 @@ Decoder = Callable[[bytes, int, int], tuple[Any, int]]
 Encoder = Callable[[Any], bytes]
 
 
-class Malformed(Exception):  # noqa: N818 - an internal signal, turned into DecodeError events
+class Malformed(Exception):
     """Raised by generated decoders; ``offset`` is where in the buffer the trouble is."""
 
     def __init__(self, offset: int, reason: str) -> None:
@@ -126,11 +125,10 @@ def _ascii_raw(text: str, chars: int) -> int:
 
 
 def _int_raw(value: Any, bits: int, signed: bool, where: str) -> int:
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
     if isinstance(value, bool) or not isinstance(value, int):
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        else:
-            raise EncodeError(f"{where}: {value!r} is not an integer")
+        raise EncodeError(f"{where}: {value!r} is not an integer")
     low, high = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
     if not low <= value <= high:
         raise EncodeError(f"{where}: {value} is outside {low}..{high}")
@@ -211,7 +209,9 @@ def _lsb_literal(lsb: Fraction) -> str:
 def _decode_expr(raw: str, leaf: _Leaf, siblings: dict[str, str]) -> str:
     """Python expression giving a leaf's value from the expression of its raw bits."""
     content, bits = leaf.content, leaf.bits
-    if isinstance(content, Table | Integer) and not (isinstance(content, Integer) and content.signed):
+    if isinstance(content, Table | Integer) and not (
+        isinstance(content, Integer) and content.signed
+    ):
         return raw
     if isinstance(content, Integer):  # signed
         half = 1 << (bits - 1)
@@ -265,7 +265,9 @@ def _encode_expr(value: str, leaf: _Leaf, siblings: dict[str, str], where: str) 
         raise spec.SpecError(f"case selector {'/'.join(content.selector)} is not a sibling")
     expr = _encode_expr(value, _Leaf(leaf.path, leaf.shift, bits, content.default), siblings, where)
     for case_value, chosen in reversed(content.cases):
-        chosen_expr = _encode_expr(value, _Leaf(leaf.path, leaf.shift, bits, chosen), siblings, where)
+        chosen_expr = _encode_expr(
+            value, _Leaf(leaf.path, leaf.shift, bits, chosen), siblings, where
+        )
         expr = f"({chosen_expr} if ({selector}) == {case_value} else {expr})"
     return expr
 
@@ -323,14 +325,23 @@ class _Generator:
             placed = f" << {shift}" if shift else ""
             if isinstance(f.variation, Group):
                 sub = self.w.name("g")
-                body += [f"{sub} = {v}.get({f.name!r})", f"if {sub} is not None:", f"    n_{sub} = 0"]
-                inner = self.fixed_raw(f.variation.fields, bits, sub, f"{path}/{f.name}", f"n_{sub}")
+                body += [
+                    f"{sub} = {v}.get({f.name!r})",
+                    f"if {sub} is not None:",
+                    f"    n_{sub} = 0",
+                ]
+                inner = self.fixed_raw(
+                    f.variation.fields, bits, sub, f"{path}/{f.name}", f"n_{sub}"
+                )
                 body += ["    " + line for line in inner]
                 body.append(f"    {target} |= n_{sub}{placed}")
             else:
                 leaf = _Leaf((f.name,), shift, bits, _element(f).content)
                 expr = _encode_expr("val", leaf, siblings, f"{path}/{f.name}")
-                body += [f"val = {v}.get({f.name!r})", f"if val is not None: {target} |= {expr}{placed}"]
+                body += [
+                    f"val = {v}.get({f.name!r})",
+                    f"if val is not None: {target} |= {expr}{placed}",
+                ]
         return body
 
     def read_int(self, octets: int) -> str:
@@ -396,8 +407,10 @@ class _Generator:
         count = len(variation.extents)
         for i, extent in enumerate(variation.extents):
             has_fx = i < count - 1 or variation.last_has_fx
-            bits = sum(spec.fixed_bits(f.variation) or 0 if isinstance(f, Named) else f.bits
-                       for f in extent) + (1 if has_fx else 0)
+            bits = sum(
+                spec.fixed_bits(f.variation) or 0 if isinstance(f, Named) else f.bits
+                for f in extent
+            ) + (1 if has_fx else 0)
             octets = bits // 8
             fields = (*extent, Spare(1)) if has_fx else extent
             body += [
@@ -413,10 +426,11 @@ class _Generator:
             enc_body += self.fixed_raw(fields, bits, "part", path)
             if has_fx:
                 enc_body.append(f"more = not v.keys().isdisjoint({self.w.const(later, 'keys')})")
-                enc_body.append("out.append((n | more).to_bytes(%d))" % octets)
+                enc_body.append(f"out.append((n | more).to_bytes({octets}))")
                 enc_body.append("if not more: return b''.join(out)")
                 if i == count - 1:
-                    body.append(f"{indent}if n & 1: raise Malformed(p - 1, 'FX set in last extent of {path}')")
+                    reason = repr(f"FX set in the last extent of {path}")
+                    body.append(f"{indent}if n & 1: raise Malformed(p - 1, {reason})")
                 else:
                     body.append(f"{indent}if n & 1:")
                     indent += "    "
@@ -438,8 +452,11 @@ class _Generator:
         dec, enc = self.w.name("d"), self.w.name("e")
         if variation.counter_octets:
             octets, c = bits // 8, variation.counter_octets
-            value = (_decode_expr("n", _Leaf(("_",), 0, bits, _element(fields[0]).content), {})
-                     if single else self.fixed_value(fields, bits, "n", path))
+            value = (
+                _decode_expr("n", _Leaf(("_",), 0, bits, _element(fields[0]).content), {})
+                if single
+                else self.fixed_value(fields, bits, "n", path)
+            )
             self.w.function(
                 f"{dec}(b, p, end)",
                 [
@@ -459,7 +476,8 @@ class _Generator:
             self.w.function(
                 f"{enc}(v)",
                 [
-                    f"if not isinstance(v, list): raise EncodeError({path!r} + ': expected a list')",
+                    "if not isinstance(v, list):",
+                    f"    raise EncodeError({path!r} + ': expected a list')",
                     f"return len(v).to_bytes({c}) + b''.join({item_enc}(x) for x in v)",
                 ],
             )
@@ -504,7 +522,7 @@ class _Generator:
         return dec, enc
 
     def compound(self, variation: Compound, path: str) -> tuple[str, str]:
-        slots = []
+        slots: list[tuple[str, str, str] | None] = []
         for slot in variation.slots:
             if slot is None:
                 slots.append(None)
@@ -528,7 +546,8 @@ class _Generator:
             [
                 "if p >= end: raise _short(p, 1, end)",
                 "n = b[p]",
-                f"if n < 1 or p + n > end: raise Malformed(p, 'explicit length ' + str(n) + ' of {path} does not fit')",
+                "if n < 1 or p + n > end:",
+                f"    raise Malformed(p, f'explicit length {{n}} of {path} does not fit')",
                 f"return _decode_explicit(b, p + 1, p + n, {content}), p + n",
             ],
         )
@@ -719,7 +738,7 @@ def compile_category(category: spec.Category) -> CompiledCategory:
     source = "\n".join(gen.w.lines)
     namespace: dict[str, Any] = dict(_RUNTIME)
     namespace.update(gen.w.constants)
-    exec(compile(source, f"<asterix CAT{category.number:03d}>", "exec"), namespace)  # noqa: S102
+    exec(compile(source, f"<asterix CAT{category.number:03d}>", "exec"), namespace)
     # Compound slot tables were stored as names; resolve them to the compiled functions.
     for key, value in gen.w.constants.items():
         if key.startswith("slots"):
@@ -769,9 +788,7 @@ def skipper(variation: Variation) -> int | Skipper:
     if bits is not None:
         return bits // 8
     if isinstance(variation, Extended):
-        sizes = [
-            (sum(_field_bits(f) for f in extent) + 1) // 8 for extent in variation.extents
-        ]
+        sizes = [(sum(_field_bits(f) for f in extent) + 1) // 8 for extent in variation.extents]
         if not variation.last_has_fx:
             sizes[-1] = sum(_field_bits(f) for f in variation.extents[-1]) // 8
         return _fx_chain_skipper(tuple(sizes), variation.last_has_fx, repeat=False)

@@ -118,7 +118,7 @@ def _field(
 
 
 _FIELDS = tuple(_locate(c) for c in COLUMNS)
-_ITEMS = tuple(dict.fromkeys(c.item for c in COLUMNS)) + ("240", "RE")
+_ITEMS = (*dict.fromkeys(c.item for c in COLUMNS), "240", "RE")
 _SLOT = {key: i + 1 for i, key in enumerate(_ITEMS)}  # slot 0 holds the record offset
 
 PLOT_DTYPE = np.dtype(

@@ -189,7 +189,7 @@ class _Parser:
         head = self.take()
         match = _NAMED.match(head.text)
         if not match:
-            raise self.fail(head, "expected NAME \"title\"")
+            raise self.fail(head, 'expected NAME "title"')
         variation: Variation | None = None
         while (line := self.peek()) is not None and line.indent > head.indent:
             if line.text in _TEXT_BLOCKS:
@@ -336,7 +336,7 @@ def parse_category(text: str) -> Category:
     header = parser.take()
     match = re.match(r'^asterix (\d+) "(.*)"$', header.text)
     if not match:
-        raise parser.fail(header, "expected: asterix NNN \"title\"")
+        raise parser.fail(header, 'expected: asterix NNN "title"')
     number, title = int(match.group(1)), match.group(2)
     edition = ""
     items: dict[str, Named] = {}
@@ -367,7 +367,7 @@ def parse_expansion(text: str) -> tuple[int, str, Compound]:
     header = parser.take()
     match = re.match(r'^ref (\d+) "(.*)"$', header.text)
     if not match:
-        raise parser.fail(header, "expected: ref NNN \"title\"")
+        raise parser.fail(header, 'expected: ref NNN "title"')
     edition = ""
     compound: Variation | None = None
     while (line := parser.peek()) is not None:
@@ -462,7 +462,5 @@ def category(number: int) -> Category:
         ref_cat, _, expansion = parse_expansion(_read(ref_file))
         if ref_cat != number:
             raise SpecError(f"{ref_file} is for category {ref_cat}")
-        spec = Category(
-            spec.number, spec.title, spec.edition, spec.items, spec.uap, expansion
-        )
+        spec = Category(spec.number, spec.title, spec.edition, spec.items, spec.uap, expansion)
     return spec

@@ -27,10 +27,15 @@ def differences(oracle: Any, ours: Any, path: str = "") -> list[str]:
     if isinstance(oracle, list):
         if not isinstance(ours, list) or len(ours) != len(oracle):
             return [f"{path}: {oracle!r} != {ours!r}"]
-        return [d for i, (o, m) in enumerate(zip(oracle, ours, strict=True))
-                for d in differences(o, m, f"{path}[{i}]")]
+        return [
+            d
+            for i, (o, m) in enumerate(zip(oracle, ours, strict=True))
+            for d in differences(o, m, f"{path}[{i}]")
+        ]
     if isinstance(oracle, float):
-        ok = isinstance(ours, int | float) and math.isclose(oracle, ours, rel_tol=1e-9, abs_tol=1e-9)
+        ok = isinstance(ours, int | float) and math.isclose(
+            oracle, ours, rel_tol=1e-9, abs_tol=1e-9
+        )
         return [] if ok else [f"{path}: {oracle!r} != {ours!r}"]
     if isinstance(oracle, int) and isinstance(ours, str):
         try:

@@ -57,10 +57,9 @@ def _blocks(relative: str) -> Iterator[tuple[Datagram, Block | DecodeError]]:
 
 
 def _records(relative: str) -> list[dict[str, Any]]:
-    out, block = [], 0
-    for _, event in _blocks(relative):
+    out = []
+    for block, (_, event) in enumerate(_blocks(relative), 1):
         assert isinstance(event, Block), event
-        block += 1
         if event.cat in ORACLE_CATEGORIES:
             out += [
                 {"cat": event.cat, "block": block, "record": i, "items": items}
@@ -84,7 +83,9 @@ def test_every_item_matches_the_oracle(relative: str) -> None:
     problems = []
     for expected, got in zip(oracle, ours, strict=True):
         assert (got["cat"], got["block"], got["record"]) == (
-            expected["cat"], expected["block"], expected["record"]
+            expected["cat"],
+            expected["block"],
+            expected["record"],
         )
         diff = differences(expected["items"], got["items"])
         if diff:
@@ -174,8 +175,11 @@ def test_every_block_re_encodes_to_identical_bytes(relative: str) -> None:
 
 
 def test_dual_lan_capture_identifies_duplicate_payloads() -> None:
-    payloads = [u.payload for u in read_file(shared_file("croatiacontrol/cat_034_048.pcap"))
-                if isinstance(u, Datagram)]
+    payloads = [
+        u.payload
+        for u in read_file(shared_file("croatiacontrol/cat_034_048.pcap"))
+        if isinstance(u, Datagram)
+    ]
     assert len(payloads) == 100 and len(set(payloads)) == 50
 
 
@@ -186,8 +190,10 @@ def test_plot_extraction_gives_the_general_decoders_values(relative: str) -> Non
         batch = extract_plots(unit.payload, unit.offset)
         assert batch.errors == []
         records = [
-            items for event in decode_blocks(unit.payload) if isinstance(event, Block)
-            and event.cat == 48 for items in event.records
+            items
+            for event in decode_blocks(unit.payload)
+            if isinstance(event, Block) and event.cat == 48
+            for items in event.records
         ]
         assert len(batch.plots) == len(records)
         for plot, items in zip(batch.plots, records, strict=True):
@@ -198,7 +204,7 @@ def _assert_plot_matches(plot: Any, items: dict[str, Any]) -> None:
     def same(column: str, value: Any) -> None:
         got = plot[column].item()
         if value is None:
-            assert (np.isnan(got) if isinstance(got, float) else got == -1), column
+            assert np.isnan(got) if isinstance(got, float) else got == -1, column
         else:
             assert got == value, (column, got, value)
 
@@ -208,8 +214,13 @@ def _assert_plot_matches(plot: Any, items: dict[str, Any]) -> None:
     same("sac", element("010", "SAC"))
     same("sic", element("010", "SIC"))
     same("time_of_day", items.get("140"))
-    for column, name in (("typ", "TYP"), ("sim", "SIM"), ("spi", "SPI"), ("rab", "RAB"),
-                         ("tst", "TST")):
+    for column, name in (
+        ("typ", "TYP"),
+        ("sim", "SIM"),
+        ("spi", "SPI"),
+        ("rab", "RAB"),
+        ("tst", "TST"),
+    ):
         same(column, element("020", name))
     extended = items.get("RE", {}).get("ERR") if isinstance(items.get("RE"), dict) else None
     same("rho", extended if extended is not None else element("040", "RHO"))

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-from asterix import Block, DecodeError
+from asterix import DecodeError
 from asterix.codec import decode_blocks
 from asterix.containers import ContainerError, Datagram, read_file
 from tracker_service.ingest import DuplicateFilter
@@ -68,8 +68,12 @@ def _error_json(event: DecodeError | ContainerError) -> str:
     if isinstance(event, ContainerError):
         return json.dumps({"error": "container", "offset": event.offset, "reason": event.reason})
     return json.dumps(
-        {"error": "decode", "offset": event.offset, "category": event.category,
-         "reason": event.reason}
+        {
+            "error": "decode",
+            "offset": event.offset,
+            "category": event.category,
+            "reason": event.reason,
+        }
     )
 
 

@@ -10,7 +10,6 @@ import hashlib
 from collections import OrderedDict
 from dataclasses import dataclass
 
-
 _MAX_REMEMBERED = 100_000
 
 
