@@ -5,7 +5,7 @@ For every item of a category it writes the Python source of a decoder
 them once. Generated straight-line code (one ``int.from_bytes`` per octet run, shifts and
 masks per element, LSB products as float literals) is several times faster than walking
 the model at run time, and there is still one place where structure is interpreted: here.
-``source_of`` shows the generated code for a category, for reading and debugging.
+``CompiledCategory.source`` holds the generated code of a category, for reading and debugging.
 """
 
 from __future__ import annotations

@@ -22,8 +22,8 @@ from asterix import (
     decode_blocks,
     encode_block,
     encode_record,
+    spec,
 )
-from asterix import spec
 from asterix.engine import _ICAO
 from asterix.plots import extract_plots
 from asterix.spec import (
@@ -67,8 +67,9 @@ def _content(content: Content, bits: int, siblings: dict[str, Any]) -> st.Search
         if content.kind == "icao":
             return st.text(alphabet=_ICAO, min_size=bits // 6, max_size=bits // 6)
         if content.kind == "ascii":
-            return st.text(alphabet=st.characters(max_codepoint=255), min_size=bits // 8,
-                           max_size=bits // 8)
+            return st.text(
+                alphabet=st.characters(max_codepoint=255), min_size=bits // 8, max_size=bits // 8
+            )
         digits = [3] * (bits // 3) + ([bits % 3] if bits % 3 else [])
         return st.tuples(*(st.integers(0, (1 << w) - 1) for w in digits)).map(
             lambda ds: "".join(str(d) for d in ds)
@@ -96,8 +97,11 @@ def _variation(variation: Variation, siblings: dict[str, Any] | None = None) -> 
             lambda n: _fields(tuple(f for ext in variation.extents[:n] for f in ext))
         )
     if isinstance(variation, Repetitive):
-        return st.lists(_variation(variation.variation), min_size=0 if variation.counter_octets
-                        else 1, max_size=3)
+        return st.lists(
+            _variation(variation.variation),
+            min_size=0 if variation.counter_octets else 1,
+            max_size=3,
+        )
     if isinstance(variation, Compound):
         present = [s for s in variation.slots if s is not None]
         return st.lists(st.sampled_from(present), unique=True, min_size=1, max_size=4).flatmap(
@@ -181,20 +185,50 @@ def test_callsign_with_invalid_characters_survives_a_round_trip() -> None:
 # --- robustness ---------------------------------------------------------------------------
 
 _SEED_RECORDS = {
-    48: {"010": {"SAC": 25, "SIC": 201}, "140": 27354.6015625, "020": {"TYP": 5, "TST": 0},
-         "040": {"RHO": 197.68359375, "THETA": 340.13671875}, "070": {"MODE3A": "1000"},
-         "090": {"FL": 330.0}, "130": {"SRL": 0.5, "SAM": -70.0}, "220": "3C660C",
-         "240": "DLH65A  ", "250": [{"MBDATA": "C0780031BC0000", "BDS1": 4, "BDS2": 0}],
-         "161": {"TRN": 3563}, "200": {"GSP": 0.12, "HDG": 124.0}, "170": {"CNF": 0},
-         "030": [1, 3], "RE": {"ERR": 300.0}, "SP": "0102"},
-    34: {"010": {"SAC": 25, "SIC": 14}, "000": 2, "030": 29906.3359375, "020": 90.0,
-         "050": {"COM": {"NOGO": 0}, "SSR": {"ANT": 0}}},
-    62: {"010": {"SAC": 25, "SIC": 100}, "015": 4, "070": 30911.66, "040": 4980,
-         "105": {"LAT": 44.7, "LON": 13.0}, "080": {"MON": 0, "CST": 1},
-         "380": {"ADR": "3C660C", "ID": "DLH65A  "}, "340": {"SID": {"SAC": 25, "SIC": 13}}},
+    48: {
+        "010": {"SAC": 25, "SIC": 201},
+        "140": 27354.6015625,
+        "020": {"TYP": 5, "TST": 0},
+        "040": {"RHO": 197.68359375, "THETA": 340.13671875},
+        "070": {"MODE3A": "1000"},
+        "090": {"FL": 330.0},
+        "130": {"SRL": 0.5, "SAM": -70.0},
+        "220": "3C660C",
+        "240": "DLH65A  ",
+        "250": [{"MBDATA": "C0780031BC0000", "BDS1": 4, "BDS2": 0}],
+        "161": {"TRN": 3563},
+        "200": {"GSP": 0.12, "HDG": 124.0},
+        "170": {"CNF": 0},
+        "030": [1, 3],
+        "RE": {"ERR": 300.0},
+        "SP": "0102",
+    },
+    34: {
+        "010": {"SAC": 25, "SIC": 14},
+        "000": 2,
+        "030": 29906.3359375,
+        "020": 90.0,
+        "050": {"COM": {"NOGO": 0}, "SSR": {"ANT": 0}},
+    },
+    62: {
+        "010": {"SAC": 25, "SIC": 100},
+        "015": 4,
+        "070": 30911.66,
+        "040": 4980,
+        "105": {"LAT": 44.7, "LON": 13.0},
+        "080": {"MON": 0, "CST": 1},
+        "380": {"ADR": "3C660C", "ID": "DLH65A  "},
+        "340": {"SID": {"SAC": 25, "SIC": 13}},
+    },
     65: {"010": {"SAC": 25, "SIC": 100}, "000": 2, "015": 4, "030": 30913.0546875},
-    21: {"010": {"SAC": 0, "SIC": 1}, "040": {"ATP": 0, "GBS": 1}, "080": "3C660C",
-         "130": {"LAT": 61.4, "LON": -7.8}, "170": "DLH65A  ", "RE": {"SGV": {"STP": 1}}},
+    21: {
+        "010": {"SAC": 0, "SIC": 1},
+        "040": {"ATP": 0, "GBS": 1},
+        "080": "3C660C",
+        "130": {"LAT": 61.4, "LON": -7.8},
+        "170": "DLH65A  ",
+        "RE": {"SGV": {"STP": 1}},
+    },
 }
 _SEED = b"".join(encode_block(cat, [rec, rec]) for cat, rec in _SEED_RECORDS.items())
 
@@ -227,8 +261,9 @@ def test_random_cat048_blocks_never_crash_the_decoder(data: bytes) -> None:
 
 @settings(max_examples=600, deadline=None)
 @given(
-    st.lists(st.tuples(st.integers(0, len(_SEED) - 1), st.integers(0, 255)), min_size=1,
-             max_size=8),
+    st.lists(
+        st.tuples(st.integers(0, len(_SEED) - 1), st.integers(0, 255)), min_size=1, max_size=8
+    ),
     st.integers(0, len(_SEED)),
 )
 def test_mutated_records_never_crash_the_decoder(

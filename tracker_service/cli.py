@@ -25,6 +25,11 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="decode everything but print only counts, duplicates, time span and errors",
     )
+    decode.add_argument(
+        "--bds",
+        action="store_true",
+        help='add the named fields of Mode S BDS 4,0/5,0/6,0 registers to I048/250 ("BDS")',
+    )
     return parser
 
 
@@ -34,7 +39,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tracker_service.decode import main as decode_main
 
         try:
-            return decode_main(args.path, args.summary)
+            return decode_main(args.path, args.summary, args.bds)
         except BrokenPipeError:
             # `decode ... | head` closes the pipe early; that is not an error.
             sys.stderr.close()

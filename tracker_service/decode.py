@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from asterix import DecodeError
+from asterix.bds import decode_mb, infer_register
 from asterix.codec import decode_blocks
 from asterix.containers import ContainerError, Datagram, read_file
 from tracker_service.ingest import DuplicateFilter
@@ -64,6 +65,21 @@ class Summary:
         }
 
 
+def add_bds_fields(items: dict[str, Any]) -> None:
+    """Name the fields of BDS 4,0/5,0/6,0 registers in I048/250 under the key "BDS".
+
+    Registers sent by Comm-B broadcast carry BDS 0,0; their kind is inferred when only one
+    of the three registers is plausible.
+    """
+    for entry in items.get("250", ()):
+        mb, bds1, bds2 = int(entry["MBDATA"], 16), entry["BDS1"], entry["BDS2"]
+        if (bds1, bds2) == (0, 0) and (register := infer_register(mb)) is not None:
+            bds1, bds2 = (int(part) for part in register.split(","))
+        fields = decode_mb(mb, bds1, bds2)
+        if fields is not None:
+            entry["BDS"] = fields
+
+
 def _error_json(event: DecodeError | ContainerError) -> str:
     if isinstance(event, ContainerError):
         return json.dumps({"error": "container", "offset": event.offset, "reason": event.reason})
@@ -77,7 +93,7 @@ def _error_json(event: DecodeError | ContainerError) -> str:
     )
 
 
-def run_decode(path: Path, summary_only: bool, out: TextIO, err: TextIO) -> int:
+def run_decode(path: Path, summary_only: bool, out: TextIO, err: TextIO, bds: bool = False) -> int:
     summary = Summary()
     duplicates = DuplicateFilter()
     block_number = 0
@@ -107,6 +123,8 @@ def run_decode(path: Path, summary_only: bool, out: TextIO, err: TextIO) -> int:
                 summary.add_record(event.cat, items, duplicate)
                 if summary_only:
                     continue
+                if bds and event.cat == 48:
+                    add_bds_fields(items)
                 record: dict[str, Any] = {
                     "cat": event.cat,
                     "block": block_number,
@@ -123,9 +141,9 @@ def run_decode(path: Path, summary_only: bool, out: TextIO, err: TextIO) -> int:
     return 0
 
 
-def main(path: str, summary_only: bool) -> int:
+def main(path: str, summary_only: bool, bds: bool = False) -> int:
     file = Path(path)
     if not file.is_file():
         print(f"tracker-service decode: {path}: no such file", file=sys.stderr)
         return 2
-    return run_decode(file, summary_only, sys.stdout, sys.stderr)
+    return run_decode(file, summary_only, sys.stdout, sys.stderr, bds)
