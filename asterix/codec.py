@@ -15,6 +15,7 @@ from typing import Any
 
 from asterix import spec
 from asterix.engine import (
+    _PLAN_CACHE_LIMIT,
     CompiledCategory,
     Decoder,
     EncodeError,
@@ -25,10 +26,6 @@ from asterix.engine import (
 )
 
 SUPPORTED_CATEGORIES = tuple(sorted(spec.SPEC_FILES))
-
-# A bound on the FSPEC plans cached per category: real feeds use a few dozen, and random
-# input must not grow the cache without limit.
-_PLAN_CACHE_LIMIT = 4096
 
 
 @dataclass(frozen=True, slots=True)

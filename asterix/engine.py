@@ -777,6 +777,9 @@ def _rebind_expansion(
 
 Skipper = Callable[[bytes, int, int], int]
 
+# A bound on per-FSPEC caches: real feeds use a few dozen FSPECs, random input many more.
+_PLAN_CACHE_LIMIT = 4096
+
 
 def skipper(variation: Variation) -> int | Skipper:
     """How to step over an item: its size in octets when fixed, else a function of the bytes.
@@ -814,13 +817,28 @@ def skipper(variation: Variation) -> int | Skipper:
         slots = tuple(None if s is None else skipper(s.variation) for s in variation.slots)
         fixed = variation.fspec_octets
 
+        # Sizes of the subfields an FSPEC names, when all are fixed: the common case
+        # (I048/130) then costs one dict look-up.
+        fixed_sizes: dict[bytes, int] = {}
+
         def skip_compound(b: bytes, p: int, end: int) -> int:
             q = _read_fspec(b, p, end, fixed, len(slots), "compound")
-            for index in _fspec_slots(b[p:q], bool(fixed)):
-                step = slots[index] if index < len(slots) else None
-                if step is None:
-                    raise Malformed(p, f"FSPEC names undefined subfield {index + 1}")
-                q = q + step if isinstance(step, int) else step(b, q, end)
+            fspec = b[p:q]
+            size = fixed_sizes.get(fspec)
+            if size is not None:
+                q += size
+            else:
+                start, variable = q, False
+                for index in _fspec_slots(fspec, bool(fixed)):
+                    step = slots[index] if index < len(slots) else None
+                    if step is None:
+                        raise Malformed(p, f"FSPEC names undefined subfield {index + 1}")
+                    if isinstance(step, int):
+                        q += step
+                    else:
+                        q, variable = step(b, q, end), True
+                if not variable and len(fixed_sizes) < _PLAN_CACHE_LIMIT:
+                    fixed_sizes[fspec] = q - start
             if q > end:
                 raise _short(p, q - p, end)
             return q

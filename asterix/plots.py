@@ -18,7 +18,7 @@ import numpy.typing as npt
 
 from asterix import spec
 from asterix.codec import DecodeError, codec
-from asterix.engine import _ICAO, Malformed, Skipper, _layout, skipper
+from asterix.engine import _ICAO, _PLAN_CACHE_LIMIT, Malformed, Skipper, _layout, skipper
 from asterix.spec import Element, Extended, Group, Integer, Named, Quantity, Spare, String
 
 CAT = 48
@@ -167,7 +167,7 @@ class _Walker:
                     plan.append(self.steps[frn])
         if not plan:
             raise Malformed(p, "empty FSPEC")
-        if len(self.plans) < 4096:
+        if len(self.plans) < _PLAN_CACHE_LIMIT:
             self.plans[fspec] = tuple(plan)
         return tuple(plan)
 
