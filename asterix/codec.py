@@ -15,7 +15,7 @@ from typing import Any
 
 from asterix import spec
 from asterix.engine import (
-    _PLAN_CACHE_LIMIT,
+    PLAN_CACHE_LIMIT,
     CompiledCategory,
     Decoder,
     EncodeError,
@@ -70,7 +70,7 @@ class CategoryCodec:
                     plan.append((slot[0], slot[1]))
         if not plan:
             raise Malformed(offset, "empty FSPEC")
-        if len(self._plans) < _PLAN_CACHE_LIMIT:
+        if len(self._plans) < PLAN_CACHE_LIMIT:
             self._plans[fspec] = tuple(plan)
         return tuple(plan)
 

@@ -55,11 +55,11 @@ class EncodeError(ValueError):
 
 # --- helpers the generated code calls ---------------------------------------------------
 
-_ICAO = "@ABCDEFGHIJKLMNOPQRSTUVWXYZ[\\]^_ !\"#$%&'()*+,-./0123456789:;<=>?"
+ICAO_CHARACTERS = "@ABCDEFGHIJKLMNOPQRSTUVWXYZ[\\]^_ !\"#$%&'()*+,-./0123456789:;<=>?"
 # The 6-bit code is the low six bits of IA-5 (ICAO Annex 10): A-Z, space, 0-9 are the
 # valid characters. The other codes decode to the remaining characters of the same
 # IA-5 columns, so that nothing is lost and a garbled callsign re-encodes to its bytes.
-_ICAO_CODE = {c: i for i, c in enumerate(_ICAO)}
+_ICAO_CODE = {c: i for i, c in enumerate(ICAO_CHARACTERS)}
 
 
 def _short(pos: int, need: int, end: int) -> Malformed:
@@ -67,7 +67,7 @@ def _short(pos: int, need: int, end: int) -> Malformed:
 
 
 def _icao(raw: int, chars: int) -> str:
-    return "".join(_ICAO[(raw >> (6 * (chars - 1 - i))) & 63] for i in range(chars))
+    return "".join(ICAO_CHARACTERS[(raw >> (6 * (chars - 1 - i))) & 63] for i in range(chars))
 
 
 def _icao_raw(text: str, chars: int) -> int:
@@ -272,7 +272,7 @@ def _encode_expr(value: str, leaf: _Leaf, siblings: dict[str, str], where: str) 
     return expr
 
 
-def _layout(fields: tuple[Named | Spare, ...], total: int) -> Iterator[tuple[Named, int, int]]:
+def field_layout(fields: tuple[Named | Spare, ...], total: int) -> Iterator[tuple[Named, int, int]]:
     """(field, shift, bits) of each named field of a fixed run of ``total`` bits."""
     offset = 0
     for f in fields:
@@ -301,7 +301,7 @@ class _Generator:
         """Expression building the decoded value of a run of fields held in integer ``n``."""
         siblings: dict[str, str] = {}
         parts = []
-        for f, shift, bits in _layout(fields, total):
+        for f, shift, bits in field_layout(fields, total):
             raw = f"({n} >> {shift}) & {(1 << bits) - 1}" if shift else f"{n} & {(1 << bits) - 1}"
             if isinstance(f.variation, Group):
                 expr = self.fixed_value(f.variation.fields, bits, f"({raw})", f"{path}/{f.name}")
@@ -317,7 +317,7 @@ class _Generator:
         self, fields: tuple[Named | Spare, ...], total: int, v: str, path: str, target: str = "n"
     ) -> list[str]:
         """Statements OR-ing into ``target`` the raw bits of the fields held in dict ``v``."""
-        layout = list(_layout(fields, total))
+        layout = list(field_layout(fields, total))
         allowed = self.w.const(frozenset(f.name for f, _, _ in layout), "keys")
         body = [f"{v} = _check_keys({v}, {allowed}, {path!r})"]
         siblings = {f.name: f"{v}.get({f.name!r}, 0)" for f, _, _ in layout}
@@ -778,7 +778,7 @@ def _rebind_expansion(
 Skipper = Callable[[bytes, int, int], int]
 
 # A bound on per-FSPEC caches: real feeds use a few dozen FSPECs, random input many more.
-_PLAN_CACHE_LIMIT = 4096
+PLAN_CACHE_LIMIT = 4096
 
 
 def skipper(variation: Variation) -> int | Skipper:
@@ -837,7 +837,7 @@ def skipper(variation: Variation) -> int | Skipper:
                         q += step
                     else:
                         q, variable = step(b, q, end), True
-                if not variable and len(fixed_sizes) < _PLAN_CACHE_LIMIT:
+                if not variable and len(fixed_sizes) < PLAN_CACHE_LIMIT:
                     fixed_sizes[fspec] = q - start
             if q > end:
                 raise _short(p, q - p, end)

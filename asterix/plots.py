@@ -18,7 +18,14 @@ import numpy.typing as npt
 
 from asterix import spec
 from asterix.codec import DecodeError, codec
-from asterix.engine import _ICAO, _PLAN_CACHE_LIMIT, Malformed, Skipper, _layout, skipper
+from asterix.engine import (
+    ICAO_CHARACTERS,
+    PLAN_CACHE_LIMIT,
+    Malformed,
+    Skipper,
+    field_layout,
+    skipper,
+)
 from asterix.spec import Element, Extended, Group, Integer, Named, Quantity, Spare, String
 
 CAT = 48
@@ -83,7 +90,7 @@ def _locate(column: Column) -> _Field:
         for index, extent in enumerate(variation.extents):
             fields: tuple[Named | Spare, ...] = (*extent, Spare(1))
             octets = sum(_bits(f) for f in fields) // 8
-            for f, shift, bits in _layout(fields, octets * 8):
+            for f, shift, bits in field_layout(fields, octets * 8):
                 if f.name == column.path[0]:
                     return _field(column, offset, octets, shift, bits, index, f)
             offset += octets
@@ -93,7 +100,7 @@ def _locate(column: Column) -> _Field:
     if not column.path:
         return _field(column, 0, total // 8, 0, total, 0, item)
     fields = variation.fields if isinstance(variation, Group) else ()
-    for f, shift, bits in _layout(fields, total):
+    for f, shift, bits in field_layout(fields, total):
         if f.name == column.path[0]:
             return _field(column, 0, total // 8, shift, bits, 0, f)
     raise KeyError(column)
@@ -167,7 +174,7 @@ class _Walker:
                     plan.append(self.steps[frn])
         if not plan:
             raise Malformed(p, "empty FSPEC")
-        if len(self.plans) < _PLAN_CACHE_LIMIT:
+        if len(self.plans) < PLAN_CACHE_LIMIT:
             self.plans[fspec] = tuple(plan)
         return tuple(plan)
 
@@ -270,7 +277,7 @@ def _column(buf: npt.NDArray[np.uint8], starts: npt.NDArray[np.int64], f: _Field
     return out_int
 
 
-_ICAO_TABLE = np.array(list(_ICAO))
+_ICAO_TABLE = np.array(list(ICAO_CHARACTERS))
 
 
 def _callsigns(buf: npt.NDArray[np.uint8], starts: npt.NDArray[np.int64]) -> Any:

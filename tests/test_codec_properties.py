@@ -24,7 +24,7 @@ from asterix import (
     encode_record,
     spec,
 )
-from asterix.engine import _ICAO
+from asterix.engine import ICAO_CHARACTERS
 from asterix.plots import extract_plots
 from asterix.spec import (
     Bds,
@@ -65,7 +65,7 @@ def _content(content: Content, bits: int, siblings: dict[str, Any]) -> st.Search
         return raw.map(lambda r: f"{r:0{bits // 4}X}")
     if isinstance(content, String):
         if content.kind == "icao":
-            return st.text(alphabet=_ICAO, min_size=bits // 6, max_size=bits // 6)
+            return st.text(alphabet=ICAO_CHARACTERS, min_size=bits // 6, max_size=bits // 6)
         if content.kind == "ascii":
             return st.text(
                 alphabet=st.characters(max_codepoint=255), min_size=bits // 8, max_size=bits // 8
