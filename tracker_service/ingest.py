@@ -43,7 +43,9 @@ class DuplicateFilter:
         while self._seen:
             count, seen_at = next(iter(self._seen.values()))
             if time is not None and seen_at is not None:
-                expired = time - seen_at > self.window.seconds
+                # Either way: a copy may be stamped a little before the original, and a
+                # jump back (midnight, a new capture) must end the window too.
+                expired = abs(time - seen_at) > self.window.seconds
             else:
                 expired = self._count - count >= self.window.datagrams
             # A bound on memory whatever the times say (a clock that stands still).
