@@ -39,6 +39,9 @@ from asterix.spec import (
 Decoder = Callable[[bytes, int, int], tuple[Any, int]]
 Encoder = Callable[[Any], bytes]
 
+# A bound on per-FSPEC caches: real feeds use a few dozen FSPECs, random input many more.
+PLAN_CACHE_LIMIT = 4096
+
 
 class Malformed(Exception):
     """Raised by generated decoders; ``offset`` is where in the buffer the trouble is."""
@@ -66,8 +69,14 @@ def _short(pos: int, need: int, end: int) -> Malformed:
     return Malformed(pos, f"item needs {need} octets, {max(end - pos, 0)} left")
 
 
+# Two characters per look-up: a callsign is four look-ups instead of eight.
+_ICAO_PAIRS = tuple(a + b for a in ICAO_CHARACTERS for b in ICAO_CHARACTERS)
+
+
 def _icao(raw: int, chars: int) -> str:
-    return "".join(ICAO_CHARACTERS[(raw >> (6 * (chars - 1 - i))) & 63] for i in range(chars))
+    if chars % 2:
+        return "".join(ICAO_CHARACTERS[(raw >> (6 * (chars - 1 - i))) & 63] for i in range(chars))
+    return "".join(_ICAO_PAIRS[(raw >> (12 * i)) & 4095] for i in range(chars // 2 - 1, -1, -1))
 
 
 def _icao_raw(text: str, chars: int) -> int:
@@ -225,7 +234,8 @@ def _decode_expr(raw: str, leaf: _Leaf, siblings: dict[str, str]) -> str:
         return f"({raw}) * {_lsb_literal(content.lsb)}"
     if isinstance(content, String):
         if content.kind == "octal":
-            return f"_octal({raw}, {bits})"
+            # Whole 3-bit digits are plain octal; Mode 1 (3 + 2 bits) needs the helper.
+            return f"'%0{bits // 3}o' % ({raw})" if bits % 3 == 0 else f"_octal({raw}, {bits})"
         if content.kind == "icao":
             return f"_icao({raw}, {bits // 6})"
         return f"_ascii({raw}, {bits // 8})"
@@ -530,10 +540,12 @@ class _Generator:
                 d, e = self.coders(slot.variation, f"{path}/{slot.name}")
                 slots.append((slot.name, d, e))
         table = self.w.const(tuple(slots), "slots")
+        plans = self.w.const({}, "plans")
         dec, enc = self.w.name("d"), self.w.name("e")
         fixed = variation.fspec_octets
         self.w.function(
-            f"{dec}(b, p, end)", [f"return _decode_compound(b, p, end, {table}, {fixed}, {path!r})"]
+            f"{dec}(b, p, end)",
+            [f"return _decode_compound(b, p, end, {table}, {fixed}, {path!r}, {plans})"],
         )
         self.w.function(f"{enc}(v)", [f"return _encode_compound(v, {table}, {fixed}, {path!r})"])
         return dec, enc
@@ -593,16 +605,34 @@ def _fspec_slots(fspec: bytes, fixed: bool) -> Iterator[int]:
                 yield i * bits_per_octet + bit
 
 
+CompoundPlan = tuple[tuple[str, Decoder], ...]
+
+
 def _decode_compound(
-    b: bytes, p: int, end: int, slots: tuple[Slot, ...], fixed: int, path: str
+    b: bytes,
+    p: int,
+    end: int,
+    slots: tuple[Slot, ...],
+    fixed: int,
+    path: str,
+    plans: dict[bytes, CompoundPlan],
 ) -> tuple[dict[str, Any], int]:
     q = _read_fspec(b, p, end, fixed, len(slots), path)
-    value = {} if fixed else new_items(b[p:q])
-    for index in _fspec_slots(b[p:q], bool(fixed)):
-        slot = slots[index] if index < len(slots) else None
-        if slot is None:
-            raise Malformed(p, f"{path}: FSPEC names undefined subfield {index + 1}")
-        value[slot[0]], q = slot[1](b, q, end)
+    fspec = b[p:q]
+    plan = plans.get(fspec)
+    if plan is None:
+        steps = []
+        for index in _fspec_slots(fspec, bool(fixed)):
+            slot = slots[index] if index < len(slots) else None
+            if slot is None:
+                raise Malformed(p, f"{path}: FSPEC names undefined subfield {index + 1}")
+            steps.append((slot[0], slot[1]))
+        plan = tuple(steps)
+        if len(plans) < PLAN_CACHE_LIMIT:
+            plans[fspec] = plan
+    value = {} if fixed else new_items(fspec)
+    for name, decode in plan:
+        value[name], q = decode(b, q, end)
     return value, q
 
 
@@ -776,9 +806,6 @@ def _rebind_expansion(
 # --- skipping items without decoding them (the plot-extraction path) ---------------------
 
 Skipper = Callable[[bytes, int, int], int]
-
-# A bound on per-FSPEC caches: real feeds use a few dozen FSPECs, random input many more.
-PLAN_CACHE_LIMIT = 4096
 
 
 def skipper(variation: Variation) -> int | Skipper:
