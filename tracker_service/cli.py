@@ -30,7 +30,52 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help='add the named fields of Mode S BDS 4,0/5,0/6,0 registers to I048/250 ("BDS")',
     )
+    simulate = commands.add_parser(
+        "simulate",
+        help="simulate radars and aircraft from a scenario: ASTERIX datagrams and the truth",
+        description="Run a scenario (TOML) and write what its radars send, and the truth. "
+        "The output format follows OUT's suffix: .mcap (datagrams, truth, metadata), "
+        ".pcap (UDP to each radar's multicast group), .raw/.ast (data blocks), .hex.",
+    )
+    simulate.add_argument(
+        "scenario", help="the scenario file, e.g. config/scenarios/three_sites.toml"
+    )
+    simulate.add_argument("-o", "--output", help="output file (default: <scenario name>.mcap)")
+    simulate.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
+    simulate.add_argument(
+        "--duration", type=float, help="seconds to simulate (default: the scenario's)"
+    )
+    simulate.add_argument(
+        "--no-bias", action="store_true", help="zero every systematic error of every radar"
+    )
     return parser
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from tracker_service.simulator.run import simulate
+    from tracker_service.simulator.scenario import ScenarioError, load_scenario
+
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as exc:
+        print(f"tracker-service simulate: {exc}", file=sys.stderr)
+        return 2
+    if args.duration is not None and args.duration <= 0:
+        print("tracker-service simulate: --duration must be positive", file=sys.stderr)
+        return 2
+    output = args.output or f"{scenario.name}.mcap"
+    try:
+        summary = simulate(scenario, output, args.seed, args.duration, args.no_bias)
+    except ValueError as exc:
+        print(f"tracker-service simulate: {exc}", file=sys.stderr)
+        return 2
+    plots = ", ".join(f"{key}: {count}" for key, count in summary.plots.items())
+    print(
+        f"{output}: {summary.aircraft} aircraft, {summary.datagrams} datagrams, "
+        f"reports per source {{{plots}}}, {summary.seconds:.1f} s",
+        file=sys.stderr,
+    )
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -44,6 +89,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             # `decode ... | head` closes the pipe early; that is not an error.
             sys.stderr.close()
             return 0
+    if args.command == "simulate":
+        return _simulate(args)
     return 2
 
 

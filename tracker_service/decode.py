@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -14,6 +15,7 @@ from asterix.bds import decode_mb, infer_register
 from asterix.codec import decode_blocks
 from asterix.containers import ContainerError, Datagram, read_file
 from tracker_service.ingest import DuplicateFilter
+from tracker_service.simulator.recording import is_mcap, read_recording
 
 # The item holding each category's time of day, for the summary's time span.
 TIME_OF_DAY_ITEM = {21: "073", 34: "030", 48: "140", 62: "070", 65: "030"}
@@ -93,12 +95,21 @@ def _error_json(event: DecodeError | ContainerError) -> str:
     )
 
 
+def read_datagrams(path: Path) -> Iterator[Datagram | ContainerError]:
+    """Datagrams of a capture, or of an MCAP recording (where offsets count datagrams)."""
+    if is_mcap(path):
+        for index, recorded in enumerate(read_recording(path).datagrams()):
+            yield Datagram(recorded.payload, index, recorded.time, recorded.src, recorded.dst)
+    else:
+        yield from read_file(path)
+
+
 def run_decode(path: Path, summary_only: bool, out: TextIO, err: TextIO, bds: bool = False) -> int:
     summary = Summary()
     duplicates = DuplicateFilter()
     block_number = 0
     write = out.write
-    for unit in read_file(path):
+    for unit in read_datagrams(path):
         if not isinstance(unit, Datagram):
             summary.errors[unit.reason.split(":")[0]] += 1
             err.write(_error_json(unit) + "\n")

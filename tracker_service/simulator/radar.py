@@ -1,0 +1,592 @@
+"""A rotating radar station: when it sees each aircraft, what it measures, what it sends.
+
+For every scan the beam sweeps 360 degrees; an aircraft is detected when the beam
+crosses its azimuth (found by fixed-point iteration, since the aircraft moves while the
+beam turns), and the plot carries that time plus the radar's time bias. Plots are
+grouped per sector and sent when the beam leaves the sector, with CAT034 north markers
+and sector crossings, as a real station does. Geometry comes from the simulator's own
+``geometry`` module (pyproj), never from the tracker's conversions.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from asterix import encode_block, encode_record
+from asterix.bds import encode_bds40, encode_bds50, encode_bds60
+from tracker_service.simulator import geometry
+from tracker_service.simulator.scenario import NM, Radar, Scenario, SystematicErrors, Wandering
+from tracker_service.simulator.trajectories import Truth
+
+FloatArray = npt.NDArray[Any]  # float64 arrays; numpy arithmetic widens the static type
+
+MAX_DATAGRAM = 1472  # an Ethernet MTU less the IPv4 and UDP headers
+PROCESSING_DELAY_S = 0.06  # from the end of a sector to the datagram leaving the station
+FT = 0.3048
+KT = 1852.0 / 3600.0
+CLUTTER_PD = 0.9
+ICAO_G = 9.80665
+
+
+@dataclass
+class Plot:
+    """One CAT048 record to send and what it really is."""
+
+    detection_time: float  # scenario seconds, true
+    sector: int  # absolute sector count since the scenario start
+    record: dict[str, Any]
+    origin: dict[str, Any]
+
+
+@dataclass
+class Emission:
+    """A datagram leaving a station: reception time, payload, what its CAT048 records are."""
+
+    time: float  # scenario seconds at reception
+    payload: bytes
+    origins: list[dict[str, Any]] = field(default_factory=list)
+
+
+def wandering_series(
+    error: Wandering, times: FloatArray, rng: np.random.Generator, scale: float = 1.0
+) -> FloatArray:
+    """A constant plus a random walk sampled at ``times`` (std grows as sqrt of hours)."""
+    values = np.full(len(times), error.value * scale)
+    if error.wander_per_sqrt_h > 0 and len(times) > 1:
+        steps = np.sqrt(np.diff(times, prepend=times[0]) / 3600.0)
+        values += np.cumsum(rng.normal(0.0, error.wander_per_sqrt_h * scale, len(times)) * steps)
+    return values
+
+
+@dataclass(frozen=True)
+class BiasSeries:
+    """A radar's systematic errors per scan (index = scan number)."""
+
+    range_offset_m: FloatArray
+    range_gain: FloatArray  # dimensionless g: rho_m = (1 + g) rho + offset
+    azimuth_deg: FloatArray
+    time_s: FloatArray
+
+    @staticmethod
+    def draw(
+        errors: SystematicErrors, scan_times: FloatArray, rng: np.random.Generator, off: bool
+    ) -> BiasSeries:
+        if off:
+            zero = np.zeros(len(scan_times))
+            return BiasSeries(zero, zero, zero, zero)
+        drift = errors.time_drift_s_per_h * scan_times / 3600.0
+        return BiasSeries(
+            wandering_series(errors.range_offset_m, scan_times, rng),
+            wandering_series(errors.range_gain_m_per_nm, scan_times, rng, 1.0 / NM),
+            wandering_series(errors.azimuth_offset_deg, scan_times, rng),
+            wandering_series(errors.time_offset_s, scan_times, rng) + drift,
+        )
+
+
+def _wrap360(angle: FloatArray) -> FloatArray:
+    return np.mod(angle, 360.0)
+
+
+class RadarModel:
+    def __init__(
+        self,
+        radar: Radar,
+        scenario: Scenario,
+        truth: Truth,
+        duration_s: float,
+        rng: np.random.Generator,
+        no_bias: bool,
+    ) -> None:
+        self.radar = radar
+        self.scenario = scenario
+        self.truth = truth
+        self.rng = rng
+        self.site = geometry.RadarSite(radar.lat, radar.lon, radar.alt_m)
+        self.period = radar.antenna_period_s
+        self.direction = 1.0 if radar.rotation == "clockwise" else -1.0
+        self.scans = math.ceil(duration_s / self.period)
+        self.duration = duration_s
+        scan_times = np.arange(self.scans) * self.period
+        self.bias = BiasSeries.draw(radar.bias, scan_times, rng, no_bias)
+        self.psr_bias = (
+            self.bias
+            if radar.psr_bias is None
+            else BiasSeries.draw(radar.psr_bias, scan_times, rng, no_bias)
+        )
+        self.start_tod = (
+            scenario.start.hour * 3600
+            + scenario.start.minute * 60
+            + scenario.start.second
+            + scenario.start.microsecond / 1e6
+        )
+        self.reflector_azimuths = rng.uniform(0.0, 360.0, 2)
+        self.coverage: list[list[int]] = [[] for _ in range(self.scans)]
+
+    # --- the beam -------------------------------------------------------------------------
+
+    def beam_phase(self, azimuth: FloatArray) -> FloatArray:
+        """Seconds into a scan at which the beam points at ``azimuth``."""
+        turned = _wrap360(self.direction * (azimuth - self.radar.initial_azimuth_deg))
+        return np.asarray(turned / 360.0 * self.period)
+
+    def sector_of(self, t: FloatArray) -> npt.NDArray[np.int64]:
+        return np.floor(t / (self.period / self.radar.sectors)).astype(np.int64)
+
+    # --- detection geometry ---------------------------------------------------------------
+
+    def _measure(self, aircraft: npt.NDArray[np.int64], t: FloatArray) -> dict[str, FloatArray]:
+        state = self.truth.state_at(aircraft, t)
+        h_ellipsoid = state.h_msl + geometry.geoid_undulation_m(state.lat, state.lon)
+        x, y, z = geometry.geodetic_to_ecef(state.lat, state.lon, h_ellipsoid)
+        rho, azimuth, elevation = geometry.measure(self.site, x, y, z)
+        visible = geometry.line_of_sight(self.site, x, y, z)
+        return {
+            "rho": rho,
+            "azimuth": azimuth,
+            "elevation": elevation,
+            "visible": visible,
+            "h_msl": state.h_msl,
+            "lat": state.lat,
+            "lon": state.lon,
+            "heading": state.heading_deg,
+            "speed": state.ground_speed_mps,
+            "roll": state.roll_deg,
+            "turn_rate": state.turn_rate_deg_s,
+            "vel_up": state.vel_up,
+        }
+
+    def detections(self) -> tuple[npt.NDArray[np.int64], FloatArray, dict[str, FloatArray]]:
+        """(aircraft, detection time, measurements) of every beam crossing in coverage."""
+        n = len(self.truth.identities)
+        aircraft = np.repeat(np.arange(n), self.scans)
+        scan = np.tile(np.arange(self.scans), n)
+        scan_start = scan * self.period
+        t = scan_start + self.period / 2
+        alive = self.truth.alive(aircraft, t)
+        aircraft, scan, scan_start, t = aircraft[alive], scan[alive], scan_start[alive], t[alive]
+        for _ in range(3):
+            m = self._measure(aircraft, t)
+            ok = np.isfinite(m["azimuth"])
+            t = np.where(ok, scan_start + self.beam_phase(np.nan_to_num(m["azimuth"])), t)
+        m = self._measure(aircraft, t)
+        r = self.radar
+        covered = (
+            np.isfinite(m["rho"])
+            & (t < self.duration)
+            & (m["rho"] >= r.min_range_nm * NM)
+            & (m["rho"] <= r.max_range_nm * NM)
+            & (m["elevation"] <= r.cone_of_silence_deg)
+            & m["visible"]
+        )
+        for a, k in zip(aircraft[covered], scan[covered], strict=True):
+            self.coverage[int(k)].append(int(a))
+        return aircraft[covered], t[covered], {k: v[covered] for k, v in m.items()}
+
+    # --- plots ----------------------------------------------------------------------------
+
+    def plots(self) -> list[Plot]:
+        aircraft, t, m = self.detections()
+        rng, r = self.rng, self.radar
+        kinds = [self.truth.identities[int(a)].transponder for a in aircraft]
+        scan = np.minimum((t // self.period).astype(np.int64), self.scans - 1)
+        u_ssr = rng.random(len(t))
+        u_psr = rng.random(len(t))
+        in_psr_range = m["rho"] <= r.psr_max_range_nm * NM
+        out: list[Plot] = []
+        for i, a in enumerate(aircraft):
+            kind = kinds[i]
+            if kind == "mode_s" and r.mode_s:
+                ssr = u_ssr[i] < r.pd_mode_s
+            elif kind in ("mode_s", "mode_ac") and (r.ssr or r.mode_s):
+                ssr = u_ssr[i] < r.pd_ssr
+            else:
+                ssr = False
+            psr = r.psr and bool(in_psr_range[i]) and u_psr[i] < r.pd_psr
+            if not (ssr or psr):
+                continue
+            mode_s = ssr and kind == "mode_s" and r.mode_s
+            typ = (5 if mode_s else 2) + (2 if mode_s and psr else 1 if psr else 0) if ssr else 1
+            plot = self._plot(int(a), float(t[i]), int(scan[i]), m, i, typ, ssr, mode_s)
+            out.append(plot)
+            out.extend(self._pathologies(plot, int(a), ssr))
+        out.extend(self._field_monitor_plots())
+        out.extend(self._clutter_plots())
+        out.sort(key=lambda p: p.detection_time)
+        return out
+
+    def _errors(self, psr_only: bool) -> tuple[BiasSeries, float, float]:
+        r = self.radar
+        if psr_only:
+            return (
+                self.psr_bias,
+                r.psr_sigma_range_m if r.psr_sigma_range_m is not None else r.sigma_range_m,
+                r.psr_sigma_azimuth_deg
+                if r.psr_sigma_azimuth_deg is not None
+                else r.sigma_azimuth_deg,
+            )
+        return self.bias, r.sigma_range_m, r.sigma_azimuth_deg
+
+    def _position_items(
+        self, rho_m: float, azimuth_deg: float, t: float, scan: int, psr_only: bool
+    ) -> tuple[dict[str, Any], bool]:
+        """I010, I140, I040 (and RE beyond 256 NM) of a plot measured with errors."""
+        bias, sigma_r, sigma_az = self._errors(psr_only)
+        rho = (1.0 + bias.range_gain[scan]) * rho_m + bias.range_offset_m[scan]
+        rho += self.rng.normal(0.0, sigma_r)
+        theta = (azimuth_deg + bias.azimuth_deg[scan] + self.rng.normal(0.0, sigma_az)) % 360.0
+        rho_nm = max(rho / NM, 0.0)
+        items: dict[str, Any] = {
+            "010": {"SAC": self.radar.sac, "SIC": self.radar.sic},
+            "140": self.time_of_day(t + bias.time_s[scan]),
+            "040": {
+                "RHO": min(_quantise(rho_nm, 1 / 256), 65535 / 256),
+                "THETA": wrapped_angle(theta, 360 / 65536),
+            },
+        }
+        extended = rho_nm >= 256.0
+        if extended:
+            items["RE"] = {"ERR": _quantise(rho_nm, 1 / 256)}
+        return items, extended
+
+    def time_of_day(self, t: float) -> float:
+        return wrapped_time_of_day(self.start_tod + t)
+
+    def _plot(
+        self,
+        a: int,
+        t: float,
+        scan: int,
+        m: dict[str, FloatArray],
+        i: int,
+        typ: int,
+        ssr: bool,
+        mode_s: bool,
+    ) -> Plot:
+        identity = self.truth.identities[a]
+        record, extended = self._position_items(
+            float(m["rho"][i]), float(m["azimuth"][i]), t, scan, psr_only=not ssr
+        )
+        record["020"] = {"TYP": typ, "SIM": 0, "RDP": 0, "SPI": 0, "RAB": 0}
+        if extended:
+            record["020"].update(TST=0, ERR=1)
+        pressure_ft = geometry.pressure_altitude_ft(
+            float(m["h_msl"][i]),
+            self.scenario.atmosphere.qnh_hpa,
+            self.scenario.atmosphere.temperature_offset_k,
+        )
+        true_fl = float(pressure_ft) / 100.0
+        if ssr:
+            code = self.truth.mode3a_at(a, t)
+            if code is not None:
+                record["070"] = {"V": 0, "G": 0, "L": 0, "MODE3A": code}
+            step = 0.25 if mode_s else 1.0  # Mode S reports 25 ft, Mode C 100 ft
+            record["090"] = {"V": 0, "G": 0, "FL": _quantise(true_fl, step)}
+        if mode_s:
+            assert identity.address is not None
+            record["220"] = identity.address
+            if identity.callsign:
+                record["240"] = identity.callsign.ljust(8)
+            record["250"] = [self._bds(scan, m, i, true_fl)]
+            record["230"] = {
+                "COM": 1,
+                "STAT": 0,
+                "SI": 0,
+                "MSSC": 1,
+                "ARC": 1,
+                "AIC": 1,
+                "B1A": 1,
+                "B1B": 5,
+            }
+        if self.rng.random() < self.radar.pathologies.missing_time:
+            del record["140"]
+        return Plot(
+            t,
+            int(self.sector_of(np.array([t]))[0]),
+            record,
+            {
+                "kind": "aircraft",
+                "aircraft": a,
+                "true_range_m": float(m["rho"][i]),
+                "true_azimuth_deg": float(m["azimuth"][i]),
+                "true_fl": true_fl,
+                "psr_only": not ssr,
+            },
+        )
+
+    def _bds(self, scan: int, m: dict[str, FloatArray], i: int, fl: float) -> dict[str, Any]:
+        """One Comm-B register per plot, in turn, as a radar's GICB extraction schedule."""
+        speed_kt = float(m["speed"][i]) / KT
+        heading = float(m["heading"][i])
+        register = scan % 3
+        if register == 0:
+            mb = encode_bds40(
+                selected_altitude_mcp_ft=round(fl) * 100,
+                baro_pressure_setting_mb=self.scenario.atmosphere.qnh_hpa,
+            )
+            bds1 = 4
+        elif register == 1:
+            mb = encode_bds50(
+                roll_deg=float(m["roll"][i]),
+                track_angle_deg=heading,
+                ground_speed_kt=min(speed_kt, 2046.0),
+                track_angle_rate_deg_s=float(m["turn_rate"][i]),
+                true_airspeed_kt=min(speed_kt, 2046.0),
+            )
+            bds1 = 5
+        else:
+            climb = float(m["vel_up"][i]) / FT * 60.0
+            mb = encode_bds60(
+                magnetic_heading_deg=heading,
+                indicated_airspeed_kt=min(_ias_kt(speed_kt, float(m["h_msl"][i])), 1023.0),
+                mach=min(_mach(speed_kt, float(m["h_msl"][i])), 4.0),
+                baro_vertical_rate_ft_min=climb,
+                inertial_vertical_rate_ft_min=climb,
+            )
+            bds1 = 6
+        return {"MBDATA": f"{mb:014X}", "BDS1": bds1, "BDS2": 0}
+
+    def _pathologies(self, plot: Plot, a: int, ssr: bool) -> list[Plot]:
+        rng, p = self.rng, self.radar.pathologies
+        extra: list[Plot] = []
+        record = plot.record
+        if ssr and "090" in record:
+            if rng.random() < p.missing_mode_c:
+                del record["090"]
+            elif rng.random() < p.garbled_mode_c:
+                # A garbled reply flips code bits: the level jumps by hundreds of feet.
+                jump = float(rng.choice([-80.0, -40.0, -20.0, -10.0, 10.0, 20.0, 40.0, 80.0]))
+                record["090"] = {"V": 1, "G": 1, "FL": record["090"]["FL"] + jump}
+        if ssr and "070" in record:
+            if rng.random() < p.missing_mode_3a:
+                del record["070"]
+            elif rng.random() < p.garbled_mode_3a:
+                record["070"] = {
+                    "V": 1,
+                    "G": 1,
+                    "L": 0,
+                    "MODE3A": f"{int(rng.integers(0, 4096)):04o}",
+                }
+        rho = record["040"]["RHO"]
+        theta = record["040"]["THETA"]
+        if ssr and rng.random() < p.reflection:
+            reflector = float(rng.choice(self.reflector_azimuths))
+            ghost = {k: v for k, v in record.items() if k not in ("040", "RE")}
+            ghost["040"] = {
+                "RHO": min(rho + float(rng.uniform(0.5, 3.0)), 255.99),
+                "THETA": wrapped_angle(2 * reflector - theta, 360 / 65536),
+            }
+            extra.append(
+                Plot(plot.detection_time, plot.sector, ghost, {**plot.origin, "kind": "reflection"})
+            )
+        if rng.random() < p.split:
+            split: dict[str, Any] = {k: record[k] for k in ("010", "140") if k in record}
+            split["020"] = {"TYP": 1, "SIM": 0, "RDP": 0, "SPI": 0, "RAB": 0}
+            offset = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.4, 1.2))
+            split["040"] = {"RHO": rho, "THETA": wrapped_angle(theta + offset, 360 / 65536)}
+            extra.append(
+                Plot(
+                    plot.detection_time,
+                    plot.sector,
+                    split,
+                    {**plot.origin, "kind": "split", "psr_only": True},
+                )
+            )
+        return extra
+
+    def _field_monitor_plots(self) -> list[Plot]:
+        monitor = self.radar.field_monitor
+        if monitor is None:
+            return []
+        n = geometry.geoid_undulation_m(monitor.lat, monitor.lon)
+        x, y, z = geometry.geodetic_to_ecef(monitor.lat, monitor.lon, monitor.alt_m + n)
+        rho, azimuth, _ = geometry.measure(self.site, x, y, z)
+        rho_m, az = float(rho), float(azimuth)
+        fl = (
+            float(
+                geometry.pressure_altitude_ft(
+                    monitor.alt_m,
+                    self.scenario.atmosphere.qnh_hpa,
+                    self.scenario.atmosphere.temperature_offset_k,
+                )
+            )
+            / 100.0
+        )
+        pd = self.radar.pd_mode_s if monitor.address else self.radar.pd_ssr
+        out = []
+        for scan in range(self.scans):
+            t = scan * self.period + float(self.beam_phase(np.array([az]))[0])
+            if t >= self.duration or self.rng.random() >= pd:
+                continue
+            record, _ = self._position_items(rho_m, az, t, scan, psr_only=False)
+            record["020"] = {
+                "TYP": 5 if monitor.address else 2,
+                "SIM": 0,
+                "RDP": 0,
+                "SPI": 0,
+                "RAB": 1,
+            }
+            record["070"] = {"V": 0, "G": 0, "L": 0, "MODE3A": monitor.mode3a}
+            record["090"] = {"V": 0, "G": 0, "FL": _quantise(fl, 0.25)}
+            if monitor.address:
+                record["220"] = monitor.address
+            out.append(
+                Plot(
+                    t,
+                    int(self.sector_of(np.array([t]))[0]),
+                    record,
+                    {
+                        "kind": "field_monitor",
+                        "aircraft": None,
+                        "true_range_m": rho_m,
+                        "true_azimuth_deg": az,
+                        "true_fl": fl,
+                    },
+                )
+            )
+        return out
+
+    def _clutter_plots(self) -> list[Plot]:
+        clutter, r, rng = self.radar.clutter, self.radar, self.rng
+        if not r.psr or (clutter.persistent_per_scan == 0 and clutter.random_per_scan == 0):
+            return []
+        max_range = min(r.psr_max_range_nm, r.max_range_nm) * NM
+        min_range = r.min_range_nm * NM
+        fixed_rho = rng.uniform(min_range, min(max_range, 30 * NM), clutter.persistent_per_scan)
+        fixed_az = rng.uniform(0.0, 360.0, clutter.persistent_per_scan)
+        out = []
+        for scan in range(self.scans):
+            count = int(rng.poisson(clutter.random_per_scan))
+            rho = np.concatenate([fixed_rho, rng.uniform(min_range, max_range, count)])
+            az = np.concatenate([fixed_az, rng.uniform(0.0, 360.0, count)])
+            seen = np.concatenate([rng.random(len(fixed_rho)) < CLUTTER_PD, np.ones(count, bool)])
+            for rho_m, azimuth in zip(rho[seen], az[seen], strict=True):
+                t = scan * self.period + float(self.beam_phase(np.array([azimuth]))[0])
+                if t >= self.duration:
+                    continue
+                record, _ = self._position_items(float(rho_m), float(azimuth), t, scan, True)
+                record["020"] = {"TYP": 1, "SIM": 0, "RDP": 0, "SPI": 0, "RAB": 0}
+                out.append(
+                    Plot(
+                        t,
+                        int(self.sector_of(np.array([t]))[0]),
+                        record,
+                        {
+                            "kind": "clutter",
+                            "aircraft": None,
+                            "true_range_m": float(rho_m),
+                            "true_azimuth_deg": float(azimuth),
+                            "true_fl": None,
+                            "psr_only": True,
+                        },
+                    )
+                )
+        return out
+
+    # --- datagrams ------------------------------------------------------------------------
+
+    def emissions(self, plots: list[Plot]) -> list[Emission]:
+        """CAT048 plots per sector and CAT034 service messages, as datagrams."""
+        r = self.radar
+        sector_s = self.period / r.sectors
+        sectors = math.ceil(self.duration / sector_s)
+        by_sector: dict[int, list[Plot]] = {}
+        for plot in plots:
+            by_sector.setdefault(plot.sector, []).append(plot)
+        out: list[Emission] = []
+        for sector in range(sectors):
+            end = (sector + 1) * sector_s
+            sent = end + PROCESSING_DELAY_S + float(self.rng.uniform(0.0, 0.02))
+            if sent >= self.duration:
+                break
+            out.extend(self._plot_datagrams(by_sector.get(sector, []), sent))
+            out.append(Emission(sent + 0.001, self._service_message(sector + 1, end)))
+        return out
+
+    def _plot_datagrams(self, plots: list[Plot], sent: float) -> list[Emission]:
+        return pack_datagrams(
+            48,
+            [
+                (encode_record(48, p.record), p.origin | {"detection_time": p.detection_time})
+                for p in plots
+            ],
+            sent,
+        )
+
+    def _service_message(self, sector: int, t: float) -> bytes:
+        """North marker when the beam crosses north (sector 0), else a sector crossing."""
+        r = self.radar
+        index = sector % r.sectors
+        record: dict[str, Any] = {
+            "010": {"SAC": r.sac, "SIC": r.sic},
+            "000": 1 if index == 0 else 2,
+            "030": self.time_of_day(t),
+        }
+        if index == 0:
+            record["041"] = _quantise(self.period, 1 / 128)
+        else:
+            azimuth = (r.initial_azimuth_deg + self.direction * index * 360.0 / r.sectors) % 360
+            record["020"] = wrapped_angle(azimuth, 360 / 256)
+        return encode_block(34, [record])
+
+
+def pack_datagrams(
+    cat: int, records: list[tuple[bytes, dict[str, Any]]], sent: float
+) -> list[Emission]:
+    """Encoded records as one data block per datagram, each under the UDP payload limit."""
+    out: list[Emission] = []
+    chunk: list[bytes] = []
+    origins: list[dict[str, Any]] = []
+    size = 3
+    for encoded, origin in records:
+        if chunk and size + len(encoded) > MAX_DATAGRAM:
+            out.append(Emission(sent, _block(cat, chunk), origins))
+            chunk, origins, size = [], [], 3
+        chunk.append(encoded)
+        origins.append(origin)
+        size += len(encoded)
+    if chunk:
+        out.append(Emission(sent, _block(cat, chunk), origins))
+    return out
+
+
+def _block(cat: int, records: list[bytes]) -> bytes:
+    body = b"".join(records)
+    return bytes([cat]) + (len(body) + 3).to_bytes(2) + body
+
+
+def _quantise(value: float, lsb: float) -> float:
+    return round(value / lsb) * lsb
+
+
+def wrapped_angle(angle_deg: float, lsb: float) -> float:
+    """An angle on its LSB grid in [0, 360): 359.999 must not round up to 360."""
+    return _quantise(angle_deg % 360.0, lsb) % 360.0
+
+
+def wrapped_time_of_day(seconds: float) -> float:
+    """Time of day on the 1/128 s grid, wrapping at midnight as I140 does."""
+    return _quantise(seconds % 86400.0, 1 / 128) % 86400.0
+
+
+def _isa_temperature_k(h_m: float) -> float:
+    return 288.15 - 0.0065 * min(h_m, 11000.0)
+
+
+def _mach(speed_kt: float, h_m: float) -> float:
+    # No wind in the simulation: true airspeed is the ground speed.
+    return speed_kt * KT / math.sqrt(1.4 * 287.053 * _isa_temperature_k(h_m))
+
+
+def _ias_kt(speed_kt: float, h_m: float) -> float:
+    # Equivalent airspeed from the density ratio; compressibility is below a few knots here.
+    t = _isa_temperature_k(h_m)
+    p_ratio = (
+        (t / 288.15) ** 5.2559 if h_m <= 11000 else 0.22336 * math.exp(-(h_m - 11000.0) / 6341.6)
+    )
+    sigma = p_ratio * 288.15 / t
+    return speed_kt * math.sqrt(sigma)
