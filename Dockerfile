@@ -8,4 +8,4 @@ COPY config ./config
 COPY recordings ./recordings
 RUN pip install --no-cache-dir .
 ENTRYPOINT ["tracker-service"]
-CMD ["decode", "recordings/demo_dual_lan.pcap", "--summary"]
+CMD ["decode", "recordings/three_sites.mcap", "--summary"]

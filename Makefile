@@ -16,7 +16,7 @@ $(BIN)/.installed: pyproject.toml
 setup: $(BIN)/.installed
 
 demo: setup
-	$(BIN)/tracker-service decode recordings/demo_dual_lan.pcap --summary
+	$(BIN)/tracker-service decode recordings/three_sites.mcap --summary
 
 lint: setup
 	$(BIN)/ruff check .

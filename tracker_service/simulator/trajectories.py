@@ -686,12 +686,13 @@ def build_truth(
 
     Explicit aircraft come first, then the generated traffic (drawn from ``rng`` only, so a
     seed gives the same traffic). ``dt`` is both the integration step and the sample step.
+    Traffic is planned over the scenario's own duration whatever ``duration_s`` is, so a
+    shorter run is the start of the full one, not other traffic.
     """
     identities, start, segments = _explicit(scenario.aircraft)
     if scenario.traffic is not None:
-        more, more_start, more_segments = _generated(
-            scenario.traffic, rng, duration_s, dt, identities
-        )
+        planned = max(duration_s, scenario.duration_s)
+        more, more_start, more_segments = _generated(scenario.traffic, rng, planned, dt, identities)
         identities = identities + more
         start = _Start.concat([start, more_start])
         segments = _Segments.concat([segments, more_segments])
