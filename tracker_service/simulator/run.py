@@ -50,9 +50,7 @@ def metadata(scenario: Scenario, seed: int, duration_s: float, no_bias: bool) ->
         "no_bias": no_bias,
         "start_posix": scenario.start.timestamp(),
         "radars": {r.key: r.model_dump(mode="json") for r in scenario.radars},
-        "adsb_stations": {
-            f"{s.sac}/{s.sic}": s.model_dump(mode="json") for s in scenario.adsb_stations
-        },
+        "adsb_stations": {s.key: s.model_dump(mode="json") for s in scenario.adsb_stations},
     }
 
 
@@ -90,7 +88,7 @@ def simulate(
             )
         )
     for station, rng in zip(scenario.adsb_stations, rngs[1 + len(scenario.radars) :], strict=True):
-        key = f"{station.sac}/{station.sic}"
+        key = station.key
         emissions = adsb_emissions(station, scenario, truth, duration, start_tod, rng)
         plot_counts[key] = sum(len(e.origins) for e in emissions)
         sources.append(

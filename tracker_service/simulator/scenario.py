@@ -90,13 +90,22 @@ class Output(_Strict):
     """With dual_lan, the group of the second LAN (the same group when unset)."""
 
 
-class Radar(_Strict):
+class _Station(_Strict):
+    """A source of ASTERIX data at a surveyed site, known by its SAC/SIC."""
+
     name: str
     sac: Annotated[int, Field(ge=0, le=255)]
     sic: Annotated[int, Field(ge=0, le=255)]
     lat: Annotated[float, Field(ge=-90.0, le=90.0)]
     lon: Annotated[float, Field(ge=-180.0, le=180.0)]
     alt_m: float
+
+    @property
+    def key(self) -> str:
+        return f"{self.sac}/{self.sic}"
+
+
+class Radar(_Station):
     antenna_period_s: Annotated[float, Field(gt=0.5, le=60.0)]
     rotation: Literal["clockwise", "counterclockwise"] = "clockwise"
     initial_azimuth_deg: Annotated[float, Field(ge=0.0, lt=360.0)] = 0.0
@@ -136,18 +145,8 @@ class Radar(_Strict):
             raise ValueError("a radar needs at least one of psr, ssr, mode_s set to true")
         return self
 
-    @property
-    def key(self) -> str:
-        return f"{self.sac}/{self.sic}"
 
-
-class AdsbStation(_Strict):
-    name: str
-    sac: Annotated[int, Field(ge=0, le=255)]
-    sic: Annotated[int, Field(ge=0, le=255)]
-    lat: Annotated[float, Field(ge=-90.0, le=90.0)]
-    lon: Annotated[float, Field(ge=-180.0, le=180.0)]
-    alt_m: float
+class AdsbStation(_Station):
     range_nm: Annotated[float, Field(gt=0.0)] = 200.0
     report_interval_s: Annotated[float, Field(gt=0.0)] = 1.0
     latency_s: Annotated[float, Field(ge=0.0)] = 0.3
