@@ -128,14 +128,31 @@ class RadarModel:
         self.coverage: list[list[int]] = [[] for _ in range(self.scans)]
 
     # --- the beam -------------------------------------------------------------------------
+    # The beam's azimuth is az0 + direction * 360 t / P. Sectors are fixed in azimuth,
+    # 360/S wide and counted from north, so the north marker goes out when the beam really
+    # crosses north whatever az0 is.
 
-    def beam_phase(self, azimuth: FloatArray) -> FloatArray:
-        """Seconds into a scan at which the beam points at ``azimuth``."""
-        turned = _wrap360(self.direction * (azimuth - self.radar.initial_azimuth_deg))
-        return np.asarray(turned / 360.0 * self.period)
+    @property
+    def sector_s(self) -> float:
+        return self.period / self.radar.sectors
+
+    @property
+    def first_north_s(self) -> float:
+        """When the beam first points north."""
+        turned = (self.direction * -self.radar.initial_azimuth_deg) % 360.0
+        return turned / 360.0 * self.period
 
     def sector_of(self, t: FloatArray) -> npt.NDArray[np.int64]:
-        return np.floor(t / (self.period / self.radar.sectors)).astype(np.int64)
+        """Sectors counted from the first north crossing (the one before it is -1)."""
+        return np.floor((np.asarray(t) - self.first_north_s) / self.sector_s).astype(np.int64)
+
+    def crossing_time(self, azimuth_deg: float, scan: int) -> float:
+        """When the beam points at a fixed azimuth during a scan."""
+        return (scan + float(self._phase(np.asarray(azimuth_deg))) % 1.0) * self.period
+
+    def _phase(self, azimuth: FloatArray) -> FloatArray:
+        """Turns of the beam from its start to ``azimuth`` (not wrapped: continuous)."""
+        return np.asarray(self.direction * (azimuth - self.radar.initial_azimuth_deg) / 360.0)
 
     # --- detection geometry ---------------------------------------------------------------
 
@@ -161,31 +178,65 @@ class RadarModel:
         }
 
     def detections(self) -> tuple[npt.NDArray[np.int64], FloatArray, dict[str, FloatArray]]:
-        """(aircraft, detection time, measurements) of every beam crossing in coverage."""
-        n = len(self.truth.identities)
-        aircraft = np.repeat(np.arange(n), self.scans)
-        scan = np.tile(np.arange(self.scans), n)
-        scan_start = scan * self.period
-        t = scan_start + self.period / 2
-        alive = self.truth.alive(aircraft, t)
-        aircraft, scan, scan_start, t = aircraft[alive], scan[alive], scan_start[alive], t[alive]
-        for _ in range(3):
-            m = self._measure(aircraft, t)
-            ok = np.isfinite(m["azimuth"])
-            t = np.where(ok, scan_start + self.beam_phase(np.nan_to_num(m["azimuth"])), t)
-        m = self._measure(aircraft, t)
+        """(aircraft, detection time, measurements) of every beam crossing in coverage.
+
+        The beam meets an aircraft whenever the continuous phase between them is a whole
+        turn: t = P (m + phase(t)). The aircraft's azimuth is unwrapped along its whole
+        flight, so each crossing is found exactly once even when the aircraft sits near the
+        azimuth where scans start, or passes near the radar.
+        """
+        n, period = len(self.truth.identities), self.period
+        mids = (np.arange(self.scans + 1) + 0.5) * period
+        aircraft = np.repeat(np.arange(n), len(mids))
+        when = np.tile(mids, n)
+        seen = self._measure(aircraft, np.minimum(when, self.duration))["azimuth"]
+        azimuth = np.asarray(seen).reshape(n, len(mids))
+        # Unwrap through gaps (not alive): fill with the last known azimuth first.
+        filled = np.where(np.isfinite(azimuth), azimuth, np.nan)
+        for a in range(n):
+            row = filled[a]
+            known = np.flatnonzero(np.isfinite(row))
+            if len(known):
+                row[:] = np.interp(np.arange(len(row)), known, row[known])
+        unwrapped = np.unwrap(filled, period=360.0, axis=1)
+        phase_at_mid = self._phase(unwrapped)
+        # Crossing numbers m with t = P (m + phase) inside the run, per aircraft.
+        m_lo = np.floor(-phase_at_mid.max(axis=1, initial=0.0) - 1).astype(np.int64)
+        m_hi = np.ceil(self.scans - phase_at_mid.min(axis=1, initial=0.0) + 1).astype(np.int64)
+        counts = np.where(np.isfinite(phase_at_mid).all(axis=1), m_hi - m_lo + 1, 0)
+        ac = np.repeat(np.arange(n), counts)
+        m = (
+            np.concatenate([np.arange(lo, lo + c) for lo, c in zip(m_lo, counts, strict=True)])
+            if len(ac)
+            else np.zeros(0, dtype=np.int64)
+        )
+        # Start from the phase at the nearest scan mid, then iterate on the true azimuth.
+        guess = np.clip(m, 0, self.scans)
+        phase = phase_at_mid[ac, guess]
+        t = period * (m + phase)
+        for _ in range(4):
+            k = np.clip(np.round(t / period - 0.5).astype(np.int64), 0, self.scans)
+            reference = unwrapped[ac, k]
+            az = self._measure(ac, np.clip(t, 0.0, self.duration))["azimuth"]
+            continuous = reference + (np.nan_to_num(az - reference) + 180.0) % 360.0 - 180.0
+            t = period * (m + self._phase(continuous))
+        inside = (t >= 0.0) & (t < self.duration)
+        ac, t = ac[inside], t[inside]
+        alive = self.truth.alive(ac, t)
+        ac, t = ac[alive], t[alive]
+        measured = self._measure(ac, t)
         r = self.radar
         covered = (
-            np.isfinite(m["rho"])
-            & (t < self.duration)
-            & (m["rho"] >= r.min_range_nm * NM)
-            & (m["rho"] <= r.max_range_nm * NM)
-            & (m["elevation"] <= r.cone_of_silence_deg)
-            & m["visible"]
+            np.isfinite(measured["rho"])
+            & (measured["rho"] >= r.min_range_nm * NM)
+            & (measured["rho"] <= r.max_range_nm * NM)
+            & (measured["elevation"] <= r.cone_of_silence_deg)
+            & measured["visible"]
         )
-        for a, k in zip(aircraft[covered], scan[covered], strict=True):
+        scan = (t // period).astype(np.int64)
+        for a, k in zip(ac[covered], scan[covered], strict=True):
             self.coverage[int(k)].append(int(a))
-        return aircraft[covered], t[covered], {k: v[covered] for k, v in m.items()}
+        return ac[covered], t[covered], {key: v[covered] for key, v in measured.items()}
 
     # --- plots ----------------------------------------------------------------------------
 
@@ -239,19 +290,12 @@ class RadarModel:
         rho = (1.0 + bias.range_gain[scan]) * rho_m + bias.range_offset_m[scan]
         rho += self.rng.normal(0.0, sigma_r)
         theta = (azimuth_deg + bias.azimuth_deg[scan] + self.rng.normal(0.0, sigma_az)) % 360.0
-        rho_nm = max(rho / NM, 0.0)
         items: dict[str, Any] = {
             "010": {"SAC": self.radar.sac, "SIC": self.radar.sic},
-            "140": self.time_of_day(t + bias.time_s[scan]),
-            "040": {
-                "RHO": min(_quantise(rho_nm, 1 / 256), 65535 / 256),
-                "THETA": wrapped_angle(theta, 360 / 65536),
-            },
+            # One clock stamps every plot of the station, PSR or SSR.
+            "140": self.time_of_day(t + self.bias.time_s[scan]),
         }
-        extended = rho_nm >= 256.0
-        if extended:
-            items["RE"] = {"ERR": _quantise(rho_nm, 1 / 256)}
-        return items, extended
+        return items, _set_polar(items, max(rho / NM, 0.0), theta)
 
     def time_of_day(self, t: float) -> float:
         return wrapped_time_of_day(self.start_tod + t)
@@ -371,15 +415,14 @@ class RadarModel:
                     "L": 0,
                     "MODE3A": f"{int(rng.integers(0, 4096)):04o}",
                 }
-        rho = record["040"]["RHO"]
+        # Beyond 256 NM the range is in the RE field, I040 holds its maximum.
+        rho = record["RE"]["ERR"] if "RE" in record else record["040"]["RHO"]
         theta = record["040"]["THETA"]
         if ssr and rng.random() < p.reflection:
             reflector = float(rng.choice(self.reflector_azimuths))
             ghost = {k: v for k, v in record.items() if k not in ("040", "RE")}
-            ghost["040"] = {
-                "RHO": min(rho + float(rng.uniform(0.5, 3.0)), 255.99),
-                "THETA": wrapped_angle(2 * reflector - theta, 360 / 65536),
-            }
+            ghost["020"] = dict(record["020"])
+            _set_polar(ghost, rho + float(rng.uniform(0.5, 3.0)), 2 * reflector - theta)
             extra.append(
                 Plot(plot.detection_time, plot.sector, ghost, {**plot.origin, "kind": "reflection"})
             )
@@ -387,7 +430,7 @@ class RadarModel:
             split: dict[str, Any] = {k: record[k] for k in ("010", "140") if k in record}
             split["020"] = {"TYP": 1, "SIM": 0, "RDP": 0, "SPI": 0, "RAB": 0}
             offset = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.4, 1.2))
-            split["040"] = {"RHO": rho, "THETA": wrapped_angle(theta + offset, 360 / 65536)}
+            _set_polar(split, rho, theta + offset)
             extra.append(
                 Plot(
                     plot.detection_time,
@@ -419,7 +462,7 @@ class RadarModel:
         pd = self.radar.pd_mode_s if monitor.address else self.radar.pd_ssr
         out = []
         for scan in range(self.scans):
-            t = scan * self.period + float(self.beam_phase(np.array([az]))[0])
+            t = self.crossing_time(az, scan)
             if t >= self.duration or self.rng.random() >= pd:
                 continue
             record, _ = self._position_items(rho_m, az, t, scan, psr_only=False)
@@ -465,7 +508,7 @@ class RadarModel:
             az = np.concatenate([fixed_az, rng.uniform(0.0, 360.0, count)])
             seen = np.concatenate([rng.random(len(fixed_rho)) < CLUTTER_PD, np.ones(count, bool)])
             for rho_m, azimuth in zip(rho[seen], az[seen], strict=True):
-                t = scan * self.period + float(self.beam_phase(np.array([azimuth]))[0])
+                t = self.crossing_time(float(azimuth), scan)
                 if t >= self.duration:
                     continue
                 record, _ = self._position_items(float(rho_m), float(azimuth), t, scan, True)
@@ -490,22 +533,25 @@ class RadarModel:
     # --- datagrams ------------------------------------------------------------------------
 
     def emissions(self, plots: list[Plot]) -> list[Emission]:
-        """CAT048 plots per sector and CAT034 service messages, as datagrams."""
-        r = self.radar
-        sector_s = self.period / r.sectors
-        sectors = math.ceil(self.duration / sector_s)
+        """CAT048 plots per sector and CAT034 service messages, as datagrams.
+
+        A sector's plots leave when the beam leaves the sector, followed by the service
+        message of the boundary just crossed: a north marker at north, else a sector
+        crossing.
+        """
         by_sector: dict[int, list[Plot]] = {}
         for plot in plots:
             by_sector.setdefault(plot.sector, []).append(plot)
         out: list[Emission] = []
-        for sector in range(sectors):
-            end = (sector + 1) * sector_s
+        sector = int(self.sector_of(np.array(0.0)))
+        while True:
+            end = self.first_north_s + (sector + 1) * self.sector_s
             sent = end + PROCESSING_DELAY_S + float(self.rng.uniform(0.0, 0.02))
             if sent >= self.duration:
-                break
+                return out
             out.extend(self._plot_datagrams(by_sector.get(sector, []), sent))
             out.append(Emission(sent + 0.001, self._service_message(sector + 1, end)))
-        return out
+            sector += 1
 
     def _plot_datagrams(self, plots: list[Plot], sent: float) -> list[Emission]:
         return pack_datagrams(
@@ -517,21 +563,43 @@ class RadarModel:
             sent,
         )
 
-    def _service_message(self, sector: int, t: float) -> bytes:
-        """North marker when the beam crosses north (sector 0), else a sector crossing."""
+    def _service_message(self, boundary: int, t: float) -> bytes:
+        """The message of the beam crossing sector boundary ``boundary`` (0 = north) at t,
+        stamped by the station's clock, like I140."""
         r = self.radar
-        index = sector % r.sectors
+        index = boundary % r.sectors
         record: dict[str, Any] = {
             "010": {"SAC": r.sac, "SIC": r.sic},
             "000": 1 if index == 0 else 2,
-            "030": self.time_of_day(t),
+            "030": self.time_of_day(t + self.bias.time_s[self.scan_of(t)]),
         }
         if index == 0:
             record["041"] = _quantise(self.period, 1 / 128)
         else:
-            azimuth = (r.initial_azimuth_deg + self.direction * index * 360.0 / r.sectors) % 360
-            record["020"] = wrapped_angle(azimuth, 360 / 256)
+            record["020"] = wrapped_angle(self.direction * index * 360.0 / r.sectors, 360 / 256)
         return encode_block(34, [record])
+
+    def scan_of(self, t: float) -> int:
+        return min(max(int(t // self.period), 0), self.scans - 1)
+
+
+def _set_polar(record: dict[str, Any], rho_nm: float, theta_deg: float) -> bool:
+    """I040, and beyond 256 NM the RE field's range with I020 ERR set (REF 1.13); returns
+    whether the range is extended."""
+    record["040"] = {
+        "RHO": min(_quantise(rho_nm, 1 / 256), 65535 / 256),
+        "THETA": wrapped_angle(theta_deg, 360 / 65536),
+    }
+    record.pop("RE", None)
+    extended = rho_nm >= 256.0
+    if extended:
+        record["RE"] = {"ERR": _quantise(rho_nm, 1 / 256)}
+    if "020" in record:
+        if extended:
+            record["020"].update(TST=0, ERR=1)
+        else:
+            record["020"].pop("ERR", None)
+    return extended
 
 
 def pack_datagrams(

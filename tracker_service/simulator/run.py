@@ -18,6 +18,8 @@ from tracker_service.simulator.scenario import Output, Scenario
 from tracker_service.simulator.trajectories import Truth, build_truth
 
 LAN_B_DELAY_S = 0.0003  # the second LAN's copy arrives a fraction of a millisecond later
+# Kinds of output events; at equal times they are written in this order.
+_LAN_A, _SCAN, _TRUTH, _LAN_B = range(4)
 
 
 @dataclass
@@ -122,18 +124,27 @@ def _write(
     epoch = scenario.start.timestamp()
     events: list[tuple[float, int, int, int]] = []  # (time, kind, source, index)
     for s, source in enumerate(sources):
-        events += [(e.time, 0, s, i) for i, e in enumerate(source.emissions)]
+        events += [(e.time, _LAN_A, s, i) for i, e in enumerate(source.emissions)]
+        if source.dual_lan:
+            events += [
+                (e.time + LAN_B_DELAY_S, _LAN_B, s, i) for i, e in enumerate(source.emissions)
+            ]
     for m, model in enumerate(models):
-        events += [(k * model.period, 1, m, k) for k in range(model.scans)]
+        events += [(k * model.period, _SCAN, m, k) for k in range(model.scans)]
     truth_step = 1.0 / scenario.truth_rate_hz
-    events += [(k * truth_step, 2, 0, k) for k in range(math.ceil(duration / truth_step))]
+    events += [(k * truth_step, _TRUTH, 0, k) for k in range(math.ceil(duration / truth_step))]
     events.sort()
     sequence = [0] * len(sources)
     written = 0
     for t, kind, s, i in events:
-        if kind == 0:
+        if kind in (_LAN_A, _LAN_B):
             source = sources[s]
             emission = source.emissions[i]
+            if kind == _LAN_B:
+                lan_b = (source.output.second_lan_group or source.output.group, source.output.port)
+                writer.datagram(source.key, epoch + t, emission.payload, "B", source.src, lan_b)
+                written += 1
+                continue
             lan_a = (source.output.group, source.output.port)
             writer.datagram(source.key, epoch + t, emission.payload, "A", source.src, lan_a)
             if emission.origins:
@@ -143,13 +154,7 @@ def _write(
                 writer.plot_origins(source.key, epoch + t, sequence[s], records)
             sequence[s] += 1
             written += 1
-            if source.dual_lan:
-                lan_b = (source.output.second_lan_group or source.output.group, source.output.port)
-                writer.datagram(
-                    source.key, epoch + t + LAN_B_DELAY_S, emission.payload, "B", source.src, lan_b
-                )
-                written += 1
-        elif kind == 1:
+        elif kind == _SCAN:
             model = models[s]
             key = model.radar.key
             writer.biases(key, epoch + t, _bias_values(model, i))

@@ -127,7 +127,8 @@ class Radar(_Station):
     psr_sigma_azimuth_deg: Annotated[float, Field(ge=0.0)] | None = None
     bias: SystematicErrors = SystematicErrors()
     psr_bias: SystematicErrors | None = None
-    """PSR-only plots' systematic errors; the SSR ones when unset."""
+    """PSR-only plots' range and azimuth errors; the SSR ones when unset. Its time fields
+    are not used: the station has one clock, ``bias``'s, for every plot it sends."""
     clutter: Clutter = Clutter()
     pathologies: Pathologies = Pathologies()
     field_monitor: FieldMonitor | None = None
