@@ -1,0 +1,112 @@
+"""The tracker's entry point: a batch of one radar's plots into the system plane."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.geodesy.ellipsoid import FloatArray, as_float, ecef_to_geodetic
+from tracker_service.geodesy.plane import SystemPlane
+from tracker_service.geodesy.plots import (
+    CrossRange,
+    local_from_geometry,
+    local_to_ecef,
+    polar_covariance,
+    slant_geometry,
+)
+from tracker_service.geodesy.sites import RadarSite
+
+
+@dataclass(frozen=True)
+class ConvertedPlots:
+    """Plots in the system plane, one row per plot (arrays of shape (N,), R (N, 2, 2)).
+
+    - ``x``, ``y``: plane metres (east, north of the plane's grid).
+    - ``height_m``, ``height_sigma_m``: the height above MSL the conversion assumed (Mode C
+      or its stand-in) and its sigma: the tracker's vertical measurement.
+    - ``R``: horizontal covariance in the plane, m^2.
+    - ``lat_deg``, ``lon_deg``: geodetic position (for outputs and for other planes).
+    - ``elevation_rad``: elevation at the radar (a steep plot is one whose height matters).
+    """
+
+    x: FloatArray
+    y: FloatArray
+    height_m: FloatArray
+    height_sigma_m: FloatArray
+    R: FloatArray
+    lat_deg: FloatArray
+    lon_deg: FloatArray
+    elevation_rad: FloatArray
+
+    def __len__(self) -> int:
+        return int(self.x.shape[0])
+
+
+def convert_plots(
+    site: RadarSite,
+    plane: SystemPlane,
+    rho_m: npt.ArrayLike,
+    theta_deg: npt.ArrayLike,
+    height_msl_m: npt.ArrayLike,
+    height_sigma_m: npt.ArrayLike,
+    sigma_rho_m: npt.ArrayLike,
+    sigma_theta_deg: npt.ArrayLike,
+    *,
+    cross_range: CrossRange = "exact",
+    earth_radius_m: npt.ArrayLike | None = None,
+) -> ConvertedPlots:
+    """Convert one radar's plots: slant range (m), azimuth as reported (deg, the site's
+    north offset is added here), height above MSL (m, from ``HeightModel.heights``) and the
+    sigmas (scalars or per plot) into plane positions and covariances."""
+    rho, theta, height, height_sigma, sigma_rho, sigma_theta = (
+        np.ravel(a)
+        for a in np.broadcast_arrays(
+            as_float(rho_m),
+            as_float(theta_deg),
+            as_float(height_msl_m),
+            as_float(height_sigma_m),
+            as_float(sigma_rho_m),
+            as_float(sigma_theta_deg),
+        )
+    )
+    geometry = slant_geometry(site, rho, height, earth_radius_m=earth_radius_m)
+    x, y, z = local_to_ecef(site, *local_from_geometry(site, geometry, theta))
+    lat, lon, h = ecef_to_geodetic(x, y, z)
+    e, n = plane.plane_xy(x, y, z, lat, lon)
+    azimuth = theta + site.north_offset_deg
+    horizontal = polar_covariance(
+        rho,
+        azimuth,
+        sigma_rho,
+        sigma_theta,
+        elevation_rad=geometry.elevation_rad,
+        central_angle_rad=geometry.central_angle_rad,
+        frame="target",
+        cross_range=cross_range,
+    )
+    jacobian = plane.jacobian(lat, lon, h)
+    a = jacobian[..., :2] @ plane.radar_turn(site, lat, lon)
+    covariance = a @ horizontal @ np.swapaxes(a, -1, -2)
+    # One height error moves the target along its slant-range sphere: along the line of
+    # sight at the target and up by as much as the error, both at once, so the two shares
+    # add as one vector (the up one only counts in the tangent plane). The slide is
+    # bounded by rho, as in polar_covariance: an impossible height must not blow it up.
+    slide = np.clip(geometry.height_gain("target") * height_sigma, -rho, rho)
+    along = np.stack([np.sin(np.radians(azimuth)), np.cos(np.radians(azimuth))], axis=-1)
+    shift = (
+        np.einsum("nij,nj->ni", a, along * slide[:, None])
+        + jacobian[..., 2] * height_sigma[:, None]
+    )
+    covariance += shift[:, :, None] * shift[:, None, :]
+    return ConvertedPlots(
+        x=e,
+        y=n,
+        height_m=np.array(height),
+        height_sigma_m=np.array(height_sigma),
+        R=covariance,
+        lat_deg=lat,
+        lon_deg=lon,
+        elevation_rad=geometry.elevation_rad,
+    )
