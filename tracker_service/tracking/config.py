@@ -1,0 +1,88 @@
+"""The local tracker's knobs, with defaults for en-route radars (4-12 s antenna periods)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+KNOT_M_S = 1852.0 / 3600.0
+
+SHARED_MODE3A_CODES = (0o7000, 0o2000, 0o1200)
+"""Conspicuity and VFR codes worn by many aircraft at once: a match proves nothing."""
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Every tunable of ``LocalTracker``; units are SI (m, s) unless the name says otherwise.
+
+    The IMM holds one constant-velocity model and one fixed-rate coordinated-turn model per
+    entry of ``turn_rates_deg_s`` (positive: counter-clockwise, a left turn). 3 deg/s is the
+    standard-rate turn of ATC; turns of other rates are followed by mixing the models.
+    """
+
+    scan_period_s: float = 5.0
+    """Antenna period: the clock of misses (update it from CAT034 I041 when known)."""
+    q_cv: float = 0.1
+    """CV white-acceleration intensity per axis, m^2/s^3 (small: straight flight)."""
+    q_ct: float = 1.0
+    """Intensity of the turn models, m^2/s^3: covers roll-in, roll-out and rate mismatch."""
+    turn_rates_deg_s: tuple[float, ...] = (3.0, -3.0)
+    initial_model_probabilities: tuple[float, ...] = (0.8, 0.1, 0.1)
+    mean_sojourn_s: tuple[float, ...] = (300.0, 30.0, 30.0)
+    """Mean time spent in each model before switching; gives the IMM's Markov matrix for
+    any time step, since the radars' steps are irregular. A long CV sojourn keeps the turn
+    models' spread out of straight flight's estimate (en-route aircraft mostly fly straight)."""
+    gate: float = 9.21
+    """Chi-square gate of the normalised innovation squared, 2 dof (9.21: 99 %)."""
+    address_bonus: float = 10.0
+    """Cost taken off a gated pair whose Mode S addresses match."""
+    address_mismatch_penalty: float = 10.0
+    """Cost added to a gated pair whose Mode S addresses differ: two transponders."""
+    mode3a_bonus: float = 4.0
+    """Cost taken off a gated pair whose validated Mode 3/A codes match (not a shared code)."""
+    confirm_m: int = 3
+    confirm_n: int = 4
+    delete_misses: int = 3
+    """Consecutive missed scans after which a confirmed track is deleted."""
+    tentative_delete_misses: int = 2
+    miss_tolerance: float = 0.25
+    """A scan counts as missed once (1 + this) periods have passed without a plot: the
+    target's sector may come a little late since the target moves in azimuth."""
+    min_speed_m_s: float = 20.0 * KNOT_M_S
+    max_speed_m_s: float = 700.0 * KNOT_M_S
+    init_min_dt_periods: float = 0.5
+    """Two-point initiation pairs plots of different scans: not a split of the same scan."""
+    init_max_dt_periods: float = 1.6
+    init_velocity_variance_scale: float = 4.0
+    """Scale on the two-point velocity covariance: the difference of two plots is the worst
+    known part of a new track, and a 3-sigma velocity error there would lose the next plot
+    and restart the track two scans later; a wider early gate costs less."""
+    max_backward_s: float = 2.0
+    """A plot older than its track's state by more than this is dropped and counted."""
+    max_position_variance_m2: float = 4.0e6
+    """A coasting track whose position variance (trace) exceeds this is deleted."""
+    q_vertical: float = 0.02
+    """White-noise intensity on the climb rate, FL^2/s^3."""
+    initial_climb_variance: float = 1.0
+    """(FL/s)^2: 1 FL/s is 6,000 ft/min, more than any airliner climbs."""
+    fl_step_mode_s: float = 0.25
+    """Flight-level quantisation of Mode S plots (25 ft); the variance is step^2/12."""
+    fl_step_mode_c: float = 1.0
+    """Flight-level quantisation of Mode C (Gillham, 100 ft)."""
+    fl_gate: float = 16.0
+    """1-dof gate on flight-level innovations: garbled Mode C is ignored, then the filter
+    restarts after ``fl_max_rejects`` rejections in a row (a real level change)."""
+    fl_max_rejects: int = 2
+
+    def __post_init__(self) -> None:
+        n_models = 1 + len(self.turn_rates_deg_s)
+        for name in ("initial_model_probabilities", "mean_sojourn_s"):
+            if len(getattr(self, name)) != n_models:
+                raise ValueError(f"{name} needs {n_models} entries (CV + each turn rate)")
+        if not 0 < self.confirm_m <= self.confirm_n <= 32:
+            raise ValueError("need 0 < confirm_m <= confirm_n <= 32")
+        if self.scan_period_s <= 0 or self.gate <= 0:
+            raise ValueError("scan_period_s and gate must be positive")
+
+    @property
+    def n_models(self) -> int:
+        return 1 + len(self.turn_rates_deg_s)

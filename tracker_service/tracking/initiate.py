@@ -1,0 +1,116 @@
+"""Two-point initiation: a plot left over from an earlier scan and one of this scan whose
+distance implies a plausible speed start a tentative track.
+
+Plots that join nothing wait for the next scan; plots older than the pairing window are
+forgotten.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from tracker_service.tracking.associate import global_nearest_neighbour
+from tracker_service.tracking.config import SHARED_MODE3A_CODES, TrackerConfig
+from tracker_service.tracking.plots import FloatArray, IntArray, PlotArrays
+
+NOISE_SIGMAS = 3.0
+
+
+class TwoPointInitiator:
+    def __init__(self, config: TrackerConfig) -> None:
+        self.config = config
+        self.pending = PlotArrays.empty()
+
+    def pair(self, plots: PlotArrays, now: float) -> tuple[PlotArrays, PlotArrays]:
+        """Pairs (earlier plot, later plot) that start tracks; the other plots wait."""
+        cfg = self.config
+        period = cfg.scan_period_s
+        max_dt = cfg.init_max_dt_periods * period
+        pending = self.pending.take(self.pending.time >= now - max_dt)
+        if len(pending) == 0 or len(plots) == 0:
+            self.pending = PlotArrays.concat(pending, plots)
+            return PlotArrays.empty(), PlotArrays.empty()
+        noise = (
+            np.sqrt(np.trace(pending.R, axis1=1, axis2=2)).max()
+            + np.sqrt(np.trace(plots.R, axis1=1, axis2=2)).max()
+        )
+        reach = cfg.max_speed_m_s * max_dt + NOISE_SIGMAS * noise
+        found = cKDTree(np.column_stack([pending.x, pending.y])).sparse_distance_matrix(
+            cKDTree(np.column_stack([plots.x, plots.y])), reach, output_type="ndarray"
+        )
+        i = found["i"].astype(np.int64)
+        j = found["j"].astype(np.int64)
+        dist = found["v"]
+        dt = plots.time[j] - pending.time[i]
+        sigma = np.sqrt(
+            np.trace(pending.R[i], axis1=1, axis2=2) + np.trace(plots.R[j], axis1=1, axis2=2)
+        )
+        ok = (
+            (dt >= cfg.init_min_dt_periods * period)
+            & (dt <= max_dt)
+            & (dist <= cfg.max_speed_m_s * dt + NOISE_SIGMAS * sigma)
+            & (dist >= cfg.min_speed_m_s * dt - NOISE_SIGMAS * sigma)
+        )
+        i, j, dist, dt = i[ok], j[ok], dist[ok], dt[ok]
+        cost = dist / (cfg.max_speed_m_s * dt) + _identity_cost(pending, i, plots, j, cfg)
+        chosen = global_nearest_neighbour(i, j, cost)
+        first, second = i[chosen], j[chosen]
+        keep_pending = np.ones(len(pending), dtype=bool)
+        keep_pending[first] = False
+        waiting = np.ones(len(plots), dtype=bool)
+        waiting[second] = False
+        self.pending = PlotArrays.concat(pending.take(keep_pending), plots.take(waiting))
+        return pending.take(first), plots.take(second)
+
+
+def _identity_cost(
+    a: PlotArrays,
+    i: IntArray,
+    b: PlotArrays,
+    j: IntArray,
+    cfg: TrackerConfig,
+) -> FloatArray:
+    """Identity as a preference among kinematically possible pairs (scaled to the
+    kinematic cost of up to 1): two different addresses are two transponders."""
+    addr_a, addr_b = a.address[i], b.address[j]
+    both = (addr_a >= 0) & (addr_b >= 0)
+    code_a, code_b = a.mode3a[i], b.mode3a[j]
+    code_match = (
+        a.mode3a_valid[i]
+        & b.mode3a_valid[j]
+        & (code_a == code_b)
+        & (code_a >= 0)
+        & ~np.isin(code_a, SHARED_MODE3A_CODES)
+    )
+    scale = 0.1
+    return np.asarray(
+        scale
+        * (
+            cfg.address_mismatch_penalty * (both & (addr_a != addr_b))
+            - cfg.address_bonus * (both & (addr_a == addr_b))
+            - cfg.mode3a_bonus * code_match
+        ),
+        dtype=np.float64,
+    )
+
+
+def two_point_state(
+    first: PlotArrays, second: PlotArrays, q: float, velocity_scale: float
+) -> tuple[FloatArray, FloatArray]:
+    """State at the later plot and its covariance from the two plots' covariances.
+
+    v = (z2 - z1) / dt, so cov(p, v) = R2 / dt and cov(v) = (R1 + R2) / dt^2; the process
+    noise between the plots adds q dt / 3 (the velocity error of a straight-line fit); the
+    velocity block is then scaled by ``velocity_scale``."""
+    dt = second.time - first.time
+    x = np.column_stack([second.x, second.y, (second.x - first.x) / dt, (second.y - first.y) / dt])
+    r1, r2 = first.R, second.R
+    p = np.zeros((dt.shape[0], 4, 4))
+    p[:, :2, :2] = r2
+    p[:, :2, 2:] = r2 / dt[:, None, None]
+    p[:, 2:, :2] = r2 / dt[:, None, None]
+    p[:, 2:, 2:] = velocity_scale * (
+        (r1 + r2) / (dt * dt)[:, None, None] + (q * dt / 3.0)[:, None, None] * np.eye(2)
+    )
+    return x, p

@@ -1,0 +1,414 @@
+"""The per-radar local tracker: association, IMM update, initiation, confirmation, coasting
+and deletion of every track of one radar, held in one structured numpy array.
+
+Per batch the work is vectorised over the batch's candidate track-plot pairs, the tracks
+updated and the tracks aged; the only Python loops run over the IMM's models.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.tracking import imm, vertical
+from tracker_service.tracking.associate import candidate_pairs, global_nearest_neighbour
+from tracker_service.tracking.config import SHARED_MODE3A_CODES, TrackerConfig
+from tracker_service.tracking.initiate import TwoPointInitiator, two_point_state
+from tracker_service.tracking.models import ModelSet
+from tracker_service.tracking.plots import (
+    BoolArray,
+    FloatArray,
+    IntArray,
+    PlotArrays,
+    as_plot_arrays,
+)
+
+TENTATIVE, CONFIRMED, COASTING, DELETED = 0, 1, 2, 3
+
+RADIUS_SAFETY = 1.2
+RADIUS_MARGIN_M = 50.0
+"""The pre-selection radius bounds the gate from the CV prediction of the combined state;
+the IMM's mixture can be a little wider, hence the slack."""
+
+
+def track_update_dtype(n_models: int) -> np.dtype[Any]:
+    """One row of ``LocalTracker.process`` output."""
+    return np.dtype(
+        [
+            ("track_number", np.int64),
+            ("time", np.float64),
+            ("x", np.float64),
+            ("y", np.float64),
+            ("vx", np.float64),
+            ("vy", np.float64),
+            ("P", np.float64, (16,)),
+            ("flight_level", np.float64),
+            ("climb_rate_fl_per_s", np.float64),
+            ("status", np.int8),
+            ("plot_id", np.int64),
+            ("mode3a", np.int64),
+            ("address", np.int64),
+            ("model_probabilities", np.float64, (n_models,)),
+        ]
+    )
+
+
+def _table_dtype(n_models: int) -> np.dtype[Any]:
+    return np.dtype(
+        [
+            ("number", np.int64),
+            ("status", np.int8),
+            ("x", np.float64, (n_models, 4)),
+            ("P", np.float64, (n_models, 4, 4)),
+            ("mu", np.float64, (n_models,)),
+            ("xc", np.float64, (4,)),
+            ("Pc", np.float64, (4, 4)),
+            ("t", np.float64),  # time of the state
+            ("t_hit", np.float64),  # latest plot time: the clock of misses
+            ("misses", np.int64),
+            ("hist", np.int64),  # one bit per scan, newest in bit 0: the M-of-N window
+            ("address", np.int64),
+            ("mode3a", np.int64),
+            ("fl", np.float64),
+            ("rate", np.float64),
+            ("Pv", np.float64, (2, 2)),
+            ("t_fl", np.float64),
+            ("fl_ok", np.bool_),
+            ("fl_rejects", np.int64),
+        ]
+    )
+
+
+@dataclass
+class TrackerStats:
+    """Running counts since the tracker started."""
+
+    plots: int = 0
+    invalid_plots: int = 0
+    late_plots_dropped: int = 0
+    plots_associated: int = 0
+    tracks_initiated: int = 0
+    tracks_confirmed: int = 0
+    tracks_deleted: int = 0
+
+
+class LocalTracker:
+    """The tracks of one radar. Feed ``process`` one batch of plots (one data block, a
+    sector) at a time, batches in time order; it returns the track updates of the batch."""
+
+    def __init__(self, config: TrackerConfig | None = None, first_track_number: int = 1) -> None:
+        self.config = config or TrackerConfig()
+        self.models = ModelSet.from_config(self.config)
+        self.stats = TrackerStats()
+        self.initiator = TwoPointInitiator(self.config)
+        self.output_dtype = track_update_dtype(self.models.n_models)
+        self._tab: npt.NDArray[Any] = np.zeros(64, dtype=_table_dtype(self.models.n_models))
+        self._n = 0
+        self._next_number = first_track_number
+        self._now = -np.inf
+        self._hist_mask = (1 << self.config.confirm_n) - 1
+
+    @property
+    def tracks(self) -> npt.NDArray[Any]:
+        """The live tracks' internal rows (a copy): for inspection and tests."""
+        return self._tab[: self._n].copy()
+
+    def process(self, plots: PlotArrays | npt.NDArray[Any]) -> npt.NDArray[Any]:
+        p = as_plot_arrays(plots)
+        self.stats.plots += len(p)
+        valid = (
+            np.isfinite(p.time)
+            & np.isfinite(p.x)
+            & np.isfinite(p.y)
+            & np.all(np.isfinite(p.R), axis=(1, 2))
+            & (p.R[:, 0, 0] > 0)
+            & (p.R[:, 0, 0] * p.R[:, 1, 1] - p.R[:, 0, 1] * p.R[:, 1, 0] > 0)
+        )
+        self.stats.invalid_plots += int(np.count_nonzero(~valid))
+        p = p.take(valid)
+        if len(p) == 0:
+            return np.zeros(0, dtype=self.output_dtype)
+        now = max(self._now, float(p.time.max()))
+        self._now = now
+        n_old = self._n
+        rows: list[npt.NDArray[Any]] = []
+
+        used, blocked, updated = self._associate(p, rows)
+        first, second = self.initiator.pair(p.take(~used & ~blocked), now)
+        rows.append(self._create(first, second))
+        rows.append(self._age(now, updated, n_old))
+        return np.concatenate(rows)
+
+    def _associate(
+        self, p: PlotArrays, rows: list[npt.NDArray[Any]]
+    ) -> tuple[BoolArray, BoolArray, BoolArray]:
+        """Gate and assign the batch, update the assigned tracks.
+
+        Returns the plots used, the plots kept from initiation (too late, or in a confirmed
+        track's gate: a split or a second plot of a known target), and the tracks updated."""
+        cfg = self.config
+        n = self._n
+        tab = self._tab[:n]
+        used = np.zeros(len(p), dtype=bool)
+        blocked = np.zeros(len(p), dtype=bool)
+        updated = np.zeros(n, dtype=bool)
+        plot_xy = np.column_stack([p.x, p.y])
+        t_mid = 0.5 * float(p.time.min() + p.time.max())
+        spread = float(np.max(np.abs(p.time - t_mid)))
+        coarse_xy, radius = self._reach(tab, t_mid, spread)
+        plot_radius = np.sqrt(cfg.gate * np.trace(p.R, axis1=1, axis2=2))
+        ti, pj = candidate_pairs(coarse_xy, radius, plot_xy, plot_radius)
+        dt = p.time[pj] - tab["t"][ti]
+        late = dt < -cfg.max_backward_s
+        too_old = np.zeros(len(p), dtype=bool)
+        too_old[pj[late]] = True
+        blocked |= too_old
+        ti, pj, dt = ti[~late], pj[~late], dt[~late]
+
+        pred = imm.predict(tab["x"][ti], tab["P"][ti], tab["mu"][ti], dt, self.models)
+        z, r = plot_xy[pj], p.R[pj]
+        nis, log_det = imm.innovation_test(pred, z, r)
+        gated = np.flatnonzero(nis <= cfg.gate)
+        blocked[pj[gated[tab["status"][ti[gated]] == CONFIRMED]]] = True
+        cost = nis[gated] + log_det[gated] + self._identity_cost(tab, ti[gated], p, pj[gated])
+        sel = gated[global_nearest_neighbour(ti[gated], pj[gated], cost)]
+        tracks, plot_index = ti[sel], pj[sel]
+        used[plot_index] = True
+        updated[tracks] = True
+        self.stats.late_plots_dropped += int(np.count_nonzero(too_old & ~used))
+        self.stats.plots_associated += int(tracks.size)
+        rows.append(self._apply(tab, tracks, p.take(plot_index), pred.take(sel)))
+        return used, blocked, updated
+
+    def _reach(
+        self, tab: npt.NDArray[Any], t_mid: float, spread: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """Coarse positions at the batch's middle time and a radius bounding every gate."""
+        xc, pc = tab["xc"], tab["Pc"]
+        dt = t_mid - tab["t"]
+        a = np.abs(dt) + spread
+        var = (
+            pc[:, 0, 0]
+            + pc[:, 1, 1]
+            + 2.0 * a * np.abs(pc[:, 0, 2] + pc[:, 1, 3])
+            + a * a * (pc[:, 2, 2] + pc[:, 3, 3])
+            + 2.0 * float(self.models.q.max()) * a**3 / 3.0
+        )
+        speed = np.hypot(xc[:, 2], xc[:, 3])
+        turn = float(np.abs(self.models.turn_rates_rad_s).max())
+        radius = (
+            RADIUS_SAFETY * np.sqrt(self.config.gate * var)
+            + speed * spread
+            + 0.5 * speed * turn * a * a
+            + RADIUS_MARGIN_M
+        )
+        return xc[:, :2] + xc[:, 2:] * dt[:, None], radius
+
+    def _identity_cost(
+        self, tab: npt.NDArray[Any], ti: IntArray, p: PlotArrays, pj: IntArray
+    ) -> FloatArray:
+        """Identity shifts the cost among gated pairs only: it never opens a gate."""
+        cfg = self.config
+        addr_t, addr_p = tab["address"][ti], p.address[pj]
+        both = (addr_t >= 0) & (addr_p >= 0)
+        code_t, code_p = tab["mode3a"][ti], p.mode3a[pj]
+        code_match = (
+            p.mode3a_valid[pj]
+            & (code_t >= 0)
+            & (code_t == code_p)
+            & ~np.isin(code_p, SHARED_MODE3A_CODES)
+        )
+        return np.asarray(
+            cfg.address_mismatch_penalty * (both & (addr_t != addr_p))
+            - cfg.address_bonus * (both & (addr_t == addr_p))
+            - cfg.mode3a_bonus * code_match,
+            dtype=np.float64,
+        )
+
+    def _apply(
+        self,
+        tab: npt.NDArray[Any],
+        ti: IntArray,
+        p: PlotArrays,
+        pred: imm.ImmPrediction,
+    ) -> npt.NDArray[Any]:
+        cfg = self.config
+        z = np.column_stack([p.x, p.y])
+        x_new, p_new, mu_new = imm.update(pred, z, p.R)
+        xc, pc = imm.combine(x_new, p_new, mu_new)
+        tab["x"][ti] = x_new
+        tab["P"][ti] = p_new
+        tab["mu"][ti] = mu_new
+        tab["xc"][ti] = xc
+        tab["Pc"][ti] = pc
+        tab["t"][ti] = p.time
+        # A plot of the scan already counted (a late one) must not count a second hit.
+        same_scan = p.time < tab["t_hit"][ti] + 0.5 * cfg.scan_period_s
+        hist = tab["hist"][ti]
+        tab["hist"][ti] = np.where(same_scan, hist | 1, ((hist << 1) | 1) & self._hist_mask)
+        tab["t_hit"][ti] = np.maximum(tab["t_hit"][ti], p.time)
+        tab["misses"][ti] = 0
+        tab["address"][ti] = np.where(p.address >= 0, p.address, tab["address"][ti])
+        tab["mode3a"][ti] = np.where(p.mode3a_valid & (p.mode3a >= 0), p.mode3a, tab["mode3a"][ti])
+        self._update_vertical(tab, ti, p)
+        self._confirm(tab, ti)
+        return self._rows(tab, ti, p.time, tab["status"][ti], p.plot_id, mu_new)
+
+    def _update_vertical(self, tab: npt.NDArray[Any], ti: IntArray, p: PlotArrays) -> None:
+        cfg = self.config
+        has = p.fl_valid & np.isfinite(p.flight_level)
+        ti, fl, t = ti[has], p.flight_level[has], p.time[has]
+        var = vertical.measurement_variance(fl, p.typ[has], cfg)
+        start = ~tab["fl_ok"][ti]
+        fl_p, rate_p, pv_p = vertical.predict(
+            tab["fl"][ti], tab["rate"][ti], tab["Pv"][ti], t - tab["t_fl"][ti], cfg.q_vertical
+        )
+        fl_u, rate_u, pv_u, ok = vertical.update(fl_p, rate_p, pv_p, fl, var, cfg.fl_gate)
+        rejects = np.where(ok, 0, tab["fl_rejects"][ti] + 1)
+        start |= rejects >= cfg.fl_max_rejects
+        fresh = np.zeros((ti.size, 2, 2))
+        fresh[:, 0, 0] = var
+        fresh[:, 1, 1] = cfg.initial_climb_variance
+        # A rejected level (garbled Mode C) leaves the old state at its old time.
+        tab["fl"][ti] = np.where(start, fl, np.where(ok, fl_u, tab["fl"][ti]))
+        tab["rate"][ti] = np.where(start, 0.0, np.where(ok, rate_u, tab["rate"][ti]))
+        tab["Pv"][ti] = np.where(
+            start[:, None, None], fresh, np.where(ok[:, None, None], pv_u, tab["Pv"][ti])
+        )
+        tab["t_fl"][ti] = np.where(start | ok, t, tab["t_fl"][ti])
+        tab["fl_rejects"][ti] = np.where(start, 0, rejects)
+        tab["fl_ok"][ti] = True
+
+    def _confirm(self, tab: npt.NDArray[Any], ti: IntArray) -> None:
+        """M of N, except for a tentative track carrying the address of a confirmed track
+        that is associating: a reflection or a split, since the original follows the
+        kinematics."""
+        candidates = ti[
+            (tab["status"][ti] == TENTATIVE)
+            & (np.bitwise_count(tab["hist"][ti]) >= self.config.confirm_m)
+        ]
+        if candidates.size == 0:
+            return
+        live = (tab["status"] == CONFIRMED) & (tab["misses"] == 0) & (tab["address"] >= 0)
+        clash = np.isin(tab["address"][candidates], tab["address"][live]) & (
+            tab["address"][candidates] >= 0
+        )
+        confirmed = candidates[~clash]
+        tab["status"][confirmed] = CONFIRMED
+        self.stats.tracks_confirmed += int(confirmed.size)
+
+    def _create(self, first: PlotArrays, second: PlotArrays) -> npt.NDArray[Any]:
+        k = len(second)
+        if k == 0:
+            return np.zeros(0, dtype=self.output_dtype)
+        cfg = self.config
+        start = self._n
+        if start + k > self._tab.shape[0]:
+            grown = np.zeros(max(2 * self._tab.shape[0], start + k), dtype=self._tab.dtype)
+            grown[:start] = self._tab[:start]
+            self._tab = grown
+        self._n = start + k
+        tab = self._tab[: self._n]
+        ti = np.arange(start, start + k)
+        fresh: npt.NDArray[Any] = np.zeros(k, dtype=self._tab.dtype)
+        x, pm = two_point_state(
+            first, second, float(self.models.q[0]), cfg.init_velocity_variance_scale
+        )
+        m = self.models.n_models
+        fresh["number"] = np.arange(self._next_number, self._next_number + k)
+        self._next_number += k
+        fresh["status"] = TENTATIVE
+        fresh["x"] = x[:, None, :]
+        fresh["P"] = pm[:, None, :, :]
+        fresh["mu"] = np.broadcast_to(self.models.initial_probabilities, (k, m))
+        fresh["xc"] = x
+        fresh["Pc"] = pm
+        fresh["t"] = fresh["t_hit"] = second.time
+        missed_between = second.time - first.time > 1.5 * cfg.scan_period_s
+        fresh["hist"] = np.where(missed_between, 0b101, 0b11) & self._hist_mask
+        fresh["address"] = np.where(second.address >= 0, second.address, first.address)
+        code2 = np.where(second.mode3a_valid, second.mode3a, -1)
+        code1 = np.where(first.mode3a_valid, first.mode3a, -1)
+        fresh["mode3a"] = np.where(code2 >= 0, code2, code1)
+        fresh["fl"] = np.nan
+        tab[start:] = fresh
+        self._update_vertical(tab, ti, first)
+        self._update_vertical(tab, ti, second)
+        self.stats.tracks_initiated += k
+        self._confirm(tab, ti)
+        return self._rows(tab, ti, second.time, tab["status"][ti], second.plot_id, fresh["mu"])
+
+    def _age(self, now: float, updated: BoolArray, n_old: int) -> npt.NDArray[Any]:
+        """Count missed scans of the tracks without a plot; coast or delete them."""
+        cfg = self.config
+        tab = self._tab[: self._n]
+        idle = np.flatnonzero(~updated[:n_old])
+        elapsed = now - tab["t_hit"][idle]
+        n_miss = np.maximum(np.floor(elapsed / cfg.scan_period_s - cfg.miss_tolerance), 0)
+        n_miss = n_miss.astype(np.int64)
+        grow = n_miss > tab["misses"][idle]
+        idle, n_miss = idle[grow], n_miss[grow]
+        if idle.size == 0:
+            return np.zeros(0, dtype=self.output_dtype)
+        shift = np.minimum(n_miss - tab["misses"][idle], 32)
+        tab["hist"][idle] = (tab["hist"][idle] << shift) & self._hist_mask
+        tab["misses"][idle] = n_miss
+        dt = now - tab["t"][idle]
+        pred = imm.predict(tab["x"][idle], tab["P"][idle], tab["mu"][idle], dt, self.models)
+        status = tab["status"][idle]
+        limit = np.where(status == CONFIRMED, cfg.delete_misses, cfg.tentative_delete_misses)
+        position_var = pred.P_comb[:, 0, 0] + pred.P_comb[:, 1, 1]
+        dead = (n_miss >= limit) | (position_var > cfg.max_position_variance_m2)
+        coasting = (status == CONFIRMED) & ~dead
+        report = dead | coasting
+        out_status = np.where(dead, DELETED, COASTING).astype(np.int8)
+        rows = self._rows(
+            tab,
+            idle[report],
+            np.full(int(np.count_nonzero(report)), now),
+            out_status[report],
+            np.full(int(np.count_nonzero(report)), -1, dtype=np.int64),
+            pred.c[report],
+            pred.take(np.flatnonzero(report)),
+        )
+        if dead.any():
+            keep = np.ones(self._n, dtype=bool)
+            keep[idle[dead]] = False
+            survivors = tab[keep]
+            self._n = survivors.shape[0]
+            self._tab[: self._n] = survivors
+            self.stats.tracks_deleted += int(np.count_nonzero(dead))
+        return rows
+
+    def _rows(
+        self,
+        tab: npt.NDArray[Any],
+        ti: IntArray,
+        time: FloatArray,
+        status: npt.NDArray[Any],
+        plot_id: IntArray,
+        mu: FloatArray,
+        pred: imm.ImmPrediction | None = None,
+    ) -> npt.NDArray[Any]:
+        out = np.zeros(ti.size, dtype=self.output_dtype)
+        xc = tab["xc"][ti] if pred is None else pred.x_comb
+        pc = tab["Pc"][ti] if pred is None else pred.P_comb
+        out["track_number"] = tab["number"][ti]
+        out["time"] = time
+        out["x"], out["y"], out["vx"], out["vy"] = xc.T
+        out["P"] = pc.reshape(-1, 16)
+        fl_ok = tab["fl_ok"][ti]
+        rate = tab["rate"][ti]
+        out["flight_level"] = np.where(
+            fl_ok, tab["fl"][ti] + rate * (time - tab["t_fl"][ti]), np.nan
+        )
+        out["climb_rate_fl_per_s"] = np.where(fl_ok, rate, np.nan)
+        out["status"] = status
+        out["plot_id"] = plot_id
+        out["mode3a"] = tab["mode3a"][ti]
+        out["address"] = tab["address"][ti]
+        out["model_probabilities"] = mu
+        return out
