@@ -1,0 +1,100 @@
+"""Local tracking speed: plots/s on one core, and how the cost per plot grows with traffic.
+
+Targets (issue 4): at least 20,000 plots/s for a dense terminal area, fed as the radar
+sends them (one sector per batch), and a cost per plot that grows by less than 2x from
+100 to 2,000 aircraft. Synthetic straight-flying traffic around one radar (5 s period,
+16 sectors, sigma 50 m / 0.06 deg); the first 5 scans (initiation) are not timed. Each
+size is timed --repeats times, interleaved; medians are printed with the ratio to the
+smallest size.
+
+    python benchmarks/bench_tracking.py [--sizes 100 500 2000] [--scans 25] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+from tracker_service.geodesy import polar_covariance
+from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
+
+PERIOD_S = 5.0
+SECTORS = 16
+SIGMA_RHO_M = 50.0
+SIGMA_THETA_DEG = 0.06
+
+
+def sector_batches(targets: int, scans: int, seed: int) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    radius = rng.uniform(10e3, 300e3, targets)
+    bearing = rng.uniform(0.0, 2 * np.pi, targets)
+    start = np.stack([radius * np.sin(bearing), radius * np.cos(bearing)], axis=1)
+    speed = rng.uniform(120.0, 250.0, targets)
+    course = rng.uniform(0.0, 2 * np.pi, targets)
+    velocity = np.stack([speed * np.sin(course), speed * np.cos(course)], axis=1)
+    batches = []
+    for scan in range(scans):
+        # Detection time: when the beam (clockwise from north) crosses each target.
+        position = start + velocity * (scan * PERIOD_S)
+        theta = np.degrees(np.arctan2(position[:, 0], position[:, 1])) % 360.0
+        t = scan * PERIOD_S + theta / 360.0 * PERIOD_S
+        position = start + velocity * t[:, None]
+        rho = np.hypot(position[:, 0], position[:, 1])
+        theta = np.degrees(np.arctan2(position[:, 0], position[:, 1])) % 360.0
+        rho_m = rho + rng.normal(0.0, SIGMA_RHO_M, targets)
+        theta_m = theta + rng.normal(0.0, SIGMA_THETA_DEG, targets)
+        plots = np.zeros(targets, dtype=PLOT_DTYPE)
+        plots["time"] = 1.78e9 + t
+        plots["x"] = rho_m * np.sin(np.radians(theta_m))
+        plots["y"] = rho_m * np.cos(np.radians(theta_m))
+        plots["R"] = polar_covariance(rho_m, theta_m, SIGMA_RHO_M, SIGMA_THETA_DEG)
+        plots["flight_level"] = np.nan
+        plots["mode3a"] = -1
+        plots["address"] = -1
+        plots["typ"] = 2
+        plots["plot_id"] = scan * targets + np.arange(targets)
+        sector = (theta // (360.0 / SECTORS)).astype(int)
+        for s in range(SECTORS):
+            chosen = plots[sector == s]
+            batches.append(chosen[np.argsort(chosen["time"])])
+    return batches
+
+
+def run_once(batches: list[np.ndarray], warm_up: int) -> tuple[float, int]:
+    tracker = LocalTracker(TrackerConfig(scan_period_s=PERIOD_S))
+    for batch in batches[:warm_up]:
+        tracker.process(batch)
+    timed = batches[warm_up:]
+    started = time.perf_counter()
+    for batch in timed:
+        tracker.process(batch)
+    return time.perf_counter() - started, sum(len(b) for b in timed)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[100, 500, 2000])
+    parser.add_argument("--scans", type=int, default=25)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    data = {n: sector_batches(n, args.scans, seed=n) for n in args.sizes}
+    seconds: dict[int, list[float]] = {n: [] for n in args.sizes}
+    plots: dict[int, int] = {}
+    for _ in range(args.repeats):
+        for n in args.sizes:
+            elapsed, count = run_once(data[n], warm_up=5 * SECTORS)
+            seconds[n].append(elapsed)
+            plots[n] = count
+    base = None
+    print(f"{'aircraft':>9} {'plots/s':>10} {'us/plot':>9} {'cost ratio':>11}")
+    for n in args.sizes:
+        per_plot = statistics.median(seconds[n]) / plots[n]
+        base = base or per_plot
+        print(f"{n:>9} {1 / per_plot:>10,.0f} {per_plot * 1e6:>9.1f} {per_plot / base:>11.2f}")
+
+
+if __name__ == "__main__":
+    main()
