@@ -48,6 +48,16 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument(
         "--no-bias", action="store_true", help="zero every systematic error of every radar"
     )
+    evaluate = commands.add_parser(
+        "evaluate",
+        help="run the local trackers on a recording with truth and measure them against it",
+        description="Track every radar of a simulated MCAP recording and measure plots and "
+        "local tracks against the truth: position, along/across-track and velocity RMS, "
+        "probability of update, tracks per aircraft, identity changes, false tracks, NEES.",
+    )
+    from tracker_service.evaluation.command import add_arguments
+
+    add_arguments(evaluate)
     return parser
 
 
@@ -91,6 +101,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
     if args.command == "simulate":
         return _simulate(args)
+    if args.command == "evaluate":
+        from tracker_service.evaluation.command import run
+
+        return run(args)
     return 2
 
 
