@@ -232,11 +232,22 @@ class RadarModel:
             & (measured["rho"] <= r.max_range_nm * NM)
             & (measured["elevation"] <= r.cone_of_silence_deg)
             & measured["visible"]
+            & self._detectable(ac, measured["rho"])
         )
         scan = (t // period).astype(np.int64)
         for a, k in zip(ac[covered], scan[covered], strict=True):
             self.coverage[int(k)].append(int(a))
         return ac[covered], t[covered], {key: v[covered] for key, v in measured.items()}
+
+    def _detectable(self, aircraft: npt.NDArray[np.int64], rho_m: FloatArray) -> npt.NDArray[Any]:
+        """Whether the radar can see each aircraft at all: a transponder it interrogates, or
+        a primary radar within its range. Coverage (and so the probability of update the
+        evaluation measures) counts only these."""
+        r = self.radar
+        kinds = np.array([self.truth.identities[int(a)].transponder for a in aircraft])
+        secondary = (r.ssr or r.mode_s) & (kinds != "none")
+        primary = r.psr & (np.nan_to_num(rho_m, nan=np.inf) <= r.psr_max_range_nm * NM)
+        return np.asarray(secondary | primary)
 
     # --- plots ----------------------------------------------------------------------------
 

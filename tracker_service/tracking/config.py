@@ -51,6 +51,9 @@ class TrackerConfig:
     miss_tolerance: float = 0.25
     """A scan counts as missed once (1 + this) periods have passed without a plot: the
     target's sector may come a little late since the target moves in azimuth."""
+    min_confirm_speed_psr_only_m_s: float = 50.0 * KNOT_M_S
+    """A track that never had a secondary reply (no address, no Mode 3/A) is confirmed only
+    above this speed: persistent clutter (buildings, wind farms) wanders at a few m/s."""
     min_speed_m_s: float = 20.0 * KNOT_M_S
     max_speed_m_s: float = 700.0 * KNOT_M_S
     init_min_dt_periods: float = 0.5

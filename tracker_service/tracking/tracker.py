@@ -255,7 +255,17 @@ class LocalTracker:
         tab["mode3a"][ti] = np.where(p.mode3a_valid & (p.mode3a >= 0), p.mode3a, tab["mode3a"][ti])
         self._update_vertical(tab, ti, p)
         self._confirm(tab, ti)
+        self._demote_slow_primary(tab, ti)
         return self._rows(tab, ti, p.time, tab["status"][ti], p.plot_id, mu_new)
+
+    def _demote_slow_primary(self, tab: npt.NDArray[Any], ti: IntArray) -> None:
+        """A confirmed track without any secondary reply that has slowed to clutter speed
+        goes back to tentative: its first, noisy velocity may have passed the speed test."""
+        primary_only = (tab["address"][ti] < 0) & (tab["mode3a"][ti] < 0)
+        speed = np.hypot(tab["xc"][ti, 2], tab["xc"][ti, 3])
+        slow = primary_only & (speed < self.config.min_confirm_speed_psr_only_m_s)
+        demoted = ti[slow & (tab["status"][ti] == CONFIRMED)]
+        tab["status"][demoted] = TENTATIVE
 
     def _update_vertical(self, tab: npt.NDArray[Any], ti: IntArray, p: PlotArrays) -> None:
         cfg = self.config
@@ -284,8 +294,8 @@ class LocalTracker:
 
     def _confirm(self, tab: npt.NDArray[Any], ti: IntArray) -> None:
         """M of N, except for a tentative track carrying the address of a confirmed track
-        that is associating: a reflection or a split, since the original follows the
-        kinematics."""
+        that is associating (a reflection or a split, since the original follows the
+        kinematics), and for a slow track that never had a secondary reply (clutter)."""
         candidates = ti[
             (tab["status"][ti] == TENTATIVE)
             & (np.bitwise_count(tab["hist"][ti]) >= self.config.confirm_m)
@@ -296,7 +306,10 @@ class LocalTracker:
         clash = np.isin(tab["address"][candidates], tab["address"][live]) & (
             tab["address"][candidates] >= 0
         )
-        confirmed = candidates[~clash]
+        primary_only = (tab["address"][candidates] < 0) & (tab["mode3a"][candidates] < 0)
+        speed = np.hypot(tab["xc"][candidates, 2], tab["xc"][candidates, 3])
+        slow = primary_only & (speed < self.config.min_confirm_speed_psr_only_m_s)
+        confirmed = candidates[~clash & ~slow]
         tab["status"][confirmed] = CONFIRMED
         self.stats.tracks_confirmed += int(confirmed.size)
 
