@@ -1,0 +1,53 @@
+"""The local trackers on the shipped scenarios, without systematic errors, measured by
+`evaluate` against the truth: the targets of issue 4 where they are met, and regression
+floors (marked) where they are not met yet."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.conftest import REPO
+from tracker_service.evaluation.command import evaluate
+from tracker_service.simulator.run import simulate
+from tracker_service.simulator.scenario import load_scenario
+
+SCENARIOS = REPO / "config" / "scenarios"
+
+
+def _local(name: str, tmp_path: Path) -> dict[str, dict[str, Any]]:
+    out = tmp_path / f"{name}.mcap"
+    simulate(load_scenario(SCENARIOS / f"{name}.toml"), out, no_bias=True)
+    return evaluate(out).as_json()
+
+
+@pytest.fixture(scope="module")
+def three_sites(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict[str, Any]]:
+    return _local("three_sites", tmp_path_factory.mktemp("three_sites"))
+
+
+def test_crossings_keep_every_identity(tmp_path: Path) -> None:
+    metrics = _local("crossings", tmp_path)
+    for radar, local in metrics["local"].items():
+        assert local["id_changes"] == 0, radar
+        assert local["tracks_per_aircraft"] <= 1.05, radar
+        assert local["false_tracks"] == 0, radar
+
+
+def test_three_sites_targets_met(three_sites: dict[str, dict[str, Any]]) -> None:
+    for radar, local in three_sites["local"].items():
+        assert 0.7 * local["nees_dof"] <= local["nees_mean"] <= 1.4 * local["nees_dof"], radar
+        assert local["false_track_max_scans"] <= 3, radar
+        assert local["id_changes"] == 0, radar
+
+
+def test_three_sites_regression_floors(three_sites: dict[str, dict[str, Any]]) -> None:
+    # Targets not met yet (issue 4: ratio <= 0.6, Pu >= 0.97, <= 1.05 tracks per aircraft);
+    # these bounds hold the figures measured on 2026-11-25 so that they only get better.
+    for radar, local in three_sites["local"].items():
+        ratio = local["position_rms_m"] / three_sites["plots"][radar]["position_rms_m"]
+        assert ratio <= 0.66, radar
+        assert local["probability_of_update"] >= 0.96, radar
+        assert local["tracks_per_aircraft"] <= 1.12, radar
