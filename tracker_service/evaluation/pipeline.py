@@ -87,6 +87,8 @@ RAW_PLOT_DTYPE = np.dtype(
         ("theta_deg", np.float64),
         ("flight_level", np.float64),  # NaN when absent, invalid or garbled
         ("typ", np.int64),
+        ("address", np.int64),  # Mode S address, -1 when absent
+        ("mode3a", np.int64),  # Mode 3/A code as an integer, -1 when absent
         ("kind", np.int8),  # KIND_*
         ("aircraft", np.int64),  # origin aircraft index, -1 when none
         ("detection_time", np.float64),  # true time of detection, NaN when unknown
@@ -224,7 +226,7 @@ def system_plane(metadata: Mapping[str, Any], infos: Mapping[str, RadarInfo]) ->
     return SystemPlane(lat, lon)
 
 
-def _blocks_of(payload: bytes, category: int) -> Iterator[bytes]:
+def blocks_of(payload: bytes, category: int) -> Iterator[bytes]:
     """The data blocks of one category in a datagram, by their headers alone (cheap: the
     plot path needs CAT034 decoded, not every block)."""
     pos = 0
@@ -235,6 +237,76 @@ def _blocks_of(payload: bytes, category: int) -> Iterator[bytes]:
         if payload[pos] == category:
             yield payload[pos : pos + length]
         pos += length
+
+
+def convert_batch(
+    raw: npt.NDArray[Any],
+    info: RadarInfo,
+    plane: SystemPlane,
+    clock: PlotClock,
+    heights: HeightModel,
+    received: float,
+    first_id: int,
+    sequence: int,
+) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
+    """One datagram's plots of one radar (``asterix.plots`` rows): timed, converted to the
+    system plane, as the tracker's batch (``tracking.PLOT_DTYPE``) and as a
+    ``RAW_PLOT_DTYPE`` table (origins unknown) with plot ids from ``first_id``."""
+    n = len(raw)
+    times, time_sources = clock.times(raw, received)
+    fl = np.asarray(raw["flight_level"], dtype=np.float64)
+    # V = 1 (not validated) and G = 1 (garbled) Mode C is no height: the HeightModel's
+    # stand-in and its large sigma take over, and the tracker's vertical filter skips it.
+    fl_ok = (
+        np.isfinite(fl) & (raw["flight_level_invalid"] != 1) & (raw["flight_level_garbled"] != 1)
+    )
+    fl_clean = np.where(fl_ok, fl, np.nan)
+    height, height_sigma = heights.heights(fl_clean)
+    psr_only = raw["typ"] == 1
+    sigma_rho = np.where(psr_only, info.psr_sigma_range_m, info.sigma_range_m)
+    sigma_theta = np.where(psr_only, info.psr_sigma_azimuth_deg, info.sigma_azimuth_deg)
+    rho_m = np.asarray(raw["rho"], dtype=np.float64) * NM
+    theta = np.asarray(raw["theta"], dtype=np.float64)
+    converted = convert_plots(
+        info.site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
+    )
+    ids = np.arange(first_id, first_id + n, dtype=np.int64)
+    mode3a = np.asarray(raw["mode3a"], dtype=np.int64)
+
+    batch = np.zeros(n, dtype=PLOT_DTYPE)
+    batch["time"] = times
+    batch["x"] = converted.x
+    batch["y"] = converted.y
+    batch["R"] = converted.R
+    batch["flight_level"] = fl
+    batch["fl_valid"] = fl_ok
+    batch["mode3a"] = mode3a
+    batch["mode3a_valid"] = (
+        (mode3a >= 0) & (raw["mode3a_invalid"] != 1) & (raw["mode3a_garbled"] != 1)
+    )
+    batch["address"] = raw["address"]
+    batch["typ"] = raw["typ"]
+    batch["plot_id"] = ids
+
+    table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
+    table["plot_id"] = ids
+    table["sequence"] = sequence
+    table["record"] = np.arange(n)
+    table["time"] = times
+    table["time_source"] = time_sources
+    table["x"] = converted.x
+    table["y"] = converted.y
+    table["R"] = converted.R
+    table["rho_m"] = rho_m
+    table["theta_deg"] = theta
+    table["flight_level"] = fl_clean
+    table["typ"] = raw["typ"]
+    table["address"] = raw["address"]
+    table["mode3a"] = mode3a
+    table["kind"] = KIND_UNKNOWN
+    table["aircraft"] = -1
+    table["detection_time"] = np.nan
+    return batch, table
 
 
 def _truth_plot_index(recording: Recording) -> dict[tuple[str, int], list[dict[str, Any]]]:
@@ -281,7 +353,7 @@ def run_pipeline(
             continue
         sequence = sequences[datagram.source]
         sequences[datagram.source] += 1
-        for block in _blocks_of(datagram.payload, CAT034):
+        for block in blocks_of(datagram.payload, CAT034):
             for event in decode_blocks(block):
                 if isinstance(event, Block):
                     for items in event.records:
@@ -305,63 +377,12 @@ def run_pipeline(
                 continue
             tracker_config = TrackerConfig(**{"scan_period_s": info.period_s, **tracker_overrides})
             state = states[datagram.source] = _RadarState(info, tracker_config)
-        info = state.info
-        n = len(raw)
-        times, time_sources = clock.times(raw, datagram.time)
-        fl = np.asarray(raw["flight_level"], dtype=np.float64)
-        # V = 1 (not validated) and G = 1 (garbled) Mode C is no height: the HeightModel's
-        # stand-in and its large sigma take over, and the tracker's vertical filter skips it.
-        fl_ok = (
-            np.isfinite(fl)
-            & (raw["flight_level_invalid"] != 1)
-            & (raw["flight_level_garbled"] != 1)
+        batch, table = convert_batch(
+            raw, state.info, plane, clock, heights, datagram.time, next_id, sequence
         )
-        fl_clean = np.where(fl_ok, fl, np.nan)
-        height, height_sigma = heights.heights(fl_clean)
-        psr_only = raw["typ"] == 1
-        sigma_rho = np.where(psr_only, info.psr_sigma_range_m, info.sigma_range_m)
-        sigma_theta = np.where(psr_only, info.psr_sigma_azimuth_deg, info.sigma_azimuth_deg)
-        rho_m = np.asarray(raw["rho"], dtype=np.float64) * NM
-        theta = np.asarray(raw["theta"], dtype=np.float64)
-        converted = convert_plots(
-            info.site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
-        )
-        ids = np.arange(next_id, next_id + n, dtype=np.int64)
-        next_id += n
-
-        batch = np.zeros(n, dtype=PLOT_DTYPE)
-        batch["time"] = times
-        batch["x"] = converted.x
-        batch["y"] = converted.y
-        batch["R"] = converted.R
-        batch["flight_level"] = fl
-        batch["fl_valid"] = fl_ok
-        mode3a = np.asarray(raw["mode3a"], dtype=np.int64)
-        batch["mode3a"] = mode3a
-        batch["mode3a_valid"] = (
-            (mode3a >= 0) & (raw["mode3a_invalid"] != 1) & (raw["mode3a_garbled"] != 1)
-        )
-        batch["address"] = raw["address"]
-        batch["typ"] = raw["typ"]
-        batch["plot_id"] = ids
+        next_id += len(raw)
         state.updates.append(state.tracker.process(batch))
-
-        table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
-        table["plot_id"] = ids
-        table["sequence"] = sequence
-        table["record"] = np.arange(n)
-        table["time"] = times
-        table["time_source"] = time_sources
-        table["x"] = converted.x
-        table["y"] = converted.y
-        table["R"] = converted.R
-        table["rho_m"] = rho_m
-        table["theta_deg"] = theta
-        table["flight_level"] = fl_clean
-        table["typ"] = raw["typ"]
-        table["kind"] = KIND_UNKNOWN
-        table["aircraft"] = -1
-        table["detection_time"] = np.nan
+        n, ids = len(raw), table["plot_id"]
         records = truth_plots.get((datagram.source, sequence))
         if records is not None and len(records) != n:
             # A record the plot path could not read would shift every later index.
