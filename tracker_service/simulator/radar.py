@@ -88,10 +88,6 @@ class BiasSeries:
         )
 
 
-def _wrap360(angle: FloatArray) -> FloatArray:
-    return np.mod(angle, 360.0)
-
-
 class RadarModel:
     def __init__(
         self,
