@@ -8,6 +8,12 @@ size is timed --repeats times, interleaved; medians are printed with the ratio t
 smallest size.
 
     python benchmarks/bench_tracking.py [--sizes 100 500 2000] [--scans 25] [--repeats 3]
+
+With --recording, it times the trackers on a simulated recording instead (for the `tma`
+target: `tracker-service simulate config/scenarios/tma.toml -o tma.mcap --no-bias`), fed
+datagram by datagram through the evaluation pipeline; only `process` is timed.
+
+    python benchmarks/bench_tracking.py --recording tma.mcap
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ import time
 
 import numpy as np
 
+from tracker_service.evaluation.pipeline import run_pipeline
 from tracker_service.geodesy import polar_covariance
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 
@@ -74,12 +81,49 @@ def run_once(batches: list[np.ndarray], warm_up: int) -> tuple[float, int]:
     return time.perf_counter() - started, sum(len(b) for b in timed)
 
 
+class TimedTracker(LocalTracker):
+    """A LocalTracker that adds up the time spent in ``process``."""
+
+    def __init__(self, config: TrackerConfig) -> None:
+        super().__init__(config)
+        self.seconds, self.plots, self.batches = 0.0, 0, 0
+
+    def process(self, plots: np.ndarray) -> np.ndarray:  # type: ignore[override]
+        started = time.perf_counter()
+        out = super().process(plots)
+        self.seconds += time.perf_counter() - started
+        self.plots += len(plots)
+        self.batches += 1
+        return out
+
+
+def bench_recording(path: str) -> None:
+    trackers: dict[str, TimedTracker] = {}
+
+    def make(source: str, config: TrackerConfig) -> LocalTracker:
+        trackers[source] = TimedTracker(config)
+        return trackers[source]
+
+    result = run_pipeline(path, make_tracker=make)
+    print(f"{'radar':>7} {'period s':>9} {'plots':>8} {'plots/batch':>12} {'plots/s':>10}")
+    for source, run in result.radars.items():
+        tracker = trackers[source]
+        print(
+            f"{source:>7} {run.info.period_s:>9.1f} {tracker.plots:>8} "
+            f"{tracker.plots / tracker.batches:>12.1f} {tracker.plots / tracker.seconds:>10,.0f}"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[100, 500, 2000])
     parser.add_argument("--scans", type=int, default=25)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--recording", help="time the trackers on this simulated recording")
     args = parser.parse_args()
+    if args.recording:
+        bench_recording(args.recording)
+        return
     data = {n: sector_batches(n, args.scans, seed=n) for n in args.sizes}
     seconds: dict[int, list[float]] = {n: [] for n in args.sizes}
     plots: dict[int, int] = {}

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import defaultdict
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -321,18 +321,26 @@ def _truth_plot_index(recording: Recording) -> dict[tuple[str, int], list[dict[s
 class _RadarState:
     """What the pipeline keeps per radar while it reads."""
 
-    def __init__(self, info: RadarInfo, tracker_config: TrackerConfig) -> None:
+    def __init__(
+        self,
+        info: RadarInfo,
+        tracker_config: TrackerConfig,
+        tracker: LocalTracker,
+    ) -> None:
         self.info = info
         self.tracker_config = tracker_config
-        self.tracker = LocalTracker(tracker_config)
+        self.tracker = tracker
         self.updates: list[npt.NDArray[Any]] = []
         self.plots: list[npt.NDArray[Any]] = []
 
 
 def run_pipeline(
-    path: str | Path | Recording, config: EvaluationConfig | None = None
+    path: str | Path | Recording,
+    config: EvaluationConfig | None = None,
+    make_tracker: Callable[[str, TrackerConfig], LocalTracker] | None = None,
 ) -> PipelineResult:
-    """Track every radar of a recording; see the module docstring."""
+    """Track every radar of a recording; see the module docstring. ``make_tracker(source,
+    config)`` builds each radar's tracker (a benchmark passes one that times ``process``)."""
     config = config or EvaluationConfig()
     recording = path if isinstance(path, Recording) else read_recording(path)
     infos = radar_infos(recording.metadata, config)
@@ -376,7 +384,12 @@ def run_pipeline(
                 skipped.add(datagram.source)
                 continue
             tracker_config = TrackerConfig(**{"scan_period_s": info.period_s, **tracker_overrides})
-            state = states[datagram.source] = _RadarState(info, tracker_config)
+            tracker = (
+                LocalTracker(tracker_config)
+                if make_tracker is None
+                else make_tracker(datagram.source, tracker_config)
+            )
+            state = states[datagram.source] = _RadarState(info, tracker_config, tracker)
         batch, table = convert_batch(
             raw, state.info, plane, clock, heights, datagram.time, next_id, sequence
         )
