@@ -15,6 +15,8 @@ from scipy.spatial import cKDTree
 from tracker_service.tracking.plots import FloatArray, IntArray
 
 UNASSIGNABLE = 1.0e9
+KDTREE_LEAF_SIZE = 16
+"""scipy's default leaf size, spelt out: the small-batch path relies on it."""
 
 
 def candidate_pairs(
@@ -34,13 +36,30 @@ def candidate_pairs(
     if near.size == 0:
         return empty, empty
     reach = float(track_radius[near].max() + plot_radius.max())
-    found = cKDTree(track_xy[near]).sparse_distance_matrix(
-        cKDTree(plot_xy), reach, output_type="ndarray"
-    )
-    ti = near[found["i"].astype(np.int64)]
-    pj = found["j"].astype(np.int64)
-    keep = found["v"] <= track_radius[ti] + plot_radius[pj]
+    i, pj, v = pairs_within(track_xy[near], plot_xy, reach)
+    ti = near[i]
+    keep = v <= track_radius[ti] + plot_radius[pj]
     return ti[keep], pj[keep]
+
+
+def pairs_within(
+    a: FloatArray, b: FloatArray, reach: float
+) -> tuple[IntArray, IntArray, FloatArray]:
+    """(i, j, distance) of the points a[i], b[j] within ``reach``, in the order of
+    ``cKDTree(a).sparse_distance_matrix(cKDTree(b), reach, output_type="ndarray")``.
+
+    When both sets fit in one leaf, both trees are a single leaf, whose search is a double
+    loop in (i, j) order with these same distances: done here directly, without the cost
+    of building two trees for a few points (the usual sector batch)."""
+    if a.shape[0] <= KDTREE_LEAF_SIZE and b.shape[0] <= KDTREE_LEAF_SIZE:
+        d = a[:, None, :] - b[None, :, :]
+        dist = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1])
+        i, j = np.nonzero(dist <= reach)
+        return i, j, dist[i, j]
+    found = cKDTree(a, leafsize=KDTREE_LEAF_SIZE).sparse_distance_matrix(
+        cKDTree(b, leafsize=KDTREE_LEAF_SIZE), reach, output_type="ndarray"
+    )
+    return found["i"].astype(np.int64), found["j"].astype(np.int64), found["v"]
 
 
 def global_nearest_neighbour(rows: IntArray, cols: IntArray, cost: FloatArray) -> IntArray:

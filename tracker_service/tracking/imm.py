@@ -69,12 +69,11 @@ def predict(
     x0 = np.einsum("kij,kia->kja", w, x)
     d = x[:, :, None, :] - x0[:, None, :, :]
     p0 = np.einsum("kij,kiab->kjab", w, P) + np.einsum("kija,kijb->kjab", w[..., None] * d, d)
-    xp = np.empty_like(x0)
-    pp = np.empty_like(p0)
-    for m in range(models.n_models):
-        f, q = models.transition(m, dt)
-        xp[:, m] = np.einsum("kab,kb->ka", f, x0[:, m])
-        pp[:, m] = f @ p0[:, m] @ np.swapaxes(f, 1, 2) + q
+    # All models in one stacked product: a loop over models cost more in call overhead
+    # than in arithmetic on the few pairs of a sector.
+    f, q = models.transitions(dt)
+    xp = np.einsum("kmab,kmb->kma", f, x0)
+    pp = f @ p0 @ np.swapaxes(f, -1, -2) + q
     xc, pc = combine(xp, pp, c)
     return ImmPrediction(x=xp, P=pp, c=c, x_comb=xc, P_comb=pc)
 
@@ -102,7 +101,9 @@ def update(
     s_inv, det = inv2(s)
     k_gain = pp[:, :, :, :2] @ s_inv
     x_new = xp + np.einsum("kmab,kmb->kma", k_gain, y)
-    ikh = np.broadcast_to(np.eye(4), pp.shape).copy()
+    # I - K H, written entry by entry: cheaper than copying a broadcast identity.
+    ikh = np.zeros(pp.shape)
+    ikh[..., 0, 0] = ikh[..., 1, 1] = ikh[..., 2, 2] = ikh[..., 3, 3] = 1.0
     ikh[..., :, :2] -= k_gain
     p_new = ikh @ pp @ np.swapaxes(ikh, -1, -2) + k_gain @ R[:, None] @ np.swapaxes(k_gain, -1, -2)
     p_new = 0.5 * (p_new + np.swapaxes(p_new, -1, -2))

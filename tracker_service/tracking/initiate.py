@@ -8,11 +8,10 @@ forgotten.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from tracker_service.tracking.associate import global_nearest_neighbour
-from tracker_service.tracking.config import SHARED_MODE3A_CODES, TrackerConfig
-from tracker_service.tracking.plots import FloatArray, IntArray, PlotArrays
+from tracker_service.tracking.associate import global_nearest_neighbour, pairs_within
+from tracker_service.tracking.config import TrackerConfig
+from tracker_service.tracking.plots import FloatArray, IntArray, PlotArrays, is_shared_code
 
 NOISE_SIGMAS = 3.0
 
@@ -27,7 +26,7 @@ class TwoPointInitiator:
         cfg = self.config
         period = cfg.scan_period_s
         max_dt = cfg.init_max_dt_periods * period
-        pending = self.pending.take(self.pending.time >= now - max_dt)
+        pending = self.pending.select(self.pending.time >= now - max_dt)
         if len(pending) == 0 or len(plots) == 0:
             self.pending = PlotArrays.concat(pending, plots)
             return PlotArrays.empty(), PlotArrays.empty()
@@ -36,12 +35,9 @@ class TwoPointInitiator:
             + np.sqrt(np.trace(plots.R, axis1=1, axis2=2)).max()
         )
         reach = cfg.max_speed_m_s * max_dt + NOISE_SIGMAS * noise
-        found = cKDTree(np.column_stack([pending.x, pending.y])).sparse_distance_matrix(
-            cKDTree(np.column_stack([plots.x, plots.y])), reach, output_type="ndarray"
+        i, j, dist = pairs_within(
+            np.column_stack([pending.x, pending.y]), np.column_stack([plots.x, plots.y]), reach
         )
-        i = found["i"].astype(np.int64)
-        j = found["j"].astype(np.int64)
-        dist = found["v"]
         dt = plots.time[j] - pending.time[i]
         sigma = np.sqrt(
             np.trace(pending.R[i], axis1=1, axis2=2) + np.trace(plots.R[j], axis1=1, axis2=2)
@@ -60,7 +56,7 @@ class TwoPointInitiator:
         keep_pending[first] = False
         waiting = np.ones(len(plots), dtype=bool)
         waiting[second] = False
-        self.pending = PlotArrays.concat(pending.take(keep_pending), plots.take(waiting))
+        self.pending = PlotArrays.concat(pending.select(keep_pending), plots.select(waiting))
         return pending.take(first), plots.take(second)
 
 
@@ -81,7 +77,7 @@ def _identity_cost(
         & b.mode3a_valid[j]
         & (code_a == code_b)
         & (code_a >= 0)
-        & ~np.isin(code_a, SHARED_MODE3A_CODES)
+        & ~is_shared_code(code_a)
     )
     scale = 0.1
     return np.asarray(

@@ -15,7 +15,7 @@ import numpy.typing as npt
 
 from tracker_service.tracking import imm, vertical
 from tracker_service.tracking.associate import candidate_pairs, global_nearest_neighbour
-from tracker_service.tracking.config import SHARED_MODE3A_CODES, TrackerConfig
+from tracker_service.tracking.config import TrackerConfig
 from tracker_service.tracking.initiate import TwoPointInitiator, two_point_state
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
@@ -24,6 +24,7 @@ from tracker_service.tracking.plots import (
     IntArray,
     PlotArrays,
     as_plot_arrays,
+    is_shared_code,
 )
 
 TENTATIVE, CONFIRMED, COASTING, DELETED = 0, 1, 2, 3
@@ -82,6 +83,13 @@ def _table_dtype(n_models: int) -> np.dtype[Any]:
     )
 
 
+def as_bytes(rows: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """A structured array's rows as opaque fixed-size bytes (a view). numpy copies these
+    whole rows at once, where a structured copy goes field by field: several times
+    slower on the few rows of a sector. ``.view(dtype)`` turns the copy back."""
+    return rows.view(np.dtype((np.void, rows.dtype.itemsize)))
+
+
 @dataclass
 class TrackerStats:
     """Running counts since the tracker started."""
@@ -110,6 +118,13 @@ class LocalTracker:
         self._next_number = first_track_number
         self._now = -np.inf
         self._hist_mask = (1 << self.config.confirm_n) - 1
+        # Per-tracker constants of the pre-selection radius, hoisted out of every batch.
+        self._q_max = float(self.models.q.max())
+        self._turn_max = float(np.abs(self.models.turn_rates_rad_s).max())
+
+    @property
+    def _no_rows(self) -> npt.NDArray[Any]:
+        return np.zeros(0, dtype=self.output_dtype)
 
     @property
     def tracks(self) -> npt.NDArray[Any]:
@@ -127,20 +142,31 @@ class LocalTracker:
             & (p.R[:, 0, 0] > 0)
             & (p.R[:, 0, 0] * p.R[:, 1, 1] - p.R[:, 0, 1] * p.R[:, 1, 0] > 0)
         )
-        self.stats.invalid_plots += int(np.count_nonzero(~valid))
-        p = p.take(valid)
-        if len(p) == 0:
-            return np.zeros(0, dtype=self.output_dtype)
+        n_valid = int(np.count_nonzero(valid))
+        self.stats.invalid_plots += len(p) - n_valid
+        if n_valid < len(p):
+            p = p.take(valid)  # not select: the count is known already
+        if n_valid == 0:
+            return self._no_rows
         now = max(self._now, float(p.time.max()))
         self._now = now
         n_old = self._n
         rows: list[npt.NDArray[Any]] = []
 
         used, blocked, updated = self._associate(p, rows)
-        first, second = self.initiator.pair(p.take(~used & ~blocked), now)
+        unused = ~used & ~blocked
+        # The initiator keeps plots across batches: never the caller's own arrays.
+        first, second = self.initiator.pair(p.take(unused) if p is plots else p.select(unused), now)
         rows.append(self._create(first, second))
         rows.append(self._age(now, updated, n_old))
-        return np.concatenate(rows)
+        # Concatenating structured arrays promotes their dtypes field by field: join only
+        # the non-empty parts (most batches have one), and as raw rows (see as_bytes).
+        rows = [r for r in rows if r.size]
+        if len(rows) == 1:
+            return rows[0]
+        if not rows:
+            return self._no_rows
+        return np.concatenate([as_bytes(r) for r in rows]).view(self.output_dtype)
 
     def _associate(
         self, p: PlotArrays, rows: list[npt.NDArray[Any]]
@@ -159,19 +185,30 @@ class LocalTracker:
         t_mid = 0.5 * float(p.time.min() + p.time.max())
         spread = float(np.max(np.abs(p.time - t_mid)))
         coarse_xy, radius = self._reach(tab, t_mid, spread)
-        plot_radius = np.sqrt(cfg.gate * np.trace(p.R, axis1=1, axis2=2))
+        plot_radius = np.sqrt(cfg.gate * (p.R[:, 0, 0] + p.R[:, 1, 1]))
         ti, pj = candidate_pairs(coarse_xy, radius, plot_xy, plot_radius)
+        if ti.size == 0:
+            # No track near the sector (common for sparse sectors): nothing to predict.
+            return used, blocked, updated
         dt = p.time[pj] - tab["t"][ti]
         late = dt < -cfg.max_backward_s
         too_old = np.zeros(len(p), dtype=bool)
-        too_old[pj[late]] = True
-        blocked |= too_old
-        ti, pj, dt = ti[~late], pj[~late], dt[~late]
+        if late.any():
+            too_old[pj[late]] = True
+            blocked |= too_old
+            ti, pj, dt = ti[~late], pj[~late], dt[~late]
+        if ti.size == 0:
+            self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
+            return used, blocked, updated
 
         pred = imm.predict(tab["x"][ti], tab["P"][ti], tab["mu"][ti], dt, self.models)
         z, r = plot_xy[pj], p.R[pj]
         nis, log_det = imm.innovation_test(pred, z, r)
         gated = np.flatnonzero(nis <= cfg.gate)
+        if gated.size == 0:
+            # Skip the assignment and the IMM update: no pair passed its gate.
+            self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
+            return used, blocked, updated
         blocked[pj[gated[tab["status"][ti[gated]] == CONFIRMED]]] = True
         cost = nis[gated] + log_det[gated] + self._identity_cost(tab, ti[gated], p, pj[gated])
         sel = gated[global_nearest_neighbour(ti[gated], pj[gated], cost)]
@@ -195,10 +232,10 @@ class LocalTracker:
             + pc[:, 1, 1]
             + 2.0 * a * np.abs(pc[:, 0, 2] + pc[:, 1, 3])
             + a * a * (pc[:, 2, 2] + pc[:, 3, 3])
-            + 2.0 * float(self.models.q.max()) * a**3 / 3.0
+            + 2.0 * self._q_max * a**3 / 3.0
         )
         speed = np.hypot(xc[:, 2], xc[:, 3])
-        turn = float(np.abs(self.models.turn_rates_rad_s).max())
+        turn = self._turn_max
         radius = (
             RADIUS_SAFETY * np.sqrt(self.config.gate * var)
             + speed * spread
@@ -216,10 +253,7 @@ class LocalTracker:
         both = (addr_t >= 0) & (addr_p >= 0)
         code_t, code_p = tab["mode3a"][ti], p.mode3a[pj]
         code_match = (
-            p.mode3a_valid[pj]
-            & (code_t >= 0)
-            & (code_t == code_p)
-            & ~np.isin(code_p, SHARED_MODE3A_CODES)
+            p.mode3a_valid[pj] & (code_t >= 0) & (code_t == code_p) & ~is_shared_code(code_p)
         )
         return np.asarray(
             cfg.address_mismatch_penalty * (both & (addr_t != addr_p))
@@ -239,78 +273,92 @@ class LocalTracker:
         z = np.column_stack([p.x, p.y])
         x_new, p_new, mu_new = imm.update(pred, z, p.R)
         xc, pc = imm.combine(x_new, p_new, mu_new)
-        tab["x"][ti] = x_new
-        tab["P"][ti] = p_new
-        tab["mu"][ti] = mu_new
-        tab["xc"][ti] = xc
-        tab["Pc"][ti] = pc
-        tab["t"][ti] = p.time
+        # One gather of the assigned rows, updated field by field, and one scatter back:
+        # indexing each field at ti would cost a gather and a scatter per field.
+        r = as_bytes(tab)[ti].view(tab.dtype)
+        r["x"] = x_new
+        r["P"] = p_new
+        r["mu"] = mu_new
+        r["xc"] = xc
+        r["Pc"] = pc
+        r["t"] = p.time
         # A plot of the scan already counted (a late one) must not count a second hit.
-        same_scan = p.time < tab["t_hit"][ti] + 0.5 * cfg.scan_period_s
-        hist = tab["hist"][ti]
-        tab["hist"][ti] = np.where(same_scan, hist | 1, ((hist << 1) | 1) & self._hist_mask)
-        tab["t_hit"][ti] = np.maximum(tab["t_hit"][ti], p.time)
-        tab["misses"][ti] = 0
-        tab["address"][ti] = np.where(p.address >= 0, p.address, tab["address"][ti])
-        tab["mode3a"][ti] = np.where(p.mode3a_valid & (p.mode3a >= 0), p.mode3a, tab["mode3a"][ti])
-        self._update_vertical(tab, ti, p)
-        self._confirm(tab, ti)
-        self._demote_slow_primary(tab, ti)
-        return self._rows(tab, ti, p.time, tab["status"][ti], p.plot_id, mu_new)
+        same_scan = p.time < r["t_hit"] + 0.5 * cfg.scan_period_s
+        hist = r["hist"]
+        r["hist"] = np.where(same_scan, hist | 1, ((hist << 1) | 1) & self._hist_mask)
+        r["t_hit"] = np.maximum(r["t_hit"], p.time)
+        r["misses"] = 0
+        r["address"] = np.where(p.address >= 0, p.address, r["address"])
+        r["mode3a"] = np.where(p.mode3a_valid & (p.mode3a >= 0), p.mode3a, r["mode3a"])
+        self._update_vertical(r, p)
+        as_bytes(tab)[ti] = as_bytes(r)  # before _confirm, which looks at every live track
+        self._confirm(tab, r)
+        self._demote_slow_primary(r)
+        tab["status"][ti] = r["status"]
+        return self._rows(r, p.time, r["status"], p.plot_id, mu_new)
 
-    def _demote_slow_primary(self, tab: npt.NDArray[Any], ti: IntArray) -> None:
+    def _demote_slow_primary(self, r: npt.NDArray[Any]) -> None:
         """A confirmed track without any secondary reply that has slowed to clutter speed
-        goes back to tentative: its first, noisy velocity may have passed the speed test."""
-        primary_only = (tab["address"][ti] < 0) & (tab["mode3a"][ti] < 0)
-        speed = np.hypot(tab["xc"][ti, 2], tab["xc"][ti, 3])
+        goes back to tentative: its first, noisy velocity may have passed the speed test.
+        ``r``: the updated tracks' rows, changed in place."""
+        primary_only = (r["address"] < 0) & (r["mode3a"] < 0)
+        speed = np.hypot(r["xc"][:, 2], r["xc"][:, 3])
         slow = primary_only & (speed < self.config.min_confirm_speed_psr_only_m_s)
-        demoted = ti[slow & (tab["status"][ti] == CONFIRMED)]
-        tab["status"][demoted] = TENTATIVE
+        r["status"][slow & (r["status"] == CONFIRMED)] = TENTATIVE
 
-    def _update_vertical(self, tab: npt.NDArray[Any], ti: IntArray, p: PlotArrays) -> None:
+    def _update_vertical(self, r: npt.NDArray[Any], p: PlotArrays) -> None:
+        """Vertical filter of the tracks' rows ``r`` (changed in place) with their plots."""
         cfg = self.config
         has = p.fl_valid & np.isfinite(p.flight_level)
-        ti, fl, t = ti[has], p.flight_level[has], p.time[has]
-        var = vertical.measurement_variance(fl, p.typ[has], cfg)
-        start = ~tab["fl_ok"][ti]
+        if not has.any():
+            return  # a primary-only batch: no vertical work at all
+        if has.all():
+            rows, fl, t, typ = r, p.flight_level, p.time, p.typ
+        else:
+            rows, fl, t, typ = r[has], p.flight_level[has], p.time[has], p.typ[has]
+        var = vertical.measurement_variance(fl, typ, cfg)
+        fl_old, rate_old, pv_old = rows["fl"], rows["rate"], rows["Pv"]
+        start = ~rows["fl_ok"]
         fl_p, rate_p, pv_p = vertical.predict(
-            tab["fl"][ti], tab["rate"][ti], tab["Pv"][ti], t - tab["t_fl"][ti], cfg.q_vertical
+            fl_old, rate_old, pv_old, t - rows["t_fl"], cfg.q_vertical
         )
         fl_u, rate_u, pv_u, ok = vertical.update(fl_p, rate_p, pv_p, fl, var, cfg.fl_gate)
-        rejects = np.where(ok, 0, tab["fl_rejects"][ti] + 1)
+        rejects = np.where(ok, 0, rows["fl_rejects"] + 1)
         start |= rejects >= cfg.fl_max_rejects
-        fresh = np.zeros((ti.size, 2, 2))
+        fresh = np.zeros((fl.shape[0], 2, 2))
         fresh[:, 0, 0] = var
         fresh[:, 1, 1] = cfg.initial_climb_variance
         # A rejected level (garbled Mode C) leaves the old state at its old time.
-        tab["fl"][ti] = np.where(start, fl, np.where(ok, fl_u, tab["fl"][ti]))
-        tab["rate"][ti] = np.where(start, 0.0, np.where(ok, rate_u, tab["rate"][ti]))
-        tab["Pv"][ti] = np.where(
-            start[:, None, None], fresh, np.where(ok[:, None, None], pv_u, tab["Pv"][ti])
+        rows["fl"] = np.where(start, fl, np.where(ok, fl_u, fl_old))
+        rows["rate"] = np.where(start, 0.0, np.where(ok, rate_u, rate_old))
+        rows["Pv"] = np.where(
+            start[:, None, None], fresh, np.where(ok[:, None, None], pv_u, pv_old)
         )
-        tab["t_fl"][ti] = np.where(start | ok, t, tab["t_fl"][ti])
-        tab["fl_rejects"][ti] = np.where(start, 0, rejects)
-        tab["fl_ok"][ti] = True
+        rows["t_fl"] = np.where(start | ok, t, rows["t_fl"])
+        rows["fl_rejects"] = np.where(start, 0, rejects)
+        rows["fl_ok"] = True
+        if rows is not r:
+            r[has] = rows
 
-    def _confirm(self, tab: npt.NDArray[Any], ti: IntArray) -> None:
+    def _confirm(self, tab: npt.NDArray[Any], r: npt.NDArray[Any]) -> None:
         """M of N, except for a tentative track carrying the address of a confirmed track
         that is associating (a reflection or a split, since the original follows the
-        kinematics), and for a slow track that never had a secondary reply (clutter)."""
-        candidates = ti[
-            (tab["status"][ti] == TENTATIVE)
-            & (np.bitwise_count(tab["hist"][ti]) >= self.config.confirm_m)
-        ]
+        kinematics), and for a slow track that never had a secondary reply (clutter).
+        ``r``: the rows to confirm (changed in place), already written to ``tab``."""
+        candidates = np.flatnonzero(
+            (r["status"] == TENTATIVE) & (np.bitwise_count(r["hist"]) >= self.config.confirm_m)
+        )
         if candidates.size == 0:
             return
         live = (tab["status"] == CONFIRMED) & (tab["misses"] == 0) & (tab["address"] >= 0)
-        clash = np.isin(tab["address"][candidates], tab["address"][live]) & (
-            tab["address"][candidates] >= 0
-        )
-        primary_only = (tab["address"][candidates] < 0) & (tab["mode3a"][candidates] < 0)
-        speed = np.hypot(tab["xc"][candidates, 2], tab["xc"][candidates, 3])
+        address = r["address"][candidates]
+        clash = np.isin(address, tab["address"][live]) & (address >= 0)
+        primary_only = (address < 0) & (r["mode3a"][candidates] < 0)
+        xc = r["xc"][candidates]
+        speed = np.hypot(xc[:, 2], xc[:, 3])
         slow = primary_only & (speed < self.config.min_confirm_speed_psr_only_m_s)
         confirmed = candidates[~clash & ~slow]
-        tab["status"][confirmed] = CONFIRMED
+        r["status"][confirmed] = CONFIRMED
         self.stats.tracks_confirmed += int(confirmed.size)
 
     def _create(self, first: PlotArrays, second: PlotArrays) -> npt.NDArray[Any]:
@@ -325,7 +373,6 @@ class LocalTracker:
             self._tab = grown
         self._n = start + k
         tab = self._tab[: self._n]
-        ti = np.arange(start, start + k)
         fresh: npt.NDArray[Any] = np.zeros(k, dtype=self._tab.dtype)
         x, pm = two_point_state(
             first, second, float(self.models.q[0]), cfg.init_velocity_variance_scale
@@ -347,12 +394,13 @@ class LocalTracker:
         code1 = np.where(first.mode3a_valid, first.mode3a, -1)
         fresh["mode3a"] = np.where(code2 >= 0, code2, code1)
         fresh["fl"] = np.nan
-        tab[start:] = fresh
-        self._update_vertical(tab, ti, first)
-        self._update_vertical(tab, ti, second)
+        self._update_vertical(fresh, first)
+        self._update_vertical(fresh, second)
+        as_bytes(tab)[start:] = as_bytes(fresh)
         self.stats.tracks_initiated += k
-        self._confirm(tab, ti)
-        return self._rows(tab, ti, second.time, tab["status"][ti], second.plot_id, fresh["mu"])
+        self._confirm(tab, fresh)
+        tab["status"][start:] = fresh["status"]
+        return self._rows(fresh, second.time, fresh["status"], second.plot_id, fresh["mu"])
 
     def _age(self, now: float, updated: BoolArray, n_old: int) -> npt.NDArray[Any]:
         """Count missed scans of the tracks without a plot; coast or delete them."""
@@ -379,8 +427,7 @@ class LocalTracker:
         report = dead | coasting
         out_status = np.where(dead, DELETED, COASTING).astype(np.int8)
         rows = self._rows(
-            tab,
-            idle[report],
+            as_bytes(tab)[idle[report]].view(tab.dtype),
             np.full(int(np.count_nonzero(report)), now),
             out_status[report],
             np.full(int(np.count_nonzero(report)), -1, dtype=np.int64),
@@ -390,38 +437,36 @@ class LocalTracker:
         if dead.any():
             keep = np.ones(self._n, dtype=bool)
             keep[idle[dead]] = False
-            survivors = tab[keep]
+            survivors = as_bytes(tab)[keep]
             self._n = survivors.shape[0]
-            self._tab[: self._n] = survivors
+            as_bytes(self._tab)[: self._n] = survivors
             self.stats.tracks_deleted += int(np.count_nonzero(dead))
         return rows
 
     def _rows(
         self,
-        tab: npt.NDArray[Any],
-        ti: IntArray,
+        r: npt.NDArray[Any],
         time: FloatArray,
         status: npt.NDArray[Any],
         plot_id: IntArray,
         mu: FloatArray,
         pred: imm.ImmPrediction | None = None,
     ) -> npt.NDArray[Any]:
-        out = np.zeros(ti.size, dtype=self.output_dtype)
-        xc = tab["xc"][ti] if pred is None else pred.x_comb
-        pc = tab["Pc"][ti] if pred is None else pred.P_comb
-        out["track_number"] = tab["number"][ti]
+        """Output rows of the tracks whose internal rows are ``r``."""
+        out = np.zeros(r.shape[0], dtype=self.output_dtype)
+        xc = r["xc"] if pred is None else pred.x_comb
+        pc = r["Pc"] if pred is None else pred.P_comb
+        out["track_number"] = r["number"]
         out["time"] = time
         out["x"], out["y"], out["vx"], out["vy"] = xc.T
         out["P"] = pc.reshape(-1, 16)
-        fl_ok = tab["fl_ok"][ti]
-        rate = tab["rate"][ti]
-        out["flight_level"] = np.where(
-            fl_ok, tab["fl"][ti] + rate * (time - tab["t_fl"][ti]), np.nan
-        )
+        fl_ok = r["fl_ok"]
+        rate = r["rate"]
+        out["flight_level"] = np.where(fl_ok, r["fl"] + rate * (time - r["t_fl"]), np.nan)
         out["climb_rate_fl_per_s"] = np.where(fl_ok, rate, np.nan)
         out["status"] = status
         out["plot_id"] = plot_id
-        out["mode3a"] = tab["mode3a"][ti]
-        out["address"] = tab["address"][ti]
+        out["mode3a"] = r["mode3a"]
+        out["address"] = r["address"]
         out["model_probabilities"] = mu
         return out

@@ -33,7 +33,10 @@ def predict(
     p00 = P[:, 0, 0] + 2.0 * dt * P[:, 0, 1] + dt * dt * P[:, 1, 1] + q * t**3 / 3.0
     p01 = P[:, 0, 1] + dt * P[:, 1, 1] + q * dt * t / 2.0
     p11 = P[:, 1, 1] + q * t
-    pp = np.stack([np.stack([p00, p01], -1), np.stack([p01, p11], -1)], -2)
+    pp = np.empty((fl.shape[0], 2, 2))  # filled in place: cheaper than nested np.stack
+    pp[:, 0, 0] = p00
+    pp[:, 0, 1] = pp[:, 1, 0] = p01
+    pp[:, 1, 1] = p11
     return fl_p, rate.copy(), pp
 
 
@@ -49,7 +52,9 @@ def update(
     y = z - fl
     s = P[:, 0, 0] + r
     k = P[:, :, 0] / s[:, None]
-    ikh = np.broadcast_to(np.eye(2), P.shape).copy()
+    # I - K H, written entry by entry: cheaper than copying a broadcast identity.
+    ikh = np.zeros(P.shape)
+    ikh[:, 0, 0] = ikh[:, 1, 1] = 1.0
     ikh[:, :, 0] -= k
     p_new = ikh @ P @ np.swapaxes(ikh, 1, 2) + r[:, None, None] * k[:, :, None] * k[:, None, :]
     return fl + k[:, 0] * y, rate + k[:, 1] * y, p_new, y * y / s <= gate
