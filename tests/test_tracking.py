@@ -245,7 +245,9 @@ def test_turn_at_3_deg_s_is_followed() -> None:
     assert not np.any(out["status"] == DELETED)
     rows = out[out["plot_id"] >= 0]
     in_turn = rows[[65 < scenario.truth_time[int(p)] < 120 for p in rows["plot_id"]]]
-    assert in_turn["model_probabilities"][:, 1].mean() > 0.5  # the left-turn model leads
+    rates = np.array(TrackerConfig().turn_rates_deg_s)
+    left = 1 + np.flatnonzero(rates > 0)  # model 0 is CV; positive rates turn left
+    assert in_turn["model_probabilities"][:, left].sum(axis=1).mean() > 0.5  # left turns lead
     assert tracker.stats.tracks_initiated == 1
 
 
@@ -329,7 +331,8 @@ def test_output_fields() -> None:
     scenario = simulate([Target(straight())], scans=6)
     _, out = run(scenario)
     assert out.dtype.names is not None
-    assert out["P"].shape[1] == 16 and out["model_probabilities"].shape[1] == 3
+    assert out["P"].shape[1] == 16
+    assert out["model_probabilities"].shape[1] == TrackerConfig().n_models
     assert np.allclose(out["model_probabilities"].sum(axis=1), 1.0)
     assert np.all(out["mode3a"][out["status"] == CONFIRMED] == 0o1000)
     p = out["P"][-1].reshape(4, 4)
