@@ -318,20 +318,36 @@ def _truth_plot_index(recording: Recording) -> dict[tuple[str, int], list[dict[s
     return index
 
 
-class _RadarState:
-    """What the pipeline keeps per radar while it reads."""
+class RadarState:
+    """What a run keeps per radar while it reads: its tracker, and the track updates and
+    converted plots of every datagram so far."""
 
     def __init__(
         self,
         info: RadarInfo,
         tracker_config: TrackerConfig,
-        tracker: LocalTracker,
+        tracker: LocalTracker | None = None,
     ) -> None:
         self.info = info
         self.tracker_config = tracker_config
-        self.tracker = tracker
+        self.tracker = tracker or LocalTracker(tracker_config)
         self.updates: list[npt.NDArray[Any]] = []
         self.plots: list[npt.NDArray[Any]] = []
+
+    def results(self) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
+        """(track updates, RAW_PLOT_DTYPE plots) of the whole run."""
+        updates = (
+            np.concatenate(self.updates)
+            if self.updates
+            else np.zeros(0, dtype=self.tracker.output_dtype)
+        )
+        plots = np.concatenate(self.plots) if self.plots else np.zeros(0, RAW_PLOT_DTYPE)
+        return updates, plots
+
+
+def source_order(source: str) -> tuple[int, ...]:
+    """Sort key of "SAC/SIC" texts: by number, not as text."""
+    return tuple(int(part) for part in source.split("/"))
 
 
 def run_pipeline(
@@ -349,7 +365,7 @@ def run_pipeline(
     heights = HeightModel()
     clock = PlotClock()
     sequences: dict[str, int] = defaultdict(int)
-    states: dict[str, _RadarState] = {}
+    states: dict[str, RadarState] = {}
     skipped: set[str] = set()
     origins: dict[int, tuple[str, int, int]] = {}
     next_id = 0
@@ -385,11 +401,9 @@ def run_pipeline(
                 continue
             tracker_config = TrackerConfig(**{"scan_period_s": info.period_s, **tracker_overrides})
             tracker = (
-                LocalTracker(tracker_config)
-                if make_tracker is None
-                else make_tracker(datagram.source, tracker_config)
+                None if make_tracker is None else make_tracker(datagram.source, tracker_config)
             )
-            state = states[datagram.source] = _RadarState(info, tracker_config, tracker)
+            state = states[datagram.source] = RadarState(info, tracker_config, tracker)
         batch, table = convert_batch(
             raw, state.info, plane, clock, heights, datagram.time, next_id, sequence
         )
@@ -416,14 +430,9 @@ def run_pipeline(
             origins[plot_id] = (datagram.source, sequence, row)
 
     radars: dict[str, RadarRun] = {}
-    for source in sorted(states, key=lambda s: tuple(int(p) for p in s.split("/"))):
+    for source in sorted(states, key=source_order):
         state = states[source]
-        updates = (
-            np.concatenate(state.updates)
-            if state.updates
-            else np.zeros(0, dtype=state.tracker.output_dtype)
-        )
-        plots = np.concatenate(state.plots) if state.plots else np.zeros(0, RAW_PLOT_DTYPE)
+        updates, plots = state.results()
         radars[source] = RadarRun(state.info, updates, plots, state.tracker_config)
         log.info(
             "%s: %d plots, %d track updates, stats %s",

@@ -40,14 +40,15 @@ from asterix.plots import extract_plots
 from tracker_service.evaluation.pipeline import (
     CAT034,
     NM,
-    RAW_PLOT_DTYPE,
     RadarInfo,
+    RadarState,
     blocks_of,
     convert_batch,
+    source_order,
 )
 from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane
 from tracker_service.ingest import DAY_S, PlotClock
-from tracker_service.tracking import CONFIRMED, LocalTracker, TrackerConfig
+from tracker_service.tracking import CONFIRMED, TrackerConfig
 
 __all__ = [
     "DEFAULT_DAY_POSIX",
@@ -130,16 +131,6 @@ def _cat034_records(payload: bytes) -> list[dict[str, Any]]:
     return records
 
 
-class _Radar:
-    def __init__(self, info: RadarInfo, config: TrackerConfig) -> None:
-        self.info = info
-        self.config = config
-        self.tracker = LocalTracker(config)
-        self.updates: list[npt.NDArray[Any]] = []
-        self.plots: list[npt.NDArray[Any]] = []
-        self.datagrams = 0
-
-
 def track_capture(
     path: str | Path,
     site: RadarSite | dict[str, RadarSite],
@@ -166,7 +157,7 @@ def track_capture(
     base = tracker_config or TrackerConfig()
     clock = PlotClock()
     heights = HeightModel()
-    radars: dict[str, _Radar] = {}
+    radars: dict[str, RadarState] = {}
 
     for datagram, received in zip(datagrams, reception, strict=True):
         for items in _cat034_records(datagram.payload):
@@ -194,27 +185,26 @@ def track_capture(
                     psr_sigma_azimuth_deg=sigma_azimuth_deg,
                 )
                 config = dataclasses.replace(base, scan_period_s=period)
-                radar = radars[source] = _Radar(info, config)
+                radar = radars[source] = RadarState(info, config)
             mine = raw[(raw["sac"] == sac) & (raw["sic"] == sic)]
             _process(radar, mine, clock, heights, plane, received)
 
     out: dict[str, CaptureRun] = {}
-    for source in sorted(radars, key=lambda s: tuple(int(p) for p in s.split("/"))):
+    for source in sorted(radars, key=source_order):
         radar = radars[source]
-        updates = (
-            np.concatenate(radar.updates)
-            if radar.updates
-            else np.zeros(0, dtype=radar.tracker.output_dtype)
-        )
-        plots = np.concatenate(radar.plots) if radar.plots else np.zeros(0, RAW_PLOT_DTYPE)
+        updates, plots = radar.results()
         out[source] = CaptureRun(
-            radar.info, updates, plots, radar.config, dataclasses.asdict(radar.tracker.stats)
+            radar.info,
+            updates,
+            plots,
+            radar.tracker_config,
+            dataclasses.asdict(radar.tracker.stats),
         )
     return out
 
 
 def _process(
-    radar: _Radar,
+    radar: RadarState,
     raw: npt.NDArray[Any],
     clock: PlotClock,
     heights: HeightModel,
@@ -223,12 +213,12 @@ def _process(
 ) -> None:
     """One datagram's plots of one radar: time, convert, track (as ``run_pipeline``)."""
     first_id = sum(len(p) for p in radar.plots)
+    # Without truth, "sequence" is simply the count of the radar's datagrams so far.
     batch, table = convert_batch(
-        raw, radar.info, plane, clock, heights, received, first_id, radar.datagrams
+        raw, radar.info, plane, clock, heights, received, first_id, len(radar.plots)
     )
     radar.updates.append(radar.tracker.process(batch))
     radar.plots.append(table)
-    radar.datagrams += 1
 
 
 # --- what the run says ------------------------------------------------------------------
