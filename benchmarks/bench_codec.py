@@ -37,6 +37,8 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 sys.path.insert(0, str(REPO))  # the repository's codec, also when not pip-installed
 
+from peer_decode import block_prefix  # noqa: E402  (beside this script; stdlib only)
+
 from asterix import Block, DecodeError, decode_blocks  # noqa: E402
 
 DATA = REPO.parent / "shared/data/asterix"
@@ -327,17 +329,6 @@ def measure(
             rate = out["records"] / out["seconds"][0]
             log(f"[{rep}/{repeats}] {peer:<15}{rate:12,.0f} records/s")
     return results
-
-
-def block_prefix(data: bytes, limit: int) -> bytes:
-    """The longest run of whole data blocks at the start of ``data`` within ``limit`` octets."""
-    pos = 0
-    while pos + 3 <= len(data):
-        end = pos + int.from_bytes(data[pos + 1 : pos + 3])
-        if end > limit and pos > 0:
-            break
-        pos = end
-    return data[:pos]
 
 
 def check(got: int, want: int, who: str) -> None:
