@@ -233,7 +233,16 @@ class RadarModel:
         scan = (t // period).astype(np.int64)
         for a, k in zip(ac[covered], scan[covered], strict=True):
             self.coverage[int(k)].append(int(a))
-        return ac[covered], t[covered], {key: v[covered] for key, v in measured.items()}
+        detected = {key: v[covered] for key, v in measured.items()}
+        # Mode C is pressure altitude: computed once for every detection, not per plot.
+        atmosphere = self.scenario.atmosphere
+        detected["fl"] = (
+            geometry.pressure_altitude_ft(
+                detected["h_msl"], atmosphere.qnh_hpa, atmosphere.temperature_offset_k
+            )
+            / 100.0
+        )
+        return ac[covered], t[covered], detected
 
     def _detectable(self, aircraft: npt.NDArray[np.int64], rho_m: FloatArray) -> npt.NDArray[Any]:
         """Whether the radar can see each aircraft at all: a transponder it interrogates, or
@@ -325,12 +334,7 @@ class RadarModel:
         record["020"] = {"TYP": typ, "SIM": 0, "RDP": 0, "SPI": 0, "RAB": 0}
         if extended:
             record["020"].update(TST=0, ERR=1)
-        pressure_ft = geometry.pressure_altitude_ft(
-            float(m["h_msl"][i]),
-            self.scenario.atmosphere.qnh_hpa,
-            self.scenario.atmosphere.temperature_offset_k,
-        )
-        true_fl = float(pressure_ft) / 100.0
+        true_fl = float(m["fl"][i])
         if ssr:
             code = self.truth.mode3a_at(a, t)
             if code is not None:
