@@ -1,9 +1,9 @@
 """Run the local trackers over a recording that carries truth.
 
-Per radar (a source with CAT048), in reception order, LAN B copies skipped: extract the
-plots, time them with ``PlotClock`` (fed with the CAT034 north markers), convert them to
-the system plane, and feed each datagram (one sector of one radar) to that radar's
-``LocalTracker`` as one batch. Every plot gets a global ``plot_id``; the table of plots
+The recording's datagrams, in reception order, LAN B copies skipped, go through the
+processing chain (``tracker_service.chain``: plot clock, system plane, one
+``LocalTracker`` per radar, one sector per batch). Every plot gets a global ``plot_id``;
+the table of plots
 keeps, for each id, where it came from (source, LAN A datagram sequence, record index)
 and what the simulator says it is (``/truth/plots``), so that the metrics can tell which
 aircraft each track update came from.
@@ -16,9 +16,8 @@ not give or gives wrong (geoid, north alignment, tracker tunables).
 from __future__ import annotations
 
 import logging
-import math
 from collections import defaultdict
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -26,12 +25,18 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from asterix.codec import Block, decode_blocks
-from asterix.plots import extract_plots
-from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
-from tracker_service.ingest import PlotClock
+from tracker_service.chain import (
+    KIND_UNKNOWN,
+    RAW_PLOT_DTYPE,
+    Chain,
+    RadarInfo,
+    radar_infos,
+    source_order,
+    system_plane,
+)
+from tracker_service.geodesy import SystemPlane
 from tracker_service.simulator.recording import Recording, read_recording
-from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
+from tracker_service.tracking import LocalTracker, TrackerConfig
 
 __all__ = [
     "KIND_AIRCRAFT",
@@ -52,19 +57,8 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-NM = 1852.0
-CAT034 = 34
-CAT048 = 48
-
 # Origin kinds of /truth/plots as small integers, so that they fit a numpy column.
-KIND_UNKNOWN, KIND_AIRCRAFT, KIND_CLUTTER, KIND_REFLECTION, KIND_SPLIT, KIND_FIELD_MONITOR = (
-    -1,
-    0,
-    1,
-    2,
-    3,
-    4,
-)
+KIND_AIRCRAFT, KIND_CLUTTER, KIND_REFLECTION, KIND_SPLIT, KIND_FIELD_MONITOR = 0, 1, 2, 3, 4
 KIND_NAMES: dict[str, int] = {
     "aircraft": KIND_AIRCRAFT,
     "clutter": KIND_CLUTTER,
@@ -72,42 +66,6 @@ KIND_NAMES: dict[str, int] = {
     "split": KIND_SPLIT,
     "field_monitor": KIND_FIELD_MONITOR,
 }
-
-RAW_PLOT_DTYPE = np.dtype(
-    [
-        ("plot_id", np.int64),
-        ("sequence", np.int64),  # LAN A datagram number of the source (as /truth/plots)
-        ("record", np.int64),  # CAT048 record index within that datagram
-        ("time", np.float64),  # POSIX time of measurement the tracker used
-        ("time_source", np.int8),  # ingest.TimeSource
-        ("x", np.float64),
-        ("y", np.float64),
-        ("R", np.float64, (2, 2)),
-        ("rho_m", np.float64),
-        ("theta_deg", np.float64),
-        ("flight_level", np.float64),  # NaN when absent, invalid or garbled
-        ("typ", np.int64),
-        ("address", np.int64),  # Mode S address, -1 when absent
-        ("mode3a", np.int64),  # Mode 3/A code as an integer, -1 when absent
-        ("kind", np.int8),  # KIND_*
-        ("aircraft", np.int64),  # origin aircraft index, -1 when none
-        ("detection_time", np.float64),  # true time of detection, NaN when unknown
-    ]
-)
-"""One converted plot of one radar, with its truth origin."""
-
-
-@dataclass(frozen=True)
-class RadarInfo:
-    """What the evaluation needs to know of one radar."""
-
-    source: str
-    site: RadarSite
-    period_s: float
-    sigma_range_m: float
-    sigma_azimuth_deg: float
-    psr_sigma_range_m: float
-    psr_sigma_azimuth_deg: float
 
 
 @dataclass(frozen=True)
@@ -174,141 +132,6 @@ class PipelineResult:
     """plot_id -> (source, datagram sequence, record index)."""
 
 
-def _float(value: Any, default: float) -> float:
-    return float(value) if isinstance(value, int | float) and math.isfinite(value) else default
-
-
-def radar_infos(metadata: Mapping[str, Any], config: EvaluationConfig) -> dict[str, RadarInfo]:
-    """The radars of a simulated recording's metadata, with the configuration's overrides."""
-    infos: dict[str, RadarInfo] = {}
-    for source, radar in dict(metadata.get("radars", {})).items():
-        override = dict(config.radars.get(source, {}))
-        site = RadarSite(
-            lat_deg=float(override.pop("lat_deg", radar["lat"])),
-            lon_deg=float(override.pop("lon_deg", radar["lon"])),
-            alt_m=float(override.pop("alt_m", radar["alt_m"])),
-            geoid_m=float(override.pop("geoid_m", config.geoid_m)),
-            north_offset_deg=float(override.pop("north_offset_deg", 0.0)),
-        )
-        sigma_range = float(override.pop("sigma_range_m", _float(radar.get("sigma_range_m"), 50.0)))
-        sigma_azimuth = float(
-            override.pop("sigma_azimuth_deg", _float(radar.get("sigma_azimuth_deg"), 0.07))
-        )
-        # Without PSR sigmas, PSR-only plots are taken as accurate as the others.
-        psr_range = _float(radar.get("psr_sigma_range_m"), sigma_range)
-        psr_azimuth = _float(radar.get("psr_sigma_azimuth_deg"), sigma_azimuth)
-        infos[source] = RadarInfo(
-            source=source,
-            site=site,
-            period_s=float(override.pop("period_s", _float(radar.get("antenna_period_s"), 5.0))),
-            sigma_range_m=sigma_range,
-            sigma_azimuth_deg=sigma_azimuth,
-            psr_sigma_range_m=float(override.pop("psr_sigma_range_m", psr_range)),
-            psr_sigma_azimuth_deg=float(override.pop("psr_sigma_azimuth_deg", psr_azimuth)),
-        )
-        if override:
-            raise ValueError(f'[radars."{source}"]: unknown fields {sorted(override)}')
-    for source in config.radars:
-        if source not in infos:
-            log.warning("configured radar %s is not in the recording's metadata", source)
-    return infos
-
-
-def system_plane(metadata: Mapping[str, Any], infos: Mapping[str, RadarInfo]) -> SystemPlane:
-    """The scenario's system centre, or the mean of the sites when it gives none."""
-    centre = dict(metadata.get("scenario", {})).get("system_centre")
-    if isinstance(centre, dict) and "lat" in centre and "lon" in centre:
-        return SystemPlane(float(centre["lat"]), float(centre["lon"]))
-    if not infos:
-        raise ValueError("the recording names no radar and no system centre")
-    lat = float(np.mean([i.site.lat_deg for i in infos.values()]))
-    lon = float(np.mean([i.site.lon_deg for i in infos.values()]))
-    return SystemPlane(lat, lon)
-
-
-def blocks_of(payload: bytes, category: int) -> Iterator[bytes]:
-    """The data blocks of one category in a datagram, by their headers alone (cheap: the
-    plot path needs CAT034 decoded, not every block)."""
-    pos = 0
-    while pos + 3 <= len(payload):
-        length = int.from_bytes(payload[pos + 1 : pos + 3])
-        if length < 3 or pos + length > len(payload):
-            return
-        if payload[pos] == category:
-            yield payload[pos : pos + length]
-        pos += length
-
-
-def convert_batch(
-    raw: npt.NDArray[Any],
-    info: RadarInfo,
-    plane: SystemPlane,
-    clock: PlotClock,
-    heights: HeightModel,
-    received: float,
-    first_id: int,
-    sequence: int,
-) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
-    """One datagram's plots of one radar (``asterix.plots`` rows): timed, converted to the
-    system plane, as the tracker's batch (``tracking.PLOT_DTYPE``) and as a
-    ``RAW_PLOT_DTYPE`` table (origins unknown) with plot ids from ``first_id``."""
-    n = len(raw)
-    times, time_sources = clock.times(raw, received)
-    fl = np.asarray(raw["flight_level"], dtype=np.float64)
-    # V = 1 (not validated) and G = 1 (garbled) Mode C is no height: the HeightModel's
-    # stand-in and its large sigma take over, and the tracker's vertical filter skips it.
-    fl_ok = (
-        np.isfinite(fl) & (raw["flight_level_invalid"] != 1) & (raw["flight_level_garbled"] != 1)
-    )
-    fl_clean = np.where(fl_ok, fl, np.nan)
-    height, height_sigma = heights.heights(fl_clean)
-    psr_only = raw["typ"] == 1
-    sigma_rho = np.where(psr_only, info.psr_sigma_range_m, info.sigma_range_m)
-    sigma_theta = np.where(psr_only, info.psr_sigma_azimuth_deg, info.sigma_azimuth_deg)
-    rho_m = np.asarray(raw["rho"], dtype=np.float64) * NM
-    theta = np.asarray(raw["theta"], dtype=np.float64)
-    converted = convert_plots(
-        info.site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
-    )
-    ids = np.arange(first_id, first_id + n, dtype=np.int64)
-    mode3a = np.asarray(raw["mode3a"], dtype=np.int64)
-
-    batch = np.zeros(n, dtype=PLOT_DTYPE)
-    batch["time"] = times
-    batch["x"] = converted.x
-    batch["y"] = converted.y
-    batch["R"] = converted.R
-    batch["flight_level"] = fl
-    batch["fl_valid"] = fl_ok
-    batch["mode3a"] = mode3a
-    batch["mode3a_valid"] = (
-        (mode3a >= 0) & (raw["mode3a_invalid"] != 1) & (raw["mode3a_garbled"] != 1)
-    )
-    batch["address"] = raw["address"]
-    batch["typ"] = raw["typ"]
-    batch["plot_id"] = ids
-
-    table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
-    table["plot_id"] = ids
-    table["sequence"] = sequence
-    table["record"] = np.arange(n)
-    table["time"] = times
-    table["time_source"] = time_sources
-    table["x"] = converted.x
-    table["y"] = converted.y
-    table["R"] = converted.R
-    table["rho_m"] = rho_m
-    table["theta_deg"] = theta
-    table["flight_level"] = fl_clean
-    table["typ"] = raw["typ"]
-    table["address"] = raw["address"]
-    table["mode3a"] = mode3a
-    table["kind"] = KIND_UNKNOWN
-    table["aircraft"] = -1
-    table["detection_time"] = np.nan
-    return batch, table
-
-
 def _truth_plot_index(recording: Recording) -> dict[tuple[str, int], list[dict[str, Any]]]:
     index: dict[tuple[str, int], list[dict[str, Any]]] = {}
     if "/truth/plots" not in recording.topics:
@@ -316,38 +139,6 @@ def _truth_plot_index(recording: Recording) -> dict[tuple[str, int], list[dict[s
     for message in recording.messages("/truth/plots"):
         index[(str(message["source"]), int(message["sequence"]))] = list(message["records"])
     return index
-
-
-class RadarState:
-    """What a run keeps per radar while it reads: its tracker, and the track updates and
-    converted plots of every datagram so far."""
-
-    def __init__(
-        self,
-        info: RadarInfo,
-        tracker_config: TrackerConfig,
-        tracker: LocalTracker | None = None,
-    ) -> None:
-        self.info = info
-        self.tracker_config = tracker_config
-        self.tracker = tracker or LocalTracker(tracker_config)
-        self.updates: list[npt.NDArray[Any]] = []
-        self.plots: list[npt.NDArray[Any]] = []
-
-    def results(self) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
-        """(track updates, RAW_PLOT_DTYPE plots) of the whole run."""
-        updates = (
-            np.concatenate(self.updates)
-            if self.updates
-            else np.zeros(0, dtype=self.tracker.output_dtype)
-        )
-        plots = np.concatenate(self.plots) if self.plots else np.zeros(0, RAW_PLOT_DTYPE)
-        return updates, plots
-
-
-def source_order(source: str) -> tuple[int, ...]:
-    """Sort key of "SAC/SIC" texts: by number, not as text."""
-    return tuple(int(part) for part in source.split("/"))
 
 
 def run_pipeline(
@@ -359,17 +150,14 @@ def run_pipeline(
     config)`` builds each radar's tracker (a benchmark passes one that times ``process``)."""
     config = config or EvaluationConfig()
     recording = path if isinstance(path, Recording) else read_recording(path)
-    infos = radar_infos(recording.metadata, config)
+    infos = radar_infos(recording.metadata, config.radars, config.geoid_m)
     plane = system_plane(recording.metadata, infos)
     truth_plots = _truth_plot_index(recording)
-    heights = HeightModel()
-    clock = PlotClock()
+    chain = Chain(infos, plane, config.tracker, make_tracker)
     sequences: dict[str, int] = defaultdict(int)
-    states: dict[str, RadarState] = {}
-    skipped: set[str] = set()
+    updates: dict[str, list[npt.NDArray[Any]]] = defaultdict(list)
+    tables: dict[str, list[npt.NDArray[Any]]] = defaultdict(list)
     origins: dict[int, tuple[str, int, int]] = {}
-    next_id = 0
-    tracker_overrides = dict(config.tracker)
 
     for datagram in recording.datagrams():
         if datagram.lan == "B":
@@ -377,68 +165,47 @@ def run_pipeline(
             continue
         sequence = sequences[datagram.source]
         sequences[datagram.source] += 1
-        for block in blocks_of(datagram.payload, CAT034):
-            for event in decode_blocks(block):
-                if isinstance(event, Block):
-                    for items in event.records:
-                        clock.service_message(items, datagram.time)
-        raw = extract_plots(datagram.payload).plots
-        if len(raw) == 0:
-            continue
-        state = states.get(datagram.source)
-        if state is None:
-            if datagram.source in skipped:
-                continue
-            info = infos.get(datagram.source)
-            if info is None:
-                # Not in the metadata: no site to convert with. Fusion needs real sites,
-                # and so does an evaluation against geodetic truth.
+        outputs = chain.feed(datagram.payload, datagram.time)
+        for output in outputs:
+            table = output.plots
+            # The truth numbers every datagram of the source, plotless ones included.
+            table["sequence"] = sequence
+            records = truth_plots.get((datagram.source, sequence))
+            if records is not None and (len(outputs) > 1 or len(records) != len(table)):
+                # A record the plot path could not read would shift every later index.
                 log.warning(
-                    "source %s has CAT048 but no radar in the metadata: skipped",
+                    "%s datagram %d: %d plots read, truth lists %d records; origins dropped",
                     datagram.source,
+                    sequence,
+                    len(table),
+                    len(records),
                 )
-                skipped.add(datagram.source)
-                continue
-            tracker_config = TrackerConfig(**{"scan_period_s": info.period_s, **tracker_overrides})
-            tracker = (
-                None if make_tracker is None else make_tracker(datagram.source, tracker_config)
-            )
-            state = states[datagram.source] = RadarState(info, tracker_config, tracker)
-        batch, table = convert_batch(
-            raw, state.info, plane, clock, heights, datagram.time, next_id, sequence
-        )
-        next_id += len(raw)
-        state.updates.append(state.tracker.process(batch))
-        n, ids = len(raw), table["plot_id"]
-        records = truth_plots.get((datagram.source, sequence))
-        if records is not None and len(records) != n:
-            # A record the plot path could not read would shift every later index.
-            log.warning(
-                "%s datagram %d: %d plots read, truth lists %d records; origins dropped",
-                datagram.source,
-                sequence,
-                n,
-                len(records),
-            )
-            records = None
-        if records is not None:
-            table["kind"] = [KIND_NAMES.get(r["kind"], KIND_UNKNOWN) for r in records]
-            table["aircraft"] = [-1 if r["aircraft"] is None else r["aircraft"] for r in records]
-            table["detection_time"] = [r["detection_time"] for r in records]
-        state.plots.append(table)
-        for row, plot_id in enumerate(ids.tolist()):
-            origins[plot_id] = (datagram.source, sequence, row)
+                records = None
+            if records is not None:
+                table["kind"] = [KIND_NAMES.get(r["kind"], KIND_UNKNOWN) for r in records]
+                table["aircraft"] = [
+                    -1 if r["aircraft"] is None else r["aircraft"] for r in records
+                ]
+                table["detection_time"] = [r["detection_time"] for r in records]
+            tables[output.source].append(table)
+            updates[output.source].append(output.local)
+            for row, plot_id in enumerate(table["plot_id"].tolist()):
+                origins[plot_id] = (datagram.source, sequence, row)
 
     radars: dict[str, RadarRun] = {}
-    for source in sorted(states, key=source_order):
-        state = states[source]
-        updates, plots = state.results()
-        radars[source] = RadarRun(state.info, updates, plots, state.tracker_config)
+    for source in sorted(chain.radars, key=source_order):
+        state = chain.radars[source]
+        radars[source] = RadarRun(
+            state.info,
+            np.concatenate(updates[source]),
+            np.concatenate(tables[source]),
+            state.tracker_config,
+        )
         log.info(
             "%s: %d plots, %d track updates, stats %s",
             source,
-            len(plots),
-            len(updates),
+            len(radars[source].plots),
+            len(radars[source].updates),
             state.tracker.stats,
         )
     return PipelineResult(recording, plane, radars, origins)

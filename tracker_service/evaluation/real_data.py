@@ -37,17 +37,9 @@ import numpy.typing as npt
 from asterix.codec import Block, decode_blocks
 from asterix.containers import Datagram, read_file
 from asterix.plots import extract_plots
-from tracker_service.evaluation.pipeline import (
-    CAT034,
-    NM,
-    RadarInfo,
-    RadarState,
-    blocks_of,
-    convert_batch,
-    source_order,
-)
-from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane
-from tracker_service.ingest import DAY_S, PlotClock
+from tracker_service.chain import CAT034, NM, Chain, RadarInfo, blocks_of, source_order
+from tracker_service.geodesy import RadarSite, SystemPlane
+from tracker_service.ingest import DAY_S
 from tracker_service.tracking import CONFIRMED, TrackerConfig
 
 __all__ = [
@@ -144,81 +136,63 @@ def track_capture(
     """Track every radar of a capture; see the module docstring.
 
     ``site``: one site for every radar, or one per ``"SAC/SIC"`` (radars not listed are
-    skipped). ``plane``: the system plane, centred on the (first) site by default.
-    ``tracker_config``: the tracker's tunables; its ``scan_period_s`` is replaced by the
-    radar's north-marker period when the capture has one."""
+    tracked at an assumed site, with a warning: see ``tracker_service.chain``). ``plane``:
+    the system plane, centred on the (first) site by default. ``tracker_config``: the
+    tracker's tunables; its ``scan_period_s`` is replaced by the radar's north-marker period
+    when the capture has one."""
     datagrams = [d for d in read_file(path) if isinstance(d, Datagram)]
     reception = _reception_times(datagrams, day_posix)
     periods = north_marker_periods(datagrams)
-    sites = site if isinstance(site, dict) else None
-    if plane is None:
-        first = site if isinstance(site, RadarSite) else next(iter(site.values()))
-        plane = SystemPlane(first.lat_deg, first.lon_deg)
+    if isinstance(site, RadarSite):
+        sites = {source: site for source in _plot_sources(datagrams)}
+        plane = plane or SystemPlane(site.lat_deg, site.lon_deg)
+    else:
+        sites = dict(site)
+        first = next(iter(sites.values()))
+        plane = plane or SystemPlane(first.lat_deg, first.lon_deg)
     base = tracker_config or TrackerConfig()
-    clock = PlotClock()
-    heights = HeightModel()
-    radars: dict[str, RadarState] = {}
-
+    infos = {
+        source: RadarInfo(
+            source=source,
+            site=radar_site,
+            period_s=periods.get(source, base.scan_period_s),
+            sigma_range_m=sigma_range_m,
+            sigma_azimuth_deg=sigma_azimuth_deg,
+            psr_sigma_range_m=sigma_range_m,
+            psr_sigma_azimuth_deg=sigma_azimuth_deg,
+        )
+        for source, radar_site in sites.items()
+    }
+    overrides = dataclasses.asdict(base)
+    del overrides["scan_period_s"]  # each radar's own, from its north markers
+    chain = Chain(infos, plane, overrides)
+    updates: dict[str, list[npt.NDArray[Any]]] = defaultdict(list)
+    tables: dict[str, list[npt.NDArray[Any]]] = defaultdict(list)
     for datagram, received in zip(datagrams, reception, strict=True):
-        for items in _cat034_records(datagram.payload):
-            clock.service_message(items, received)
-        raw = extract_plots(datagram.payload).plots
-        if len(raw) == 0:
-            continue
-        # A datagram may mix radars only in odd captures: split it per SAC/SIC.
-        keys = sorted({(int(a), int(b)) for a, b in zip(raw["sac"], raw["sic"], strict=True)})
-        for sac, sic in keys:
-            source = _source(sac, sic)
-            radar = radars.get(source)
-            if radar is None:
-                radar_site = site if isinstance(site, RadarSite) else (sites or {}).get(source)
-                if radar_site is None:
-                    continue
-                period = periods.get(source, base.scan_period_s)
-                info = RadarInfo(
-                    source=source,
-                    site=radar_site,
-                    period_s=period,
-                    sigma_range_m=sigma_range_m,
-                    sigma_azimuth_deg=sigma_azimuth_deg,
-                    psr_sigma_range_m=sigma_range_m,
-                    psr_sigma_azimuth_deg=sigma_azimuth_deg,
-                )
-                config = dataclasses.replace(base, scan_period_s=period)
-                radar = radars[source] = RadarState(info, config)
-            mine = raw[(raw["sac"] == sac) & (raw["sic"] == sic)]
-            _process(radar, mine, clock, heights, plane, received)
+        for output in chain.feed(datagram.payload, received):
+            updates[output.source].append(output.local)
+            tables[output.source].append(output.plots)
 
     out: dict[str, CaptureRun] = {}
-    for source in sorted(radars, key=source_order):
-        radar = radars[source]
-        updates, plots = radar.results()
+    for source in sorted(chain.radars, key=source_order):
+        radar = chain.radars[source]
         out[source] = CaptureRun(
             radar.info,
-            updates,
-            plots,
+            np.concatenate(updates[source]),
+            np.concatenate(tables[source]),
             radar.tracker_config,
             dataclasses.asdict(radar.tracker.stats),
         )
     return out
 
 
-def _process(
-    radar: RadarState,
-    raw: npt.NDArray[Any],
-    clock: PlotClock,
-    heights: HeightModel,
-    plane: SystemPlane,
-    received: float,
-) -> None:
-    """One datagram's plots of one radar: time, convert, track (as ``run_pipeline``)."""
-    first_id = sum(len(p) for p in radar.plots)
-    # Without truth, "sequence" is simply the count of the radar's datagrams so far.
-    batch, table = convert_batch(
-        raw, radar.info, plane, clock, heights, received, first_id, len(radar.plots)
-    )
-    radar.updates.append(radar.tracker.process(batch))
-    radar.plots.append(table)
+def _plot_sources(datagrams: Sequence[Datagram]) -> list[str]:
+    """Every SAC/SIC that sends plots."""
+    sources: set[str] = set()
+    for datagram in datagrams:
+        raw = extract_plots(datagram.payload).plots
+        sources.update(_source(int(a), int(b)) for a, b in zip(raw["sac"], raw["sic"], strict=True))
+    return sorted(sources, key=source_order)
 
 
 # --- what the run says ------------------------------------------------------------------

@@ -1,0 +1,384 @@
+"""The processing chain: datagrams of radars in, plots, local tracks and system tracks out.
+
+One ``Chain`` holds every stage after the codec: the plot clock (``ingest.PlotClock``, fed
+with the CAT034 service messages), the conversion to the system plane (``geodesy``), one
+``LocalTracker`` per radar, and, once configured, the bias estimator and the fuser. The
+evaluation, the replay and the daemon all feed it datagrams in the order they have them;
+it keeps nothing of theirs. Each radar is identified by the SAC/SIC its plots carry, not
+by the socket they came from: a datagram that mixes radars is split.
+
+A radar that the configuration does not know is still tracked (with a warning), in a
+plane of its own centred on an assumed site (the system centre): its local tracks are
+shaped right, but without a surveyed site they are placed wrong, so they are kept out of
+fusion and bias estimation. Field-monitor plots (I020 RAB = 1) are a radar's test
+transponder at a surveyed position: never tracked, they are a reference for its biases.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from asterix.codec import Block, decode_blocks
+from asterix.plots import extract_plots
+from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
+from tracker_service.ingest import PlotClock
+from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
+
+__all__ = [
+    "KIND_UNKNOWN",
+    "RAW_PLOT_DTYPE",
+    "BatchOutput",
+    "Chain",
+    "FieldMonitor",
+    "RadarInfo",
+    "blocks_of",
+    "convert_batch",
+    "radar_infos",
+    "source_order",
+    "system_plane",
+]
+
+log = logging.getLogger(__name__)
+
+NM = 1852.0
+CAT034 = 34
+KIND_UNKNOWN = -1
+
+RAW_PLOT_DTYPE = np.dtype(
+    [
+        ("plot_id", np.int64),
+        ("sequence", np.int64),  # datagram number of the source (LAN A in a recording)
+        ("record", np.int64),  # CAT048 record index within that datagram
+        ("time", np.float64),  # POSIX time of measurement the tracker used
+        ("time_source", np.int8),  # ingest.TimeSource
+        ("x", np.float64),
+        ("y", np.float64),
+        ("R", np.float64, (2, 2)),
+        ("rho_m", np.float64),
+        ("theta_deg", np.float64),
+        ("flight_level", np.float64),  # NaN when absent, invalid or garbled
+        ("typ", np.int64),
+        ("rab", np.bool_),  # field monitor
+        ("address", np.int64),  # Mode S address, -1 when absent
+        ("mode3a", np.int64),  # Mode 3/A code as an integer, -1 when absent
+        ("kind", np.int8),  # what the plot truly is, when an evaluation knows (KIND_*)
+        ("aircraft", np.int64),  # origin aircraft index, -1 when none or unknown
+        ("detection_time", np.float64),  # true time of detection, NaN when unknown
+    ]
+)
+"""One converted plot of one radar, as received (before any bias correction), with room
+for its truth origin."""
+
+
+@dataclass(frozen=True)
+class FieldMonitor:
+    """A radar's fixed test transponder at a surveyed position (height above MSL)."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+
+
+@dataclass(frozen=True)
+class RadarInfo:
+    """What the chain needs to know of one radar."""
+
+    source: str
+    site: RadarSite
+    period_s: float
+    sigma_range_m: float
+    sigma_azimuth_deg: float
+    psr_sigma_range_m: float
+    psr_sigma_azimuth_deg: float
+    field_monitor: FieldMonitor | None = None
+    surveyed: bool = True
+    """False for a radar the configuration does not know (an assumed site)."""
+
+
+def source_order(source: str) -> tuple[int, ...]:
+    """Sort key of "SAC/SIC" texts: by number, not as text."""
+    return tuple(int(part) for part in source.split("/"))
+
+
+def blocks_of(payload: bytes, category: int) -> Iterator[bytes]:
+    """The data blocks of one category in a datagram, by their headers alone (cheap: the
+    plot path needs CAT034 decoded, not every block)."""
+    pos = 0
+    while pos + 3 <= len(payload):
+        length = int.from_bytes(payload[pos + 1 : pos + 3])
+        if length < 3 or pos + length > len(payload):
+            return
+        if payload[pos] == category:
+            yield payload[pos : pos + length]
+        pos += length
+
+
+def convert_batch(
+    raw: npt.NDArray[Any],
+    info: RadarInfo,
+    plane: SystemPlane,
+    clock: PlotClock,
+    heights: HeightModel,
+    received: float,
+    first_id: int,
+    sequence: int,
+) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
+    """One datagram's plots of one radar (``asterix.plots`` rows): timed, converted to the
+    system plane, as the tracker's batch (``tracking.PLOT_DTYPE``) and as a
+    ``RAW_PLOT_DTYPE`` table (origins unknown) with plot ids from ``first_id``."""
+    n = len(raw)
+    times, time_sources = clock.times(raw, received)
+    fl = np.asarray(raw["flight_level"], dtype=np.float64)
+    # V = 1 (not validated) and G = 1 (garbled) Mode C is no height: the HeightModel's
+    # stand-in and its large sigma take over, and the tracker's vertical filter skips it.
+    fl_ok = (
+        np.isfinite(fl) & (raw["flight_level_invalid"] != 1) & (raw["flight_level_garbled"] != 1)
+    )
+    fl_clean = np.where(fl_ok, fl, np.nan)
+    height, height_sigma = heights.heights(fl_clean)
+    rab = np.asarray(raw["rab"]) == 1
+    if info.field_monitor is not None and rab.any():
+        # The test transponder's height is surveyed: better than its Mode C.
+        height = np.where(rab, info.field_monitor.alt_m, height)
+        height_sigma = np.where(rab, 0.0, height_sigma)
+    psr_only = raw["typ"] == 1
+    sigma_rho = np.where(psr_only, info.psr_sigma_range_m, info.sigma_range_m)
+    sigma_theta = np.where(psr_only, info.psr_sigma_azimuth_deg, info.sigma_azimuth_deg)
+    rho_m = np.asarray(raw["rho"], dtype=np.float64) * NM
+    theta = np.asarray(raw["theta"], dtype=np.float64)
+    converted = convert_plots(
+        info.site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
+    )
+    ids = np.arange(first_id, first_id + n, dtype=np.int64)
+    mode3a = np.asarray(raw["mode3a"], dtype=np.int64)
+
+    batch = np.zeros(n, dtype=PLOT_DTYPE)
+    batch["time"] = times
+    batch["x"] = converted.x
+    batch["y"] = converted.y
+    batch["R"] = converted.R
+    batch["flight_level"] = fl
+    batch["fl_valid"] = fl_ok
+    batch["mode3a"] = mode3a
+    batch["mode3a_valid"] = (
+        (mode3a >= 0) & (raw["mode3a_invalid"] != 1) & (raw["mode3a_garbled"] != 1)
+    )
+    batch["address"] = raw["address"]
+    batch["typ"] = raw["typ"]
+    batch["plot_id"] = ids
+
+    table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
+    table["plot_id"] = ids
+    table["sequence"] = sequence
+    table["record"] = np.arange(n)
+    table["time"] = times
+    table["time_source"] = time_sources
+    table["x"] = converted.x
+    table["y"] = converted.y
+    table["R"] = converted.R
+    table["rho_m"] = rho_m
+    table["theta_deg"] = theta
+    table["flight_level"] = fl_clean
+    table["typ"] = raw["typ"]
+    table["rab"] = rab
+    table["address"] = raw["address"]
+    table["mode3a"] = mode3a
+    table["kind"] = KIND_UNKNOWN
+    table["aircraft"] = -1
+    table["detection_time"] = np.nan
+    return batch, table
+
+
+@dataclass
+class BatchOutput:
+    """What one radar's part of a datagram produced: its plots (``RAW_PLOT_DTYPE``, every
+    plot of the datagram, field monitors included) and its local-track updates."""
+
+    source: str
+    plots: npt.NDArray[Any]
+    local: npt.NDArray[Any]
+
+
+@dataclass
+class RadarState:
+    """One radar in the chain: what it is, its plane and its tracker."""
+
+    info: RadarInfo
+    plane: SystemPlane
+    tracker_config: TrackerConfig
+    tracker: LocalTracker
+    sequence: int = 0
+
+
+@dataclass
+class ChainStats:
+    datagrams: int = 0
+    plots: int = 0
+    field_monitor_plots: int = 0
+    unknown_radars: list[str] = field(default_factory=list)
+
+
+class Chain:
+    """See the module docstring. ``tracker``: ``TrackerConfig`` fields for every radar
+    (``scan_period_s`` comes from each radar's period unless given); ``make_tracker(source,
+    config)`` builds each radar's tracker (a benchmark passes one that times it)."""
+
+    def __init__(
+        self,
+        radars: Mapping[str, RadarInfo],
+        plane: SystemPlane,
+        tracker: Mapping[str, Any] | None = None,
+        make_tracker: Callable[[str, TrackerConfig], LocalTracker] | None = None,
+    ) -> None:
+        self.infos = dict(radars)
+        self.plane = plane
+        self.stats = ChainStats()
+        self.radars: dict[str, RadarState] = {}
+        self._tracker_overrides = dict(tracker or {})
+        self._make_tracker = make_tracker or (lambda _source, config: LocalTracker(config))
+        self._clock = PlotClock()
+        self._heights = HeightModel()
+        self._next_plot_id = 0
+
+    def feed(self, payload: bytes, received: float) -> list[BatchOutput]:
+        """Process one datagram received at ``received`` (POSIX s)."""
+        self.stats.datagrams += 1
+        for block in blocks_of(payload, CAT034):
+            for event in decode_blocks(block):
+                if isinstance(event, Block):
+                    for items in event.records:
+                        self._clock.service_message(items, received)
+        raw = extract_plots(payload).plots
+        if len(raw) == 0:
+            return []
+        sac, sic = np.asarray(raw["sac"], np.int64), np.asarray(raw["sic"], np.int64)
+        keys = np.unique(sac * 256 + sic)
+        if len(keys) == 1:
+            return [self._radar_batch(f"{sac[0]}/{sic[0]}", raw, received)]
+        # Only odd captures mix radars in one datagram.
+        return [
+            self._radar_batch(f"{key >> 8}/{key & 255}", raw[sac * 256 + sic == key], received)
+            for key in keys.tolist()
+        ]
+
+    def _radar(self, source: str) -> RadarState:
+        state = self.radars.get(source)
+        if state is not None:
+            return state
+        info = self.infos.get(source)
+        plane = self.plane
+        if info is None:
+            log.warning(
+                "radar %s is not in the configuration: tracked at an assumed site (the "
+                "system centre), in a plane of its own, and kept out of fusion; configure "
+                "its site to fuse it",
+                source,
+            )
+            self.stats.unknown_radars.append(source)
+            site = RadarSite(plane.centre_lat, plane.centre_lon, 0.0)
+            info = RadarInfo(source, site, 5.0, 50.0, 0.07, 50.0, 0.07, surveyed=False)
+            plane = SystemPlane(site.lat_deg, site.lon_deg, plane.kind)
+        overrides = {"scan_period_s": info.period_s, **self._tracker_overrides}
+        config = TrackerConfig(**overrides)
+        state = RadarState(info, plane, config, self._make_tracker(source, config))
+        self.radars[source] = state
+        return state
+
+    def _radar_batch(self, source: str, raw: npt.NDArray[Any], received: float) -> BatchOutput:
+        state = self._radar(source)
+        batch, table = convert_batch(
+            raw,
+            state.info,
+            state.plane,
+            self._clock,
+            self._heights,
+            received,
+            self._next_plot_id,
+            state.sequence,
+        )
+        state.sequence += 1
+        self._next_plot_id += len(raw)
+        self.stats.plots += len(raw)
+        monitor = table["rab"]
+        n_monitor = int(np.count_nonzero(monitor))
+        if n_monitor:
+            self.stats.field_monitor_plots += n_monitor
+            batch = batch[~monitor]
+        local = state.tracker.process(batch)
+        return BatchOutput(source, table, local)
+
+
+def _finite(value: Any, default: float) -> float:
+    return float(value) if isinstance(value, int | float) and math.isfinite(value) else default
+
+
+def radar_infos(
+    metadata: Mapping[str, Any],
+    overrides: Mapping[str, Mapping[str, float]] | None = None,
+    geoid_m: float = 0.0,
+) -> dict[str, RadarInfo]:
+    """The radars of a recording's metadata (the simulator's scenario radars), with
+    ``overrides`` per "SAC/SIC" of any ``RadarInfo``/``RadarSite`` field (lat_deg, lon_deg,
+    alt_m, geoid_m, north_offset_deg, period_s, sigma_*). Only what a radar operator would
+    know is read: site, period, sigmas and the field monitor's survey, never the truth of
+    its errors."""
+    overrides = overrides or {}
+    infos: dict[str, RadarInfo] = {}
+    for source, radar in dict(metadata.get("radars", {})).items():
+        override = dict(overrides.get(source, {}))
+        site = RadarSite(
+            lat_deg=float(override.pop("lat_deg", radar["lat"])),
+            lon_deg=float(override.pop("lon_deg", radar["lon"])),
+            alt_m=float(override.pop("alt_m", radar["alt_m"])),
+            geoid_m=float(override.pop("geoid_m", geoid_m)),
+            north_offset_deg=float(override.pop("north_offset_deg", 0.0)),
+        )
+        sigma_range = float(
+            override.pop("sigma_range_m", _finite(radar.get("sigma_range_m"), 50.0))
+        )
+        sigma_azimuth = float(
+            override.pop("sigma_azimuth_deg", _finite(radar.get("sigma_azimuth_deg"), 0.07))
+        )
+        # Without PSR sigmas, PSR-only plots are taken as accurate as the others.
+        psr_range = _finite(radar.get("psr_sigma_range_m"), sigma_range)
+        psr_azimuth = _finite(radar.get("psr_sigma_azimuth_deg"), sigma_azimuth)
+        monitor = radar.get("field_monitor")
+        infos[source] = RadarInfo(
+            source=source,
+            site=site,
+            period_s=float(override.pop("period_s", _finite(radar.get("antenna_period_s"), 5.0))),
+            sigma_range_m=sigma_range,
+            sigma_azimuth_deg=sigma_azimuth,
+            psr_sigma_range_m=float(override.pop("psr_sigma_range_m", psr_range)),
+            psr_sigma_azimuth_deg=float(override.pop("psr_sigma_azimuth_deg", psr_azimuth)),
+            field_monitor=(
+                FieldMonitor(float(monitor["lat"]), float(monitor["lon"]), float(monitor["alt_m"]))
+                if isinstance(monitor, dict)
+                else None
+            ),
+        )
+        if override:
+            raise ValueError(f'[radars."{source}"]: unknown fields {sorted(override)}')
+    for source in overrides:
+        if source not in infos:
+            log.warning("configured radar %s is not in the recording's metadata", source)
+    return infos
+
+
+def system_plane(metadata: Mapping[str, Any], infos: Mapping[str, RadarInfo]) -> SystemPlane:
+    """The scenario's system centre, or the mean of the sites when it gives none."""
+    centre = dict(metadata.get("scenario", {})).get("system_centre")
+    if isinstance(centre, dict) and "lat" in centre and "lon" in centre:
+        return SystemPlane(float(centre["lat"]), float(centre["lon"]))
+    if not infos:
+        raise ValueError("the recording names no radar and no system centre")
+    lat = float(np.mean([i.site.lat_deg for i in infos.values()]))
+    lon = float(np.mean([i.site.lon_deg for i in infos.values()]))
+    return SystemPlane(lat, lon)
