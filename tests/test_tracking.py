@@ -327,6 +327,24 @@ def test_reflection_does_not_steal_the_track() -> None:
     assert not np.any(ghosts["status"] == CONFIRMED)
 
 
+def test_two_aircraft_with_one_address_both_confirmed() -> None:
+    # DOMAIN.md section 2: duplicated addresses exist. Unlike a reflection, the second
+    # aircraft has its own Mode 3/A and level, and must get its own confirmed track.
+    first = Target(straight(), address=0x3C660C, typ=5, mode3a=0o1000, fl0=350.0)
+    second = Target(
+        straight(heading=200.0, x0=120e3, y0=90e3),
+        address=0x3C660C,
+        typ=5,
+        mode3a=0o4521,
+        fl0=280.0,
+    )
+    scenario = simulate([first, second], scans=20)
+    _, out = run(scenario)
+    tracks = [set(_track_of_target(scenario, out, k).tolist()) for k in (0, 1)]
+    assert all(len(t) == 1 for t in tracks), tracks
+    assert tracks[0] != tracks[1]
+
+
 def test_output_fields() -> None:
     scenario = simulate([Target(straight())], scans=6)
     _, out = run(scenario)

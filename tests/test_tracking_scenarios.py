@@ -1,6 +1,5 @@
 """The local trackers on the shipped scenarios, without systematic errors, measured by
-`evaluate` against the truth: the targets of issue 4 where they are met, and regression
-floors (marked) where they are not met yet."""
+`evaluate` against the truth: the targets of issue 4."""
 
 from __future__ import annotations
 
@@ -38,16 +37,10 @@ def test_crossings_keep_every_identity(tmp_path: Path) -> None:
 
 def test_three_sites_targets_met(three_sites: dict[str, dict[str, Any]]) -> None:
     for radar, local in three_sites["local"].items():
+        ratio = local["position_rms_m"] / three_sites["plots"][radar]["position_rms_m"]
+        assert ratio <= 0.6, radar
+        assert local["probability_of_update"] >= 0.97, radar
+        assert local["tracks_per_aircraft"] <= 1.05, radar
         assert 0.7 * local["nees_dof"] <= local["nees_mean"] <= 1.4 * local["nees_dof"], radar
         assert local["false_track_max_scans"] <= 3, radar
         assert local["id_changes"] == 0, radar
-
-
-def test_three_sites_regression_floors(three_sites: dict[str, dict[str, Any]]) -> None:
-    # Targets not met yet (issue 4: ratio <= 0.6, Pu >= 0.97, <= 1.05 tracks per aircraft);
-    # these bounds hold the figures measured on 2026-11-25 so that they only get better.
-    for radar, local in three_sites["local"].items():
-        ratio = local["position_rms_m"] / three_sites["plots"][radar]["position_rms_m"]
-        assert ratio <= 0.63, radar
-        assert local["probability_of_update"] >= 0.96, radar
-        assert local["tracks_per_aircraft"] <= 1.06, radar

@@ -121,6 +121,7 @@ class LocalTracker:
         # Per-tracker constants of the pre-selection radius, hoisted out of every batch.
         self._q_max = float(self.models.q.max())
         self._turn_max = float(np.abs(self.models.turn_rates_rad_s).max())
+        self._widest_gate = max(self.config.gate, self.config.address_gate)
 
     @property
     def _no_rows(self) -> npt.NDArray[Any]:
@@ -204,7 +205,9 @@ class LocalTracker:
         pred = imm.predict(tab["x"][ti], tab["P"][ti], tab["mu"][ti], dt, self.models)
         z, r = plot_xy[pj], p.R[pj]
         nis, log_det = imm.innovation_test(pred, z, r)
-        gated = np.flatnonzero(nis <= cfg.gate)
+        addr_t, addr_p = tab["address"][ti], p.address[pj]
+        same_address = (addr_t >= 0) & (addr_t == addr_p)
+        gated = np.flatnonzero(nis <= np.where(same_address, cfg.address_gate, cfg.gate))
         if gated.size == 0:
             # Skip the assignment and the IMM update: no pair passed its gate.
             self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
@@ -237,7 +240,7 @@ class LocalTracker:
         speed = np.hypot(xc[:, 2], xc[:, 3])
         turn = self._turn_max
         radius = (
-            RADIUS_SAFETY * np.sqrt(self.config.gate * var)
+            RADIUS_SAFETY * np.sqrt(self._widest_gate * var)
             + speed * spread
             + 0.5 * speed * turn * a * a
             + RADIUS_MARGIN_M
@@ -341,18 +344,19 @@ class LocalTracker:
             r[has] = rows
 
     def _confirm(self, tab: npt.NDArray[Any], r: npt.NDArray[Any]) -> None:
-        """M of N, except for a tentative track carrying the address of a confirmed track
-        that is associating (a reflection or a split, since the original follows the
-        kinematics), and for a slow track that never had a secondary reply (clutter).
-        ``r``: the rows to confirm (changed in place), already written to ``tab``."""
+        """M of N, except for a tentative track that echoes a confirmed track that is
+        associating (a reflection or a split, since the original follows the
+        kinematics; see ``_echoes``), and for a slow track that never had a secondary
+        reply (clutter). ``r``: the rows to confirm (changed in place), already written
+        to ``tab``."""
         candidates = np.flatnonzero(
             (r["status"] == TENTATIVE) & (np.bitwise_count(r["hist"]) >= self.config.confirm_m)
         )
         if candidates.size == 0:
             return
         live = (tab["status"] == CONFIRMED) & (tab["misses"] == 0) & (tab["address"] >= 0)
+        clash = self._echoes(r[candidates], tab[live])
         address = r["address"][candidates]
-        clash = np.isin(address, tab["address"][live]) & (address >= 0)
         primary_only = (address < 0) & (r["mode3a"][candidates] < 0)
         xc = r["xc"][candidates]
         speed = np.hypot(xc[:, 2], xc[:, 3])
@@ -360,6 +364,26 @@ class LocalTracker:
         confirmed = candidates[~clash & ~slow]
         r["status"][confirmed] = CONFIRMED
         self.stats.tracks_confirmed += int(confirmed.size)
+
+    def _echoes(self, new: npt.NDArray[Any], live: npt.NDArray[Any]) -> BoolArray:
+        """Which ``new`` tracks look like an echo (a reflection or a split) of a ``live``
+        confirmed track: the same address with nothing to tell them apart. An echo
+        repeats its original's Mode 3/A and Mode C; a second aircraft with the same
+        address (DOMAIN.md section 2) flies with its own code or at its own level."""
+        echo = np.zeros(len(new), dtype=bool)
+        for k in np.flatnonzero(new["address"] >= 0).tolist():
+            twins = live[live["address"] == new["address"][k]]
+            if len(twins) == 0:
+                continue
+            code, fl = new["mode3a"][k], new["fl"][k]
+            other_code = (code >= 0) & (twins["mode3a"] >= 0) & (twins["mode3a"] != code)
+            other_level = (
+                new["fl_ok"][k]
+                & twins["fl_ok"]
+                & (np.abs(twins["fl"] - fl) > self.config.echo_level_tolerance_fl)
+            )
+            echo[k] = bool(np.any(~other_code & ~other_level))
+        return echo
 
     def _create(self, first: PlotArrays, second: PlotArrays) -> npt.NDArray[Any]:
         k = len(second)
