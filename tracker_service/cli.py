@@ -58,6 +58,15 @@ def build_parser() -> argparse.ArgumentParser:
     from tracker_service.evaluation.command import add_arguments
 
     add_arguments(evaluate)
+    subscribe = commands.add_parser(
+        "subscribe",
+        help="print the system tracks a running service publishes over Zenoh",
+        description="Ask the service for the current air picture, then follow its updates: "
+        "a live table, or JSON lines (--json). Ends on Ctrl-C or SIGTERM.",
+    )
+    from tracker_service.subscribe import add_arguments as add_subscribe_arguments
+
+    add_subscribe_arguments(subscribe)
     return parser
 
 
@@ -105,6 +114,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tracker_service.evaluation.command import run
 
         return run(args)
+    if args.command == "subscribe":
+        from tracker_service.subscribe import run as subscribe_run
+
+        return subscribe_run(args)
     return 2
 
 

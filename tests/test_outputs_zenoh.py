@@ -1,0 +1,155 @@
+"""ZenohPublisher against a real subscriber in another process, over tcp/127.0.0.1."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import select
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from pydantic import BaseModel
+
+from tracker_service.outputs.zenoh_out import ZenohPublisher
+
+TIMEOUT_S = 10.0
+
+# The other process: "listen" prints every sample of tracker/** as a JSON line; "get"
+# asks the picture (retrying until the link is up) and prints the replies, then exits.
+CHILD = r"""
+import json, select, sys, time, zenoh
+endpoint, action, selector = sys.argv[1:4]
+config = zenoh.Config()
+config.insert_json5("mode", '"peer"')
+config.insert_json5("connect/endpoints", json.dumps([endpoint]))
+config.insert_json5("scouting/multicast/enabled", "false")
+session = zenoh.open(config)
+
+def show(sample):
+    text = sample.payload.to_bytes().decode()
+    print(json.dumps({"key": str(sample.key_expr), "kind": str(sample.kind), "payload": text}),
+          flush=True)
+
+if action == "listen":
+    subscriber = session.declare_subscriber(selector, show)
+    print(json.dumps({"ready": True}), flush=True)
+    # Until the test closes stdin, or ends on its own so that a lost sample fails the
+    # test rather than hanging it.
+    select.select([sys.stdin], [], [], 10.0)
+else:
+    deadline = time.monotonic() + 5.0
+    replies = []
+    while not replies and time.monotonic() < deadline:
+        replies = [r.ok for r in session.get(selector, timeout=1.0) if r.ok is not None]
+    for sample in replies:
+        show(sample)
+session.close()
+"""
+
+
+class Track(BaseModel):
+    number: int
+    status: str
+    lat: float
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+@pytest.fixture
+def endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture
+def publisher(endpoint: str) -> Iterator[ZenohPublisher]:
+    with ZenohPublisher(listen=[endpoint], multicast_scouting=False) as pub:
+        yield pub
+
+
+def child(endpoint: str, action: str, selector: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-c", CHILD, endpoint, action, selector],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+
+
+def read_line(proc: subprocess.Popen[str]) -> dict[str, Any]:
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    assert line, f"the subscriber ended (exit {proc.poll()})"
+    doc: dict[str, Any] = json.loads(line)
+    return doc
+
+
+def get_picture(endpoint: str, selector: str) -> dict[str, dict[str, Any]]:
+    proc = child(endpoint, "get", selector)
+    out, _ = proc.communicate(timeout=TIMEOUT_S)
+    assert proc.returncode == 0
+    replies = [json.loads(line) for line in out.splitlines()]
+    return {reply["key"]: json.loads(reply["payload"]) for reply in replies}
+
+
+def test_subscriber_in_another_process_receives(publisher: ZenohPublisher, endpoint: str) -> None:
+    proc = child(endpoint, "listen", "tracker/**")
+    try:
+        assert read_line(proc) == {"ready": True}
+        # The subscription reaches the publisher some time after it is declared: probe
+        # with status messages until one arrives.
+        deadline = time.monotonic() + TIMEOUT_S
+        assert proc.stdout is not None
+        while not select.select([proc.stdout], [], [], 0.05)[0]:
+            assert time.monotonic() < deadline, "no probe reached the subscriber"
+            publisher.put_status(Track(number=0, status="probe", lat=0.0))
+        publisher.put_system_track(7, Track(number=7, status="confirmed", lat=48.5))
+        publisher.put_local_track((25, 11), 301, Track(number=301, status="tentative", lat=1))
+        publisher.put_bias((25, 11), Track(number=0, status="bias", lat=0.0))
+        publisher.put_cat062(b'{"not": "really cat062"}')
+        publisher.end_system_track(7, Track(number=7, status="ended", lat=48.6))
+        # Probes still in flight arrive before the rest.
+        samples = (read_line(proc) for _ in itertools.count())
+        got = list(itertools.islice((s for s in samples if s["key"] != "tracker/status"), 6))
+    finally:
+        assert proc.stdin is not None
+        proc.stdin.close()
+        proc.wait(timeout=TIMEOUT_S)
+    assert [(g["key"], g["kind"]) for g in got] == [
+        ("tracker/system_tracks/7", "SampleKind.PUT"),
+        ("tracker/local_tracks/25_11/301", "SampleKind.PUT"),
+        ("tracker/bias/25_11", "SampleKind.PUT"),
+        ("tracker/cat062", "SampleKind.PUT"),
+        ("tracker/system_tracks/7", "SampleKind.PUT"),
+        ("tracker/system_tracks/7", "SampleKind.DELETE"),
+    ]
+    assert json.loads(got[0]["payload"]) == {"number": 7, "status": "confirmed", "lat": 48.5}
+    assert json.loads(got[4]["payload"])["status"] == "ended"
+
+
+def test_late_joiner_gets_live_tracks_only(publisher: ZenohPublisher, endpoint: str) -> None:
+    for number in (1, 2, 3):
+        publisher.put_system_track(number, Track(number=number, status="tentative", lat=1.0))
+    publisher.put_system_track(3, Track(number=3, status="confirmed", lat=3.5))
+    publisher.end_system_track(2, Track(number=2, status="ended", lat=2.0))
+    assert publisher.live_tracks == [1, 3]
+    picture = get_picture(endpoint, "tracker/system_tracks/**")
+    assert picture == {
+        "tracker/system_tracks/1": {"number": 1, "status": "tentative", "lat": 1.0},
+        "tracker/system_tracks/3": {"number": 3, "status": "confirmed", "lat": 3.5},
+    }
+    assert list(get_picture(endpoint, "tracker/system_tracks/3")) == ["tracker/system_tracks/3"]
+
+
+def test_bad_arguments_refused() -> None:
+    with pytest.raises(ValueError, match="prefix"):
+        ZenohPublisher("tracker/**")

@@ -1,0 +1,1 @@
+"""Live inputs of the service: radar feeds over UDP."""

@@ -1,0 +1,375 @@
+"""The service's MCAP log: raw datagrams, every message, and map-ready positions.
+
+JSON messages with JSON schemas, as the simulator's recordings (``docs/recording-format.md``):
+a channel per topic, a schema per pydantic model (``tracker_service.<Model>``), log and
+publish times in POSIX nanoseconds. Positions also go out as ``foxglove.LocationFix``,
+which Foxglove's map panel shows without configuration.
+
+Files rotate by size or by the span of their log times, named
+``<name>_<first log time, UTC>_<sequence>.mcap``. Chunks are small and each one reaches
+the operating system as soon as it is complete, so a process killed with SIGKILL leaves
+a file whose complete chunks :func:`read_log_messages` reads; ``close`` writes the
+summary and footer that indexed readers need.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time as clock
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, NamedTuple, Self
+
+from mcap.exceptions import EndOfFile
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, IndexType, Writer
+from pydantic import BaseModel, ConfigDict, Field
+
+from asterix.containers import Datagram
+from tracker_service.simulator.recording import _time_ns, json_schema, schema_name
+
+__all__ = [
+    "LOCATION_FIX_SCHEMA",
+    "LoggedDatagram",
+    "LoggedMessage",
+    "McapLog",
+    "datagram_topic",
+    "read_log_messages",
+]
+
+MCAP_LIBRARY = "tracker-service log 1"
+_JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+_NS_PER_S = 1_000_000_000
+_MAX_SEQUENCE = 2**32
+_LOCATION_FIX = "foxglove.LocationFix"
+
+# foxglove.LocationFix as Foxglove's own JSON schema states it; the map panel recognises
+# the schema by its name, the fields by theirs.
+LOCATION_FIX_SCHEMA: dict[str, Any] = {
+    "$schema": _JSON_SCHEMA_DIALECT,
+    "title": _LOCATION_FIX,
+    "description": "A navigation satellite fix for any Global Navigation Satellite System",
+    "type": "object",
+    "properties": {
+        "timestamp": {
+            "type": "object",
+            "title": "time",
+            "properties": {
+                "sec": {"type": "integer", "minimum": 0},
+                "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
+            },
+            "description": "Timestamp of the message",
+        },
+        "frame_id": {"type": "string", "description": "Frame for the sensor."},
+        "latitude": {"type": "number", "description": "Latitude in degrees"},
+        "longitude": {"type": "number", "description": "Longitude in degrees"},
+        "altitude": {"type": "number", "description": "Altitude in meters"},
+        "position_covariance": {
+            "type": "array",
+            "items": {"type": "number"},
+            "minItems": 9,
+            "maxItems": 9,
+            "description": "Position covariance (m^2) defined relative to a tangential "
+            "plane through the reported position. The components are East, North, and Up "
+            "(ENU), in row-major order.",
+        },
+        "position_covariance_type": {
+            "title": "foxglove.PositionCovarianceType",
+            "description": "If `position_covariance` is available, "
+            "`position_covariance_type` must be set to indicate the type of covariance.",
+            "oneOf": [
+                {"title": "UNKNOWN", "const": 0},
+                {"title": "APPROXIMATED", "const": 1},
+                {"title": "DIAGONAL_KNOWN", "const": 2},
+                {"title": "KNOWN", "const": 3},
+            ],
+        },
+    },
+}
+_COVARIANCE_UNKNOWN = 0
+_COVARIANCE_KNOWN = 3
+
+
+class LoggedDatagram(BaseModel):
+    """One datagram as an input received it; the reception time is also the log time."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    input: str = Field(description="The input (radar feed) it came in on.")
+    time: float = Field(ge=0.0, description="Reception time, POSIX seconds.")
+    src: str | None = Field(description='Sender "ip:port"; null when unknown.')
+    dst: str | None = Field(description='Destination (group or local address) "ip:port".')
+    payload: str = Field(
+        pattern=r"^(?:[0-9a-f]{2})*$",
+        description="The UDP payload, lower-case hex, two digits per byte.",
+    )
+
+
+def datagram_topic(input_name: str) -> str:
+    return f"/datagrams/{input_name}"
+
+
+def _endpoint(endpoint: tuple[str, int] | None) -> str | None:
+    return None if endpoint is None else f"{endpoint[0]}:{endpoint[1]}"
+
+
+@dataclass
+class _File:
+    path: Path
+    stream: IO[bytes]
+    writer: Writer
+    start_ns: int
+    schemas: dict[str, int] = field(default_factory=dict)
+    channels: dict[str, tuple[int, str]] = field(default_factory=dict)
+    """topic -> (channel id, schema name)."""
+    sequences: dict[int, int] = field(default_factory=dict)
+
+
+class McapLog:
+    """Writes the log into ``directory``, one file at a time.
+
+    A file is closed and the next one started when it reaches ``rotate_size_mb`` or when
+    a message's log time is ``rotate_duration_s`` past the file's first. ``chunk_size``
+    bounds what a SIGKILL can lose (with the last ``flush_interval_s`` seconds of wall
+    clock time, after which a partial chunk is written out anyway).
+    """
+
+    def __init__(
+        self,
+        directory: str | Path,
+        rotate_size_mb: float = 256.0,
+        rotate_duration_s: float = 3600.0,
+        chunk_size: int = 64 * 1024,
+        *,
+        name: str = "tracker",
+        flush_interval_s: float = 1.0,
+    ) -> None:
+        if rotate_size_mb <= 0 or rotate_duration_s <= 0 or chunk_size <= 0:
+            raise ValueError("rotate_size_mb, rotate_duration_s and chunk_size must be positive")
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.name = name
+        self._rotate_bytes = int(rotate_size_mb * 1024 * 1024)
+        self._rotate_ns = round(rotate_duration_s * _NS_PER_S)
+        self._chunk_size = chunk_size
+        self._flush_interval_s = flush_interval_s
+        self._last_flush = clock.monotonic()
+        self._file: _File | None = None
+        self._closed = False
+        self.files: list[Path] = []
+        """Every file started, in order."""
+
+    def log_datagram(self, datagram: Datagram, input_name: str = "udp") -> None:
+        """A received datagram, on ``/datagrams/<input_name>``; its time is required."""
+        if datagram.time is None:
+            raise ValueError("a logged datagram needs its reception time")
+        message = LoggedDatagram(
+            input=input_name,
+            time=datagram.time,
+            src=_endpoint(datagram.source),
+            dst=_endpoint(datagram.destination),
+            payload=datagram.payload.hex(),
+        )
+        self.log(datagram_topic(input_name), message, datagram.time)
+
+    def log(self, topic: str, model: BaseModel, time: float) -> None:
+        """A message on ``topic``, whose schema is its model's; ``time`` (POSIX seconds)
+        is its log and publish time."""
+        model_type = type(model)
+        self._write(
+            topic,
+            schema_name(model_type),
+            lambda: json_schema(model_type),
+            model.model_dump_json().encode(),
+            time,
+        )
+
+    def log_location(
+        self,
+        topic: str,
+        time: float,
+        lat: float,
+        lon: float,
+        alt: float,
+        covariance: Sequence[float] | None = None,
+    ) -> None:
+        """A ``foxglove.LocationFix``; ``covariance`` is the 3x3 ENU position covariance
+        (m², row-major), or None when unknown."""
+        if covariance is not None and len(covariance) != 9:
+            raise ValueError(f"covariance must hold 9 values (3x3), not {len(covariance)}")
+        values = [float(v) for v in covariance] if covariance is not None else [0.0] * 9
+        if not all(map(math.isfinite, (lat, lon, alt, *values))):
+            raise ValueError("a location must be finite")
+        ns = _time_ns(time)
+        fix = {
+            "timestamp": {"sec": ns // _NS_PER_S, "nsec": ns % _NS_PER_S},
+            "frame_id": "",
+            "latitude": lat,
+            "longitude": lon,
+            "altitude": alt,
+            "position_covariance": values,
+            "position_covariance_type": (
+                _COVARIANCE_UNKNOWN if covariance is None else _COVARIANCE_KNOWN
+            ),
+        }
+        self._write(
+            topic,
+            _LOCATION_FIX,
+            lambda: LOCATION_FIX_SCHEMA,
+            json.dumps(fix, separators=(",", ":")).encode(),
+            time,
+        )
+
+    def _write(
+        self,
+        topic: str,
+        schema: str,
+        schema_of: Callable[[], dict[str, Any]],
+        data: bytes,
+        time: float,
+    ) -> None:
+        if self._closed:
+            raise ValueError("the log is closed")
+        log_time = _time_ns(time)
+        file = self._file_for(log_time)
+        known = file.channels.get(topic)
+        if known is None:
+            schema_id = file.schemas.get(schema)
+            if schema_id is None:
+                text = json.dumps(schema_of(), separators=(",", ":")).encode()
+                schema_id = file.writer.register_schema(schema, "jsonschema", text)
+                file.schemas[schema] = schema_id
+            known = (file.writer.register_channel(topic, "json", schema_id), schema)
+            file.channels[topic] = known
+        channel, channel_schema = known
+        if channel_schema != schema:
+            raise ValueError(f"topic {topic!r} carries {channel_schema}, not {schema}")
+        sequence = file.sequences.get(channel, 0)
+        file.sequences[channel] = sequence + 1
+        file.writer.add_message(
+            channel_id=channel,
+            log_time=log_time,
+            data=data,
+            publish_time=log_time,
+            sequence=sequence % _MAX_SEQUENCE,
+        )
+        if clock.monotonic() - self._last_flush >= self._flush_interval_s:
+            self.flush()
+        # Cheap when nothing is buffered; when the writer has just completed a chunk, this
+        # hands it to the operating system, where it survives the process.
+        file.stream.flush()
+
+    def _file_for(self, log_time: int) -> _File:
+        file = self._file
+        if file is not None and (
+            file.stream.tell() >= self._rotate_bytes or log_time - file.start_ns >= self._rotate_ns
+        ):
+            self._finish()
+            file = None
+        if file is None:
+            file = self._file = self._start(log_time)
+        return file
+
+    def _start(self, log_time: int) -> _File:
+        started = datetime.fromtimestamp(log_time / _NS_PER_S, UTC)
+        stamp = started.strftime("%Y%m%dT%H%M%S") + f"{started.microsecond // 1000:03d}Z"
+        path = self.directory / f"{self.name}_{stamp}_{len(self.files):04d}.mcap"
+        stream = open(path, "xb")  # noqa: SIM115 - closed by _finish()
+        try:
+            writer = Writer(
+                stream,
+                chunk_size=self._chunk_size,
+                compression=CompressionType.ZSTD,
+                index_types=IndexType.ALL,
+                repeat_channels=True,
+                repeat_schemas=True,
+                use_chunking=True,
+                use_statistics=True,
+                use_summary_offsets=True,
+                enable_crcs=True,
+                enable_data_crcs=True,
+            )
+            writer.start(profile="", library=MCAP_LIBRARY)
+            stream.flush()
+        except BaseException:
+            stream.close()
+            raise
+        self.files.append(path)
+        return _File(path, stream, writer, log_time)
+
+    def flush(self) -> None:
+        """Writes the chunk in progress out now (a quiet feed would otherwise hold it)."""
+        if self._file is not None:
+            # mcap-python leaves flush() unannotated.
+            self._file.writer.flush()  # type: ignore[no-untyped-call]
+            self._last_flush = clock.monotonic()
+
+    def _finish(self) -> None:
+        file, self._file = self._file, None
+        if file is not None:
+            try:
+                # mcap-python leaves finish() unannotated.
+                file.writer.finish()  # type: ignore[no-untyped-call]
+            finally:
+                file.stream.close()
+
+    def close(self) -> None:
+        """Finishes the current file (summary, footer); later calls do nothing."""
+        if not self._closed:
+            self._closed = True
+            self._finish()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class LoggedMessage(NamedTuple):
+    topic: str
+    time: float
+    """Log time, POSIX seconds."""
+    schema: str
+    data: dict[str, Any]
+
+
+def read_log_messages(path: str | Path) -> Iterator[LoggedMessage]:
+    """Every message of a log file in file order, up to the end of its last complete
+    chunk: also reads a file whose writer was killed before it could close it.
+
+    A closed file can be read with ``mcap.reader.make_reader`` too (indexed, in time
+    order); a truncated one has no footer for it to start from.
+    """
+    with open(path, "rb") as stream:
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        records = StreamReader(stream, validate_crcs=True).records
+        while True:
+            try:
+                record = next(records)
+            except (StopIteration, EndOfFile):
+                # EndOfFile: the file stops inside a record, where the writer was killed.
+                return
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message):
+                channel = channels[record.channel_id]
+                yield LoggedMessage(
+                    channel.topic,
+                    record.log_time / _NS_PER_S,
+                    schemas[channel.schema_id].name,
+                    json.loads(record.data),
+                )

@@ -1,0 +1,261 @@
+"""What the service publishes, as pydantic models: JSON over Zenoh and MCAP channels.
+
+Times are POSIX seconds (UTC); positions are WGS84 degrees and metres in the system
+plane (x east, y north at the plane's centre); velocities are m/s in the same plane.
+``python -m tracker_service.outputs.messages DIR`` writes one JSON schema per model into
+DIR (the repository keeps them in ``docs/schemas``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+SOURCE_KEY = r"^\d{1,3}/\d{1,3}$"
+FEET_PER_METRE = 1.0 / 0.3048
+
+RadarKey = Annotated[str, Field(pattern=SOURCE_KEY, description='"SAC/SIC", e.g. "25/11"')]
+Address = Annotated[str, Field(pattern=r"^[0-9A-F]{6}$", description="Mode S address, hex")]
+Mode3A = Annotated[str, Field(pattern=r"^[0-7]{4}$", description="Mode 3/A code, octal")]
+Callsign = Annotated[str, Field(pattern=r"^[A-Z0-9 ]{1,8}$")]
+Latitude = Annotated[float, Field(ge=-90.0, le=90.0)]
+Longitude = Annotated[float, Field(ge=-180.0, le=180.0)]
+Seconds = Annotated[float, Field(ge=0.0)]
+
+
+class _Message(BaseModel):
+    # The attribute docstrings become the schemas' descriptions: the published contract.
+    model_config = ConfigDict(extra="forbid", frozen=True, use_attribute_docstrings=True)
+
+
+class TrackSource(_Message):
+    """A local track that contributes to a system track."""
+
+    radar: RadarKey
+    local_track: int
+    age_s: Seconds
+    """Time of the system track minus the time of this local track's last update."""
+    plot_id: int | None = None
+    """The plot that last updated the local track, when it was a detection."""
+
+
+class LastPlot(_Message):
+    """The last measured plot used to update the track."""
+
+    radar: RadarKey
+    time: float
+    lat: Latitude
+    lon: Longitude
+    range_m: Annotated[float, Field(ge=0.0)] | None = None
+    """Measured (bias-corrected) slant range and azimuth, when the plot was polar."""
+    azimuth_deg: Annotated[float, Field(ge=0.0, lt=360.0)] | None = None
+
+
+class SensorAges(_Message):
+    """Seconds since the last detection of each sensor type used; None: never used."""
+
+    psr: Seconds | None = None
+    ssr: Seconds | None = None
+    mode_s: Seconds | None = None
+    adsb: Seconds | None = None
+
+
+Covariance = Annotated[
+    list[list[float]],
+    Field(
+        min_length=4,
+        max_length=4,
+        description="4x4 state covariance of [x, y, vx, vy] in the system plane (m, m/s)",
+    ),
+]
+
+
+class SystemTrackMessage(_Message):
+    """One update of a fused (system) track; the last one of a track has status "ended"."""
+
+    number: Annotated[int, Field(ge=0, le=65535)]
+    time: float
+    """Time of the track state (POSIX s)."""
+    time_iso: str
+    lat: Latitude
+    lon: Longitude
+    altitude_m: float | None = None
+    """Barometric altitude above mean sea level (the flight level corrected with QNH)."""
+    flight_level: float | None = None
+    """Last measured flight level (Mode C, Mode S or ADS-B barometric), in FL (100 ft)."""
+    x_m: float
+    y_m: float
+    vx_mps: float
+    vy_mps: float
+    ground_speed_mps: Annotated[float, Field(ge=0.0)]
+    track_angle_deg: Annotated[float, Field(ge=0.0, lt=360.0)]
+    """Clockwise from the system plane's north."""
+    climb_rate_fpm: float | None = None
+    covariance: Covariance
+    position_sigma_m: Annotated[float, Field(ge=0.0)]
+    """Major semi-axis of the 1-sigma position error ellipse."""
+    address: Address | None = None
+    callsign: Callsign | None = None
+    mode3a: Mode3A | None = None
+    mode3a_changed: bool = False
+    first: bool = False
+    """The first message of this track number (CAT062 TSB)."""
+    sources: list[TrackSource]
+    status: Literal["confirmed", "coasting", "ended"]
+    last_plot: LastPlot | None = None
+    ages: SensorAges = SensorAges()
+    duplicate_address: bool = False
+    """Another live system track carries the same Mode S address."""
+
+    @field_validator("covariance")
+    @classmethod
+    def _square(cls, value: list[list[float]]) -> list[list[float]]:
+        if any(len(row) != 4 for row in value):
+            raise ValueError("covariance must be 4x4 ([x, y, vx, vy])")
+        return value
+
+    @classmethod
+    def from_state(
+        cls,
+        *,
+        time: float,
+        x_m: float,
+        y_m: float,
+        vx_mps: float,
+        vy_mps: float,
+        covariance: list[list[float]],
+        climb_rate_fl_per_s: float | None = None,
+        **identity: object,
+    ) -> SystemTrackMessage:
+        """A message with the fields that follow from the state filled in (time_iso,
+        ground speed, track angle, position sigma, climb rate in ft/min); ``identity``
+        gives the others (number, lat, lon, status, sources, ...)."""
+        return cls.model_validate(
+            {
+                "time": time,
+                "time_iso": iso_time(time),
+                "x_m": x_m,
+                "y_m": y_m,
+                "vx_mps": vx_mps,
+                "vy_mps": vy_mps,
+                "ground_speed_mps": math.hypot(vx_mps, vy_mps),
+                "track_angle_deg": math.degrees(math.atan2(vx_mps, vy_mps)) % 360.0,
+                "covariance": covariance,
+                "position_sigma_m": position_sigma_m(covariance),
+                "climb_rate_fpm": (
+                    None if climb_rate_fl_per_s is None else climb_rate_fl_per_s * 6000.0
+                ),
+                **identity,
+            }
+        )
+
+
+class LocalTrackMessage(_Message):
+    """One update of a radar's local track (before fusion)."""
+
+    radar: RadarKey
+    number: int
+    time: float
+    x_m: float
+    y_m: float
+    vx_mps: float
+    vy_mps: float
+    covariance: Covariance
+    flight_level: float | None = None
+    climb_rate_fpm: float | None = None
+    status: Literal["tentative", "confirmed", "coasting", "deleted"]
+    plot_id: int | None = None
+    mode3a: Mode3A | None = None
+    address: Address | None = None
+    model_probabilities: list[float]
+    """IMM model probabilities, in the order of the tracker's model set."""
+
+
+class Estimate(_Message):
+    estimate: float
+    sigma: Annotated[float, Field(ge=0.0)]
+    observable: bool
+    """False while the geometry does not yet separate this error from the others."""
+
+
+class BiasMessage(_Message):
+    """A radar's systematic-error estimate (measured minus true)."""
+
+    radar: RadarKey
+    time: float
+    range_offset_m: Estimate
+    range_gain: Estimate
+    """Dimensionless: rho_measured = (1 + gain) rho + offset."""
+    azimuth_deg: Estimate
+    time_s: Estimate
+
+
+class RadarStatus(_Message):
+    radar: RadarKey
+    last_plot_time: float | None = None
+    plots_per_second: Annotated[float, Field(ge=0.0)]
+    decode_errors: Annotated[int, Field(ge=0)]
+    duplicates: Annotated[int, Field(ge=0)]
+    drops: Annotated[int, Field(ge=0)]
+    """Plots or datagrams dropped under overload (counted, also in the MCAP log)."""
+
+
+class StatusMessage(_Message):
+    time: float
+    uptime_s: Seconds
+    health: Literal["ok", "degraded"]
+    radars: list[RadarStatus]
+
+
+MODELS: tuple[type[BaseModel], ...] = (
+    SystemTrackMessage,
+    LocalTrackMessage,
+    BiasMessage,
+    StatusMessage,
+)
+
+
+def iso_time(posix: float) -> str:
+    """ISO 8601 UTC with microseconds, e.g. 2026-06-01T10:00:00.500000Z."""
+    return datetime.fromtimestamp(posix, UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def position_sigma_m(covariance: list[list[float]]) -> float:
+    """Major semi-axis of the position error ellipse: sqrt of the larger eigenvalue of
+    the 2x2 position block."""
+    sxx, sxy, syy = covariance[0][0], covariance[0][1], covariance[1][1]
+    half_trace = 0.5 * (sxx + syy)
+    spread = math.hypot(0.5 * (sxx - syy), sxy)
+    return math.sqrt(max(half_trace + spread, 0.0))
+
+
+def schemas() -> dict[str, str]:
+    """File name -> JSON schema text of every published model."""
+    return {
+        f"{model.__name__}.schema.json": json.dumps(model.model_json_schema(), indent=2) + "\n"
+        for model in MODELS
+    }
+
+
+def write_schemas(directory: str | Path) -> list[Path]:
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, text in schemas().items():
+        path = out / name
+        path.write_text(text, encoding="utf-8")
+        written.append(path)
+    return written
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2:
+        sys.exit("usage: python -m tracker_service.outputs.messages DIRECTORY")
+    for path in write_schemas(sys.argv[1]):
+        print(path)

@@ -1,0 +1,174 @@
+"""The service's Zenoh side: tracks, biases, status and CAT062 under one key prefix.
+
+Keys (``tracker`` being the default prefix):
+
+- ``tracker/system_tracks/<number>``: JSON per system-track update; a track's end is a
+  last message (status "ended") followed by a delete;
+- ``tracker/local_tracks/<SAC>_<SIC>/<number>``, ``tracker/bias/<SAC>_<SIC>``,
+  ``tracker/status``: JSON;
+- ``tracker/cat062``: ASTERIX data blocks;
+- a queryable on ``tracker/system_tracks/**`` answering the latest message of every live
+  track, so that a subscriber joining late gets the whole picture at once.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import Literal, Self
+
+import zenoh
+from pydantic import BaseModel
+
+__all__ = ["ZenohPublisher", "zenoh_config"]
+
+DEFAULT_PREFIX = "tracker"
+
+
+def zenoh_config(
+    mode: Literal["peer", "client", "router"] = "peer",
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    config_file: str | Path | None = None,
+    multicast_scouting: bool | None = None,
+) -> zenoh.Config:
+    """A session configuration: ``config_file`` (JSON5, for routers, TLS, access control)
+    when given, with the mode, endpoints and scouting given here on top of it.
+
+    ``multicast_scouting`` None keeps the file's (or Zenoh's default) setting; False keeps
+    a session from discovering peers on the LAN, which tests on loopback need.
+    """
+    config = zenoh.Config() if config_file is None else zenoh.Config.from_file(str(config_file))
+    config.insert_json5("mode", json.dumps(mode))
+    if listen:
+        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    if connect:
+        config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if multicast_scouting is not None:
+        config.insert_json5("scouting/multicast/enabled", json.dumps(multicast_scouting))
+    return config
+
+
+def _source_key(sac_sic: tuple[int, int]) -> str:
+    sac, sic = sac_sic
+    if not (0 <= sac <= 255 and 0 <= sic <= 255):
+        raise ValueError(f"SAC/SIC {sac_sic} out of range 0..255")
+    return f"{sac}_{sic}"
+
+
+class ZenohPublisher:
+    """Publishes the service's messages (any pydantic model, as JSON) on one session."""
+
+    def __init__(
+        self,
+        prefix: str = DEFAULT_PREFIX,
+        *,
+        mode: Literal["peer", "client", "router"] = "peer",
+        listen: Sequence[str] = (),
+        connect: Sequence[str] = (),
+        config_file: str | Path | None = None,
+        multicast_scouting: bool | None = None,
+    ) -> None:
+        if not prefix or prefix.startswith("/") or prefix.endswith("/") or "*" in prefix:
+            raise ValueError(f"prefix {prefix!r} must be a key expression without wildcards")
+        self.prefix = prefix
+        self._session = zenoh.open(
+            zenoh_config(mode, listen, connect, config_file, multicast_scouting)
+        )
+        # The queryable answers from Zenoh's own threads while the service publishes.
+        self._lock = threading.Lock()
+        self._picture: dict[str, bytes] = {}
+        self._closed = False
+        self._queryable = self._session.declare_queryable(
+            f"{prefix}/system_tracks/**", self._answer, complete=True
+        )
+
+    def put_system_track(self, number: int, model: BaseModel) -> None:
+        key = self._track_key(number)
+        payload = model.model_dump_json().encode()
+        with self._lock:
+            self._picture[key] = payload
+        self._put_json(key, payload)
+
+    def end_system_track(self, number: int, model: BaseModel) -> None:
+        """Publishes the track's last message (the caller's, with status "ended") and then
+        deletes its key; from then on the queryable no longer answers it."""
+        key = self._track_key(number)
+        with self._lock:
+            self._picture.pop(key, None)
+        # Blocking rather than dropped under congestion: a lost end leaves a ghost track
+        # on every subscriber's picture.
+        self._put_json(key, model.model_dump_json().encode(), zenoh.CongestionControl.BLOCK)
+        self._session.delete(key, congestion_control=zenoh.CongestionControl.BLOCK)
+
+    def put_local_track(self, sac_sic: tuple[int, int], number: int, model: BaseModel) -> None:
+        key = f"{self.prefix}/local_tracks/{_source_key(sac_sic)}/{number}"
+        self._put_json(key, model.model_dump_json().encode())
+
+    def put_bias(self, sac_sic: tuple[int, int], model: BaseModel) -> None:
+        key = f"{self.prefix}/bias/{_source_key(sac_sic)}"
+        self._put_json(key, model.model_dump_json().encode())
+
+    def put_status(self, model: BaseModel) -> None:
+        self._put_json(f"{self.prefix}/status", model.model_dump_json().encode())
+
+    def put_cat062(self, data: bytes) -> None:
+        self._session.put(
+            f"{self.prefix}/cat062", data, encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM
+        )
+
+    @property
+    def live_tracks(self) -> list[int]:
+        """The numbers of the tracks the queryable answers, sorted."""
+        with self._lock:
+            return sorted(int(key.rsplit("/", 1)[1]) for key in self._picture)
+
+    def _track_key(self, number: int) -> str:
+        if number < 0:
+            raise ValueError(f"track number {number} must not be negative")
+        return f"{self.prefix}/system_tracks/{number}"
+
+    def _put_json(
+        self,
+        key: str,
+        payload: bytes,
+        congestion: zenoh.CongestionControl | None = None,
+    ) -> None:
+        self._session.put(
+            key,
+            payload,
+            encoding=zenoh.Encoding.APPLICATION_JSON,
+            congestion_control=congestion,
+        )
+
+    def _answer(self, query: zenoh.Query) -> None:
+        with self._lock:
+            picture = list(self._picture.items())
+        # A query may name one track, or a subset, rather than the whole key space.
+        for key, payload in picture:
+            if query.key_expr.intersects(zenoh.KeyExpr(key)):
+                query.reply(key, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+
+    def close(self) -> None:
+        """Undeclares the queryable and closes the session; later calls do nothing.
+        Tracks still live are not ended here: the service decides what ending means."""
+        if self._closed:
+            return
+        self._closed = True
+        # zenoh's stubs leave both unannotated.
+        self._queryable.undeclare()  # type: ignore[no-untyped-call]
+        self._session.close()  # type: ignore[no-untyped-call]
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()

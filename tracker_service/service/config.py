@@ -1,0 +1,283 @@
+"""The service's TOML configuration, validated by pydantic; errors name the field.
+
+Sections: ``[[radars]]`` (sites, accuracy, UDP inputs), ``[[adsb]]`` (ADS-B feeds),
+``[system]`` (the system plane and the tracker's own SAC/SIC), ``[tracker]`` (fields of
+``tracking.TrackerConfig``), ``[fusion]`` and ``[bias]`` (free tables), ``[zenoh]`` and
+``[mcap]``. Units are in the names, as in the scenario files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import types
+import typing
+from ipaddress import IPv4Address
+from pathlib import Path
+from typing import Annotated, Any, Literal, get_args, get_origin
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from tracker_service.geodesy.plane import PlaneKind
+from tracker_service.simulator.scenario import FieldMonitor
+from tracker_service.tracking import TrackerConfig
+
+ANY_ADDRESS = IPv4Address("0.0.0.0")
+TRACKER_FIELDS = {f.name: f for f in dataclasses.fields(TrackerConfig)}
+
+Sac = Annotated[int, Field(ge=0, le=255)]
+Port = Annotated[int, Field(ge=1, le=65535)]
+
+
+class ConfigError(ValueError):
+    """A configuration file that cannot be used; the message names the field and the fix."""
+
+
+class _Strict(BaseModel):
+    # Unknown keys are typos more often than not: refuse them, naming the field.
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Lan(_Strict):
+    """One UDP endpoint: a multicast group, a unicast address of this host, or 0.0.0.0."""
+
+    address: IPv4Address
+    port: Port
+    interface: IPv4Address | None = None
+    """The local address whose interface joins the multicast group (the default route's
+    interface when unset)."""
+
+
+class Input(Lan):
+    """A feed's UDP input, with the optional redundant LAN whose copies are dropped."""
+
+    second_lan: Lan | None = None
+    duplicate_window_s: Annotated[float, Field(gt=0.0, le=60.0)] = 1.0
+    """A datagram equal to one received this recently (on either LAN) is a duplicate."""
+
+    def endpoints(self) -> list[Lan]:
+        first = Lan(address=self.address, port=self.port, interface=self.interface)
+        return [first] if self.second_lan is None else [first, self.second_lan]
+
+
+class Radar(_Strict):
+    name: str
+    sac: Sac
+    sic: Sac
+    lat: Annotated[float, Field(ge=-90.0, le=90.0)]
+    lon: Annotated[float, Field(ge=-180.0, le=180.0)]
+    alt_m: float
+    """Antenna height above mean sea level."""
+    geoid_m: float = 0.0
+    """Geoid undulation at the site (about 45 m in central Europe): see geodesy.RadarSite."""
+    north_offset_deg: Annotated[float, Field(ge=-180.0, le=180.0)] = 0.0
+    antenna_period_s: Annotated[float, Field(gt=0.5, le=60.0)]
+    sigma_range_m: Annotated[float, Field(gt=0.0)]
+    sigma_azimuth_deg: Annotated[float, Field(gt=0.0)]
+    psr_sigma_range_m: Annotated[float, Field(gt=0.0)] | None = None
+    psr_sigma_azimuth_deg: Annotated[float, Field(gt=0.0)] | None = None
+    field_monitor: FieldMonitor | None = None
+    reference: bool = False
+    """The radar's systematic errors are known (surveyed): the bias filters anchor on it."""
+    input: Input | None = None
+    """Where its datagrams arrive; a replay needs none."""
+
+    @property
+    def key(self) -> str:
+        return f"{self.sac}/{self.sic}"
+
+
+class AdsbFeed(_Strict):
+    name: str = ""
+    sac: Sac
+    sic: Sac
+    input: Input | None = None
+
+    @property
+    def key(self) -> str:
+        return f"{self.sac}/{self.sic}"
+
+
+class SystemConfig(_Strict):
+    """The system plane and the tracker's identity as a data source (CAT062/065 I010)."""
+
+    centre_lat: Annotated[float, Field(gt=-90.0, lt=90.0)]
+    centre_lon: Annotated[float, Field(ge=-180.0, le=180.0)]
+    projection: PlaneKind = "stereographic"
+    sac: Sac
+    sic: Sac
+    service_id: Sac = 1
+    """CAT062/065 I015: the service these tracks belong to."""
+    holding_window_s: Annotated[float, Field(ge=0.0, le=30.0)] = 1.0
+    """Data is merged across radars in time order once it is this old, so that late data
+    up to this delay lands in the same order in every run (same input, same output)."""
+
+
+class ZenohConfig(_Strict):
+    mode: Literal["peer", "client", "router"] = "peer"
+    listen: list[str] = []
+    connect: list[str] = []
+    config_file: Path | None = None
+    """A zenoh JSON5 configuration (routers, TLS, access control); the fields above
+    override its mode and endpoints."""
+    prefix: str = "tracker"
+
+    @field_validator("listen", "connect")
+    @classmethod
+    def _endpoints(cls, values: list[str]) -> list[str]:
+        for value in values:
+            protocol, _, address = value.partition("/")
+            if not protocol or not address:
+                raise ValueError(
+                    f"{value!r} is not a zenoh endpoint: expected PROTOCOL/ADDRESS, "
+                    "e.g. 'tcp/0.0.0.0:7447' or 'udp/224.0.0.224:7446'"
+                )
+        return values
+
+    @field_validator("prefix")
+    @classmethod
+    def _prefix(cls, value: str) -> str:
+        if not value or value.startswith("/") or value.endswith("/") or set(value) & set("*$?#"):
+            raise ValueError(
+                f"{value!r} is not a key prefix: non-empty, no leading or trailing '/', "
+                "no wildcard characters (* $ ? #)"
+            )
+        return value
+
+
+class McapConfig(_Strict):
+    directory: Path | None = None
+    """Where the log files go; no log when unset."""
+    rotate_size_mb: Annotated[float, Field(gt=0.0)] = 256.0
+    rotate_duration_s: Annotated[float, Field(gt=0.0)] = 3600.0
+    chunk_size: Annotated[int, Field(ge=1024, le=64 * 1024 * 1024)] = 256 * 1024
+    """A SIGKILL loses the chunk being written: at 2,000 plots/s the whole log (datagrams,
+    plots, tracks as JSON) is about 0.5-1 MB/s, so 256 KiB is well under a second."""
+
+
+class ServiceConfig(_Strict):
+    radars: Annotated[list[Radar], Field(min_length=1)]
+    adsb: list[AdsbFeed] = []
+    system: SystemConfig
+    tracker: dict[str, Any] = {}
+    fusion: dict[str, Any] = {}
+    bias: dict[str, Any] = {}
+    zenoh: ZenohConfig = ZenohConfig()
+    mcap: McapConfig = McapConfig()
+
+    @field_validator("tracker")
+    @classmethod
+    def _tracker_fields(cls, table: dict[str, Any]) -> dict[str, Any]:
+        unknown = sorted(table.keys() - TRACKER_FIELDS.keys())
+        if unknown:
+            raise ValueError(
+                f"unknown tracker setting(s) {unknown}; allowed: {sorted(TRACKER_FIELDS)}"
+            )
+        return table
+
+    @model_validator(mode="after")
+    def _unique(self) -> ServiceConfig:
+        feeds: list[Radar | AdsbFeed] = [*self.radars, *self.adsb]
+        keys = [f.key for f in feeds] + [f"{self.system.sac}/{self.system.sic}"]
+        duplicated = sorted({k for k in keys if keys.count(k) > 1})
+        if duplicated:
+            raise ValueError(
+                f"SAC/SIC used twice: {duplicated}; every radar, ADS-B feed and the "
+                "system itself ([system] sac/sic) needs its own"
+            )
+        endpoints = [
+            (feed.key, lan)
+            for feed in feeds
+            if feed.input is not None
+            for lan in feed.input.endpoints()
+        ]
+        for i, (key_a, a) in enumerate(endpoints):
+            for key_b, b in endpoints[i + 1 :]:
+                if _clash(a, b):
+                    raise ValueError(
+                        f"inputs of {key_a} and {key_b} both listen on "
+                        f"{a.address}:{a.port} / {b.address}:{b.port}; each input needs its "
+                        "own group or port (0.0.0.0 takes the whole port)"
+                    )
+        return self
+
+    def tracker_config(self) -> TrackerConfig:
+        """The local tracker's settings: defaults overridden by the ``[tracker]`` table."""
+        # TOML has no tuples: the tuple-valued fields arrive as lists.
+        values: dict[str, Any] = {
+            k: tuple(v) if isinstance(v, list) else v for k, v in self.tracker.items()
+        }
+        return dataclasses.replace(TrackerConfig(), **values)
+
+
+def _clash(a: Lan, b: Lan) -> bool:
+    """Two endpoints that would receive each other's datagrams (bound on one port)."""
+    if a.port != b.port:
+        return False
+    if ANY_ADDRESS in (a.address, b.address):
+        return True
+    return a.address == b.address and a.interface == b.interface
+
+
+def load_service_config(path: str | Path) -> ServiceConfig:
+    file = Path(path)
+    try:
+        data = tomllib.loads(file.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{file}: no such configuration file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{file}: not valid TOML: {exc}") from None
+    return parse_service_config(data, str(file))
+
+
+def parse_service_config(data: dict[str, Any], origin: str = "configuration") -> ServiceConfig:
+    """A parsed TOML document (or any dict) as a configuration; ``origin`` heads errors."""
+    try:
+        return ServiceConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(f"{origin}: {describe_errors(exc)}") from None
+
+
+def describe_errors(exc: ValidationError) -> str:
+    """One line per problem: the dotted path, the value given and what is allowed."""
+    lines = []
+    for error in exc.errors():
+        loc = error["loc"]
+        where = ".".join(str(part) for part in loc) or "(top level)"
+        value = error.get("input")
+        shown = "" if isinstance(value, dict | list) else f" = {value!r}"
+        message = error["msg"]
+        if error["type"] == "extra_forbidden":
+            model = _model_at(loc[:-1])
+            if model is not None:
+                message += f"; allowed here: {', '.join(model.model_fields)}"
+        lines.append(f"{where}{shown}: {message}")
+    return f"{len(lines)} problem(s)\n  " + "\n  ".join(lines)
+
+
+def _model_at(loc: tuple[int | str, ...]) -> type[BaseModel] | None:
+    """The model class validating the value at ``loc`` (list indices skipped)."""
+    model: type[BaseModel] = ServiceConfig
+    for part in loc:
+        if isinstance(part, int):
+            continue
+        field = model.model_fields.get(part)
+        if field is None:
+            return None
+        inner = _inner_model(field.annotation)
+        if inner is None:
+            return None
+        model = inner
+    return model
+
+
+def _inner_model(annotation: Any) -> type[BaseModel] | None:
+    """The model inside ``M``, ``M | None``, ``list[M]`` or ``Annotated[list[M], ...]``."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    if get_origin(annotation) in (list, typing.Union, types.UnionType, typing.Annotated):
+        for arg in get_args(annotation):
+            found = _inner_model(arg)
+            if found is not None:
+                return found
+    return None
