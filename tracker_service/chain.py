@@ -19,7 +19,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from asterix.codec import Block, decode_blocks
 from asterix.plots import extract_plots
+from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, SystemTracker
 from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
 from tracker_service.ingest import PlotClock
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
@@ -49,6 +50,11 @@ log = logging.getLogger(__name__)
 
 NM = 1852.0
 CAT034 = 34
+JACOBIAN_STEP_M = 10.0
+JACOBIAN_STEP_RAD = 1e-4
+
+FloatArray = npt.NDArray[np.float64]
+_NO_SYSTEM_ROWS = np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
 KIND_UNKNOWN = -1
 
 RAW_PLOT_DTYPE = np.dtype(
@@ -129,10 +135,17 @@ def convert_batch(
     received: float,
     first_id: int,
     sequence: int,
-) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
+    bias: FloatArray | None = None,
+) -> tuple[npt.NDArray[Any], npt.NDArray[Any], FloatArray | None]:
     """One datagram's plots of one radar (``asterix.plots`` rows): timed, converted to the
-    system plane, as the tracker's batch (``tracking.PLOT_DTYPE``) and as a
-    ``RAW_PLOT_DTYPE`` table (origins unknown) with plot ids from ``first_id``."""
+    system plane, as the tracker's batch (``tracking.PLOT_DTYPE``), as a
+    ``RAW_PLOT_DTYPE`` table (origins unknown) with plot ids from ``first_id``, and, when
+    ``bias`` is given, the bias Jacobian C (N, 2, 4) of each plot's plane position (its
+    time column, which needs the aircraft's velocity, left 0).
+
+    ``bias``: the radar's estimated systematic errors [range offset m, range gain,
+    azimuth rad, time s], removed from the batch (not from the table, which keeps the
+    plots as the radar sent them)."""
     n = len(raw)
     times, time_sources = clock.times(raw, received)
     fl = np.asarray(raw["flight_level"], dtype=np.float64)
@@ -153,14 +166,35 @@ def convert_batch(
     sigma_theta = np.where(psr_only, info.psr_sigma_azimuth_deg, info.sigma_azimuth_deg)
     rho_m = np.asarray(raw["rho"], dtype=np.float64) * NM
     theta = np.asarray(raw["theta"], dtype=np.float64)
-    converted = convert_plots(
-        info.site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
-    )
+    rho_c, theta_c, times_c = rho_m, theta, times
+    if bias is not None:
+        rho_c = (rho_m - bias[0]) / (1.0 + bias[1])
+        theta_c = theta - np.degrees(bias[2])
+        times_c = times - bias[3]
+
+    def plane_positions(rho: FloatArray, azimuth: FloatArray) -> Any:
+        return convert_plots(
+            info.site, plane, rho, azimuth, height, height_sigma, sigma_rho, sigma_theta
+        )
+
+    converted = plane_positions(rho_c, theta_c)
+    c: FloatArray | None = None
+    if bias is not None:
+        # The bias Jacobian by finite differences on the same conversion: exact to the
+        # metre, and no second copy of the geometry to keep in step.
+        along_range = plane_positions(rho_c + JACOBIAN_STEP_M, theta_c)
+        along_azimuth = plane_positions(rho_c, theta_c + np.degrees(JACOBIAN_STEP_RAD))
+        c = np.zeros((n, 2, 4))
+        c[:, 0, 0] = (along_range.x - converted.x) / JACOBIAN_STEP_M
+        c[:, 1, 0] = (along_range.y - converted.y) / JACOBIAN_STEP_M
+        c[:, :, 1] = c[:, :, 0] * rho_c[:, None]
+        c[:, 0, 2] = (along_azimuth.x - converted.x) / JACOBIAN_STEP_RAD
+        c[:, 1, 2] = (along_azimuth.y - converted.y) / JACOBIAN_STEP_RAD
     ids = np.arange(first_id, first_id + n, dtype=np.int64)
     mode3a = np.asarray(raw["mode3a"], dtype=np.int64)
 
     batch = np.zeros(n, dtype=PLOT_DTYPE)
-    batch["time"] = times
+    batch["time"] = times_c
     batch["x"] = converted.x
     batch["y"] = converted.y
     batch["R"] = converted.R
@@ -193,17 +227,25 @@ def convert_batch(
     table["kind"] = KIND_UNKNOWN
     table["aircraft"] = -1
     table["detection_time"] = np.nan
-    return batch, table
+    if bias is not None and c is not None:
+        # The table keeps the plots as sent: uncorrected, to first order.
+        shift = c[:, :, :3] @ bias[:3]
+        table["x"] += shift[:, 0]
+        table["y"] += shift[:, 1]
+        table["time"] = times
+    return batch, table, c
 
 
 @dataclass
 class BatchOutput:
     """What one radar's part of a datagram produced: its plots (``RAW_PLOT_DTYPE``, every
-    plot of the datagram, field monitors included) and its local-track updates."""
+    plot of the datagram, field monitors included), its local-track updates and the
+    system-track rows they caused (``fusion.SYSTEM_UPDATE_DTYPE``)."""
 
     source: str
     plots: npt.NDArray[Any]
     local: npt.NDArray[Any]
+    system: npt.NDArray[Any]
 
 
 @dataclass
@@ -214,6 +256,8 @@ class RadarState:
     plane: SystemPlane
     tracker_config: TrackerConfig
     tracker: LocalTracker
+    index: int | None
+    """The radar's number in fusion and bias estimation; None when kept out of them."""
     sequence: int = 0
 
 
@@ -227,8 +271,9 @@ class ChainStats:
 
 class Chain:
     """See the module docstring. ``tracker``: ``TrackerConfig`` fields for every radar
-    (``scan_period_s`` comes from each radar's period unless given); ``make_tracker(source,
-    config)`` builds each radar's tracker (a benchmark passes one that times it)."""
+    (``scan_period_s`` comes from each radar's period unless given); ``fusion``: the
+    fuser's configuration (None: local tracks only); ``make_tracker(source, config)``
+    builds each radar's tracker (a benchmark passes one that times it)."""
 
     def __init__(
         self,
@@ -236,9 +281,19 @@ class Chain:
         plane: SystemPlane,
         tracker: Mapping[str, Any] | None = None,
         make_tracker: Callable[[str, TrackerConfig], LocalTracker] | None = None,
+        fusion: FusionConfig | None = None,
     ) -> None:
         self.infos = dict(radars)
         self.plane = plane
+        # Fusion numbers the configured radars in SAC/SIC order, so that the same
+        # configuration numbers them the same way in every run.
+        self.sources = sorted(self.infos, key=source_order)
+        self.fuser: SystemTracker | None = None
+        if fusion is not None and self.sources:
+            longest = max(self.infos[s].period_s for s in self.sources)
+            if fusion.longest_period_s < longest:
+                fusion = replace(fusion, longest_period_s=longest)
+            self.fuser = SystemTracker(len(self.sources), fusion)
         self.stats = ChainStats()
         self.radars: dict[str, RadarState] = {}
         self._tracker_overrides = dict(tracker or {})
@@ -287,13 +342,14 @@ class Chain:
             plane = SystemPlane(site.lat_deg, site.lon_deg, plane.kind)
         overrides = {"scan_period_s": info.period_s, **self._tracker_overrides}
         config = TrackerConfig(**overrides)
-        state = RadarState(info, plane, config, self._make_tracker(source, config))
+        index = self.sources.index(source) if info.surveyed else None
+        state = RadarState(info, plane, config, self._make_tracker(source, config), index)
         self.radars[source] = state
         return state
 
     def _radar_batch(self, source: str, raw: npt.NDArray[Any], received: float) -> BatchOutput:
         state = self._radar(source)
-        batch, table = convert_batch(
+        batch, table, _ = convert_batch(
             raw,
             state.info,
             state.plane,
@@ -312,7 +368,10 @@ class Chain:
             self.stats.field_monitor_plots += n_monitor
             batch = batch[~monitor]
         local = state.tracker.process(batch)
-        return BatchOutput(source, table, local)
+        system = _NO_SYSTEM_ROWS
+        if self.fuser is not None and state.index is not None and len(local):
+            system = self.fuser.process(state.index, local, batch)
+        return BatchOutput(source, table, local, system)
 
 
 def _finite(value: Any, default: float) -> float:

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from tracker_service.evaluation.metrics import (
     Coverage,
     LocalMetrics,
@@ -35,6 +37,7 @@ from tracker_service.evaluation.metrics import (
     truth_from_recording,
 )
 from tracker_service.evaluation.pipeline import EvaluationConfig, PipelineResult, run_pipeline
+from tracker_service.evaluation.system_metrics import SystemEvaluation, system_metrics
 
 __all__ = ["Evaluation", "add_arguments", "evaluate", "main", "run"]
 
@@ -48,12 +51,21 @@ class Evaluation:
     coverage: dict[str, Coverage]
     plots: dict[str, PlotMetrics]
     local: dict[str, LocalMetrics]
+    system: SystemEvaluation | None
 
     def as_json(self) -> dict[str, Any]:
-        return {
+        doc: dict[str, Any] = {
             "plots": {source: m.as_json() for source, m in self.plots.items()},
             "local": {source: m.as_json() for source, m in self.local.items()},
         }
+        if self.system is not None:
+            doc["system"] = self.system.system.as_json()
+            doc["system_by_coverage"] = {
+                "multi": self.system.multi.as_json(),
+                "single": self.system.single.as_json(),
+            }
+            doc["fusion"] = {"rms_ratio_to_best_local": self.system.rms_ratio_to_best_local}
+        return doc
 
 
 def evaluate(path: str | Path, config: EvaluationConfig | None = None) -> Evaluation:
@@ -79,7 +91,23 @@ def evaluate(path: str | Path, config: EvaluationConfig | None = None) -> Evalua
             min_identity_updates=config.min_identity_updates,
             end_time=end,
         )
-    return Evaluation(result, truth, coverage, plots, local)
+    system = None
+    if len(result.system):
+        every_plot = np.concatenate([radar.plots for radar in result.radars.values()])
+        system = system_metrics(
+            result.system,
+            PlotOrigins.from_plots(every_plot),
+            truth,
+            coverage,
+            {
+                source: (radar.updates, PlotOrigins.from_plots(radar.plots))
+                for source, radar in result.radars.items()
+            },
+            gate_m=config.association_gate_m,
+            min_identity_updates=config.min_identity_updates,
+            end_time=float(every_plot["time"].max()),
+        )
+    return Evaluation(result, truth, coverage, plots, local, system)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -116,32 +144,47 @@ def _fmt(value: Any, digits: int = 1) -> str:
 
 
 def format_table(evaluation: Evaluation) -> str:
-    rows: list[tuple[str, Callable[[str], str]]] = [
-        ("plot RMS m", lambda s: _fmt(evaluation.plots[s].position_rms_m)),
-        ("track RMS m", lambda s: _fmt(evaluation.local[s].position_rms_m)),
-        ("along RMS m", lambda s: _fmt(evaluation.local[s].along_track_rms_m)),
-        ("across RMS m", lambda s: _fmt(evaluation.local[s].across_track_rms_m)),
-        ("velocity RMS m/s", lambda s: _fmt(evaluation.local[s].velocity_rms_mps, 2)),
-        ("FL RMS ft", lambda s: _fmt(evaluation.local[s].flight_level_rms_ft)),
-        ("Pu", lambda s: _fmt(evaluation.local[s].probability_of_update, 3)),
+    """The metrics as text: one column per radar's local tracks, then, once system tracks
+    exist, one per coverage class of the system tracks."""
+    columns: dict[str, LocalMetrics] = dict(evaluation.local)
+    plots = {s: _fmt(m.position_rms_m) for s, m in evaluation.plots.items()}
+    if evaluation.system is not None:
+        columns["system"] = evaluation.system.system
+        columns["sys multi"] = evaluation.system.multi
+        columns["sys single"] = evaluation.system.single
+    text = _metrics_table(columns, plots)
+    if evaluation.system is not None:
+        ratio = _fmt(evaluation.system.rms_ratio_to_best_local, 3)
+        text += f"\nsystem RMS / best local RMS (multi-radar coverage): {ratio}"
+    return text
+
+
+def _metrics_table(columns: dict[str, LocalMetrics], plots: dict[str, str]) -> str:
+    rows: list[tuple[str, Callable[[LocalMetrics], str]]] = [
+        ("track RMS m", lambda m: _fmt(m.position_rms_m)),
+        ("along RMS m", lambda m: _fmt(m.along_track_rms_m)),
+        ("across RMS m", lambda m: _fmt(m.across_track_rms_m)),
+        ("velocity RMS m/s", lambda m: _fmt(m.velocity_rms_mps, 2)),
+        ("FL RMS ft", lambda m: _fmt(m.flight_level_rms_ft)),
+        ("Pu", lambda m: _fmt(m.probability_of_update, 3)),
         (
             "Pu with initiation",
-            lambda s: _fmt(evaluation.local[s].probability_of_update_with_initiation, 3),
+            lambda m: _fmt(m.probability_of_update_with_initiation, 3),
         ),
-        ("tracks per aircraft", lambda s: _fmt(evaluation.local[s].tracks_per_aircraft, 3)),
-        ("identity changes", lambda s: _fmt(evaluation.local[s].id_changes)),
-        ("false tracks", lambda s: _fmt(evaluation.local[s].false_tracks)),
-        ("false track max scans", lambda s: _fmt(evaluation.local[s].false_track_max_scans)),
-        ("initiation delay s", lambda s: _fmt(evaluation.local[s].initiation_delay_s)),
-        ("NEES (dof 2)", lambda s: _fmt(evaluation.local[s].nees_mean, 2)),
-        ("NEES (dof 4)", lambda s: _fmt(evaluation.local[s].nees_state_mean, 2)),
-        ("confirmed tracks", lambda s: _fmt(evaluation.local[s].confirmed_tracks)),
+        ("tracks per aircraft", lambda m: _fmt(m.tracks_per_aircraft, 3)),
+        ("identity changes", lambda m: _fmt(m.id_changes)),
+        ("false tracks", lambda m: _fmt(m.false_tracks)),
+        ("false track max scans", lambda m: _fmt(m.false_track_max_scans)),
+        ("initiation delay s", lambda m: _fmt(m.initiation_delay_s)),
+        ("NEES (dof 2)", lambda m: _fmt(m.nees_mean, 2)),
+        ("NEES (dof 4)", lambda m: _fmt(m.nees_state_mean, 2)),
+        ("confirmed tracks", lambda m: _fmt(m.confirmed_tracks)),
     ]
-    sources = list(evaluation.local)
     width = max(len(name) for name, _ in rows)
-    lines = [" " * width + "".join(f"{s:>12}" for s in sources)]
+    lines = [" " * width + "".join(f"{s:>12}" for s in columns)]
+    lines.append(f"{'plot RMS m':<{width}}" + "".join(f"{plots.get(s, '-'):>12}" for s in columns))
     for name, get in rows:
-        lines.append(f"{name:<{width}}" + "".join(f"{get(s):>12}" for s in sources))
+        lines.append(f"{name:<{width}}" + "".join(f"{get(m):>12}" for m in columns.values()))
     return "\n".join(lines)
 
 

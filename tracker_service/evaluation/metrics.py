@@ -465,14 +465,20 @@ def local_metrics(
     gate_m: float = 1000.0,
     min_identity_updates: int = 2,
     end_time: float | None = None,
+    evaluate_mask: BoolArray | None = None,
 ) -> LocalMetrics:
-    """Every local-track metric of one radar (see the module docstring)."""
+    """Every local-track metric of one radar (see the module docstring).
+    ``evaluate_mask``: the rows whose errors count (all by default); the probability of
+    update and the tracks per aircraft follow ``coverage`` alone."""
     period = coverage.period_s if coverage is not None else 5.0
     labels = associate_updates(updates, origins, truth, gate_m)
     status = updates["status"]
     fresh = updates["plot_id"] >= 0
     confirmed_fresh = (status == CONFIRMED) & fresh
-    evaluated = np.flatnonzero(confirmed_fresh & (labels >= 0))
+    counted = confirmed_fresh & (labels >= 0)
+    if evaluate_mask is not None:
+        counted &= evaluate_mask
+    evaluated = np.flatnonzero(counted)
     u = updates[evaluated]
     a = labels[evaluated]
     tx, ty, tvx, tvy, tfl = truth.at(a, u["time"])

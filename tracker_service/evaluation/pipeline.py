@@ -34,6 +34,7 @@ from tracker_service.chain import (
     source_order,
     system_plane,
 )
+from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig
 from tracker_service.geodesy import SystemPlane
 from tracker_service.simulator.recording import Recording, read_recording
 from tracker_service.tracking import LocalTracker, TrackerConfig
@@ -87,12 +88,13 @@ class EvaluationConfig:
     tracker: Mapping[str, Any] = field(default_factory=dict)
     association_gate_m: float = 1000.0
     min_identity_updates: int = 2
+    fusion: FusionConfig = field(default_factory=FusionConfig)
 
     @classmethod
     def from_mapping(cls, doc: Mapping[str, Any]) -> EvaluationConfig:
         """From a parsed TOML document: ``[evaluation]`` (geoid_m, association_gate_m,
-        min_identity_updates), ``[tracker]`` and ``[radars."25/11"]`` tables."""
-        known = {"evaluation", "tracker", "radars"}
+        min_identity_updates), ``[tracker]``, ``[fusion]`` and ``[radars."25/11"]`` tables."""
+        known = {"evaluation", "tracker", "fusion", "radars"}
         unknown = set(doc) - known
         if unknown:
             raise ValueError(f"unknown configuration tables {sorted(unknown)}; known: {known}")
@@ -100,17 +102,23 @@ class EvaluationConfig:
         allowed = {"geoid_m", "association_gate_m", "min_identity_updates"}
         if set(evaluation) - allowed:
             raise ValueError(f"[evaluation] knows only {sorted(allowed)}")
-        tracker = dict(doc.get("tracker", {}))
-        tracker_fields = {f.name for f in fields(TrackerConfig)}
-        if set(tracker) - tracker_fields:
-            raise ValueError(
-                f"[tracker] fields {sorted(set(tracker) - tracker_fields)} are not "
-                "TrackerConfig fields"
-            )
-        # TOML has arrays, the config wants tuples.
-        tracker = {k: tuple(v) if isinstance(v, list) else v for k, v in tracker.items()}
+        tracker = dataclass_fields("tracker", doc, TrackerConfig)
+        fusion = FusionConfig(**dataclass_fields("fusion", doc, FusionConfig))
         radars = {str(k): dict(v) for k, v in dict(doc.get("radars", {})).items()}
-        return cls(radars=radars, tracker=tracker, **evaluation)
+        return cls(radars=radars, tracker=tracker, fusion=fusion, **evaluation)
+
+
+def dataclass_fields(table: str, doc: Mapping[str, Any], cls: type) -> dict[str, Any]:
+    """The ``[table]`` of a TOML document as keyword arguments of the dataclass ``cls``,
+    its keys checked against the fields (TOML arrays become the tuples the fields want)."""
+    values = dict(doc.get(table, {}))
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(values) - names)
+    if unknown:
+        raise ValueError(
+            f"[{table}] fields {unknown} are not {cls.__name__} fields: {sorted(names)}"
+        )
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
 
 
 @dataclass
@@ -130,6 +138,10 @@ class PipelineResult:
     radars: dict[str, RadarRun]
     origins: dict[int, tuple[str, int, int]]
     """plot_id -> (source, datagram sequence, record index)."""
+    system: npt.NDArray[Any]
+    """System-track rows (``fusion.SYSTEM_UPDATE_DTYPE``) in processing order."""
+    sources: list[str]
+    """The radars in fusion order: ``system["radar"]`` indexes this list."""
 
 
 def _truth_plot_index(recording: Recording) -> dict[tuple[str, int], list[dict[str, Any]]]:
@@ -153,7 +165,8 @@ def run_pipeline(
     infos = radar_infos(recording.metadata, config.radars, config.geoid_m)
     plane = system_plane(recording.metadata, infos)
     truth_plots = _truth_plot_index(recording)
-    chain = Chain(infos, plane, config.tracker, make_tracker)
+    chain = Chain(infos, plane, config.tracker, make_tracker, config.fusion)
+    system: list[npt.NDArray[Any]] = []
     sequences: dict[str, int] = defaultdict(int)
     updates: dict[str, list[npt.NDArray[Any]]] = defaultdict(list)
     tables: dict[str, list[npt.NDArray[Any]]] = defaultdict(list)
@@ -189,6 +202,8 @@ def run_pipeline(
                 table["detection_time"] = [r["detection_time"] for r in records]
             tables[output.source].append(table)
             updates[output.source].append(output.local)
+            if len(output.system):
+                system.append(output.system)
             for row, plot_id in enumerate(table["plot_id"].tolist()):
                 origins[plot_id] = (datagram.source, sequence, row)
 
@@ -208,4 +223,5 @@ def run_pipeline(
             len(radars[source].updates),
             state.tracker.stats,
         )
-    return PipelineResult(recording, plane, radars, origins)
+    rows = np.concatenate(system) if system else np.zeros(0, SYSTEM_UPDATE_DTYPE)
+    return PipelineResult(recording, plane, radars, origins, rows, chain.sources)

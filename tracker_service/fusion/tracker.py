@@ -39,6 +39,7 @@ from tracker_service.tracking.plots import (
 )
 from tracker_service.tracking.tracker import CONFIRMED as LOCAL_CONFIRMED
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
+from tracker_service.tracking.tracker import TENTATIVE as LOCAL_TENTATIVE
 
 KEY_SHIFT = 32
 """Local-track key: radar << KEY_SHIFT | local track number."""
@@ -290,6 +291,11 @@ class SystemTracker:
         cfg = self.config
         loc = self._loc
         live = touched[loc["status"][touched] != LOCAL_DELETED]
+        # Only confirmed local tracks feed system tracks: one that its tracker took back
+        # to tentative (a slow primary-only track: clutter) leaves its system track.
+        demoted = live[(loc["system"][live] > 0) & (loc["status"][live] == LOCAL_TENTATIVE)]
+        loc["system"][demoted] = 0
+        live = live[loc["status"][live] != LOCAL_TENTATIVE]
         held = live[loc["system"][live] > 0]
         d2 = self._distance(held, loc["system"][held])
         fails = np.where(d2 <= cfg.gate, 0, loc["fails"][held] + 1)
@@ -316,8 +322,7 @@ class SystemTracker:
         joined, target = li[chosen], sj[chosen]
         self._join(radar, joined, target)
         rest = np.setdiff1d(free, joined)
-        founders = rest[loc["status"][rest] == LOCAL_CONFIRMED]
-        return self._create(founders)
+        return self._create(rest)
 
     def _open_systems(self, radar: int) -> IntArray:
         """Live system tracks a new local track of ``radar`` may join: not those already

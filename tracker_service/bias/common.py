@@ -1,0 +1,214 @@
+"""What the three split filters share: the interface, observability, gating and the update.
+
+Every variant updates with Blom's form ``x += G S^-1 nu, P -= G S^-1 G^T`` where G is the
+cross-covariance of the state with the residual and S the residual's covariance (the
+INVERSE of S: DOMAIN.md section 6 corrects the note's typo). Components that are not
+observable are "considered" (Schmidt): their uncertainty enters S but they are not updated,
+so they keep their prior.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, replace
+from typing import Protocol
+
+import numpy as np
+
+from tracker_service.bias.config import N_BIAS, TIME, BiasConfig
+from tracker_service.bias.observations import BiasObservations, ObservationKind
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
+
+
+@dataclass(frozen=True)
+class BiasEstimates:
+    """Per radar (L): bias s (L,4), covariance P (L,4,4), observations used and rejected,
+    which components are estimated (L,4) and which radars are references (L,)."""
+
+    s: FloatArray
+    P: FloatArray
+    n_used: IntArray
+    n_rejected: IntArray
+    estimated: BoolArray
+    reference: BoolArray
+
+    def sigma(self) -> FloatArray:
+        """1-sigma of each component (L,4)."""
+        return np.sqrt(np.maximum(np.diagonal(self.P, axis1=1, axis2=2), 0.0))
+
+
+class BiasEstimator(Protocol):
+    def update(self, obs: BiasObservations) -> None: ...
+
+    def estimates(self) -> BiasEstimates: ...
+
+    def correction(self, radar: int) -> tuple[FloatArray, FloatArray]: ...
+
+
+def split_update(
+    x: FloatArray,
+    P: FloatArray,
+    G: FloatArray,
+    S: FloatArray,
+    nu: FloatArray,
+    free: BoolArray,
+    gate: float,
+) -> bool:
+    """One gated update in place; False (nothing changed) when the residual is an outlier.
+
+    The gain K = G S^-1 is zeroed on the rows not free; the covariance update
+    P - K G^T - G K^T + K S K^T is then exact for any such K (it reduces to P - G S^-1 G^T
+    on the free block and leaves the considered block untouched).
+    """
+    s_inv = np.linalg.inv(S)
+    if float(nu @ s_inv @ nu) > gate:
+        return False
+    K = G @ s_inv
+    K[~free] = 0.0
+    x += K @ nu
+    KG = K @ G.T
+    P += K @ S @ K.T - KG - KG.T
+    P[:] = 0.5 * (P + P.T)
+    return True
+
+
+def information_update(
+    x: FloatArray, P: FloatArray, info: FloatArray, score: FloatArray, free: BoolArray
+) -> None:
+    """``split_update`` of a stacked batch whose noises are independent, in place.
+
+    For y_i = C_i x + n_i (n_i ~ N_i) the stacked gain reduces by the push-through identity
+    C^T (C P C^T + N)^-1 = (1 + I P)^-1 C^T N^-1, with I = sum C_i^T N_i^-1 C_i (info) and
+    b = sum C_i^T N_i^-1 nu_i (score): K nu = A b and K G^T = A I P with A = P (1 + I P)^-1.
+    O(n) in the batch instead of inverting a 2n x 2n S; the rows not free are considered
+    as in ``split_update``.
+    """
+    A = np.linalg.solve((np.eye(len(x)) + info @ P).T, P).T
+    M = A @ info @ P
+    M = 0.5 * (M + M.T)
+    D = free.astype(float)
+    x += D * (A @ score)
+    P -= M * (D[:, None] + D[None, :]) - M * D[:, None] * D[None, :]
+
+
+class BiasFilterBase(ABC):
+    """State bookkeeping common to the variants: time, observability, references, counts."""
+
+    def __init__(self, config: BiasConfig, n_radars: int) -> None:
+        self.config = config
+        self.n_radars = n_radars
+        self.is_reference, self.reference_value = config.reference_bias(n_radars)
+        self.n_used = np.zeros(n_radars, dtype=np.int64)
+        self.n_rejected = np.zeros(n_radars, dtype=np.int64)
+        self._traffic_seen = np.zeros(n_radars, dtype=bool)
+        self._absolute_seen = np.zeros(n_radars, dtype=bool)
+        self._clock_seen = np.zeros(n_radars, dtype=bool)
+        # The filters work on s / prior sigma: gain (1e-3) and azimuth (1e-3 rad) beside
+        # positions (1e5 m) made the joint covariance so ill-conditioned (1e-9 beside 1e4)
+        # that the coupled filter's covariance lost positive-definiteness after ~400 plots.
+        self.scale = config.prior_sigma()
+        self._walk_var = (config.walk_sigma() / self.scale) ** 2
+
+    def prior(self) -> tuple[FloatArray, FloatArray]:
+        """Joint prior of all radars' scaled biases: (4L,) and (4L, 4L); references exact."""
+        s = (self.reference_value / self.scale).reshape(-1)
+        var = np.ones(self.n_radars * N_BIAS)
+        var[np.repeat(self.is_reference, N_BIAS)] = 0.0
+        return s, np.diag(var)
+
+    def free(self) -> BoolArray:
+        """Which components (L,4) the data seen so far make observable.
+
+        Range offset, gain and azimuth: a fixed reference (field monitor, ADS-B) seen by the
+        radar, or traffic seen by it and by another radar (surveyed sites: rotations and
+        stretches about different centres differ). Time: moving traffic and a clock
+        reference (ADS-B or a reference radar) under "auto".
+        """
+        other_traffic = self._traffic_seen.sum() - self._traffic_seen.astype(np.int64) > 0
+        seen = self._absolute_seen | (self._traffic_seen & other_traffic)
+        mode = self.config.estimate_time
+        clock = mode == "yes" or (
+            mode == "auto" and bool(self._clock_seen.any() or self.is_reference.any())
+        )
+        free = np.repeat(seen[:, None], N_BIAS, axis=1)
+        free[:, TIME] &= clock
+        free[self.is_reference] = False
+        return free
+
+    def update(self, obs: BiasObservations) -> None:
+        if obs.n_radars != self.n_radars:
+            raise ValueError(
+                f"observations for {obs.n_radars} radars given to an estimator of {self.n_radars}"
+            )
+        if len(obs) == 0:
+            return
+        traffic = obs.kind == ObservationKind.AIRCRAFT
+        self._traffic_seen[obs.radar[traffic]] = True
+        self._absolute_seen[obs.radar[~traffic]] = True
+        self._clock_seen[obs.radar[obs.kind == ObservationKind.ADSB]] = True
+        ordered = obs.subset(np.argsort(obs.time, kind="stable"))
+        self._process(
+            replace(
+                ordered, C=ordered.C * self.scale, contributor_C=ordered.contributor_C * self.scale
+            )
+        )
+
+    def walk_rate(self) -> FloatArray:
+        """Random-walk variance per second (L,4) on the free components (the rest keep the
+        prior)."""
+        return np.where(self.free(), self._walk_var, 0.0)
+
+    def count(self, radar: IntArray, accepted: BoolArray) -> None:
+        np.add.at(self.n_used, radar[accepted], 1)
+        np.add.at(self.n_rejected, radar[~accepted], 1)
+
+    def estimates(self) -> BiasEstimates:
+        s, P = self._unscaled()
+        return BiasEstimates(
+            s=s,
+            P=P,
+            n_used=self.n_used.copy(),
+            n_rejected=self.n_rejected.copy(),
+            estimated=self.free(),
+            reference=self.is_reference.copy(),
+        )
+
+    def correction(self, radar: int) -> tuple[FloatArray, FloatArray]:
+        """The bias (4,) to take off radar's plots (y - C s) and its covariance (4,4)."""
+        s, P = self._unscaled()
+        return s[radar], P[radar]
+
+    def _unscaled(self) -> tuple[FloatArray, FloatArray]:
+        s, P = self.bias_state()
+        return s * self.scale, P * self.scale[:, None] * self.scale[None, :]
+
+    @abstractmethod
+    def _process(self, obs: BiasObservations) -> None:
+        """Update with a non-empty batch sorted by time."""
+
+    @abstractmethod
+    def bias_state(self) -> tuple[FloatArray, FloatArray]:
+        """Per-radar scaled bias (L,4) and its covariance (L,4,4), views allowed."""
+
+
+def joint_blocks(s: FloatArray, P: FloatArray, n_radars: int) -> tuple[FloatArray, FloatArray]:
+    """Per-radar (L,4) and (L,4,4) views of a joint bias vector (4L,) and covariance."""
+    idx = np.arange(n_radars * N_BIAS).reshape(n_radars, N_BIAS)
+    return s.reshape(n_radars, N_BIAS), P[idx[:, :, None], idx[:, None, :]]
+
+
+class OffEstimator(BiasFilterBase):
+    """method "off": no estimation; the corrections are the reference values (or zero)."""
+
+    def __init__(self, config: BiasConfig, n_radars: int) -> None:
+        super().__init__(config, n_radars)
+        self._s, self._P = self.prior()
+
+    def free(self) -> BoolArray:
+        return np.zeros((self.n_radars, N_BIAS), dtype=bool)
+
+    def _process(self, obs: BiasObservations) -> None:
+        return
+
+    def bias_state(self) -> tuple[FloatArray, FloatArray]:
+        return joint_blocks(self._s, self._P, self.n_radars)

@@ -1,0 +1,288 @@
+"""System tracks and bias estimates against truth.
+
+System tracks are measured with the local-track rules (``metrics`` module docstring),
+over the system's own antenna periods: intervals as long as the longest period of the
+radars, an aircraft being in system coverage in an interval when at least one radar has
+it in coverage at the interval's middle. Only rows that carry a fresh plot count as
+updates. The split by coverage counts the radars that have the aircraft in coverage at
+the update's time (or the interval's middle): ``multi`` at least two, ``single`` one.
+
+``rms_ratio_to_best_local``: over the system updates of aircraft in multi-radar
+coverage, the system position error RMS divided by the RMS, at the same moments, of the
+aircraft's best local track (per aircraft the radar whose local tracks, extrapolated
+to those moments from their latest confirmed update, have the smallest RMS; a radar
+counts for an aircraft when it has a local estimate at most one of its periods old at
+nine in ten of the moments).
+
+Bias errors: per radar each estimated component at the end of the recording against
+the simulator's ``/truth/biases`` (measured minus true, range gain dimensionless).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.evaluation.metrics import (
+    Coverage,
+    LocalMetrics,
+    PlotOrigins,
+    Truth,
+    associate_updates,
+    local_metrics,
+)
+from tracker_service.fusion import ENDED
+from tracker_service.simulator.recording import Recording
+from tracker_service.tracking import CONFIRMED
+
+__all__ = [
+    "BIAS_COMPONENTS",
+    "SystemEvaluation",
+    "bias_metrics",
+    "coverage_counts",
+    "system_coverage",
+    "system_metrics",
+    "truth_biases",
+]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+BIAS_COMPONENTS = ("range_offset_m", "range_gain", "azimuth_deg", "time_s")
+"""The bias vector's components as ``evaluate --json`` names them; the estimator's state
+holds the azimuth in radians."""
+
+_LOCAL_VIEW = np.dtype(
+    [
+        ("track_number", np.int64),
+        ("time", np.float64),
+        ("x", np.float64),
+        ("y", np.float64),
+        ("vx", np.float64),
+        ("vy", np.float64),
+        ("P", np.float64, (16,)),
+        ("flight_level", np.float64),
+        ("status", np.int8),
+        ("plot_id", np.int64),
+    ]
+)
+
+
+def as_track_rows(system: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """System-track rows in the shape the local-track metrics read: a row counts as an
+    update from a plot only when it carries a fresh one. System numbers are reused once
+    a track has ended: each life gets a number of its own here (number + 4096 x the
+    lives before it), since the metrics take a number for one track."""
+    rows = np.zeros(len(system), dtype=_LOCAL_VIEW)
+    lives: dict[int, int] = {}
+    numbers = np.empty(len(system), dtype=np.int64)
+    for k, (number, status) in enumerate(
+        zip(system["system_number"].tolist(), system["status"].tolist(), strict=True)
+    ):
+        life = lives.get(number, 0)
+        numbers[k] = number + 4096 * life
+        if status == ENDED:
+            lives[number] = life + 1
+    rows["track_number"] = numbers
+    for name in ("time", "x", "y", "vx", "vy", "P", "flight_level", "status"):
+        rows[name] = system[name]
+    rows["plot_id"] = np.where(system["fresh"], system["plot_id"], -1)
+    return rows
+
+
+def coverage_counts(
+    coverages: Mapping[str, Coverage], aircraft: IntArray, times: FloatArray
+) -> IntArray:
+    """How many radars have each (aircraft, time) in coverage."""
+    counts = np.zeros(len(aircraft), dtype=np.int64)
+    for coverage in coverages.values():
+        if not len(coverage.times):
+            continue
+        scan = np.searchsorted(coverage.times, times, side="right") - 1
+        inside = (scan >= 0) & (times < coverage.times[np.maximum(scan, 0)] + coverage.period_s)
+        for row in np.flatnonzero(inside).tolist():
+            if int(aircraft[row]) in coverage.aircraft[int(scan[row])]:
+                counts[row] += 1
+    return counts
+
+
+def system_coverage(
+    coverages: Mapping[str, Coverage], least: int = 1, most: int | None = None
+) -> Coverage | None:
+    """The system's intervals (see the module docstring), holding the aircraft seen by
+    ``least`` to ``most`` radars."""
+    scanning = [c for c in coverages.values() if len(c.times)]
+    if not scanning:
+        return None
+    period = max(c.period_s for c in scanning)
+    start = min(float(c.times[0]) for c in scanning)
+    end = max(float(c.times[-1]) + c.period_s for c in scanning)
+    starts = np.arange(start, end - period + 1e-9, period)
+    everyone = sorted({a for c in scanning for inside in c.aircraft for a in inside})
+    middles = starts + period / 2
+    aircraft = np.repeat(np.array(everyone, dtype=np.int64), len(starts))
+    times = np.tile(middles, len(everyone))
+    counts = coverage_counts(coverages, aircraft, times).reshape(len(everyone), len(starts))
+    keep = (counts >= least) & (counts <= (most if most is not None else counts.max(initial=0)))
+    sets = [
+        frozenset(int(everyone[i]) for i in np.flatnonzero(keep[:, k])) for k in range(len(starts))
+    ]
+    return Coverage(starts, sets, period)
+
+
+@dataclass
+class SystemEvaluation:
+    system: LocalMetrics
+    multi: LocalMetrics
+    single: LocalMetrics
+    rms_ratio_to_best_local: float | None
+    rows: npt.NDArray[Any]
+    """The system rows as track rows (``as_track_rows``), for the report."""
+
+
+def _local_estimates(
+    local: npt.NDArray[Any], labels: IntArray, aircraft: int, times: FloatArray, max_age_s: float
+) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """The radar's confirmed local estimate of ``aircraft`` at ``times``: its latest
+    confirmed update from a plot, extrapolated at constant velocity."""
+    rows = local[(labels == aircraft) & (local["status"] == CONFIRMED) & (local["plot_id"] >= 0)]
+    n = len(times)
+    if len(rows) == 0:
+        return np.zeros(n), np.zeros(n), np.zeros(n, dtype=bool)
+    rows = rows[np.argsort(rows["time"], kind="stable")]
+    at = np.searchsorted(rows["time"], times, side="right") - 1
+    ok = at >= 0
+    r = rows[np.maximum(at, 0)]
+    dt = times - r["time"]
+    ok &= dt <= max_age_s
+    return r["x"] + r["vx"] * dt, r["y"] + r["vy"] * dt, ok
+
+
+def _best_local_ratio(
+    errors: Any,
+    multi: BoolArray,
+    locals_: Mapping[str, tuple[npt.NDArray[Any], IntArray, float]],
+    truth: Truth,
+) -> float | None:
+    system_sq = 0.0
+    local_sq = 0.0
+    for aircraft in np.unique(errors.aircraft[multi]).tolist():
+        sel = multi & (errors.aircraft == aircraft)
+        times = errors.time[sel]
+        tx, ty, *_ = truth.at(np.full(len(times), aircraft, dtype=np.int64), times)
+        best: tuple[float, BoolArray] | None = None
+        for rows, labels, period in locals_.values():
+            x, y, ok = _local_estimates(rows, labels, aircraft, times, period)
+            ok &= np.isfinite(tx) & np.isfinite(x) & np.isfinite(errors.dx[sel])
+            if np.count_nonzero(ok) < 0.9 * len(times):
+                continue
+            rms = float(np.sqrt(np.mean((x[ok] - tx[ok]) ** 2 + (y[ok] - ty[ok]) ** 2)))
+            if best is None or rms < best[0]:
+                best = (rms, ok)
+        if best is None:
+            continue
+        rms, ok = best
+        system_sq += float(np.sum(errors.dx[sel][ok] ** 2 + errors.dy[sel][ok] ** 2))
+        local_sq += rms**2 * np.count_nonzero(ok)
+    return float(np.sqrt(system_sq / local_sq)) if local_sq > 0 else None
+
+
+def system_metrics(
+    system: npt.NDArray[Any],
+    origins: PlotOrigins,
+    truth: Truth,
+    coverages: Mapping[str, Coverage],
+    locals_: Mapping[str, tuple[npt.NDArray[Any], PlotOrigins]],
+    *,
+    gate_m: float = 1000.0,
+    min_identity_updates: int = 2,
+    end_time: float | None = None,
+) -> SystemEvaluation:
+    """Every system-track metric (see the module docstring). ``origins``: the plot origins
+    of every radar; ``locals_``: per radar its local-track updates and plot origins."""
+    rows = as_track_rows(system)
+    options: dict[str, Any] = {
+        "gate_m": gate_m,
+        "min_identity_updates": min_identity_updates,
+        "end_time": end_time,
+    }
+    overall = local_metrics(rows, origins, truth, system_coverage(coverages), **options)
+    errors = overall.errors
+    if errors is None or len(errors.time) == 0:
+        counts = np.zeros(0, dtype=np.int64)
+    else:
+        counts = coverage_counts(coverages, errors.aircraft, errors.time)
+    # The split re-evaluates the same updates, masked by their coverage at the time.
+    labels = associate_updates(rows, origins, truth, gate_m)
+    row_counts = np.zeros(len(rows), dtype=np.int64)
+    labelled = labels >= 0
+    row_counts[labelled] = coverage_counts(
+        coverages, labels[labelled], np.asarray(rows["time"][labelled], dtype=np.float64)
+    )
+    multi = local_metrics(
+        rows,
+        origins,
+        truth,
+        system_coverage(coverages, least=2),
+        evaluate_mask=row_counts >= 2,
+        **options,
+    )
+    single = local_metrics(
+        rows,
+        origins,
+        truth,
+        system_coverage(coverages, least=1, most=1),
+        evaluate_mask=row_counts == 1,
+        **options,
+    )
+    ratio = None
+    if errors is not None and len(errors.time):
+        local_labels = {
+            source: (
+                updates,
+                associate_updates(updates, plot_origins, truth, gate_m),
+                coverages[source].period_s if source in coverages else 10.0,
+            )
+            for source, (updates, plot_origins) in locals_.items()
+        }
+        ratio = _best_local_ratio(errors, counts >= 2, local_labels, truth)
+    return SystemEvaluation(overall, multi, single, ratio, rows)
+
+
+def truth_biases(recording: Recording) -> dict[str, dict[str, float]]:
+    """The last ``/truth/biases`` message of each radar."""
+    out: dict[str, dict[str, float]] = {}
+    if "/truth/biases" not in recording.topics:
+        return out
+    for message in recording.messages("/truth/biases"):
+        out[str(message["source"])] = {k: float(message[k]) for k in BIAS_COMPONENTS}
+    return out
+
+
+def bias_metrics(
+    estimates: Mapping[str, tuple[FloatArray, FloatArray]],
+    truth: Mapping[str, Mapping[str, float]],
+) -> dict[str, dict[str, dict[str, float | None]]]:
+    """Per radar and component: estimate, truth and sigma (``evaluate --json``'s "bias").
+    ``estimates``: per radar the state [range offset m, gain, azimuth rad, time s] and
+    its 4x4 covariance."""
+    scale = np.array([1.0, 1.0, np.degrees(1.0), 1.0])
+    out: dict[str, dict[str, dict[str, float | None]]] = {}
+    for source, (state, covariance) in estimates.items():
+        values = np.asarray(state, dtype=np.float64) * scale
+        sigmas = np.sqrt(np.clip(np.diag(covariance), 0.0, None)) * scale
+        true = truth.get(source, {})
+        out[source] = {
+            name: {
+                "estimate": float(values[i]),
+                "truth": true.get(name),
+                "sigma": float(sigmas[i]),
+            }
+            for i, name in enumerate(BIAS_COMPONENTS)
+        }
+    return out
