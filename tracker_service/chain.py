@@ -27,6 +27,14 @@ import numpy.typing as npt
 
 from asterix.codec import Block, decode_blocks
 from asterix.plots import extract_plots
+from tracker_service.bias import (
+    BiasConfig,
+    BiasEstimator,
+    ObservationKind,
+    concatenate,
+    make_bias_estimator,
+    make_observations,
+)
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, SystemTracker
 from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
 from tracker_service.ingest import PlotClock
@@ -50,6 +58,9 @@ log = logging.getLogger(__name__)
 
 NM = 1852.0
 CAT034 = 34
+MONITOR_SURVEY_VARIANCE_M2 = 1.0
+"""A field monitor's surveyed position: metre-level, against plots of tens of metres."""
+BIAS_HISTORY_S = 10.0
 JACOBIAN_STEP_M = 10.0
 JACOBIAN_STEP_RAD = 1e-4
 
@@ -282,6 +293,7 @@ class Chain:
         tracker: Mapping[str, Any] | None = None,
         make_tracker: Callable[[str, TrackerConfig], LocalTracker] | None = None,
         fusion: FusionConfig | None = None,
+        bias: BiasConfig | None = None,
     ) -> None:
         self.infos = dict(radars)
         self.plane = plane
@@ -294,10 +306,21 @@ class Chain:
             if fusion.longest_period_s < longest:
                 fusion = replace(fusion, longest_period_s=longest)
             self.fuser = SystemTracker(len(self.sources), fusion)
+        self.bias: BiasEstimator | None = None
+        if bias is not None and bias.method != "off" and self.sources:
+            self.bias = make_bias_estimator(bias, len(self.sources))
+        self.bias_history: list[tuple[float, str, FloatArray, FloatArray]] = []
+        """(time, source, bias, covariance) of each radar every ``BIAS_HISTORY_S`` of data."""
+        self._monitors = {
+            source: np.array(plane.from_geodetic(m.lat_deg, m.lon_deg, m.alt_m), dtype=float)
+            for source, info in self.infos.items()
+            if (m := info.field_monitor) is not None
+        }
         self.stats = ChainStats()
         self.radars: dict[str, RadarState] = {}
         self._tracker_overrides = dict(tracker or {})
         self._make_tracker = make_tracker or (lambda _source, config: LocalTracker(config))
+        self._bias_recorded: dict[str, float] = {}
         self._clock = PlotClock()
         self._heights = HeightModel()
         self._next_plot_id = 0
@@ -347,9 +370,20 @@ class Chain:
         self.radars[source] = state
         return state
 
+    def bias_estimates(self) -> dict[str, tuple[FloatArray, FloatArray]]:
+        """Each fused radar's current bias [range offset m, gain, azimuth rad, time s] and
+        its covariance; empty without bias estimation."""
+        if self.bias is None:
+            return {}
+        return {source: self.bias.correction(k) for k, source in enumerate(self.sources)}
+
     def _radar_batch(self, source: str, raw: npt.NDArray[Any], received: float) -> BatchOutput:
         state = self._radar(source)
-        batch, table, _ = convert_batch(
+        index = state.index
+        bias = bias_cov = None
+        if self.bias is not None and index is not None:
+            bias, bias_cov = self.bias.correction(index)
+        batch, table, c = convert_batch(
             raw,
             state.info,
             state.plane,
@@ -358,6 +392,7 @@ class Chain:
             received,
             self._next_plot_id,
             state.sequence,
+            bias,
         )
         state.sequence += 1
         self._next_plot_id += len(raw)
@@ -368,10 +403,94 @@ class Chain:
             self.stats.field_monitor_plots += n_monitor
             batch = batch[~monitor]
         local = state.tracker.process(batch)
-        system = _NO_SYSTEM_ROWS
-        if self.fuser is not None and state.index is not None and len(local):
-            system = self.fuser.process(state.index, local, batch)
-        return BatchOutput(source, table, local, system)
+        if self.fuser is None or index is None or not len(local):
+            return BatchOutput(source, table, local, _NO_SYSTEM_ROWS)
+        extra = None
+        if bias is not None and bias_cov is not None and c is not None:
+            extra = self._estimate_biases(state, table, batch, local, c, bias, bias_cov)
+        return BatchOutput(source, table, local, self.fuser.process(index, local, batch, extra))
+
+    def _estimate_biases(
+        self,
+        state: RadarState,
+        table: npt.NDArray[Any],
+        batch: npt.NDArray[Any],
+        local: npt.NDArray[Any],
+        c: FloatArray,
+        bias: FloatArray,
+        bias_cov: FloatArray,
+    ) -> FloatArray:
+        """Feed the bias estimator this batch's plots with a reference (see DOMAIN.md
+        section 6, variant 3: predictions these plots have not updated) and return the
+        residual bias covariance of each local update, for the fuser."""
+        assert self.bias is not None and self.fuser is not None and state.index is not None
+        radar = state.index
+        first_id = int(table["plot_id"][0])
+        n_radars = len(self.sources)
+        observations = []
+        refs = self.fuser.references(radar, local, batch)
+        usable = refs.others_valid
+        if usable.any():
+            row = refs.plot_id[usable] - first_id
+            rc = c[row].copy()
+            rc[:, :, 3] = -refs.others_v[usable]
+            # The reference at the plot's time as labelled, where the uncorrected plot
+            # lies: the batch's time had the estimated time offset taken off.
+            ref_xy = refs.others_xy[usable] + refs.others_v[usable] * bias[3]
+            y = np.column_stack([table["x"][row], table["y"][row]])  # as sent: uncorrected
+            observations.append(
+                make_observations(
+                    n_radars,
+                    np.full(len(row), radar),
+                    table["time"][row],
+                    y,
+                    table["R"][row],
+                    rc,
+                    ref_xy,
+                    refs.others_P[usable],
+                    kind=ObservationKind.AIRCRAFT,
+                    group=refs.system_number[usable],
+                    reference_v=refs.others_v[usable],
+                    prediction_xy=refs.all_xy[usable] + refs.others_v[usable] * bias[3],
+                    prediction_P=refs.all_P[usable],
+                    contributors=refs.radars_seen[usable],
+                )
+            )
+        monitor = np.flatnonzero(table["rab"])
+        surveyed = self._monitors.get(state.info.source)
+        if monitor.size and surveyed is not None:
+            observations.append(
+                make_observations(
+                    n_radars,
+                    np.full(monitor.size, radar),
+                    table["time"][monitor],
+                    np.column_stack([table["x"][monitor], table["y"][monitor]]),
+                    table["R"][monitor],
+                    c[monitor],
+                    np.broadcast_to(surveyed, (monitor.size, 2)),
+                    np.broadcast_to(np.eye(2) * MONITOR_SURVEY_VARIANCE_M2, (monitor.size, 2, 2)),
+                    kind=ObservationKind.FIELD_MONITOR,
+                )
+            )
+        if observations:
+            self.bias.update(concatenate(observations))
+            self._record_bias(state, float(table["time"].max()))
+        # Each local update's share of the residual bias, at its plot.
+        extra = np.zeros((len(local), 2, 2))
+        with_plot = np.flatnonzero(local["plot_id"] >= 0)
+        if with_plot.size:
+            cu = c[local["plot_id"][with_plot] - first_id].copy()
+            cu[:, :, 3] = -np.column_stack([local["vx"][with_plot], local["vy"][with_plot]])
+            extra[with_plot] = cu @ bias_cov @ np.swapaxes(cu, 1, 2)
+        return extra
+
+    def _record_bias(self, state: RadarState, time: float) -> None:
+        assert self.bias is not None and state.index is not None
+        last = self._bias_recorded.get(state.info.source, -np.inf)
+        if time - last >= BIAS_HISTORY_S:
+            s, p = self.bias.correction(state.index)
+            self.bias_history.append((time, state.info.source, s, p))
+            self._bias_recorded[state.info.source] = time
 
 
 def _finite(value: Any, default: float) -> float:

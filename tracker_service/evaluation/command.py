@@ -37,7 +37,12 @@ from tracker_service.evaluation.metrics import (
     truth_from_recording,
 )
 from tracker_service.evaluation.pipeline import EvaluationConfig, PipelineResult, run_pipeline
-from tracker_service.evaluation.system_metrics import SystemEvaluation, system_metrics
+from tracker_service.evaluation.system_metrics import (
+    SystemEvaluation,
+    bias_metrics,
+    system_metrics,
+    truth_biases,
+)
 
 __all__ = ["Evaluation", "add_arguments", "evaluate", "main", "run"]
 
@@ -52,6 +57,7 @@ class Evaluation:
     plots: dict[str, PlotMetrics]
     local: dict[str, LocalMetrics]
     system: SystemEvaluation | None
+    bias: dict[str, dict[str, dict[str, float | None]]]
 
     def as_json(self) -> dict[str, Any]:
         doc: dict[str, Any] = {
@@ -65,6 +71,8 @@ class Evaluation:
                 "single": self.system.single.as_json(),
             }
             doc["fusion"] = {"rms_ratio_to_best_local": self.system.rms_ratio_to_best_local}
+        if self.bias:
+            doc["bias"] = self.bias
         return doc
 
 
@@ -107,7 +115,8 @@ def evaluate(path: str | Path, config: EvaluationConfig | None = None) -> Evalua
             min_identity_updates=config.min_identity_updates,
             end_time=float(every_plot["time"].max()),
         )
-    return Evaluation(result, truth, coverage, plots, local, system)
+    bias = bias_metrics(result.bias, truth_biases(result.recording))
+    return Evaluation(result, truth, coverage, plots, local, system, bias)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -156,6 +165,13 @@ def format_table(evaluation: Evaluation) -> str:
     if evaluation.system is not None:
         ratio = _fmt(evaluation.system.rms_ratio_to_best_local, 3)
         text += f"\nsystem RMS / best local RMS (multi-radar coverage): {ratio}"
+    for source, components in evaluation.bias.items():
+        parts = [
+            f"{name} {_fmt(v['estimate'], 5)} (truth {_fmt(v['truth'], 5)}, sigma "
+            f"{_fmt(v['sigma'], 5)})"
+            for name, v in components.items()
+        ]
+        text += f"\nbias {source}: " + "; ".join(parts)
     return text
 
 

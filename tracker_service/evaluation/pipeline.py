@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.bias import BiasConfig
 from tracker_service.chain import (
     KIND_UNKNOWN,
     RAW_PLOT_DTYPE,
@@ -89,12 +90,14 @@ class EvaluationConfig:
     association_gate_m: float = 1000.0
     min_identity_updates: int = 2
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    bias: BiasConfig = field(default_factory=BiasConfig)
 
     @classmethod
     def from_mapping(cls, doc: Mapping[str, Any]) -> EvaluationConfig:
         """From a parsed TOML document: ``[evaluation]`` (geoid_m, association_gate_m,
-        min_identity_updates), ``[tracker]``, ``[fusion]`` and ``[radars."25/11"]`` tables."""
-        known = {"evaluation", "tracker", "fusion", "radars"}
+        min_identity_updates), ``[tracker]``, ``[fusion]``, ``[bias]`` and ``[radars."25/11"]``
+        tables."""
+        known = {"evaluation", "tracker", "fusion", "bias", "radars"}
         unknown = set(doc) - known
         if unknown:
             raise ValueError(f"unknown configuration tables {sorted(unknown)}; known: {known}")
@@ -104,8 +107,9 @@ class EvaluationConfig:
             raise ValueError(f"[evaluation] knows only {sorted(allowed)}")
         tracker = dataclass_fields("tracker", doc, TrackerConfig)
         fusion = FusionConfig(**dataclass_fields("fusion", doc, FusionConfig))
+        bias = BiasConfig(**dataclass_fields("bias", doc, BiasConfig))
         radars = {str(k): dict(v) for k, v in dict(doc.get("radars", {})).items()}
-        return cls(radars=radars, tracker=tracker, fusion=fusion, **evaluation)
+        return cls(radars=radars, tracker=tracker, fusion=fusion, bias=bias, **evaluation)
 
 
 def dataclass_fields(table: str, doc: Mapping[str, Any], cls: type) -> dict[str, Any]:
@@ -142,6 +146,9 @@ class PipelineResult:
     """System-track rows (``fusion.SYSTEM_UPDATE_DTYPE``) in processing order."""
     sources: list[str]
     """The radars in fusion order: ``system["radar"]`` indexes this list."""
+    bias: dict[str, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]]
+    """Each radar's bias estimate and covariance at the end (empty when not estimated)."""
+    bias_history: list[tuple[float, str, npt.NDArray[np.float64], npt.NDArray[np.float64]]]
 
 
 def _truth_plot_index(recording: Recording) -> dict[tuple[str, int], list[dict[str, Any]]]:
@@ -165,7 +172,7 @@ def run_pipeline(
     infos = radar_infos(recording.metadata, config.radars, config.geoid_m)
     plane = system_plane(recording.metadata, infos)
     truth_plots = _truth_plot_index(recording)
-    chain = Chain(infos, plane, config.tracker, make_tracker, config.fusion)
+    chain = Chain(infos, plane, config.tracker, make_tracker, config.fusion, config.bias)
     system: list[npt.NDArray[Any]] = []
     sequences: dict[str, int] = defaultdict(int)
     updates: dict[str, list[npt.NDArray[Any]]] = defaultdict(list)
@@ -224,4 +231,13 @@ def run_pipeline(
             state.tracker.stats,
         )
     rows = np.concatenate(system) if system else np.zeros(0, SYSTEM_UPDATE_DTYPE)
-    return PipelineResult(recording, plane, radars, origins, rows, chain.sources)
+    return PipelineResult(
+        recording,
+        plane,
+        radars,
+        origins,
+        rows,
+        chain.sources,
+        chain.bias_estimates(),
+        chain.bias_history,
+    )

@@ -55,6 +55,14 @@ class FusionConfig:
     to ``references``; None: 2 x ``longest_period_s``."""
     reassociate_after: int = 3
     """Consecutive gate failures after which a local track leaves its system track."""
+    found_delay_s: float | None = None
+    """How long a confirmed local track whose address a live system track carries waits to
+    join it before founding its own; None: 2 x ``longest_period_s``."""
+    merge_after: int = 3
+    """Two system tracks fed by different radars that pass the gate together this many
+    times in a row, with no identity telling them apart, are one aircraft: the younger
+    merges into the older. Before the biases are known, the radars' local tracks of one
+    aircraft can lie too far apart to associate, and each founds a system track."""
     number_reuse_delay_s: float = 300.0
     """A system track number is given again only this long after its track ended."""
     max_backward_s: float = 5.0
@@ -71,7 +79,7 @@ class FusionConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, not {getattr(self, name)!r}")
-        for name in ("max_silence_s", "max_reference_age_s"):
+        for name in ("max_silence_s", "max_reference_age_s", "found_delay_s"):
             value = getattr(self, name)
             if value is not None and not value > 0:
                 raise ValueError(f"{name} must be positive or None, not {value!r}")
@@ -80,6 +88,8 @@ class FusionConfig:
                 raise ValueError(f"{name} must be >= 0, not {getattr(self, name)!r}")
         if not 0.0 <= self.correlation < 1.0:
             raise ValueError(f"correlation must be in [0, 1), not {self.correlation!r}")
+        if self.merge_after < 1:
+            raise ValueError(f"merge_after must be >= 1, not {self.merge_after!r}")
         if self.reassociate_after < 1:
             raise ValueError(f"reassociate_after must be >= 1, not {self.reassociate_after!r}")
         if self.number_reuse_delay_s < 0:
@@ -92,6 +102,10 @@ class FusionConfig:
     @property
     def silence_s(self) -> float:
         return 3.0 * self.longest_period_s if self.max_silence_s is None else self.max_silence_s
+
+    @property
+    def found_delay(self) -> float:
+        return 2.0 * self.longest_period_s if self.found_delay_s is None else self.found_delay_s
 
     @property
     def reference_age_s(self) -> float:

@@ -64,6 +64,7 @@ _LOCAL_DTYPE = np.dtype(
         ("address", np.int64),
         ("mode3a", np.int64),
         ("fails", np.int64),
+        ("t_founder", np.float64),  # first time it could have founded a system track
     ]
 )
 
@@ -77,6 +78,7 @@ def _system_dtype(n_models: int) -> np.dtype[Any]:
             ("P", np.float64, (4, 4)),
             ("t_plot", np.float64),  # latest plot of any of its local tracks
             ("freed_at", np.float64),
+            ("born", np.float64),
             ("address", np.int64),
             ("mode3a", np.int64),
             ("mx", np.float64, (n_models, 4)),  # "plots" method: the IMM's models
@@ -98,6 +100,7 @@ class FusionStats:
     late_plots_skipped: int = 0
     unknown_plot_ids: int = 0
     numbers_exhausted: int = 0
+    system_tracks_merged: int = 0
 
 
 @dataclass(frozen=True)
@@ -141,6 +144,7 @@ class SystemTracker:
         )
         self._sys["freed_at"] = -np.inf
         self._now = -np.inf
+        self._merge_counts: dict[tuple[int, int], int] = {}
 
     @property
     def system_tracks(self) -> IntArray:
@@ -177,10 +181,11 @@ class SystemTracker:
         created = self._associate(radar, touched, has_plot, rows)
         if self.config.method == "plots":
             self._filter_plots(rows, u, extra, has_plot, as_plot_arrays(plots), created)
+        merged = self._merge(radar, np.unique(self._loc["system"][rows]))
         systems = self._loc["system"][rows]
         fed_rows = systems > 0
         # Emitted before the deleted local tracks leave: their last state still counts.
-        out = [self._emit(radar, systems[fed_rows], u[fed_rows], has_plot[fed_rows])]
+        out = [merged, self._emit(radar, systems[fed_rows], u[fed_rows], has_plot[fed_rows])]
         deleted = touched[self._loc["status"][touched] == LOCAL_DELETED]
         if deleted.size:
             self._loc["alive"][deleted] = False
@@ -214,6 +219,7 @@ class SystemTracker:
             fresh["alive"] = True
             fresh["t"] = np.nan  # no state yet
             fresh["t_plot"] = -np.inf
+            fresh["t_founder"] = np.nan
             fresh["fl"] = np.nan
             fresh["address"] = fresh["mode3a"] = -1
             self._reindex()
@@ -322,7 +328,79 @@ class SystemTracker:
         joined, target = li[chosen], sj[chosen]
         self._join(radar, joined, target)
         rest = np.setdiff1d(free, joined)
-        return self._create(rest)
+        return self._create(rest[self._may_found(rest)])
+
+    def _may_found(self, candidates: IntArray) -> BoolArray:
+        """A local track that found no system track founds one, unless a live system
+        track carries its Mode S address: then it is most likely that aircraft, seen
+        apart while the biases are still unknown, and it waits up to
+        ``FusionConfig.found_delay_s`` for the gate to take it (a second aircraft with a
+        duplicated address founds its own after that)."""
+        loc, sys = self._loc, self._sys
+        waiting = np.isnan(loc["t_founder"][candidates])
+        loc["t_founder"][candidates[waiting]] = self._now
+        address = loc["address"][candidates]
+        live = sys["alive"].copy()
+        live[0] = False
+        known = np.isin(address, sys["address"][live]) & (address >= 0)
+        waited = self._now - loc["t_founder"][candidates]
+        return np.asarray(~known | (waited >= self.config.found_delay), dtype=bool)
+
+    def _merge(self, radar: int, touched: IntArray) -> npt.NDArray[Any]:
+        """Merge each touched system track with a live one it duplicates (see
+        ``FusionConfig.merge_after``); returns the ended rows of the merged-away ones."""
+        sys, loc = self._sys, self._loc[: self._n]
+        touched = touched[(touched > 0) & sys["alive"][touched]]
+        fed = loc["alive"] & (loc["system"] > 0)
+        radars_of = np.zeros((MAX_SYSTEM_NUMBER + 1, self.n_radars), dtype=bool)
+        radars_of[loc["system"][fed], loc["radar"][fed]] = True
+        alive = np.flatnonzero(sys["alive"])
+        alive = alive[alive > 0]
+        # A pair's count lives while every check of it passes: the checks of the touched
+        # tracks start from the counts of their pairs that pass again now.
+        touched_set = set(touched.tolist())
+        counts = {
+            p: c
+            for p, c in self._merge_counts.items()
+            if p[0] not in touched_set and p[1] not in touched_set
+        }
+        young: list[int] = []
+        old: list[int] = []
+        for a in touched.tolist():
+            others = alive[(alive != a) & ~np.any(radars_of[alive] & radars_of[a], axis=1)]
+            others = others[self._compatible(a, others)]
+            if others.size == 0:
+                continue
+            dt = sys["t"][a] - sys["t"][others]
+            xs, ps = predict_cv(sys["x"][others], sys["P"][others], dt, self.config.q)
+            d = xs - sys["x"][a]
+            s = ps + sys["P"][a]
+            d2 = np.einsum("ka,ka->k", d, np.linalg.solve(s, d[..., None])[..., 0])
+            for b in others[d2 <= self.config.gate].tolist():
+                pair = (min(a, b), max(a, b))
+                count = counts[pair] = self._merge_counts.get(pair, 0) + 1
+                if count >= self.config.merge_after and a not in young and b not in young:
+                    keep, leave = (a, b) if sys["born"][a] <= sys["born"][b] else (b, a)
+                    old.append(keep)
+                    young.append(leave)
+        gone = set(young)
+        self._merge_counts = {p: c for p, c in counts.items() if not gone & set(p)}
+        if not young:
+            return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
+        leaving = np.array(young, dtype=np.int64)
+        ended = self._end(radar, leaving, moved_to=np.array(old, dtype=np.int64))
+        self.stats.system_tracks_merged += len(young)
+        return ended
+
+    def _compatible(self, a: int, others: IntArray) -> BoolArray:
+        """System tracks whose identities do not tell them from ``a``: no two different
+        Mode S addresses, no two different Mode 3/A codes."""
+        sys = self._sys
+        address, code = sys["address"][a], sys["mode3a"][a]
+        other_address, other_code = sys["address"][others], sys["mode3a"][others]
+        same_address = (address < 0) | (other_address < 0) | (other_address == address)
+        same_code = (code < 0) | (other_code < 0) | (other_code == code)
+        return np.asarray(same_address & same_code, dtype=bool)
 
     def _open_systems(self, radar: int) -> IntArray:
         """Live system tracks a new local track of ``radar`` may join: not those already
@@ -348,6 +426,7 @@ class SystemTracker:
         loc["system"][same] = 0
         loc["system"][joined] = target
         loc["fails"][joined] = 0
+        loc["t_founder"][joined] = np.nan
         self._sys["t_plot"][target] = np.maximum(self._sys["t_plot"][target], loc["t_plot"][joined])
 
     def _distance(self, local: IntArray, system: IntArray) -> FloatArray:
@@ -360,6 +439,9 @@ class SystemTracker:
         xs, ps = predict_cv(sys["x"][system], sys["P"][system], t - sys["t"][system], self.config.q)
         d = loc["x"][local] - xs
         s = loc["P"][local] + ps
+        # The local track's share of the radars' residual bias: before the biases are
+        # known, two radars' tracks of one aircraft lie apart by as much.
+        s[:, :2, :2] += loc["extra"][local]
         d2: FloatArray = np.einsum("ka,ka->k", d, np.linalg.solve(s, d[..., None])[..., 0])
         return d2
 
@@ -390,6 +472,7 @@ class SystemTracker:
         if numbers.size == 0:
             return numbers
         sys["alive"][numbers] = True
+        sys["born"][numbers] = self._now
         sys["t"][numbers] = loc["t"][founders]
         sys["x"][numbers] = loc["x"][founders]
         sys["P"][numbers] = loc["P"][founders]
@@ -401,6 +484,7 @@ class SystemTracker:
         sys["mu"][numbers] = self.models.initial_probabilities
         loc["system"][founders] = numbers
         loc["fails"][founders] = 0
+        loc["t_founder"][founders] = np.nan
         self.stats.system_tracks_created += int(numbers.size)
         return numbers
 
@@ -531,7 +615,11 @@ class SystemTracker:
         quiet = sys["alive"] & (sys["t_plot"] < self._now - self.config.silence_s)
         return self._end(radar, np.flatnonzero(quiet))
 
-    def _end(self, radar: int, numbers: IntArray) -> npt.NDArray[Any]:
+    def _end(
+        self, radar: int, numbers: IntArray, moved_to: IntArray | None = None
+    ) -> npt.NDArray[Any]:
+        """End the system tracks ``numbers``; their local tracks go to ``moved_to`` (one
+        per number: a merge) or leave."""
         sys = self._sys
         if numbers.size == 0:
             return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
@@ -545,7 +633,11 @@ class SystemTracker:
         )
         out["radar"] = radar
         loc = self._loc[: self._n]
-        loc["system"][np.isin(loc["system"], numbers)] = 0
+        if moved_to is None:
+            loc["system"][np.isin(loc["system"], numbers)] = 0
+        else:
+            for number, target in zip(numbers.tolist(), moved_to.tolist(), strict=True):
+                loc["system"][loc["system"] == number] = target
         sys["alive"][numbers] = False
         sys["freed_at"][numbers] = self._now
         self.stats.system_tracks_ended += int(numbers.size)
