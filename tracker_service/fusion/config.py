@@ -56,8 +56,8 @@ class FusionConfig:
     reassociate_after: int = 3
     """Consecutive gate failures after which a local track leaves its system track."""
     found_delay_s: float | None = None
-    """How long a confirmed local track whose address a live system track carries waits to
-    join it before founding its own; None: 2 x ``longest_period_s``."""
+    """How long a confirmed local track whose address or Mode 3/A code a live system track
+    carries waits to join it before founding its own; None: 2 x ``longest_period_s``."""
     merge_after: int = 3
     """Two system tracks fed by different radars that pass the gate together this many
     times in a row, with no identity telling them apart, are one aircraft: the younger

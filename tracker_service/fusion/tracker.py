@@ -332,17 +332,19 @@ class SystemTracker:
 
     def _may_found(self, candidates: IntArray) -> BoolArray:
         """A local track that found no system track founds one, unless a live system
-        track carries its Mode S address: then it is most likely that aircraft, seen
-        apart while the biases are still unknown, and it waits up to
-        ``FusionConfig.found_delay_s`` for the gate to take it (a second aircraft with a
-        duplicated address founds its own after that)."""
+        track carries its Mode S address or its (not shared) Mode 3/A code: then it is
+        most likely that aircraft, seen apart while the biases are still unknown, and it
+        waits up to ``FusionConfig.found_delay_s`` for the gate to take it (a second
+        aircraft with a duplicated address or code founds its own after that)."""
         loc, sys = self._loc, self._sys
         waiting = np.isnan(loc["t_founder"][candidates])
         loc["t_founder"][candidates[waiting]] = self._now
-        address = loc["address"][candidates]
+        address, code = loc["address"][candidates], loc["mode3a"][candidates]
         live = sys["alive"].copy()
         live[0] = False
-        known = np.isin(address, sys["address"][live]) & (address >= 0)
+        known = (np.isin(address, sys["address"][live]) & (address >= 0)) | (
+            np.isin(code, sys["mode3a"][live]) & (code >= 0) & ~is_shared_code(code)
+        )
         waited = self._now - loc["t_founder"][candidates]
         return np.asarray(~known | (waited >= self.config.found_delay), dtype=bool)
 
