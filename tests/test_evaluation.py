@@ -367,8 +367,10 @@ def test_evaluate_json_on_a_short_three_sites_run(
     for system in (doc["system"], *doc["system_by_coverage"].values()):
         assert set(summary_keys()) <= set(system)
     # Fused tracks of two or three radars beat the best single radar's.
-    assert 0.0 < doc["system_by_coverage"]["multi"]["position_rms_m"] < min(
-        local["position_rms_m"] for local in doc["local"].values()
+    assert (
+        0.0
+        < doc["system_by_coverage"]["multi"]["position_rms_m"]
+        < min(local["position_rms_m"] for local in doc["local"].values())
     )
     assert 0.0 < doc["fusion"]["rms_ratio_to_best_local"] < 1.0
     for source, local in doc["local"].items():
