@@ -1,5 +1,5 @@
 # One command for each job; each sets up its own virtual environment first.
-#   make demo   decode the bundled dual-LAN capture and print its summary
+#   make demo   replay the bundled recording through the service (Zenoh on 127.0.0.1:7447)
 #   make test   lint, type-check and run the whole test suite (what CI runs)
 PYTHON ?= python3
 VENV ?= .venv
@@ -15,8 +15,13 @@ $(BIN)/.installed: pyproject.toml
 
 setup: $(BIN)/.installed
 
+DEMO_SPEED ?= 2
+DEMO_LOG ?= out/demo-log
+
+# Watch it from another terminal: .venv/bin/tracker-service subscribe --connect tcp/127.0.0.1:7447
 demo: setup
-	$(BIN)/tracker-service decode recordings/three_sites.mcap --summary
+	$(BIN)/tracker-service replay recordings/three_sites.mcap --speed $(DEMO_SPEED) \
+		--zenoh-listen tcp/127.0.0.1:7447 --mcap-dir $(DEMO_LOG)
 
 lint: setup
 	$(BIN)/ruff check .

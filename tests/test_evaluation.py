@@ -361,7 +361,11 @@ def test_evaluate_json_on_a_short_three_sites_run(
     assert main([str(three_sites), "--json"]) == 0
     out = capsys.readouterr().out
     doc = json.loads(out)
-    assert set(doc) == {"plots", "local", "system", "system_by_coverage", "fusion"}
+    assert set(doc) == {"plots", "local", "system", "system_by_coverage", "fusion", "bias"}
+    for bias in doc["bias"].values():
+        assert set(bias) == {"range_offset_m", "range_gain", "azimuth_deg", "time_s"}
+        for component in bias.values():
+            assert set(component) == {"estimate", "truth", "sigma"}
     assert set(doc["plots"]) == set(doc["local"]) == {"25/11", "25/12", "25/13"}
     assert set(doc["system_by_coverage"]) == {"multi", "single"}
     for system in (doc["system"], *doc["system_by_coverage"].values()):
@@ -393,7 +397,9 @@ def test_evaluate_report_writes_markdown_and_figures(three_sites: Path, tmp_path
     assert main([str(three_sites), "--report", str(tmp_path / "report")]) == 0
     report = (tmp_path / "report" / "report.md").read_text()
     figures = sorted(p.name for p in (tmp_path / "report").glob("*.png"))
-    assert len(figures) == 12  # four per radar
+    # Four per radar, three for the system tracks (no radar range), the bias estimates.
+    assert len(figures) == 3 * 4 + 3 + 1
+    assert "bias_convergence.png" in figures
     for name in figures:
         assert f"({name})" in report
 

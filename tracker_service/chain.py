@@ -37,7 +37,7 @@ from tracker_service.bias import (
     make_bias_estimator,
     make_observations,
 )
-from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, SystemTracker
+from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, References, SystemTracker
 from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
 from tracker_service.ingest import PlotClock
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
@@ -71,6 +71,7 @@ JACOBIAN_STEP_M = 10.0
 JACOBIAN_STEP_RAD = 1e-4
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
 _NO_SYSTEM_ROWS = np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
 KIND_UNKNOWN = -1
 
@@ -313,12 +314,16 @@ class Chain:
                 fusion = replace(fusion, longest_period_s=longest)
             self.fuser = SystemTracker(len(self.sources), fusion)
         self.bias: BiasEstimator | None = None
-        if bias is not None and bias.method != "off" and self.sources:
+        # "off" with reference values still corrects (the true biases given, say).
+        if bias is not None and (bias.method != "off" or bias.reference_radars) and self.sources:
             self.bias = make_bias_estimator(bias, len(self.sources))
         self.bias_history: list[tuple[float, str, FloatArray, FloatArray]] = []
         """(time, source, bias, covariance) of each radar every ``BIAS_HISTORY_S`` of data."""
         self.adsb = AdsbReference(plane) if self.bias is not None else None
         self._absolute_references = np.zeros(len(self.sources), dtype=np.int64)
+        self._geometry: dict[int, tuple[FloatArray, FloatArray]] | None = (
+            {} if bias is not None and bias.method == "macro" else None
+        )
         self._monitors = {
             source: np.array(plane.from_geodetic(m.lat_deg, m.lon_deg, m.alt_m), dtype=float)
             for source, info in self.infos.items()
@@ -445,10 +450,19 @@ class Chain:
         # reference (ADS-B) keeps to it. Measured on three_sites: with traffic beside
         # ADS-B the time offsets came out 55-115 ms off, without it within 27 ms.
         usable = refs.others_valid & (self._absolute_references[radar] < ABSOLUTE_ENOUGH)
+        if self._geometry is not None:
+            self._remember_geometry(radar, refs, table["R"], c, first_id)
         if usable.any():
             row = refs.plot_id[usable] - first_id
             rc = c[row].copy()
             rc[:, :, 3] = -refs.others_v[usable]
+            contributors = refs.radars_seen[usable]
+            contributor_r = contributor_c = None
+            if self._geometry is not None:
+                contributor_r, contributor_c = self._contributor_geometry(
+                    refs.system_number[usable]
+                )
+                contributors = contributors & (contributor_r[:, :, 0, 0] > 0)
             # The reference at the plot's time as labelled, where the uncorrected plot
             # lies: the batch's time had the estimated time offset taken off.
             ref_xy = refs.others_xy[usable] + refs.others_v[usable] * bias[3]
@@ -468,7 +482,9 @@ class Chain:
                     reference_v=refs.others_v[usable],
                     prediction_xy=refs.all_xy[usable] + refs.others_v[usable] * bias[3],
                     prediction_P=refs.all_P[usable],
-                    contributors=refs.radars_seen[usable],
+                    contributors=contributors,
+                    contributor_R=contributor_r,
+                    contributor_C=contributor_c,
                 )
             )
         monitor = np.flatnonzero(table["rab"])
@@ -502,6 +518,34 @@ class Chain:
             cu[:, :, 3] = -np.column_stack([local["vx"][with_plot], local["vy"][with_plot]])
             extra[with_plot] = cu @ bias_cov @ np.swapaxes(cu, 1, 2)
         return extra
+
+    def _remember_geometry(
+        self, radar: int, refs: References, r: FloatArray, c: FloatArray, first_id: int
+    ) -> None:
+        """The macro filter's F_x and F_s need, per aircraft, the latest R and C of each
+        radar that sees it: kept per system track."""
+        assert self._geometry is not None
+        rows = refs.plot_id - first_id
+        for k, number in enumerate(refs.system_number.tolist()):
+            if number <= 0:
+                continue
+            entry = self._geometry.get(number)
+            if entry is None:
+                n = len(self.sources)
+                entry = self._geometry[number] = (np.zeros((n, 2, 2)), np.zeros((n, 2, 4)))
+            entry[0][radar] = r[rows[k]]
+            entry[1][radar] = c[rows[k]]
+
+    def _contributor_geometry(self, numbers: IntArray) -> tuple[FloatArray, FloatArray]:
+        assert self._geometry is not None
+        n = len(self.sources)
+        r = np.zeros((len(numbers), n, 2, 2))
+        c = np.zeros((len(numbers), n, 2, 4))
+        for k, number in enumerate(numbers.tolist()):
+            entry = self._geometry.get(number)
+            if entry is not None:
+                r[k], c[k] = entry
+        return r, c
 
     def _adsb_observations(
         self, radar: int, table: npt.NDArray[Any], c: FloatArray

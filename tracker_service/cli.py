@@ -67,6 +67,34 @@ def build_parser() -> argparse.ArgumentParser:
     from tracker_service.subscribe import add_arguments as add_subscribe_arguments
 
     add_subscribe_arguments(subscribe)
+    from tracker_service.service.command import (
+        add_health_arguments,
+        add_replay_arguments,
+        add_run_arguments,
+    )
+
+    replay = commands.add_parser(
+        "replay",
+        help="replay a recording or capture through the whole service (Zenoh, MCAP log)",
+        description="Feed a recording (simulator MCAP, the service's own MCAP log, or a "
+        "pcap/pcapng/GPS/final/raw/hex capture) through the service, paced by its reception "
+        "times, publishing over Zenoh as the daemon does.",
+    )
+    add_replay_arguments(replay)
+    run = commands.add_parser(
+        "run",
+        help="run the service on the live UDP feeds of a configuration",
+        description="The daemon: every configured radar's UDP input (and its second LAN), "
+        "tracks published over Zenoh and logged to MCAP. Ends cleanly on SIGTERM or Ctrl-C.",
+    )
+    add_run_arguments(run)
+    health = commands.add_parser(
+        "health",
+        help="exit 0 when a running daemon is healthy (for container health checks)",
+        description="Checks the daemon's --health-file: healthy when it was touched "
+        "within --max-age seconds.",
+    )
+    add_health_arguments(health)
     return parser
 
 
@@ -118,6 +146,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tracker_service.subscribe import run as subscribe_run
 
         return subscribe_run(args)
+    if args.command in ("replay", "run", "health"):
+        from tracker_service.service import command
+
+        handler = {"replay": command.replay, "run": command.run, "health": command.health}
+        return handler[args.command](args)
     return 2
 
 

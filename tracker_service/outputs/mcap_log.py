@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import math
 import time as clock
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -25,7 +25,7 @@ from types import TracebackType
 from typing import IO, Any, NamedTuple, Self
 
 from mcap.exceptions import EndOfFile
-from mcap.records import Channel, Message, Schema
+from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, IndexType, Writer
 from pydantic import BaseModel, ConfigDict, Field
@@ -40,6 +40,7 @@ __all__ = [
     "McapLog",
     "datagram_topic",
     "read_log_messages",
+    "read_log_metadata",
 ]
 
 MCAP_LIBRARY = "tracker-service log 1"
@@ -148,6 +149,7 @@ class McapLog:
         *,
         name: str = "tracker",
         flush_interval_s: float = 1.0,
+        metadata: Mapping[str, Mapping[str, str]] | None = None,
     ) -> None:
         if rotate_size_mb <= 0 or rotate_duration_s <= 0 or chunk_size <= 0:
             raise ValueError("rotate_size_mb, rotate_duration_s and chunk_size must be positive")
@@ -158,6 +160,7 @@ class McapLog:
         self._rotate_ns = round(rotate_duration_s * _NS_PER_S)
         self._chunk_size = chunk_size
         self._flush_interval_s = flush_interval_s
+        self._metadata = {k: dict(v) for k, v in (metadata or {}).items()}
         self._last_flush = clock.monotonic()
         self._file: _File | None = None
         self._closed = False
@@ -278,7 +281,12 @@ class McapLog:
     def _start(self, log_time: int) -> _File:
         started = datetime.fromtimestamp(log_time / _NS_PER_S, UTC)
         stamp = started.strftime("%Y%m%dT%H%M%S") + f"{started.microsecond // 1000:03d}Z"
-        path = self.directory / f"{self.name}_{stamp}_{len(self.files):04d}.mcap"
+        sequence = len(self.files)
+        path = self.directory / f"{self.name}_{stamp}_{sequence:04d}.mcap"
+        while path.exists():
+            # A replay of the same data into the same directory starts at the same time.
+            sequence += 1
+            path = self.directory / f"{self.name}_{stamp}_{sequence:04d}.mcap"
         stream = open(path, "xb")  # noqa: SIM115 - closed by _finish()
         try:
             writer = Writer(
@@ -295,6 +303,10 @@ class McapLog:
                 enable_data_crcs=True,
             )
             writer.start(profile="", library=MCAP_LIBRARY)
+            # Each file carries the metadata, right after its header: a file alone, even
+            # one cut short by a kill, says what produced it.
+            for metadata_name, values in self._metadata.items():
+                writer.add_metadata(metadata_name, values)
             stream.flush()
         except BaseException:
             stream.close()
@@ -373,3 +385,20 @@ def read_log_messages(path: str | Path) -> Iterator[LoggedMessage]:
                     schemas[channel.schema_id].name,
                     json.loads(record.data),
                 )
+
+
+def read_log_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """The metadata records of a log file (name -> key/value map), read from its start, so
+    that a file whose writer was killed gives them too."""
+    found: dict[str, dict[str, str]] = {}
+    with open(path, "rb") as stream:
+        try:
+            for record in StreamReader(stream, validate_crcs=True).records:
+                if isinstance(record, Metadata):
+                    found[record.name] = dict(record.metadata)
+                elif isinstance(record, Message):
+                    # McapLog writes its metadata before any message.
+                    break
+        except EndOfFile:
+            pass
+    return found

@@ -1,0 +1,601 @@
+"""The service core: one ``Chain`` wired to the outputs (Zenoh, MCAP).
+
+``TrackerService.process(input_name, datagram)`` logs the raw datagram, feeds it to the
+chain and turns what comes out into the published messages: system tracks (and their end),
+local tracks, CAT062/CAT065 batches, bias estimates and status. The core reads no clock:
+every time it uses is a reception time of the data ("data time"), so the same datagrams in
+the same order give the same messages, whether they come from a replay or from the
+daemon's inputs. Only ``advance`` (called by the daemon while its feeds are quiet) moves
+data time without data.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import defaultdict
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from asterix.containers import Datagram
+from tracker_service.bias import BiasConfig
+from tracker_service.chain import BatchOutput, Chain, FieldMonitor, RadarInfo, source_order
+from tracker_service.fusion import COASTING, ENDED, FusionConfig
+from tracker_service.geodesy import RadarSite, SystemPlane
+from tracker_service.inputs.udp import InputCounters, block_chain_error
+from tracker_service.outputs.cat062 import encode_cat065, encode_system_tracks
+from tracker_service.outputs.mcap_log import LoggedDatagram, McapLog
+from tracker_service.outputs.messages import (
+    BiasMessage,
+    Estimate,
+    LastPlot,
+    LocalTrackMessage,
+    RadarStatus,
+    SensorAges,
+    StatusMessage,
+    SystemTrackMessage,
+    TrackSource,
+)
+from tracker_service.outputs.zenoh_out import ZenohPublisher
+from tracker_service.service.config import ServiceConfig, parse_service_config
+from tracker_service.tracking import TrackerConfig
+
+__all__ = [
+    "CAT062_TOPIC",
+    "SYSTEM_TRACKS_TOPIC",
+    "ServiceTimings",
+    "TrackerService",
+    "bias_config",
+    "build_chain",
+    "config_from_recording",
+    "input_name",
+    "radar_key",
+]
+
+log = logging.getLogger(__name__)
+
+SYSTEM_TRACKS_TOPIC = "/system_tracks"
+LOCATION_TOPIC = "/map/system_tracks"
+CAT062_TOPIC = "/cat062"
+STATUS_TOPIC = "/status"
+LocalStatus = Literal["tentative", "confirmed", "coasting", "deleted"]
+LOCAL_STATUS: tuple[LocalStatus, ...] = ("tentative", "confirmed", "coasting", "deleted")
+# I048/020 TYP: which sensor types a plot of each type is (PSR, SSR, Mode S).
+_PSR_TYPES = frozenset((1, 3, 6, 7))
+_SSR_TYPES = frozenset((2, 3))
+_MODE_S_TYPES = frozenset((4, 5, 6, 7))
+SILENT_PERIODS = 3.0
+"""A radar whose last plot is this many antenna periods old makes the health "degraded"."""
+
+
+@dataclass(frozen=True)
+class ServiceTimings:
+    """Cadences of the periodic outputs, in seconds of data time."""
+
+    cat062_s: float = 1.0
+    status_s: float = 5.0
+    bias_s: float = 10.0
+
+
+def input_name(source: str) -> str:
+    """The input (and MCAP topic) name of a feed: "25/11" -> "25_11"."""
+    return source.replace("/", "_")
+
+
+def radar_key(name: str) -> str:
+    """The inverse of :func:`input_name`."""
+    return name.replace("_", "/")
+
+
+def _radar_info(radar: Any) -> RadarInfo:
+    monitor = radar.field_monitor
+    return RadarInfo(
+        source=radar.key,
+        site=RadarSite(radar.lat, radar.lon, radar.alt_m, radar.geoid_m, radar.north_offset_deg),
+        period_s=radar.antenna_period_s,
+        sigma_range_m=radar.sigma_range_m,
+        sigma_azimuth_deg=radar.sigma_azimuth_deg,
+        psr_sigma_range_m=radar.psr_sigma_range_m or radar.sigma_range_m,
+        psr_sigma_azimuth_deg=radar.psr_sigma_azimuth_deg or radar.sigma_azimuth_deg,
+        field_monitor=(
+            None if monitor is None else FieldMonitor(monitor.lat, monitor.lon, monitor.alt_m)
+        ),
+    )
+
+
+def _dataclass_kwargs(table: str, values: Mapping[str, Any], cls: type) -> dict[str, Any]:
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(values) - names)
+    if unknown:
+        raise ValueError(f"[{table}]: {unknown} are not settings; allowed: {sorted(names)}")
+    # TOML has no tuples: the tuple-valued fields arrive as lists.
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+
+
+def bias_config(config: ServiceConfig) -> BiasConfig:
+    """The ``[bias]`` table as a ``BiasConfig``; radars marked ``reference`` anchor the bias
+    filters with a zero bias (their index is their place in the chain's SAC/SIC order)."""
+    values = _dataclass_kwargs("bias", config.bias, BiasConfig)
+    order = sorted((radar.key for radar in config.radars), key=source_order)
+    references = {
+        order.index(radar.key): (0.0, 0.0, 0.0, 0.0) for radar in config.radars if radar.reference
+    }
+    if references:
+        values["reference_radars"] = references | dict(values.get("reference_radars", {}))
+    return BiasConfig(**values)
+
+
+def build_chain(config: ServiceConfig) -> Chain:
+    """The chain of a configuration: its radars, plane, tracker, fusion and bias settings."""
+    infos = {radar.key: _radar_info(radar) for radar in config.radars}
+    plane = SystemPlane(
+        config.system.centre_lat, config.system.centre_lon, config.system.projection
+    )
+    fusion = FusionConfig(**_dataclass_kwargs("fusion", config.fusion, FusionConfig))
+    tracker = _dataclass_kwargs("tracker", config.tracker, TrackerConfig)
+    return Chain(infos, plane, tracker, fusion=fusion, bias=bias_config(config))
+
+
+def config_from_recording(metadata: Mapping[str, Any]) -> ServiceConfig:
+    """A service configuration for a simulator recording: its radars (what an operator would
+    know: site, period, sigmas, field monitor), ADS-B stations and system centre; the
+    service's own SAC/SIC is the first radar's SAC with the first SIC from 100 unused."""
+    radars = [dict(r) for r in dict(metadata.get("radars", {})).values()]
+    if not radars:
+        raise ValueError("the recording's metadata names no radar")
+    keep = (
+        "name",
+        "sac",
+        "sic",
+        "lat",
+        "lon",
+        "alt_m",
+        "antenna_period_s",
+        "sigma_range_m",
+        "sigma_azimuth_deg",
+        "psr_sigma_range_m",
+        "psr_sigma_azimuth_deg",
+        "field_monitor",
+    )
+    adsb = [
+        {"name": s.get("name", ""), "sac": s["sac"], "sic": s["sic"]}
+        for s in dict(metadata.get("adsb_stations", {})).values()
+    ]
+    used = {(r["sac"], r["sic"]) for r in radars} | {(s["sac"], s["sic"]) for s in adsb}
+    sac = int(radars[0]["sac"])
+    sic = next(n for n in range(100, 256) if (sac, n) not in used)
+    centre = dict(metadata.get("scenario", {})).get("system_centre")
+    if not isinstance(centre, dict):
+        centre = {
+            "lat": float(np.mean([r["lat"] for r in radars])),
+            "lon": float(np.mean([r["lon"] for r in radars])),
+        }
+    doc = {
+        "radars": [{k: r[k] for k in keep if r.get(k) is not None} for r in radars],
+        "adsb": adsb,
+        "system": {
+            "centre_lat": centre["lat"],
+            "centre_lon": centre["lon"],
+            "sac": sac,
+            "sic": sic,
+        },
+    }
+    return parse_service_config(doc, "the recording's metadata")
+
+
+def _none_if_nan(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+def _hex_address(value: int) -> str | None:
+    return f"{value:06X}" if value >= 0 else None
+
+
+def _octal_code(value: int) -> str | None:
+    return f"{value:04o}" if value >= 0 else None
+
+
+@dataclass
+class _SystemTrack:
+    """What the core remembers of a live system track between its updates."""
+
+    last: SystemTrackMessage
+    last_plot: LastPlot | None = None
+    sensor_times: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class _RadarCounters:
+    last_plot_time: float | None = None
+    plots: int = 0
+    plots_at_last_status: int = 0
+    decode_errors: int = 0
+
+
+@dataclass
+class ServiceCounts:
+    """Totals since start, for the summary of a replay and for tests."""
+
+    datagrams: int = 0
+    plots: int = 0
+    errors: int = 0
+    system_updates: int = 0
+    system_tracks: set[int] = field(default_factory=set)
+
+
+class TrackerService:
+    """See the module docstring. ``publisher`` and ``log`` are optional (a test or a
+    benchmark may run without either); the core closes neither."""
+
+    def __init__(
+        self,
+        config: ServiceConfig,
+        publisher: ZenohPublisher | None = None,
+        log_file: McapLog | None = None,
+        timings: ServiceTimings | None = None,
+    ) -> None:
+        self.config = config
+        self.chain = build_chain(config)
+        self._bias_prior = bias_config(config).prior_sigma()
+        self.plane = self.chain.plane
+        self.publisher = publisher
+        self.log = log_file
+        self.timings = timings or ServiceTimings()
+        self.counts = ServiceCounts()
+        self.input_counters: dict[str, InputCounters] = {}
+        """Per input name, what the input stage counted (duplicates, drops, malformed);
+        the daemon and the replay keep it current."""
+        self._periods = {radar.key: radar.antenna_period_s for radar in config.radars}
+        self._feeds = [r.key for r in config.radars] + [a.key for a in config.adsb]
+        self._radars: dict[str, _RadarCounters] = defaultdict(_RadarCounters)
+        self._tracks: dict[int, _SystemTrack] = {}
+        self._local_times: dict[tuple[str, int], float] = {}
+        self._pending_cat062: dict[int, SystemTrackMessage] = {}
+        self._cat062_batches = 0
+        self._start: float | None = None
+        self._now = -math.inf
+        self._next: dict[str, float] = {}
+        self._closed = False
+
+    @property
+    def now(self) -> float:
+        """Data time: the latest reception time seen."""
+        return self._now
+
+    @property
+    def live_tracks(self) -> list[int]:
+        return sorted(self._tracks)
+
+    def picture(self) -> dict[int, SystemTrackMessage]:
+        """The latest message of every live system track."""
+        return {number: self._tracks[number].last for number in sorted(self._tracks)}
+
+    def process(self, name: str, datagram: Datagram) -> None:
+        """One datagram that input ``name`` received at ``datagram.time``. Nothing raises
+        out of here for bad data: an error is logged and counted, and the service goes on."""
+        if datagram.time is None:
+            raise ValueError("the service needs each datagram's reception time")
+        received = datagram.time
+        self._advance_to(received)
+        self.counts.datagrams += 1
+        if self.log is not None:
+            self.log.log_datagram(datagram, name)
+        reason = block_chain_error(datagram.payload)
+        if reason is not None:
+            self._error(name, f"not ASTERIX ({reason})")
+            return
+        try:
+            outputs = self.chain.feed(datagram.payload, received)
+            for output in outputs:
+                self._publish_batch(output)
+        except Exception:
+            log.exception("%s: datagram at %.3f could not be processed", name, received)
+            self._error(name, "processing failed")
+        self._periodic()
+
+    def advance(self, now: float) -> None:
+        """Data time moves on without data (the daemon, while every feed is quiet): the
+        periodic outputs that fall due go out."""
+        if self._start is None:
+            return
+        self._advance_to(now)
+        self._periodic()
+
+    def _advance_to(self, time: float) -> None:
+        if self._start is None:
+            self._start = time
+            self._next = {
+                "cat062": time + self.timings.cat062_s,
+                "status": time + self.timings.status_s,
+                "bias": time + self.timings.bias_s,
+            }
+        self._now = max(self._now, time)
+
+    def _error(self, name: str, what: str) -> None:
+        self.counts.errors += 1
+        self._radars[radar_key(name)].decode_errors += 1
+        log.warning("%s: datagram at %.3f dropped: %s", name, self._now, what)
+
+    # --- per batch ---------------------------------------------------------------------
+
+    def _publish_batch(self, output: BatchOutput) -> None:
+        plots = output.plots
+        counters = self._radars[output.source]
+        self.counts.plots += len(plots)
+        counters.plots += len(plots)
+        if len(plots):
+            counters.last_plot_time = float(plots["time"].max())
+        self._publish_local(output.source, output.local)
+        if len(output.system):
+            self._publish_system(output.system, plots)
+
+    def _publish_local(self, source: str, rows: npt.NDArray[Any]) -> None:
+        sac, sic = (int(part) for part in source.split("/"))
+        topic = f"/local_tracks/{input_name(source)}"
+        for row in rows:
+            number, time = int(row["track_number"]), float(row["time"])
+            self._local_times[(source, number)] = time
+            message = LocalTrackMessage(
+                radar=source,
+                number=number,
+                time=time,
+                x_m=float(row["x"]),
+                y_m=float(row["y"]),
+                vx_mps=float(row["vx"]),
+                vy_mps=float(row["vy"]),
+                covariance=row["P"].reshape(4, 4).tolist(),
+                flight_level=_none_if_nan(float(row["flight_level"])),
+                climb_rate_fpm=_none_if_nan(float(row["climb_rate_fl_per_s"]) * 6000.0),
+                status=LOCAL_STATUS[int(row["status"])],
+                plot_id=int(row["plot_id"]) if row["plot_id"] >= 0 else None,
+                mode3a=_octal_code(int(row["mode3a"])),
+                address=_hex_address(int(row["address"])),
+                model_probabilities=row["model_probabilities"].tolist(),
+            )
+            if self.publisher is not None:
+                self.publisher.put_local_track((sac, sic), number, message)
+            if self.log is not None:
+                self.log.log(topic, message, self._now)
+            if message.status == "deleted":
+                self._local_times.pop((source, number), None)
+
+    def _publish_system(self, rows: npt.NDArray[Any], plots: npt.NDArray[Any]) -> None:
+        lat, lon = self.plane.to_geodetic(rows["x"], rows["y"])
+        plot_index = {int(p): i for i, p in enumerate(plots["plot_id"].tolist())}
+        plot_lat, plot_lon = self.plane.to_geodetic(plots["x"], plots["y"])
+        for k, row in enumerate(rows):
+            plot = plot_index.get(int(row["plot_id"]))
+            if plot is not None and bool(row["fresh"]):
+                plot_position = (float(plot_lat[plot]), float(plot_lon[plot]))
+                message = self._system_message(
+                    row, float(lat[k]), float(lon[k]), plots[plot], plot_position
+                )
+            else:
+                message = self._system_message(row, float(lat[k]), float(lon[k]), None, None)
+            self._emit_system(message)
+
+    def _system_message(
+        self,
+        row: Any,
+        lat: float,
+        lon: float,
+        plot: Any,
+        plot_position: tuple[float, float] | None,
+    ) -> SystemTrackMessage:
+        number, time = int(row["system_number"]), float(row["time"])
+        previous = self._tracks.get(number)
+        sensor_times = {} if previous is None else previous.sensor_times
+        last_plot = None if previous is None else previous.last_plot
+        if plot is not None and plot_position is not None:
+            radar = self.chain.sources[int(row["radar"])]
+            typ = int(plot["typ"])
+            for sensor, types in (
+                ("psr", _PSR_TYPES),
+                ("ssr", _SSR_TYPES),
+                ("mode_s", _MODE_S_TYPES),
+            ):
+                if typ in types:
+                    sensor_times[sensor] = float(plot["time"])
+            last_plot = LastPlot(
+                radar=radar,
+                time=float(plot["time"]),
+                lat=plot_position[0],
+                lon=plot_position[1],
+                range_m=float(plot["rho_m"]),
+                azimuth_deg=float(plot["theta_deg"]) % 360.0,
+            )
+        sources = []
+        for slot in range(int(row["n_sources"])):
+            radar = self.chain.sources[int(row["local_radars"][slot])]
+            local = int(row["local_numbers"][slot])
+            local_time = self._local_times.get((radar, local), time)
+            plot_id = int(row["local_plot_ids"][slot])
+            sources.append(
+                TrackSource(
+                    radar=radar,
+                    local_track=local,
+                    age_s=max(time - local_time, 0.0),
+                    plot_id=plot_id if plot_id >= 0 else None,
+                )
+            )
+        address = _hex_address(int(row["address"]))
+        mode3a = _octal_code(int(row["mode3a"]))
+        status = int(row["status"])
+        message = SystemTrackMessage.from_state(
+            time=time,
+            x_m=float(row["x"]),
+            y_m=float(row["y"]),
+            vx_mps=float(row["vx"]),
+            vy_mps=float(row["vy"]),
+            covariance=row["P"].reshape(4, 4).tolist(),
+            climb_rate_fl_per_s=_none_if_nan(float(row["climb_rate_fl_per_s"])),
+            number=number,
+            lat=lat,
+            lon=(lon + 180.0) % 360.0 - 180.0,
+            flight_level=_none_if_nan(float(row["flight_level"])),
+            address=address,
+            mode3a=mode3a,
+            mode3a_changed=previous is not None and previous.last.mode3a not in (None, mode3a),
+            first=previous is None,
+            sources=sources,
+            status="ended"
+            if status == ENDED
+            else "coasting"
+            if status == COASTING
+            else "confirmed",
+            last_plot=last_plot,
+            ages=SensorAges(**{k: max(time - t, 0.0) for k, t in sensor_times.items()}),
+            duplicate_address=address is not None
+            and any(t.last.address == address for n, t in self._tracks.items() if n != number),
+        )
+        if status == ENDED:
+            self._tracks.pop(number, None)
+        else:
+            self._tracks[number] = _SystemTrack(message, last_plot, sensor_times)
+        return message
+
+    def _emit_system(self, message: SystemTrackMessage) -> None:
+        self.counts.system_updates += 1
+        self.counts.system_tracks.add(message.number)
+        self._pending_cat062[message.number] = message
+        if self.publisher is not None:
+            if message.status == "ended":
+                self.publisher.end_system_track(message.number, message)
+            else:
+                self.publisher.put_system_track(message.number, message)
+        if self.log is not None:
+            self.log.log(SYSTEM_TRACKS_TOPIC, message, self._now)
+            if message.status != "ended":
+                p = message.covariance
+                # ENU position covariance: the plane's axes are east and north near the
+                # centre; the vertical is unknown, so left large rather than zero.
+                covariance = [p[0][0], p[0][1], 0.0, p[1][0], p[1][1], 0.0, 0.0, 0.0, 1e6]
+                altitude = 0.0 if message.flight_level is None else message.flight_level * 30.48
+                self.log.log_location(
+                    LOCATION_TOPIC, message.time, message.lat, message.lon, altitude, covariance
+                )
+
+    # --- periodic outputs ----------------------------------------------------------------
+
+    def _periodic(self) -> None:
+        if self._due("cat062", self.timings.cat062_s):
+            self._publish_cat062()
+        if self._due("bias", self.timings.bias_s):
+            self._publish_bias()
+        if self._due("status", self.timings.status_s):
+            self._publish_status()
+
+    def _due(self, what: str, period: float) -> bool:
+        due = self._next[what]
+        if self._now < due:
+            return False
+        # The next one on the grid after now: a long silence does not make a burst.
+        self._next[what] = due + period * (math.floor((self._now - due) / period) + 1)
+        return True
+
+    def _publish_cat062(self) -> None:
+        messages = [self._pending_cat062[n] for n in sorted(self._pending_cat062)]
+        self._pending_cat062.clear()
+        system = self.config.system
+        data = encode_system_tracks(messages, system) + encode_cat065(
+            "end_of_batch", self._now, self._cat062_batches, system
+        )
+        self._cat062_batches += 1
+        if self.publisher is not None:
+            self.publisher.put_cat062(data)
+        if self.log is not None:
+            record = LoggedDatagram(
+                input="cat062", time=self._now, src=None, dst=None, payload=data.hex()
+            )
+            self.log.log(CAT062_TOPIC, record, self._now)
+
+    def _publish_bias(self) -> None:
+        prior = self._bias_prior
+        for source, (bias, covariance) in self.chain.bias_estimates().items():
+            sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+            # Observable once the data has shrunk the prior: before, the estimate is the
+            # prior's mean and says nothing.
+            observable = sigma < 0.5 * prior
+            scale = (1.0, 1.0, math.degrees(1.0), 1.0)
+            estimates = [
+                Estimate(
+                    estimate=float(bias[i]) * scale[i],
+                    sigma=float(sigma[i]) * scale[i],
+                    observable=bool(observable[i]),
+                )
+                for i in range(4)
+            ]
+            message = BiasMessage(
+                radar=source,
+                time=self._now,
+                range_offset_m=estimates[0],
+                range_gain=estimates[1],
+                azimuth_deg=estimates[2],
+                time_s=estimates[3],
+            )
+            sac, sic = (int(part) for part in source.split("/"))
+            if self.publisher is not None:
+                self.publisher.put_bias((sac, sic), message)
+            if self.log is not None:
+                self.log.log(f"/bias/{input_name(source)}", message, self._now)
+
+    def status(self) -> StatusMessage:
+        """The current status: per feed, last plot time, plot rate since the last published status,
+        errors, duplicates and drops; health "degraded" when a radar has gone silent."""
+        start = self._now if self._start is None else self._start
+        interval = self.timings.status_s
+        radars = []
+        degraded = False
+        for key in sorted({*self._feeds, *self._radars}, key=source_order):
+            counters = self._radars[key]
+            inputs = self.input_counters.get(input_name(key), InputCounters())
+            rate = (counters.plots - counters.plots_at_last_status) / interval
+            period = self._periods.get(key)
+            if period is not None and counters.last_plot_time is not None:
+                degraded |= self._now - counters.last_plot_time > SILENT_PERIODS * period
+            radars.append(
+                RadarStatus(
+                    radar=key,
+                    last_plot_time=counters.last_plot_time,
+                    plots_per_second=max(rate, 0.0),
+                    decode_errors=counters.decode_errors + inputs.malformed,
+                    duplicates=inputs.duplicates,
+                    drops=inputs.dropped,
+                )
+            )
+        return StatusMessage(
+            time=self._now,
+            uptime_s=max(self._now - start, 0.0),
+            health="degraded" if degraded else "ok",
+            radars=radars,
+        )
+
+    def _publish_status(self) -> None:
+        message = self.status()
+        for counters in self._radars.values():
+            counters.plots_at_last_status = counters.plots
+        if self.publisher is not None:
+            self.publisher.put_status(message)
+        if self.log is not None:
+            self.log.log(STATUS_TOPIC, message, self._now)
+
+    # --- end ---------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Ends every live track (an "ended" message each, and its key deleted), sends the
+        last CAT062 batch and a status. The caller closes the publisher and the log."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._start is None:
+            return
+        for number in sorted(self._tracks):
+            track = self._tracks.pop(number)
+            ended = track.last.model_copy(update={"status": "ended", "first": False})
+            self._emit_system(ended)
+        self._publish_cat062()
+        self._publish_status()

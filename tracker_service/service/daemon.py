@@ -1,0 +1,166 @@
+"""The daemon behind ``tracker-service run``: live UDP feeds into the service core.
+
+Each feed has its input (``inputs.udp.UdpInput``: a thread per LAN, the duplicate filter,
+a bounded queue whose overflow is counted). One thread, this one, merges the inputs: a
+datagram waits until ``system.holding_window_s`` has passed since its reception, so that
+the datagrams of every radar reach the core in reception-time order (ties by input name)
+even when a thread ran late; the core logs them in that order, and the replay of the
+log feeds them the same way. An exception in the processing of one datagram is logged
+and counted; the daemon goes on.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+import threading
+import time
+from pathlib import Path
+
+from asterix.containers import Datagram
+from tracker_service.ingest import DuplicateWindow
+from tracker_service.inputs.udp import UdpEndpoint, UdpInput
+from tracker_service.service.command import open_service
+from tracker_service.service.config import AdsbFeed, Lan, Radar, ServiceConfig
+from tracker_service.service.core import TrackerService, input_name
+
+__all__ = ["Daemon", "Merger", "open_inputs"]
+
+log = logging.getLogger(__name__)
+
+POLL_S = 0.001
+"""Sleep of the merge loop when no input has anything: the latency it may add."""
+COUNTERS_S = 0.5
+"""How often the inputs' counters are copied for the status messages (wall clock)."""
+QUIET_S = 1.0
+"""After this long without a datagram, data time follows the wall clock (status goes on)."""
+
+
+def _endpoint(lan: Lan) -> UdpEndpoint:
+    interface = "0.0.0.0" if lan.interface is None else str(lan.interface)
+    return UdpEndpoint(str(lan.address), lan.port, interface)
+
+
+def open_inputs(config: ServiceConfig, queue_size: int = 1024) -> list[UdpInput]:
+    """One input per configured feed (radars and ADS-B) that has an ``input`` table."""
+    inputs: list[UdpInput] = []
+    try:
+        feeds: list[Radar | AdsbFeed] = [*config.radars, *config.adsb]
+        for feed in feeds:
+            if feed.input is None:
+                continue
+            second = feed.input.second_lan
+            inputs.append(
+                UdpInput(
+                    input_name(feed.key),
+                    _endpoint(feed.input),
+                    None if second is None else _endpoint(second),
+                    queue_size=queue_size,
+                    duplicate_window=DuplicateWindow(seconds=feed.input.duplicate_window_s),
+                )
+            )
+    except BaseException:
+        for opened in inputs:
+            opened.close()
+        raise
+    return inputs
+
+
+class Merger:
+    """Datagrams of several inputs, released in (reception time, input name, number)
+    order once ``window`` seconds old."""
+
+    def __init__(self, window: float) -> None:
+        self.window = window
+        self._heap: list[tuple[float, str, int, Datagram]] = []
+
+    def __len__(self) -> int:
+        return len(self._heap)
+
+    def push(self, name: str, datagram: Datagram) -> None:
+        assert datagram.time is not None
+        heapq.heappush(self._heap, (datagram.time, name, datagram.offset, datagram))
+
+    def release(self, now: float) -> list[tuple[str, Datagram]]:
+        """What is at least ``window`` old at ``now`` (everything when ``now`` is inf)."""
+        out = []
+        while self._heap and self._heap[0][0] <= now - self.window:
+            _, name, _, datagram = heapq.heappop(self._heap)
+            out.append((name, datagram))
+        return out
+
+
+class Daemon:
+    def __init__(self, config: ServiceConfig, health_file: Path | None = None) -> None:
+        self.config = config
+        self.health_file = health_file
+        self.failures = 0
+
+    def run(self, stop: threading.Event) -> int:
+        """Until ``stop`` is set; then what the merger holds is processed, every live track
+        ended and the log closed."""
+        config = self.config
+        inputs = open_inputs(config)
+        if not inputs:
+            log.warning("no radar has an [input]: nothing will arrive")
+        for udp in inputs:
+            log.info("%s: listening on %s", udp.name, udp.endpoints)
+        merger = Merger(config.system.holding_window_s)
+        try:
+            with open_service(config, config.mcap.directory) as service:
+                log.info("running: publishing under %s/", config.zenoh.prefix)
+                last_datagram = time.time()
+                next_counters = 0.0
+                next_health = 0.0
+                while not stop.is_set():
+                    received = self._collect(inputs, merger)
+                    now = time.time()
+                    if received:
+                        last_datagram = now
+                    for name, datagram in merger.release(now):
+                        self._process(service, name, datagram)
+                    if now >= next_counters:
+                        service.input_counters = {udp.name: udp.counters for udp in inputs}
+                        next_counters = now + COUNTERS_S
+                    if now - last_datagram > QUIET_S and not merger:
+                        service.advance(now - config.system.holding_window_s)
+                    if self.health_file is not None and now >= next_health:
+                        self.health_file.touch()
+                        next_health = now + service.timings.status_s
+                    if not received:
+                        stop.wait(POLL_S)
+                for udp in inputs:
+                    udp.close()
+                self._collect(inputs, merger)
+                for name, datagram in merger.release(float("inf")):
+                    self._process(service, name, datagram)
+                service.input_counters = {udp.name: udp.counters for udp in inputs}
+                log.info(
+                    "stopping: %d datagrams, %d system tracks, %d errors; ending %d live tracks",
+                    service.counts.datagrams,
+                    len(service.counts.system_tracks),
+                    service.counts.errors + self.failures,
+                    len(service.live_tracks),
+                )
+        finally:
+            for udp in inputs:
+                udp.close()
+        return 0
+
+    @staticmethod
+    def _collect(inputs: list[UdpInput], merger: Merger) -> bool:
+        received = False
+        for udp in inputs:
+            while (datagram := udp.get(timeout=0)) is not None:
+                merger.push(udp.name, datagram)
+                received = True
+        return received
+
+    def _process(self, service: TrackerService, name: str, datagram: Datagram) -> None:
+        try:
+            service.process(name, datagram)
+        except Exception:
+            # The core catches what bad data does; this is the rest (a full disk, a
+            # closed session): counted, and the daemon goes on.
+            self.failures += 1
+            log.exception("%s: datagram %d could not be handled", name, datagram.offset)
