@@ -21,6 +21,7 @@ from hypothesis import strategies as st
 from tracker_service.geodesy import (
     E2,
     A,
+    ConvertedPlots,
     HeightModel,
     RadarSite,
     SystemPlane,
@@ -689,3 +690,24 @@ def test_radars_project_slant_range_into_i042() -> None:
 
     cross = (azimuth042 - theta + 180.0) % 360.0 - 180.0
     assert np.max(np.abs(cross)) < 0.1
+
+
+def test_polar_jacobian_matches_finite_differences() -> None:
+    # What a range or azimuth bias does to a plot in the plane, checked against converting
+    # the plot again with the range and the azimuth nudged.
+    site = RadarSite(48.79621389, 21.54087778, 949.0)
+    plane = SystemPlane(48.6, 18.6)
+    rho = np.array([20e3, 150e3, 380e3])
+    theta = np.array([10.0, 200.0, 300.0])
+    height = np.array([3000.0, 10000.0, 11000.0])
+
+    def convert(r: Any, t: Any) -> ConvertedPlots:
+        return convert_plots(site, plane, r, t, height, 100.0, 50.0, 0.07)
+
+    base = convert(rho, theta)
+    longer = convert(rho + 1.0, theta)
+    turned = convert(rho, theta + np.degrees(1e-5))
+    per_metre = np.stack([longer.x - base.x, longer.y - base.y], axis=-1)
+    per_radian = np.stack([turned.x - base.x, turned.y - base.y], axis=-1) / 1e-5
+    assert np.allclose(base.polar_jacobian[:, :, 0], per_metre, atol=1e-5)
+    assert np.allclose(base.polar_jacobian[:, :, 1], per_radian, rtol=1e-4, atol=5.0)

@@ -61,14 +61,13 @@ log = logging.getLogger(__name__)
 NM = 1852.0
 CAT021 = 21
 CAT034 = 34
+CAT048 = 48
 MONITOR_SURVEY_VARIANCE_M2 = 1.0
 """A field monitor's surveyed position: metre-level, against plots of tens of metres."""
 BIAS_HISTORY_S = 10.0
 ABSOLUTE_ENOUGH = 100
 """ADS-B observations of a radar after which other radars' tracks no longer serve as its
 reference."""
-JACOBIAN_STEP_M = 10.0
-JACOBIAN_STEP_RAD = 1e-4
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -190,24 +189,15 @@ def convert_batch(
         theta_c = theta - np.degrees(bias[2])
         times_c = times - bias[3]
 
-    def plane_positions(rho: FloatArray, azimuth: FloatArray) -> Any:
-        return convert_plots(
-            info.site, plane, rho, azimuth, height, height_sigma, sigma_rho, sigma_theta
-        )
-
-    converted = plane_positions(rho_c, theta_c)
+    converted = convert_plots(
+        info.site, plane, rho_c, theta_c, height, height_sigma, sigma_rho, sigma_theta
+    )
     c: FloatArray | None = None
     if bias is not None:
-        # The bias Jacobian by finite differences on the same conversion: exact to the
-        # metre, and no second copy of the geometry to keep in step.
-        along_range = plane_positions(rho_c + JACOBIAN_STEP_M, theta_c)
-        along_azimuth = plane_positions(rho_c, theta_c + np.degrees(JACOBIAN_STEP_RAD))
         c = np.zeros((n, 2, 4))
-        c[:, 0, 0] = (along_range.x - converted.x) / JACOBIAN_STEP_M
-        c[:, 1, 0] = (along_range.y - converted.y) / JACOBIAN_STEP_M
-        c[:, :, 1] = c[:, :, 0] * rho_c[:, None]
-        c[:, 0, 2] = (along_azimuth.x - converted.x) / JACOBIAN_STEP_RAD
-        c[:, 1, 2] = (along_azimuth.y - converted.y) / JACOBIAN_STEP_RAD
+        c[:, :, 0] = converted.polar_jacobian[:, :, 0]
+        c[:, :, 1] = converted.polar_jacobian[:, :, 0] * rho_c[:, None]
+        c[:, :, 2] = converted.polar_jacobian[:, :, 1]
     ids = np.arange(first_id, first_id + n, dtype=np.int64)
     mode3a = np.asarray(raw["mode3a"], dtype=np.int64)
 
@@ -349,6 +339,8 @@ class Chain:
         if self.adsb is not None:
             for block in blocks_of(payload, CAT021):
                 self.adsb.feed(block, received)
+        if next(blocks_of(payload, CAT048), None) is None:
+            return []  # service messages or ADS-B only: no plot to extract
         raw = extract_plots(payload).plots
         if len(raw) == 0:
             return []

@@ -29,6 +29,9 @@ class ConvertedPlots:
     - ``R``: horizontal covariance in the plane, m^2.
     - ``lat_deg``, ``lon_deg``: geodetic position (for outputs and for other planes).
     - ``elevation_rad``: elevation at the radar (a steep plot is one whose height matters).
+    - ``polar_jacobian``: (N, 2, 2), the plane position's derivatives with respect to the
+      slant range (m per m, first column) and the azimuth (m per rad, second column), at
+      constant height: what a range or azimuth bias does to the plot.
     """
 
     x: FloatArray
@@ -39,6 +42,7 @@ class ConvertedPlots:
     lat_deg: FloatArray
     lon_deg: FloatArray
     elevation_rad: FloatArray
+    polar_jacobian: FloatArray
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
@@ -100,6 +104,14 @@ def convert_plots(
         + jacobian[..., 2] * height_sigma[:, None]
     )
     covariance += shift[:, :, None] * shift[:, None, :]
+    across = np.stack([np.cos(np.radians(azimuth)), -np.sin(np.radians(azimuth))], axis=-1)
+    polar_jacobian = np.stack(
+        [
+            np.einsum("nij,nj->ni", a, along * geometry.range_gain("target")[:, None]),
+            np.einsum("nij,nj->ni", a, across * geometry.ground_range_m[:, None]),
+        ],
+        axis=-1,
+    )
     return ConvertedPlots(
         x=e,
         y=n,
@@ -109,4 +121,5 @@ def convert_plots(
         lat_deg=lat,
         lon_deg=lon,
         elevation_rad=geometry.elevation_rad,
+        polar_jacobian=polar_jacobian,
     )
