@@ -132,6 +132,8 @@ def _bias_figure(plt: Any, directory: Path, evaluation: Evaluation) -> str:
     scale = np.array([1.0, 1e6, 1.0, 1000.0])
     units = ("range offset m", "range gain ppm", "azimuth deg", "time ms")
     fig, axes = plt.subplots(4, 1, figsize=(9, 11), sharex=True)
+    # The prior's first minute would flatten the rest: each axis spans what comes after.
+    settled = np.zeros(4)
     for source in sorted({s for _, s, *_ in history}):
         entries = [(t, b, p) for t, s, b, p in history if s == source]
         times = np.array([t for t, _, _ in entries]) - t0
@@ -145,7 +147,13 @@ def _bias_figure(plt: Any, directory: Path, evaluation: Evaluation) -> str:
             (line,) = ax.plot(times, error, lw=1, label=source)
             band = sigmas[:, k] * scale[k]
             ax.fill_between(times, error - band, error + band, color=line.get_color(), alpha=0.15)
-    for ax, unit in zip(axes, units, strict=True):
+            late = times >= 0.1 * times.max()
+            if late.any():
+                reach = np.nanmax(np.abs(error[late]) + band[late])
+                settled[k] = max(settled[k], float(reach))
+    for ax, unit, reach in zip(axes, units, settled, strict=True):
+        if reach > 0:
+            ax.set_ylim(-2.0 * reach, 2.0 * reach)
         ax.axhline(0.0, color="k", lw=0.6)
         ax.set_ylabel(f"error, {unit}")
     axes[0].legend(loc="upper right")
