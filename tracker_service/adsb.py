@@ -24,7 +24,7 @@ from asterix.codec import Block, decode_blocks
 from tracker_service.geodesy import SystemPlane
 from tracker_service.ingest import posix_from_time_of_day
 
-__all__ = ["NACP_SIGMA_M", "AdsbReference", "AdsbReports"]
+__all__ = ["NACP_EPU_M", "NACP_SIGMA_M", "SIGMA_PER_EPU", "AdsbReference", "AdsbReports"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -36,21 +36,24 @@ NM = 1852.0
 EARTH_RADIUS_M = 6_371_000.0
 MANOEUVRE_M_S2 = 2.0
 
-# NACp -> 95 % horizontal error bound (DO-260B) -> 1-sigma per axis of a circular
-# Gaussian (95 % within 2.448 sigma).
-NACP_SIGMA_M = {
-    nacp: bound / 2.448
-    for nacp, bound in {
-        11: 3.0,
-        10: 10.0,
-        9: 30.0,
-        8: 92.6,
-        7: 185.2,
-        6: 555.6,
-        5: 926.0,
-        4: 1852.0,
-    }.items()
+NACP_EPU_M = {
+    11: 3.0,
+    10: 10.0,
+    9: 30.0,
+    8: 92.6,
+    7: 185.2,
+    6: 555.6,
+    5: 926.0,
+    4: 1852.0,
+    3: 3704.0,
+    2: 7408.0,
+    1: 18520.0,
+    0: 37040.0,
 }
+"""NACp -> the 95 % horizontal position error bound (EPU) in metres, DO-260B."""
+SIGMA_PER_EPU = 1.0 / 2.448
+"""A circular 2-D Gaussian holds 95 % of its mass within 2.448 sigma."""
+NACP_SIGMA_M = {nacp: bound * SIGMA_PER_EPU for nacp, bound in NACP_EPU_M.items() if nacp >= 4}
 """Only NACp 4 and better is used: worse says the position is not fit for a reference."""
 
 

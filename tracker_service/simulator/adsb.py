@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from asterix import encode_record
+from tracker_service.adsb import NACP_EPU_M, SIGMA_PER_EPU
 from tracker_service.simulator import geometry
 from tracker_service.simulator.radar import (
     FT,
@@ -23,23 +24,6 @@ from tracker_service.simulator.radar import (
 from tracker_service.simulator.scenario import NM, AdsbStation, Scenario
 from tracker_service.simulator.trajectories import Truth
 
-# NACp -> 95 % horizontal position error bound (EPU) in metres, DO-260B.
-NACP_EPU_M = {
-    11: 3.0,
-    10: 10.0,
-    9: 30.0,
-    8: 92.6,
-    7: 185.2,
-    6: 555.6,
-    5: 926.0,
-    4: 1852.0,
-    3: 3704.0,
-    2: 7408.0,
-    1: 18520.0,
-    0: 37040.0,
-}
-# A circular 2-D Gaussian holds 95 % of its mass within 2.448 sigma.
-SIGMA_PER_EPU = 1.0 / 2.448
 EARTH_M_PER_DEG = 111_320.0
 
 
