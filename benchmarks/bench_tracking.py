@@ -105,12 +105,17 @@ def bench_recording(path: str) -> None:
         return trackers[source]
 
     result = run_pipeline(path, make_tracker=make)
-    print(f"{'radar':>7} {'period s':>9} {'plots':>8} {'plots/batch':>12} {'plots/s':>10}")
+    print(
+        f"{'radar':>7} {'period s':>9} {'plots':>8} {'plots/batch':>12} {'us/batch':>9}"
+        f" {'plots/s':>10}"
+    )
     for source, run in result.radars.items():
         tracker = trackers[source]
         print(
             f"{source:>7} {run.info.period_s:>9.1f} {tracker.plots:>8} "
-            f"{tracker.plots / tracker.batches:>12.1f} {tracker.plots / tracker.seconds:>10,.0f}"
+            f"{tracker.plots / tracker.batches:>12.1f} "
+            f"{tracker.seconds / tracker.batches * 1e6:>9.0f} "
+            f"{tracker.plots / tracker.seconds:>10,.0f}"
         )
 
 

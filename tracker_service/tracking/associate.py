@@ -32,7 +32,9 @@ def candidate_pairs(
     reach = float(track_radius.max() + plot_radius.max())
     lo = plot_xy.min(axis=0) - reach
     hi = plot_xy.max(axis=0) + reach
-    near = np.flatnonzero(np.all((track_xy >= lo) & (track_xy <= hi), axis=1))
+    # Column by column: a reduction along a 2-long axis costs more than the comparisons.
+    tx, ty = track_xy[:, 0], track_xy[:, 1]
+    near = np.flatnonzero((tx >= lo[0]) & (tx <= hi[0]) & (ty >= lo[1]) & (ty <= hi[1]))
     if near.size == 0:
         return empty, empty
     reach = float(track_radius[near].max() + plot_radius.max())
@@ -48,18 +50,25 @@ def pairs_within(
     """(i, j, distance) of the points a[i], b[j] within ``reach``, in the order of
     ``cKDTree(a).sparse_distance_matrix(cKDTree(b), reach, output_type="ndarray")``.
 
-    When both sets fit in one leaf, both trees are a single leaf, whose search is a double
-    loop in (i, j) order with these same distances: done here directly, without the cost
-    of building two trees for a few points (the usual sector batch)."""
-    if a.shape[0] <= KDTREE_LEAF_SIZE and b.shape[0] <= KDTREE_LEAF_SIZE:
-        d = a[:, None, :] - b[None, :, :]
-        dist = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1])
-        i, j = np.nonzero(dist <= reach)
-        return i, j, dist[i, j]
-    found = cKDTree(a, leafsize=KDTREE_LEAF_SIZE).sparse_distance_matrix(
-        cKDTree(b, leafsize=KDTREE_LEAF_SIZE), reach, output_type="ndarray"
-    )
-    return found["i"].astype(np.int64), found["j"].astype(np.int64), found["v"]
+    When b fits in one leaf (the usual sector batch), its tree is that single leaf, and
+    the search visits a's leaves in the order of a's tree (``indices``), each with a
+    double loop in (i, j) order, with these same distances (scipy's ``traverse`` in
+    sparse_distances.cxx): done here directly. a's tree is built only when a does not
+    fit in one leaf, and only for that order."""
+    if b.shape[0] > KDTREE_LEAF_SIZE:
+        found = cKDTree(a, leafsize=KDTREE_LEAF_SIZE).sparse_distance_matrix(
+            cKDTree(b, leafsize=KDTREE_LEAF_SIZE), reach, output_type="ndarray"
+        )
+        return found["i"].astype(np.int64), found["j"].astype(np.int64), found["v"]
+    d = a[:, None, :] - b[None, :, :]
+    dist = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1])
+    i, j = np.nonzero(dist <= reach)
+    if a.shape[0] > KDTREE_LEAF_SIZE:
+        leaf_order = np.empty(a.shape[0], dtype=np.int64)
+        leaf_order[cKDTree(a, leafsize=KDTREE_LEAF_SIZE).indices] = np.arange(a.shape[0])
+        by_leaf = np.argsort(leaf_order[i], kind="stable")
+        i, j = i[by_leaf], j[by_leaf]
+    return i, j, dist[i, j]
 
 
 def global_nearest_neighbour(rows: IntArray, cols: IntArray, cost: FloatArray) -> IntArray:
@@ -73,6 +82,8 @@ def global_nearest_neighbour(rows: IntArray, cols: IntArray, cost: FloatArray) -
     row_count = np.bincount(rows)
     col_count = np.bincount(cols)
     lone = (row_count[rows] == 1) & (col_count[cols] == 1)
+    if lone.all():
+        return np.arange(rows.size)  # no conflict: the usual sector
     chosen = [np.flatnonzero(lone)]
     rest = np.flatnonzero(~lone)
     if rest.size:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -31,93 +30,125 @@ PLOT_DTYPE = np.dtype(
 )
 """Structured-array form of the input, one row per plot (see ``PlotArrays``)."""
 
+_PLOT_BYTES = np.dtype((np.void, PLOT_DTYPE.itemsize))
+"""A plot row as opaque bytes (see ``as_bytes``), made once: a dtype costs to build."""
 
-@dataclass(frozen=True)
+
+def as_bytes(rows: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """A structured array's rows as opaque fixed-size bytes (a view). numpy copies these
+    whole rows at once, where a structured copy goes field by field: several times
+    slower on the few rows of a sector. ``.view(dtype)`` turns the copy back."""
+    return rows.view(np.dtype((np.void, rows.dtype.itemsize)))
+
+
 class PlotArrays:
     """Plots as columns: time (POSIX s, of measurement), x, y (m, east/north), R (N, 2, 2),
     flight_level (NaN absent), fl_valid, mode3a (-1 absent), mode3a_valid, address (24 bit,
-    -1 absent), typ (I048/020 TYP), plot_id."""
+    -1 absent), typ (I048/020 TYP), plot_id.
 
-    time: FloatArray
-    x: FloatArray
-    y: FloatArray
-    R: FloatArray
-    flight_level: FloatArray
-    fl_valid: BoolArray
-    mode3a: IntArray
-    mode3a_valid: BoolArray
-    address: IntArray
-    typ: IntArray
-    plot_id: IntArray
+    The columns are views of one ``PLOT_DTYPE`` array, ``rows``, so that taking,
+    selecting or joining plots is one copy of whole rows instead of one per column (the
+    tracker does this several times per sector of a few plots). The rows are never
+    written in place, so plots may share them."""
+
+    __slots__ = ("rows",)
+
+    def __init__(self, rows: npt.NDArray[Any]) -> None:
+        self.rows = rows
+
+    @property
+    def time(self) -> FloatArray:
+        column: FloatArray = self.rows["time"]
+        return column
+
+    @property
+    def x(self) -> FloatArray:
+        column: FloatArray = self.rows["x"]
+        return column
+
+    @property
+    def y(self) -> FloatArray:
+        column: FloatArray = self.rows["y"]
+        return column
+
+    @property
+    def R(self) -> FloatArray:
+        column: FloatArray = self.rows["R"]
+        return column
+
+    @property
+    def flight_level(self) -> FloatArray:
+        column: FloatArray = self.rows["flight_level"]
+        return column
+
+    @property
+    def fl_valid(self) -> BoolArray:
+        column: BoolArray = self.rows["fl_valid"]
+        return column
+
+    @property
+    def mode3a(self) -> IntArray:
+        column: IntArray = self.rows["mode3a"]
+        return column
+
+    @property
+    def mode3a_valid(self) -> BoolArray:
+        column: BoolArray = self.rows["mode3a_valid"]
+        return column
+
+    @property
+    def address(self) -> IntArray:
+        column: IntArray = self.rows["address"]
+        return column
+
+    @property
+    def typ(self) -> IntArray:
+        column: IntArray = self.rows["typ"]
+        return column
+
+    @property
+    def plot_id(self) -> IntArray:
+        column: IntArray = self.rows["plot_id"]
+        return column
 
     def __len__(self) -> int:
-        return int(self.time.shape[0])
-
-    def columns(self) -> tuple[Any, ...]:
-        """The fields in declaration order. Spelt out rather than built with
-        ``dataclasses.fields``: this runs several times per batch, and the reflection cost
-        more than the indexing of a small batch."""
-        return (
-            self.time,
-            self.x,
-            self.y,
-            self.R,
-            self.flight_level,
-            self.fl_valid,
-            self.mode3a,
-            self.mode3a_valid,
-            self.address,
-            self.typ,
-            self.plot_id,
-        )
+        return int(self.rows.shape[0])
 
     def take(self, index: npt.NDArray[Any]) -> PlotArrays:
-        return PlotArrays(*(column[index] for column in self.columns()))
+        """The rows at ``index`` (integers or a mask), always a copy."""
+        return PlotArrays(self.rows.view(_PLOT_BYTES)[index].view(PLOT_DTYPE))
 
     def select(self, mask: BoolArray) -> PlotArrays:
         """The rows where ``mask`` is true; ``self`` itself when it keeps every row (the
-        usual case, and columns are never written in place, so sharing them is safe)."""
+        usual case)."""
         return self if mask.all() else self.take(mask)
 
     @staticmethod
     def concat(a: PlotArrays, b: PlotArrays) -> PlotArrays:
         if len(b) == 0:
-            return a  # the columns are never written in place, so sharing them is safe
+            return a
         if len(a) == 0:
             return b
-        return PlotArrays(
-            *(np.concatenate([ca, cb]) for ca, cb in zip(a.columns(), b.columns(), strict=True))
-        )
+        joined = np.concatenate([a.rows.view(_PLOT_BYTES), b.rows.view(_PLOT_BYTES)])
+        return PlotArrays(joined.view(PLOT_DTYPE))
 
     @staticmethod
     def empty() -> PlotArrays:
-        return PlotArrays(*(column[:0] for column in _EMPTY.columns()))
+        return _EMPTY
 
 
 def as_plot_arrays(plots: PlotArrays | npt.NDArray[Any]) -> PlotArrays:
-    """Columns of known dtypes from a ``PlotArrays`` or a structured array with these fields."""
-
-    def col(name: str, dtype: type[Any]) -> Any:
-        values = getattr(plots, name) if isinstance(plots, PlotArrays) else plots[name]
-        return np.ascontiguousarray(values, dtype=dtype)
-
-    if isinstance(plots, PlotArrays) and _has_column_dtypes(plots):
-        return plots  # already columns of the right dtypes: no copy per batch
-    time = col("time", np.float64)
-    r = col("R", np.float64).reshape(time.shape[0], 2, 2)
-    return PlotArrays(
-        time=time,
-        x=col("x", np.float64),
-        y=col("y", np.float64),
-        R=r,
-        flight_level=col("flight_level", np.float64),
-        fl_valid=col("fl_valid", np.bool_),
-        mode3a=col("mode3a", np.int64),
-        mode3a_valid=col("mode3a_valid", np.bool_),
-        address=col("address", np.int64),
-        typ=col("typ", np.int64),
-        plot_id=col("plot_id", np.int64),
-    )
+    """``PlotArrays`` from a ``PlotArrays`` or a structured array with these fields. A
+    contiguous ``PLOT_DTYPE`` array is wrapped, not copied: callers that keep plots
+    beyond the batch keep copies (``take``)."""
+    if isinstance(plots, PlotArrays):
+        return plots
+    if plots.dtype == PLOT_DTYPE and plots.flags.c_contiguous:
+        return PlotArrays(plots)
+    rows = np.zeros(plots.shape[0], dtype=PLOT_DTYPE)
+    for name in PLOT_DTYPE.names or ():
+        rows[name] = plots[name].reshape(rows[name].shape)
+    return PlotArrays(rows)
 
 
 def is_shared_code(code: IntArray) -> BoolArray:
@@ -128,29 +159,4 @@ def is_shared_code(code: IntArray) -> BoolArray:
     return shared
 
 
-_COLUMN_DTYPES = tuple(
-    np.dtype(t)
-    for t in (
-        np.float64,
-        np.float64,
-        np.float64,
-        np.float64,
-        np.float64,
-        np.bool_,
-        np.int64,
-        np.bool_,
-        np.int64,
-        np.int64,
-        np.int64,
-    )
-)
-
-
-def _has_column_dtypes(plots: PlotArrays) -> bool:
-    return plots.R.ndim == 3 and all(
-        column.dtype == dtype and column.flags.c_contiguous
-        for column, dtype in zip(plots.columns(), _COLUMN_DTYPES, strict=True)
-    )
-
-
-_EMPTY = as_plot_arrays(np.zeros(0, dtype=PLOT_DTYPE))
+_EMPTY = PlotArrays(np.zeros(0, dtype=PLOT_DTYPE))

@@ -1,5 +1,5 @@
 """The per-radar local tracker: association, IMM update, initiation, confirmation, coasting
-and deletion of every track of one radar, held in one structured numpy array.
+and deletion of every track of one radar, held in numpy arrays, one per field.
 
 Per batch the work is vectorised over the batch's candidate track-plot pairs, the tracks
 updated and the tracks aged; the only Python loops run over the IMM's models.
@@ -23,6 +23,7 @@ from tracker_service.tracking.plots import (
     FloatArray,
     IntArray,
     PlotArrays,
+    as_bytes,
     as_plot_arrays,
     is_shared_code,
 )
@@ -58,6 +59,7 @@ def track_update_dtype(n_models: int) -> np.dtype[Any]:
 
 
 def _table_dtype(n_models: int) -> np.dtype[Any]:
+    """The track table's fields; ``LocalTracker`` keeps one array per field."""
     return np.dtype(
         [
             ("number", np.int64),
@@ -79,15 +81,14 @@ def _table_dtype(n_models: int) -> np.dtype[Any]:
             ("t_fl", np.float64),
             ("fl_ok", np.bool_),
             ("fl_rejects", np.int64),
+            # Before this time no further scan can count as missed (see _age).
+            ("due", np.float64),
         ]
     )
 
 
-def as_bytes(rows: npt.NDArray[Any]) -> npt.NDArray[Any]:
-    """A structured array's rows as opaque fixed-size bytes (a view). numpy copies these
-    whole rows at once, where a structured copy goes field by field: several times
-    slower on the few rows of a sector. ``.view(dtype)`` turns the copy back."""
-    return rows.view(np.dtype((np.void, rows.dtype.itemsize)))
+DUE_MARGIN_S = 1e-3
+"""Slack that keeps ``due`` earlier than the exact missed-scan test, whatever its rounding."""
 
 
 @dataclass
@@ -113,7 +114,12 @@ class LocalTracker:
         self.stats = TrackerStats()
         self.initiator = TwoPointInitiator(self.config)
         self.output_dtype = track_update_dtype(self.models.n_models)
-        self._tab: npt.NDArray[Any] = np.zeros(64, dtype=_table_dtype(self.models.n_models))
+        self._table_dtype = _table_dtype(self.models.n_models)
+        # One contiguous array per field, rows [0, _n) live: a sector touches a few rows
+        # of a few fields, and gathering them from a structured array costs a strided
+        # pass per field.
+        self._cols: dict[str, npt.NDArray[Any]] = {}
+        self._allocate(64)
         self._n = 0
         self._next_number = first_track_number
         self._now = -np.inf
@@ -122,6 +128,16 @@ class LocalTracker:
         self._q_max = float(self.models.q.max())
         self._turn_max = float(np.abs(self.models.turn_rates_rad_s).max())
         self._widest_gate = max(self.config.gate, self.config.address_gate)
+        self._scan_tolerance_s = (1.0 + self.config.miss_tolerance) * self.config.scan_period_s
+
+    def _allocate(self, capacity: int) -> None:
+        """(Re)allocate every field for ``capacity`` rows, keeping the live ones."""
+        for name in self._table_dtype.names or ():
+            field = self._table_dtype[name]
+            grown = np.zeros((capacity, *field.shape), dtype=field.base)
+            if name in self._cols:
+                grown[: self._n] = self._cols[name][: self._n]
+            self._cols[name] = grown
 
     @property
     def _no_rows(self) -> npt.NDArray[Any]:
@@ -129,24 +145,29 @@ class LocalTracker:
 
     @property
     def tracks(self) -> npt.NDArray[Any]:
-        """The live tracks' internal rows (a copy): for inspection and tests."""
-        return self._tab[: self._n].copy()
+        """The live tracks' internal rows (a copy, as one structured array): for
+        inspection and tests."""
+        out = np.zeros(self._n, dtype=self._table_dtype)
+        for name in self._table_dtype.names or ():
+            out[name] = self._cols[name][: self._n]
+        return out
 
     def process(self, plots: PlotArrays | npt.NDArray[Any]) -> npt.NDArray[Any]:
         p = as_plot_arrays(plots)
         self.stats.plots += len(p)
+        r = p.R
         valid = (
             np.isfinite(p.time)
             & np.isfinite(p.x)
             & np.isfinite(p.y)
-            & np.all(np.isfinite(p.R), axis=(1, 2))
-            & (p.R[:, 0, 0] > 0)
-            & (p.R[:, 0, 0] * p.R[:, 1, 1] - p.R[:, 0, 1] * p.R[:, 1, 0] > 0)
+            & np.all(np.isfinite(r), axis=(1, 2))
+            & (r[:, 0, 0] > 0)
+            & (r[:, 0, 0] * r[:, 1, 1] - r[:, 0, 1] * r[:, 1, 0] > 0)
         )
         n_valid = int(np.count_nonzero(valid))
         self.stats.invalid_plots += len(p) - n_valid
         if n_valid < len(p):
-            p = p.take(valid)  # not select: the count is known already
+            p = p.take(valid)
         if n_valid == 0:
             return self._no_rows
         now = max(self._now, float(p.time.max()))
@@ -155,14 +176,13 @@ class LocalTracker:
         rows: list[npt.NDArray[Any]] = []
 
         used, blocked, updated = self._associate(p, rows)
-        unused = ~used & ~blocked
-        # The initiator keeps plots across batches: never the caller's own arrays.
-        first, second = self.initiator.pair(p.take(unused) if p is plots else p.select(unused), now)
-        rows.append(self._create(first, second))
-        rows.append(self._age(now, updated, n_old))
+        # A copy: the initiator keeps plots across batches, never the caller's array.
+        first, second = self.initiator.pair(p.take(~used & ~blocked), now)
+        if len(second):
+            rows.append(self._create(first, second))
+        self._age(now, updated, n_old, rows)
         # Concatenating structured arrays promotes their dtypes field by field: join only
-        # the non-empty parts (most batches have one), and as raw rows (see as_bytes).
-        rows = [r for r in rows if r.size]
+        # when there are several parts (most batches have one), and as raw rows.
         if len(rows) == 1:
             return rows[0]
         if not rows:
@@ -177,21 +197,27 @@ class LocalTracker:
         Returns the plots used, the plots kept from initiation (too late, or in a confirmed
         track's gate: a split or a second plot of a known target), and the tracks updated."""
         cfg = self.config
+        cols = self._cols
         n = self._n
-        tab = self._tab[:n]
         used = np.zeros(len(p), dtype=bool)
         blocked = np.zeros(len(p), dtype=bool)
         updated = np.zeros(n, dtype=bool)
+        if n == 0:
+            return used, blocked, updated
+        time = p.time
         plot_xy = np.column_stack([p.x, p.y])
-        t_mid = 0.5 * float(p.time.min() + p.time.max())
-        spread = float(np.max(np.abs(p.time - t_mid)))
-        coarse_xy, radius = self._reach(tab, t_mid, spread)
-        plot_radius = np.sqrt(cfg.gate * (p.R[:, 0, 0] + p.R[:, 1, 1]))
+        t_min, t_max = float(time.min()), float(time.max())
+        t_mid = 0.5 * (t_min + t_max)
+        # max |t - t_mid| over the batch: rounding keeps t - t_mid monotonic in t.
+        spread = max(t_max - t_mid, t_mid - t_min)
+        coarse_xy, radius = self._reach(n, t_mid, spread)
+        r = p.R
+        plot_radius = np.sqrt(cfg.gate * (r[:, 0, 0] + r[:, 1, 1]))
         ti, pj = candidate_pairs(coarse_xy, radius, plot_xy, plot_radius)
         if ti.size == 0:
             # No track near the sector (common for sparse sectors): nothing to predict.
             return used, blocked, updated
-        dt = p.time[pj] - tab["t"][ti]
+        dt = time[pj] - cols["t"][ti]
         late = dt < -cfg.max_backward_s
         too_old = np.zeros(len(p), dtype=bool)
         if late.any():
@@ -202,33 +228,31 @@ class LocalTracker:
             self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
             return used, blocked, updated
 
-        pred = imm.predict(tab["x"][ti], tab["P"][ti], tab["mu"][ti], dt, self.models)
-        z, r = plot_xy[pj], p.R[pj]
-        nis, log_det = imm.innovation_test(pred, z, r)
-        addr_t, addr_p = tab["address"][ti], p.address[pj]
+        pred = imm.predict(cols["x"][ti], cols["P"][ti], cols["mu"][ti], dt, self.models)
+        nis, log_det = imm.innovation_test(pred, plot_xy[pj], r[pj])
+        addr_t, addr_p = cols["address"][ti], p.address[pj]
         same_address = (addr_t >= 0) & (addr_t == addr_p)
         gated = np.flatnonzero(nis <= np.where(same_address, cfg.address_gate, cfg.gate))
         if gated.size == 0:
             # Skip the assignment and the IMM update: no pair passed its gate.
             self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
             return used, blocked, updated
-        blocked[pj[gated[tab["status"][ti[gated]] == CONFIRMED]]] = True
-        cost = nis[gated] + log_det[gated] + self._identity_cost(tab, ti[gated], p, pj[gated])
-        sel = gated[global_nearest_neighbour(ti[gated], pj[gated], cost)]
+        tg, pg = ti[gated], pj[gated]
+        blocked[pg[cols["status"][tg] == CONFIRMED]] = True
+        cost = nis[gated] + log_det[gated] + self._identity_cost(tg, p, pg)
+        sel = gated[global_nearest_neighbour(tg, pg, cost)]
         tracks, plot_index = ti[sel], pj[sel]
         used[plot_index] = True
         updated[tracks] = True
         self.stats.late_plots_dropped += int(np.count_nonzero(too_old & ~used))
         self.stats.plots_associated += int(tracks.size)
-        rows.append(self._apply(tab, tracks, p.take(plot_index), pred.take(sel)))
+        rows.append(self._apply(tracks, p.take(plot_index), pred.take(sel)))
         return used, blocked, updated
 
-    def _reach(
-        self, tab: npt.NDArray[Any], t_mid: float, spread: float
-    ) -> tuple[FloatArray, FloatArray]:
+    def _reach(self, n: int, t_mid: float, spread: float) -> tuple[FloatArray, FloatArray]:
         """Coarse positions at the batch's middle time and a radius bounding every gate."""
-        xc, pc = tab["xc"], tab["Pc"]
-        dt = t_mid - tab["t"]
+        xc, pc = self._cols["xc"][:n], self._cols["Pc"][:n]
+        dt = t_mid - self._cols["t"][:n]
         a = np.abs(dt) + spread
         var = (
             pc[:, 0, 0]
@@ -247,17 +271,15 @@ class LocalTracker:
         )
         return xc[:, :2] + xc[:, 2:] * dt[:, None], radius
 
-    def _identity_cost(
-        self, tab: npt.NDArray[Any], ti: IntArray, p: PlotArrays, pj: IntArray
-    ) -> FloatArray:
+    def _identity_cost(self, ti: IntArray, p: PlotArrays, pj: IntArray) -> FloatArray:
         """Identity shifts the cost among gated pairs only: it never opens a gate."""
         cfg = self.config
-        addr_t, addr_p = tab["address"][ti], p.address[pj]
+        addr_t, addr_p = self._cols["address"][ti], p.address[pj]
         both = (addr_t >= 0) & (addr_p >= 0)
-        code_t, code_p = tab["mode3a"][ti], p.mode3a[pj]
-        code_match = (
-            p.mode3a_valid[pj] & (code_t >= 0) & (code_t == code_p) & ~is_shared_code(code_p)
-        )
+        code_t, code_p = self._cols["mode3a"][ti], p.mode3a[pj]
+        code_match = p.mode3a_valid[pj] & (code_t >= 0) & (code_t == code_p)
+        if code_match.any():
+            code_match &= ~is_shared_code(code_p)
         return np.asarray(
             cfg.address_mismatch_penalty * (both & (addr_t != addr_p))
             - cfg.address_bonus * (both & (addr_t == addr_p))
@@ -265,232 +287,265 @@ class LocalTracker:
             dtype=np.float64,
         )
 
-    def _apply(
-        self,
-        tab: npt.NDArray[Any],
-        ti: IntArray,
-        p: PlotArrays,
-        pred: imm.ImmPrediction,
-    ) -> npt.NDArray[Any]:
+    def _apply(self, ti: IntArray, p: PlotArrays, pred: imm.ImmPrediction) -> npt.NDArray[Any]:
+        """Update the tracks ``ti`` with their plots ``p``; their output rows."""
         cfg = self.config
-        z = np.column_stack([p.x, p.y])
-        x_new, p_new, mu_new = imm.update(pred, z, p.R)
+        cols = self._cols
+        time = p.time
+        x_new, p_new, mu_new = imm.update(pred, np.column_stack([p.x, p.y]), p.R)
         xc, pc = imm.combine(x_new, p_new, mu_new)
-        # One gather of the assigned rows, updated field by field, and one scatter back:
-        # indexing each field at ti would cost a gather and a scatter per field.
-        r = as_bytes(tab)[ti].view(tab.dtype)
-        r["x"] = x_new
-        r["P"] = p_new
-        r["mu"] = mu_new
-        r["xc"] = xc
-        r["Pc"] = pc
-        r["t"] = p.time
+        cols["x"][ti] = x_new
+        cols["P"][ti] = p_new
+        cols["mu"][ti] = mu_new
+        cols["xc"][ti] = xc
+        cols["Pc"][ti] = pc
+        cols["t"][ti] = time
         # A plot of the scan already counted (a late one) must not count a second hit.
-        same_scan = p.time < r["t_hit"] + 0.5 * cfg.scan_period_s
-        hist = r["hist"]
-        r["hist"] = np.where(same_scan, hist | 1, ((hist << 1) | 1) & self._hist_mask)
-        r["t_hit"] = np.maximum(r["t_hit"], p.time)
-        r["misses"] = 0
-        r["address"] = np.where(p.address >= 0, p.address, r["address"])
-        r["mode3a"] = np.where(p.mode3a_valid & (p.mode3a >= 0), p.mode3a, r["mode3a"])
-        self._update_vertical(r, p)
-        as_bytes(tab)[ti] = as_bytes(r)  # before _confirm, which looks at every live track
-        self._confirm(tab, r)
-        self._demote_slow_primary(r)
-        tab["status"][ti] = r["status"]
-        return self._rows(r, p.time, r["status"], p.plot_id, mu_new)
+        t_hit = cols["t_hit"][ti]
+        hist = cols["hist"][ti]
+        same_scan = time < t_hit + 0.5 * cfg.scan_period_s
+        hist = np.where(same_scan, hist | 1, ((hist << 1) | 1) & self._hist_mask)
+        cols["hist"][ti] = hist
+        t_hit = np.maximum(t_hit, time)
+        cols["t_hit"][ti] = t_hit
+        cols["due"][ti] = t_hit + (self._scan_tolerance_s - DUE_MARGIN_S)
+        cols["misses"][ti] = 0
+        address = np.where(p.address >= 0, p.address, cols["address"][ti])
+        cols["address"][ti] = address
+        mode3a = np.where(p.mode3a_valid & (p.mode3a >= 0), p.mode3a, cols["mode3a"][ti])
+        cols["mode3a"][ti] = mode3a
+        self._update_vertical(ti, p)
+        status = cols["status"][ti]
+        self._confirm(ti, status, hist)  # after every other field is written
+        # A confirmed track without any secondary reply that has slowed to clutter speed
+        # goes back to tentative: its first, noisy velocity may have passed the speed test.
+        primary_only = (address < 0) & (mode3a < 0)
+        if primary_only.any():
+            speed = np.hypot(xc[:, 2], xc[:, 3])
+            slow = primary_only & (speed < cfg.min_confirm_speed_psr_only_m_s)
+            status[slow & (status == CONFIRMED)] = TENTATIVE
+        cols["status"][ti] = status
+        return self._rows(ti, time, status, p.plot_id, mu_new, xc, pc)
 
-    def _demote_slow_primary(self, r: npt.NDArray[Any]) -> None:
-        """A confirmed track without any secondary reply that has slowed to clutter speed
-        goes back to tentative: its first, noisy velocity may have passed the speed test.
-        ``r``: the updated tracks' rows, changed in place."""
-        primary_only = (r["address"] < 0) & (r["mode3a"] < 0)
-        speed = np.hypot(r["xc"][:, 2], r["xc"][:, 3])
-        slow = primary_only & (speed < self.config.min_confirm_speed_psr_only_m_s)
-        r["status"][slow & (r["status"] == CONFIRMED)] = TENTATIVE
-
-    def _update_vertical(self, r: npt.NDArray[Any], p: PlotArrays) -> None:
-        """Vertical filter of the tracks' rows ``r`` (changed in place) with their plots."""
+    def _update_vertical(self, ti: IntArray, p: PlotArrays) -> None:
+        """Vertical filter of the tracks ``ti`` with their plots ``p``."""
         cfg = self.config
+        cols = self._cols
         has = p.fl_valid & np.isfinite(p.flight_level)
         if not has.any():
             return  # a primary-only batch: no vertical work at all
-        if has.all():
-            rows, fl, t, typ = r, p.flight_level, p.time, p.typ
-        else:
-            rows, fl, t, typ = r[has], p.flight_level[has], p.time[has], p.typ[has]
-        var = vertical.measurement_variance(fl, typ, cfg)
-        fl_old, rate_old, pv_old = rows["fl"], rows["rate"], rows["Pv"]
-        start = ~rows["fl_ok"]
-        fl_p, rate_p, pv_p = vertical.predict(
-            fl_old, rate_old, pv_old, t - rows["t_fl"], cfg.q_vertical
-        )
+        if not has.all():
+            ti, p = ti[has], p.take(has)
+        fl, t = p.flight_level, p.time
+        var = vertical.measurement_variance(fl, p.typ, cfg)
+        fl_old, rate_old, pv_old = cols["fl"][ti], cols["rate"][ti], cols["Pv"][ti]
+        t_fl = cols["t_fl"][ti]
+        start = ~cols["fl_ok"][ti]
+        fl_p, rate_p, pv_p = vertical.predict(fl_old, rate_old, pv_old, t - t_fl, cfg.q_vertical)
         fl_u, rate_u, pv_u, ok = vertical.update(fl_p, rate_p, pv_p, fl, var, cfg.fl_gate)
-        rejects = np.where(ok, 0, rows["fl_rejects"] + 1)
+        if ok.all() and not start.any():
+            # Every level accepted by a running filter (the usual batch): no restart.
+            cols["fl"][ti], cols["rate"][ti], cols["Pv"][ti] = fl_u, rate_u, pv_u
+            cols["t_fl"][ti] = t
+            cols["fl_rejects"][ti] = 0
+            return
+        rejects = np.where(ok, 0, cols["fl_rejects"][ti] + 1)
         start |= rejects >= cfg.fl_max_rejects
         fresh = np.zeros((fl.shape[0], 2, 2))
         fresh[:, 0, 0] = var
         fresh[:, 1, 1] = cfg.initial_climb_variance
         # A rejected level (garbled Mode C) leaves the old state at its old time.
-        rows["fl"] = np.where(start, fl, np.where(ok, fl_u, fl_old))
-        rows["rate"] = np.where(start, 0.0, np.where(ok, rate_u, rate_old))
-        rows["Pv"] = np.where(
+        cols["fl"][ti] = np.where(start, fl, np.where(ok, fl_u, fl_old))
+        cols["rate"][ti] = np.where(start, 0.0, np.where(ok, rate_u, rate_old))
+        cols["Pv"][ti] = np.where(
             start[:, None, None], fresh, np.where(ok[:, None, None], pv_u, pv_old)
         )
-        rows["t_fl"] = np.where(start | ok, t, rows["t_fl"])
-        rows["fl_rejects"] = np.where(start, 0, rejects)
-        rows["fl_ok"] = True
-        if rows is not r:
-            r[has] = rows
+        cols["t_fl"][ti] = np.where(start | ok, t, t_fl)
+        cols["fl_rejects"][ti] = np.where(start, 0, rejects)
+        cols["fl_ok"][ti] = True
 
-    def _confirm(self, tab: npt.NDArray[Any], r: npt.NDArray[Any]) -> None:
+    def _confirm(self, ti: IntArray, status: npt.NDArray[Any], hist: IntArray) -> None:
         """M of N, except for a tentative track that echoes a confirmed track that is
         associating (a reflection or a split, since the original follows the
         kinematics; see ``_echoes``), and for a slow track that never had a secondary
-        reply (clutter). ``r``: the rows to confirm (changed in place), already written
-        to ``tab``."""
+        reply (clutter). ``ti``: the tracks to confirm, every field but ``status``
+        already written; ``status``: theirs (changed in place)."""
         candidates = np.flatnonzero(
-            (r["status"] == TENTATIVE) & (np.bitwise_count(r["hist"]) >= self.config.confirm_m)
+            (status == TENTATIVE) & (np.bitwise_count(hist) >= self.config.confirm_m)
         )
         if candidates.size == 0:
             return
-        live = (tab["status"] == CONFIRMED) & (tab["misses"] == 0) & (tab["address"] >= 0)
-        clash = self._echoes(r[candidates], tab[live])
-        address = r["address"][candidates]
-        primary_only = (address < 0) & (r["mode3a"][candidates] < 0)
-        xc = r["xc"][candidates]
+        cols = self._cols
+        n = self._n
+        live = np.flatnonzero(
+            (cols["status"][:n] == CONFIRMED)
+            & (cols["misses"][:n] == 0)
+            & (cols["address"][:n] >= 0)
+        )
+        rows = ti[candidates]
+        clash = self._echoes(rows, live)
+        address = cols["address"][rows]
+        primary_only = (address < 0) & (cols["mode3a"][rows] < 0)
+        xc = cols["xc"][rows]
         speed = np.hypot(xc[:, 2], xc[:, 3])
         slow = primary_only & (speed < self.config.min_confirm_speed_psr_only_m_s)
         confirmed = candidates[~clash & ~slow]
-        r["status"][confirmed] = CONFIRMED
+        status[confirmed] = CONFIRMED
         self.stats.tracks_confirmed += int(confirmed.size)
 
-    def _echoes(self, new: npt.NDArray[Any], live: npt.NDArray[Any]) -> BoolArray:
+    def _echoes(self, new: IntArray, live: IntArray) -> BoolArray:
         """Which ``new`` tracks look like an echo (a reflection or a split) of a ``live``
         confirmed track: the same address with nothing to tell them apart. An echo
         repeats its original's Mode 3/A and Mode C; a second aircraft with the same
         address (DOMAIN.md section 2) flies with its own code or at its own level."""
+        cols = self._cols
         echo = np.zeros(len(new), dtype=bool)
-        for k in np.flatnonzero(new["address"] >= 0).tolist():
-            twins = live[live["address"] == new["address"][k]]
+        live_address = cols["address"][live]
+        for k, row in enumerate(new.tolist()):
+            if cols["address"][row] < 0:
+                continue
+            twins = live[live_address == cols["address"][row]]
             if len(twins) == 0:
                 continue
-            code, fl = new["mode3a"][k], new["fl"][k]
-            other_code = (code >= 0) & (twins["mode3a"] >= 0) & (twins["mode3a"] != code)
+            code, fl = cols["mode3a"][row], cols["fl"][row]
+            twin_code = cols["mode3a"][twins]
+            other_code = (code >= 0) & (twin_code >= 0) & (twin_code != code)
+            twin_fl_ok = cols["fl_ok"][twins]
             other_level = (
-                new["fl_ok"][k]
-                & twins["fl_ok"]
-                & (np.abs(twins["fl"] - fl) > self.config.echo_level_tolerance_fl)
+                cols["fl_ok"][row]
+                & twin_fl_ok
+                & (np.abs(cols["fl"][twins] - fl) > self.config.echo_level_tolerance_fl)
             )
             echo[k] = bool(np.any(~other_code & ~other_level))
         return echo
 
     def _create(self, first: PlotArrays, second: PlotArrays) -> npt.NDArray[Any]:
+        """Start tentative tracks from the initiator's pairs; their output rows."""
         k = len(second)
-        if k == 0:
-            return np.zeros(0, dtype=self.output_dtype)
         cfg = self.config
         start = self._n
-        if start + k > self._tab.shape[0]:
-            grown = np.zeros(max(2 * self._tab.shape[0], start + k), dtype=self._tab.dtype)
-            grown[:start] = self._tab[:start]
-            self._tab = grown
+        if start + k > self._cols["t"].shape[0]:
+            self._allocate(max(2 * self._cols["t"].shape[0], start + k))
         self._n = start + k
-        tab = self._tab[: self._n]
-        fresh: npt.NDArray[Any] = np.zeros(k, dtype=self._tab.dtype)
+        new = np.arange(start, start + k)
         x, pm = two_point_state(
             first, second, float(self.models.q[0]), cfg.init_velocity_variance_scale
         )
-        m = self.models.n_models
-        fresh["number"] = np.arange(self._next_number, self._next_number + k)
+        cols = self._cols
+        # Every field is written: rows past the live ones hold deleted tracks.
+        cols["number"][new] = np.arange(self._next_number, self._next_number + k)
         self._next_number += k
-        fresh["status"] = TENTATIVE
-        fresh["x"] = x[:, None, :]
-        fresh["P"] = pm[:, None, :, :]
-        fresh["mu"] = np.broadcast_to(self.models.initial_probabilities, (k, m))
-        fresh["xc"] = x
-        fresh["Pc"] = pm
-        fresh["t"] = fresh["t_hit"] = second.time
+        cols["x"][new] = x[:, None, :]
+        cols["P"][new] = pm[:, None, :, :]
+        mu = np.broadcast_to(self.models.initial_probabilities, (k, self.models.n_models))
+        cols["mu"][new] = mu
+        cols["xc"][new] = x
+        cols["Pc"][new] = pm
+        cols["t"][new] = cols["t_hit"][new] = second.time
+        cols["due"][new] = second.time + (self._scan_tolerance_s - DUE_MARGIN_S)
+        cols["misses"][new] = 0
         missed_between = second.time - first.time > 1.5 * cfg.scan_period_s
-        fresh["hist"] = np.where(missed_between, 0b101, 0b11) & self._hist_mask
-        fresh["address"] = np.where(second.address >= 0, second.address, first.address)
+        hist = np.where(missed_between, 0b101, 0b11) & self._hist_mask
+        cols["hist"][new] = hist
+        address = np.where(second.address >= 0, second.address, first.address)
+        cols["address"][new] = address
         code2 = np.where(second.mode3a_valid, second.mode3a, -1)
         code1 = np.where(first.mode3a_valid, first.mode3a, -1)
-        fresh["mode3a"] = np.where(code2 >= 0, code2, code1)
-        fresh["fl"] = np.nan
-        self._update_vertical(fresh, first)
-        self._update_vertical(fresh, second)
-        as_bytes(tab)[start:] = as_bytes(fresh)
+        cols["mode3a"][new] = np.where(code2 >= 0, code2, code1)
+        cols["fl"][new] = np.nan
+        cols["rate"][new] = 0.0
+        cols["Pv"][new] = 0.0
+        cols["t_fl"][new] = 0.0
+        cols["fl_ok"][new] = False
+        cols["fl_rejects"][new] = 0
+        self._update_vertical(new, first)
+        self._update_vertical(new, second)
         self.stats.tracks_initiated += k
-        self._confirm(tab, fresh)
-        tab["status"][start:] = fresh["status"]
-        return self._rows(fresh, second.time, fresh["status"], second.plot_id, fresh["mu"])
+        status = np.full(k, TENTATIVE, dtype=np.int8)
+        cols["status"][new] = status
+        self._confirm(new, status, hist)
+        cols["status"][new] = status
+        return self._rows(new, second.time, status, second.plot_id, mu, x, pm)
 
-    def _age(self, now: float, updated: BoolArray, n_old: int) -> npt.NDArray[Any]:
-        """Count missed scans of the tracks without a plot; coast or delete them."""
+    def _age(
+        self, now: float, updated: BoolArray, n_old: int, rows: list[npt.NDArray[Any]]
+    ) -> None:
+        """Count missed scans of the tracks without a plot; coast or delete them. Their
+        output rows, if any, are appended to ``rows``."""
         cfg = self.config
-        tab = self._tab[: self._n]
+        cols = self._cols
+        if n_old == 0 or now < cols["due"][:n_old].min():
+            return  # no track can have missed a scan yet: the usual sector
         idle = np.flatnonzero(~updated[:n_old])
-        elapsed = now - tab["t_hit"][idle]
+        elapsed = now - cols["t_hit"][idle]
         n_miss = np.maximum(np.floor(elapsed / cfg.scan_period_s - cfg.miss_tolerance), 0)
         n_miss = n_miss.astype(np.int64)
-        grow = n_miss > tab["misses"][idle]
+        grow = n_miss > cols["misses"][idle]
         idle, n_miss = idle[grow], n_miss[grow]
         if idle.size == 0:
-            return np.zeros(0, dtype=self.output_dtype)
-        shift = np.minimum(n_miss - tab["misses"][idle], 32)
-        tab["hist"][idle] = (tab["hist"][idle] << shift) & self._hist_mask
-        tab["misses"][idle] = n_miss
-        dt = now - tab["t"][idle]
-        pred = imm.predict(tab["x"][idle], tab["P"][idle], tab["mu"][idle], dt, self.models)
-        status = tab["status"][idle]
+            return
+        shift = np.minimum(n_miss - cols["misses"][idle], 32)
+        cols["hist"][idle] = (cols["hist"][idle] << shift) & self._hist_mask
+        cols["misses"][idle] = n_miss
+        cols["due"][idle] = cols["t_hit"][idle] + (
+            (n_miss + cfg.miss_tolerance + 1.0) * cfg.scan_period_s - DUE_MARGIN_S
+        )
+        dt = now - cols["t"][idle]
+        pred = imm.predict(cols["x"][idle], cols["P"][idle], cols["mu"][idle], dt, self.models)
+        status = cols["status"][idle]
         limit = np.where(status == CONFIRMED, cfg.delete_misses, cfg.tentative_delete_misses)
         position_var = pred.P_comb[:, 0, 0] + pred.P_comb[:, 1, 1]
         dead = (n_miss >= limit) | (position_var > cfg.max_position_variance_m2)
         coasting = (status == CONFIRMED) & ~dead
-        report = dead | coasting
-        out_status = np.where(dead, DELETED, COASTING).astype(np.int8)
-        rows = self._rows(
-            as_bytes(tab)[idle[report]].view(tab.dtype),
-            np.full(int(np.count_nonzero(report)), now),
-            out_status[report],
-            np.full(int(np.count_nonzero(report)), -1, dtype=np.int64),
-            pred.c[report],
-            pred.take(np.flatnonzero(report)),
-        )
+        report = np.flatnonzero(dead | coasting)
+        if report.size:
+            k = report.size
+            rows.append(
+                self._rows(
+                    idle[report],
+                    np.full(k, now),
+                    np.where(dead, DELETED, COASTING).astype(np.int8)[report],
+                    np.full(k, -1, dtype=np.int64),
+                    pred.c[report],
+                    pred.x_comb[report],
+                    pred.P_comb[report],
+                )
+            )
         if dead.any():
             keep = np.ones(self._n, dtype=bool)
             keep[idle[dead]] = False
-            survivors = as_bytes(tab)[keep]
-            self._n = survivors.shape[0]
-            as_bytes(self._tab)[: self._n] = survivors
+            survivors = int(np.count_nonzero(keep))
+            for column in cols.values():
+                column[:survivors] = column[: self._n][keep]
+            self._n = survivors
             self.stats.tracks_deleted += int(np.count_nonzero(dead))
-        return rows
 
     def _rows(
         self,
-        r: npt.NDArray[Any],
+        ti: IntArray,
         time: FloatArray,
         status: npt.NDArray[Any],
         plot_id: IntArray,
         mu: FloatArray,
-        pred: imm.ImmPrediction | None = None,
+        xc: FloatArray,
+        pc: FloatArray,
     ) -> npt.NDArray[Any]:
-        """Output rows of the tracks whose internal rows are ``r``."""
-        out = np.zeros(r.shape[0], dtype=self.output_dtype)
-        xc = r["xc"] if pred is None else pred.x_comb
-        pc = r["Pc"] if pred is None else pred.P_comb
-        out["track_number"] = r["number"]
+        """Output rows of the tracks ``ti`` with the combined state ``xc``, ``pc``."""
+        cols = self._cols
+        out = np.zeros(ti.shape[0], dtype=self.output_dtype)
+        out["track_number"] = cols["number"][ti]
         out["time"] = time
         out["x"], out["y"], out["vx"], out["vy"] = xc.T
         out["P"] = pc.reshape(-1, 16)
-        fl_ok = r["fl_ok"]
-        rate = r["rate"]
-        out["flight_level"] = np.where(fl_ok, r["fl"] + rate * (time - r["t_fl"]), np.nan)
+        fl_ok = cols["fl_ok"][ti]
+        rate = cols["rate"][ti]
+        out["flight_level"] = np.where(
+            fl_ok, cols["fl"][ti] + rate * (time - cols["t_fl"][ti]), np.nan
+        )
         out["climb_rate_fl_per_s"] = np.where(fl_ok, rate, np.nan)
         out["status"] = status
         out["plot_id"] = plot_id
-        out["mode3a"] = r["mode3a"]
-        out["address"] = r["address"]
+        out["mode3a"] = cols["mode3a"][ti]
+        out["address"] = cols["address"][ti]
         out["model_probabilities"] = mu
         return out

@@ -20,7 +20,10 @@ def measurement_variance(
 ) -> FloatArray:
     """Uniform quantisation noise, step^2 / 12: 25 ft for Mode S or any level that is not a
     whole FL (it cannot come from 100 ft Gillham code), 100 ft otherwise."""
-    fine = (typ >= MODE_S_TYP_MIN) | (np.abs(flight_level - np.round(flight_level)) > 1e-6)
+    mode_s = typ >= MODE_S_TYP_MIN
+    if mode_s.all():  # the usual batch: no level to inspect
+        return np.full(typ.shape, config.fl_step_mode_s * config.fl_step_mode_s / 12.0)
+    fine = mode_s | (np.abs(flight_level - np.round(flight_level)) > 1e-6)
     step = np.where(fine, config.fl_step_mode_s, config.fl_step_mode_c)
     return np.asarray(step * step / 12.0, dtype=np.float64)
 
@@ -33,11 +36,13 @@ def predict(
     p00 = P[:, 0, 0] + 2.0 * dt * P[:, 0, 1] + dt * dt * P[:, 1, 1] + q * t**3 / 3.0
     p01 = P[:, 0, 1] + dt * P[:, 1, 1] + q * dt * t / 2.0
     p11 = P[:, 1, 1] + q * t
-    pp = np.empty((fl.shape[0], 2, 2))  # filled in place: cheaper than nested np.stack
-    pp[:, 0, 0] = p00
-    pp[:, 0, 1] = pp[:, 1, 0] = p01
-    pp[:, 1, 1] = p11
-    return fl_p, rate.copy(), pp
+    # Filled in place through the flat view (cheaper than nested np.stack): the two
+    # off-diagonal entries are one slice.
+    pp = np.empty((fl.shape[0], 4))
+    pp[:, 0] = p00
+    pp[:, 1:3] = p01[:, None]
+    pp[:, 3] = p11
+    return fl_p, rate.copy(), pp.reshape(-1, 2, 2)
 
 
 def update(
@@ -53,8 +58,9 @@ def update(
     s = P[:, 0, 0] + r
     k = P[:, :, 0] / s[:, None]
     # I - K H, written entry by entry: cheaper than copying a broadcast identity.
-    ikh = np.zeros(P.shape)
-    ikh[:, 0, 0] = ikh[:, 1, 1] = 1.0
+    flat = np.zeros((P.shape[0], 4))
+    flat[:, ::3] = 1.0  # the diagonal of the flat 2x2
+    ikh = flat.reshape(P.shape)
     ikh[:, :, 0] -= k
     p_new = ikh @ P @ np.swapaxes(ikh, 1, 2) + r[:, None, None] * k[:, :, None] * k[:, None, :]
     return fl + k[:, 0] * y, rate + k[:, 1] * y, p_new, y * y / s <= gate
