@@ -135,8 +135,10 @@ def subscribe(connect: Sequence[str], key: str, as_json: bool, out: TextIO = sys
                         tracks[sample_key] = json.loads(payload)
                     except ValueError:
                         print(f"{sample_key}: not JSON", file=sys.stderr)
-            now = time.time()
             if not as_json and time.monotonic() >= next_draw:
+                # Ages in data time, from the newest track: a replay of an old recording
+                # is not months old.
+                now = max((float(doc.get("time", 0.0)) for doc in tracks.values()), default=0.0)
                 # Clear the screen and home the cursor, then draw.
                 out.write("\x1b[2J\x1b[H" + _table(tracks, now) + "\n")
                 out.flush()
