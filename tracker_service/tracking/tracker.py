@@ -30,6 +30,7 @@ from tracker_service.tracking.plots import (
 
 TENTATIVE, CONFIRMED, COASTING, DELETED = 0, 1, 2, 3
 
+CONFIRM_SPEED_SIGMAS = 2.0
 RADIUS_SAFETY = 1.2
 RADIUS_MARGIN_M = 50.0
 """The pre-selection radius bounds the gate from the CV prediction of the combined state;
@@ -367,9 +368,10 @@ class LocalTracker:
     def _confirm(self, ti: IntArray, status: npt.NDArray[Any], hist: IntArray) -> None:
         """M of N, except for a tentative track that echoes a confirmed track that is
         associating (a reflection or a split, since the original follows the
-        kinematics; see ``_echoes``), and for a slow track that never had a secondary
-        reply (clutter). ``ti``: the tracks to confirm, every field but ``status``
-        already written; ``status``: theirs (changed in place)."""
+        kinematics; see ``_echoes``), for a slow track that never had a secondary reply
+        (clutter), and for a track surely faster than ``max_speed_m_s``. ``ti``: the
+        tracks to confirm, every field but ``status`` already written; ``status``: theirs
+        (changed in place)."""
         candidates = np.flatnonzero(
             (status == TENTATIVE) & (np.bitwise_count(hist) >= self.config.confirm_m)
         )
@@ -388,8 +390,18 @@ class LocalTracker:
         primary_only = (address < 0) & (cols["mode3a"][rows] < 0)
         xc = cols["xc"][rows]
         speed = np.hypot(xc[:, 2], xc[:, 3])
-        slow = primary_only & (speed < self.config.min_confirm_speed_psr_only_m_s)
-        confirmed = candidates[~clash & ~slow]
+        # The speed must be known to be above the threshold, not merely estimated
+        # above it: a primary plot without Mode C near the radar has a height, hence a
+        # ground range, uncertain by kilometres, and two clutter plots make a "fast"
+        # track whose speed is mostly noise (tma: one lived 87 scans).
+        direction = xc[:, 2:] / np.maximum(speed, 1e-9)[:, None]
+        pv = cols["Pc"][rows][:, 2:, 2:]
+        speed_sigma = np.sqrt(np.einsum("ni,nij,nj->n", direction, pv, direction))
+        lowest = speed - CONFIRM_SPEED_SIGMAS * speed_sigma
+        slow = primary_only & (lowest < self.config.min_confirm_speed_psr_only_m_s)
+        # Nor is a track confirmed that is surely faster than any aircraft.
+        impossible = lowest > self.config.max_speed_m_s
+        confirmed = candidates[~clash & ~slow & ~impossible]
         status[confirmed] = CONFIRMED
         self.stats.tracks_confirmed += int(confirmed.size)
 
