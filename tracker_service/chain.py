@@ -91,6 +91,7 @@ RAW_PLOT_DTYPE = np.dtype(
         ("rab", np.bool_),  # field monitor
         ("address", np.int64),  # Mode S address, -1 when absent
         ("mode3a", np.int64),  # Mode 3/A code as an integer, -1 when absent
+        ("callsign", "U8"),  # I048/240, "" when absent
         ("kind", np.int8),  # what the plot truly is, when an evaluation knows (KIND_*)
         ("aircraft", np.int64),  # origin aircraft index, -1 when none or unknown
         ("detection_time", np.float64),  # true time of detection, NaN when unknown
@@ -232,6 +233,7 @@ def convert_batch(
     table["rab"] = rab
     table["address"] = raw["address"]
     table["mode3a"] = mode3a
+    table["callsign"] = np.char.strip(raw["callsign"])
     table["kind"] = KIND_UNKNOWN
     table["aircraft"] = -1
     table["detection_time"] = np.nan
