@@ -183,14 +183,12 @@ class McapLog:
     def log(self, topic: str, model: BaseModel, time: float) -> None:
         """A message on ``topic``, whose schema is its model's; ``time`` (POSIX seconds)
         is its log and publish time."""
-        model_type = type(model)
-        self._write(
-            topic,
-            schema_name(model_type),
-            lambda: json_schema(model_type),
-            model.model_dump_json().encode(),
-            time,
-        )
+        self.log_json(topic, type(model), model.model_dump_json().encode(), time)
+
+    def log_json(self, topic: str, model_type: type[BaseModel], data: bytes, time: float) -> None:
+        """As :meth:`log`, for a message already serialised (``model_dump_json``), so that
+        the service serialises each message once for Zenoh and the log."""
+        self._write(topic, schema_name(model_type), lambda: json_schema(model_type), data, time)
 
     def log_location(
         self,

@@ -52,6 +52,10 @@ def zenoh_config(
     return config
 
 
+def _json(model: BaseModel | bytes) -> bytes:
+    return model if isinstance(model, bytes) else model.model_dump_json().encode()
+
+
 def _source_key(sac_sic: tuple[int, int]) -> str:
     sac, sic = sac_sic
     if not (0 <= sac <= 255 and 0 <= sic <= 255):
@@ -60,7 +64,9 @@ def _source_key(sac_sic: tuple[int, int]) -> str:
 
 
 class ZenohPublisher:
-    """Publishes the service's messages (any pydantic model, as JSON) on one session."""
+    """Publishes the service's messages (any pydantic model, as JSON) on one session.
+    A message may also come as its JSON already (bytes), when the caller serialised it
+    once for every output."""
 
     def __init__(
         self,
@@ -86,14 +92,14 @@ class ZenohPublisher:
             f"{prefix}/system_tracks/**", self._answer, complete=True
         )
 
-    def put_system_track(self, number: int, model: BaseModel) -> None:
+    def put_system_track(self, number: int, model: BaseModel | bytes) -> None:
         key = self._track_key(number)
-        payload = model.model_dump_json().encode()
+        payload = _json(model)
         with self._lock:
             self._picture[key] = payload
         self._put_json(key, payload)
 
-    def end_system_track(self, number: int, model: BaseModel) -> None:
+    def end_system_track(self, number: int, model: BaseModel | bytes) -> None:
         """Publishes the track's last message (the caller's, with status "ended") and then
         deletes its key; from then on the queryable no longer answers it."""
         key = self._track_key(number)
@@ -101,19 +107,21 @@ class ZenohPublisher:
             self._picture.pop(key, None)
         # Blocking rather than dropped under congestion: a lost end leaves a ghost track
         # on every subscriber's picture.
-        self._put_json(key, model.model_dump_json().encode(), zenoh.CongestionControl.BLOCK)
+        self._put_json(key, _json(model), zenoh.CongestionControl.BLOCK)
         self._session.delete(key, congestion_control=zenoh.CongestionControl.BLOCK)
 
-    def put_local_track(self, sac_sic: tuple[int, int], number: int, model: BaseModel) -> None:
+    def put_local_track(
+        self, sac_sic: tuple[int, int], number: int, model: BaseModel | bytes
+    ) -> None:
         key = f"{self.prefix}/local_tracks/{_source_key(sac_sic)}/{number}"
-        self._put_json(key, model.model_dump_json().encode())
+        self._put_json(key, _json(model))
 
-    def put_bias(self, sac_sic: tuple[int, int], model: BaseModel) -> None:
+    def put_bias(self, sac_sic: tuple[int, int], model: BaseModel | bytes) -> None:
         key = f"{self.prefix}/bias/{_source_key(sac_sic)}"
-        self._put_json(key, model.model_dump_json().encode())
+        self._put_json(key, _json(model))
 
-    def put_status(self, model: BaseModel) -> None:
-        self._put_json(f"{self.prefix}/status", model.model_dump_json().encode())
+    def put_status(self, model: BaseModel | bytes) -> None:
+        self._put_json(f"{self.prefix}/status", _json(model))
 
     def put_cat062(self, data: bytes) -> None:
         self._session.put(

@@ -3,21 +3,34 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import fcntl
 import logging
 import math
+import multiprocessing
+import os
+import pickle
+import queue
 import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from multiprocessing.connection import Connection
 from pathlib import Path
 from types import FrameType
+from typing import Any, Self
 
+import numpy.typing as npt
+
+from asterix.containers import Datagram
+from tracker_service.chain import BatchOutput
+from tracker_service.inputs.udp import InputCounters
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.service.config import ConfigError, ServiceConfig, load_service_config
-from tracker_service.service.core import TrackerService
+from tracker_service.service.core import Outputs, TrackerService
 from tracker_service.service.replay import (
     CONFIG_METADATA,
     Progress,
@@ -27,16 +40,22 @@ from tracker_service.service.replay import (
 )
 
 __all__ = [
+    "OutputProcess",
     "add_health_arguments",
     "add_replay_arguments",
     "add_run_arguments",
     "health",
+    "open_outputs",
     "open_service",
     "replay",
     "stop_on_signals",
 ]
 
 log = logging.getLogger(__name__)
+
+PIPE_BYTES = 1024 * 1024
+"""Room in the pipe to the output process (Linux caps it at /proc/sys/fs/pipe-max-size)."""
+LOG_FORMAT = "%(asctime)s %(levelname)s %(processName)s %(message)s"
 
 
 def _add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -122,11 +141,10 @@ def _with_cli(config: ServiceConfig, args: argparse.Namespace) -> ServiceConfig:
 
 
 @contextmanager
-def open_service(
+def open_outputs(
     config: ServiceConfig, mcap_dir: Path | None, *, zenoh: bool = True
-) -> Iterator[TrackerService]:
-    """The core with its Zenoh session and MCAP log; on the way out every live track is
-    ended, then the session and the log are closed, whatever happened."""
+) -> Iterator[tuple[ZenohPublisher | None, McapLog | None]]:
+    """The Zenoh session and the MCAP log of a configuration, closed on the way out."""
     publisher = None
     mcap = None
     try:
@@ -150,16 +168,170 @@ def open_service(
                 m.chunk_size,
                 metadata={CONFIG_METADATA: {"config": config.model_dump_json()}},
             )
-        service = TrackerService(config, publisher, mcap)
-        try:
-            yield service
-        finally:
-            service.close()
+        yield publisher, mcap
     finally:
         if publisher is not None:
             publisher.close()
         if mcap is not None:
             mcap.close()
+
+
+@contextmanager
+def open_service(
+    config: ServiceConfig,
+    mcap_dir: Path | None,
+    *,
+    zenoh: bool = True,
+    output_process: bool = False,
+) -> Iterator[TrackerService]:
+    """The core with its Zenoh session and MCAP log, in this process or, with
+    ``output_process``, in a process of their own; on the way out every live track is
+    ended, then the session and the log are closed, whatever happened."""
+    if output_process:
+        with OutputProcess(config, mcap_dir, zenoh=zenoh) as outputs:
+            service = TrackerService(config, outputs=outputs)
+            try:
+                yield service
+            finally:
+                service.close()
+        return
+    with open_outputs(config, mcap_dir, zenoh=zenoh) as (publisher, mcap):
+        service = TrackerService(config, publisher, mcap)
+        try:
+            yield service
+        finally:
+            service.close()
+
+
+class OutputProcess:
+    """``Outputs`` (messages, Zenoh, CAT062, MCAP) in a process of its own, so that the
+    chain keeps a core to itself: each call of the core goes, pickled at once (the chain
+    reuses nothing it hands over, but a later pickle would race with it), through a pipe
+    to the process, which makes the same calls in the same order, so the messages are the
+    ones ``Outputs`` makes in the core's process. ``close`` (the core's) ends the tracks
+    there; leaving the context waits for the process to drain the pipe and exit."""
+
+    def __init__(self, config: ServiceConfig, mcap_dir: Path | None, *, zenoh: bool = True) -> None:
+        # Spawned, not forked: the parent may hold threads (inputs, Zenoh) by now.
+        context = multiprocessing.get_context("spawn")
+        # A pipe written by the core's own thread: a multiprocessing queue's feeder thread
+        # would wait for the GIL (up to the 5 ms switch interval) at each call while the
+        # chain computes, and fall behind. Enlarged so that a slow moment of the outputs
+        # does not stall the chain (a full pipe does: back pressure, nothing lost).
+        reader, self._calls = context.Pipe(duplex=False)
+        with contextlib.suppress(OSError):
+            fcntl.fcntl(self._calls.fileno(), fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+        replies: multiprocessing.Queue[str | None] = context.Queue()
+        self._process = context.Process(
+            target=_serve_outputs,
+            args=(config, mcap_dir, zenoh, os.getpid(), reader, replies),
+            name="tracker-outputs",
+        )
+        self._process.start()
+        reader.close()  # the child's end: with it closed here, the child sees the core go
+        self._next_check = 0.0
+        # Started when its session and log are open: a bad endpoint fails here, as in
+        # one process.
+        while True:
+            try:
+                failure = replies.get(timeout=1.0)
+                break
+            except queue.Empty:
+                if not self._process.is_alive():
+                    failure = f"exited with code {self._process.exitcode}"
+                    break
+        if failure is not None:
+            self._process.join()
+            raise RuntimeError(f"the output process did not start: {failure}")
+
+    def _call(self, method: str, *args: object) -> None:
+        # Whether the process still runs costs a system call: asked once a second of
+        # wall clock, not at each of the thousands of calls a second.
+        now = time.monotonic()
+        if now >= self._next_check:
+            self._next_check = now + 1.0
+            if not self._process.is_alive():
+                raise RuntimeError(f"the output process has ended ({self._process.exitcode})")
+        self._calls.send_bytes(pickle.dumps((method, args), protocol=pickle.HIGHEST_PROTOCOL))
+
+    def advance(self, time: float) -> None:
+        self._call("advance", time)
+
+    def set_input_counters(self, counters: dict[str, InputCounters]) -> None:
+        self._call("set_input_counters", counters)
+
+    def received(self, name: str, datagram: Datagram) -> None:
+        self._call("received", name, datagram)
+
+    def error(self, name: str, what: str) -> None:
+        self._call("error", name, what)
+
+    def batch(self, output: BatchOutput, sources: Sequence[str]) -> None:
+        self._call("batch", output, sources)
+
+    def publish_cat062(self) -> None:
+        self._call("publish_cat062")
+
+    def publish_bias(self, estimates: dict[str, tuple[npt.NDArray[Any], npt.NDArray[Any]]]) -> None:
+        self._call("publish_bias", estimates)
+
+    def publish_status(self) -> None:
+        self._call("publish_status")
+
+    def close(self) -> None:
+        self._call("close")
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._process.is_alive():
+            self._calls.send_bytes(b"")
+        self._process.join()
+        self._calls.close()
+
+
+def _serve_outputs(
+    config: ServiceConfig,
+    mcap_dir: Path | None,
+    zenoh: bool,
+    parent: int,
+    calls: Connection,
+    replies: multiprocessing.Queue[str | None],
+) -> None:
+    """The output process: ``Outputs`` making the calls that arrive, until told to stop
+    or until its parent is gone."""
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
+    # A signal to the process group is the parent's to handle: this process ends the
+    # tracks when the parent says so, after the calls queued before.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    try:
+        with open_outputs(config, mcap_dir, zenoh=zenoh) as (publisher, mcap):
+            outputs = Outputs(config, publisher, mcap)
+            replies.put(None)
+            while True:
+                if not calls.poll(1.0):
+                    if os.getppid() != parent:
+                        log.error("the core's process is gone: stopping")
+                        return
+                    continue
+                try:
+                    item = calls.recv_bytes()
+                except EOFError:
+                    log.error("the core's process is gone: stopping")
+                    return
+                if not item:
+                    return
+                method, args = pickle.loads(item)
+                try:
+                    getattr(outputs, method)(*args)
+                except Exception:
+                    # As in one process: a failed output is logged, the others go on.
+                    log.exception("output %s failed", method)
+    except Exception as exc:
+        replies.put(f"{type(exc).__name__}: {exc}")
+        raise
 
 
 @contextmanager
@@ -199,7 +371,7 @@ def replay(args: argparse.Namespace) -> int:
     print(f"{args.recording}: {source.kind}; watch with: {_watch_hint(config)}", file=sys.stderr)
     progress = Progress(source.span)
     with stop_on_signals() as stop, open_service(config, mcap_dir) as service:
-        service.input_counters = source.counters
+        service.set_input_counters(source.counters)
         first: float | None = None
         wall0 = time.monotonic()
         for name, datagram in source.datagrams:
@@ -252,7 +424,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"tracker-service run: {exc}", file=sys.stderr)
         return 2
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     health_file = None if args.health_file is None else Path(args.health_file)
     with stop_on_signals() as stop:
         return Daemon(config, health_file).run(stop)

@@ -1,8 +1,11 @@
 """The service core: one ``Chain`` wired to the outputs (Zenoh, MCAP).
 
-``TrackerService.process(input_name, datagram)`` logs the raw datagram, feeds it to the
-chain and turns what comes out into the published messages: system tracks (and their end),
-local tracks, CAT062/CAT065 batches, bias estimates and status. The core reads no clock:
+``TrackerService.process(input_name, datagram)`` hands the raw datagram to the outputs
+(for the log), feeds it to the chain and hands what comes out to ``Outputs``, which turns
+it into the published messages: system tracks (and their end), local tracks, CAT062/CAT065
+batches, bias estimates and status. ``Outputs`` runs in the same process (the replay) or
+in one of its own (the daemon: ``command.OutputProcess``), so that the chain has a core
+to itself. The core reads no clock:
 every time it uses is a reception time of the data ("data time"), so the same datagrams in
 the same order give the same messages, whether they come from a replay or from the
 daemon's inputs. Only ``advance`` (called by the daemon while its feeds are quiet) moves
@@ -14,9 +17,9 @@ from __future__ import annotations
 import logging
 import math
 from collections import defaultdict
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -47,6 +50,8 @@ from tracker_service.tracking import TrackerConfig
 __all__ = [
     "CAT062_TOPIC",
     "SYSTEM_TRACKS_TOPIC",
+    "OutputSink",
+    "Outputs",
     "ServiceTimings",
     "TrackerService",
     "bias_config",
@@ -227,9 +232,14 @@ class ServiceCounts:
     system_tracks: set[int] = field(default_factory=set)
 
 
-class TrackerService:
-    """See the module docstring. ``publisher`` and ``log`` are optional (a test or a
-    benchmark may run without either); the core closes neither."""
+class Outputs:
+    """Everything after the chain: the messages, Zenoh, CAT062, MCAP and the counters.
+
+    Its state follows only from the calls it receives, in their order, and every call
+    carries plain data (datagrams, the chain's numpy rows, bias arrays), so that it runs
+    in the core's process or in a process of its own (``command.OutputProcess``) with the
+    same messages. ``publisher`` and ``log`` are optional (a test or a benchmark may run
+    without either); it closes neither."""
 
     def __init__(
         self,
@@ -239,9 +249,10 @@ class TrackerService:
         timings: ServiceTimings | None = None,
     ) -> None:
         self.config = config
-        self.chain = build_chain(config)
+        self.plane = SystemPlane(
+            config.system.centre_lat, config.system.centre_lon, config.system.projection
+        )
         self._bias_prior = bias_config(config).prior_sigma()
-        self.plane = self.chain.plane
         self.publisher = publisher
         self.log = log_file
         self.timings = timings or ServiceTimings()
@@ -253,18 +264,14 @@ class TrackerService:
         self._feeds = [r.key for r in config.radars] + [a.key for a in config.adsb]
         self._radars: dict[str, _RadarCounters] = defaultdict(_RadarCounters)
         self._tracks: dict[int, _SystemTrack] = {}
+        self._by_address: dict[str, set[int]] = defaultdict(set)
+        """Live system tracks per Mode S address: the duplicate-address flag without a
+        scan of every track at each update."""
         self._local_times: dict[tuple[str, int], float] = {}
         self._pending_cat062: dict[int, SystemTrackMessage] = {}
         self._cat062_batches = 0
         self._start: float | None = None
         self._now = -math.inf
-        self._next: dict[str, float] = {}
-        self._closed = False
-
-    @property
-    def now(self) -> float:
-        """Data time: the latest reception time seen."""
-        return self._now
 
     @property
     def live_tracks(self) -> list[int]:
@@ -274,55 +281,33 @@ class TrackerService:
         """The latest message of every live system track."""
         return {number: self._tracks[number].last for number in sorted(self._tracks)}
 
-    def process(self, name: str, datagram: Datagram) -> None:
-        """One datagram that input ``name`` received at ``datagram.time``. Nothing raises
-        out of here for bad data: an error is logged and counted, and the service goes on."""
-        if datagram.time is None:
-            raise ValueError("the service needs each datagram's reception time")
-        received = datagram.time
-        self._advance_to(received)
+    def advance(self, time: float) -> None:
+        """Data time moves on to ``time`` (a reception time, or the daemon's quiet clock)."""
+        if self._start is None:
+            self._start = time
+        self._now = max(self._now, time)
+
+    def set_input_counters(self, counters: dict[str, InputCounters]) -> None:
+        self.input_counters = counters
+
+    def received(self, name: str, datagram: Datagram) -> None:
+        """A datagram reaches the core: data time moves to its reception, and it is logged."""
+        assert datagram.time is not None
+        self.advance(datagram.time)
         self.counts.datagrams += 1
         if self.log is not None:
             self.log.log_datagram(datagram, name)
-        reason = block_chain_error(datagram.payload)
-        if reason is not None:
-            self._error(name, f"not ASTERIX ({reason})")
-            return
-        try:
-            outputs = self.chain.feed(datagram.payload, received)
-            for output in outputs:
-                self._publish_batch(output)
-        except Exception:
-            log.exception("%s: datagram at %.3f could not be processed", name, received)
-            self._error(name, "processing failed")
-        self._periodic()
 
-    def advance(self, now: float) -> None:
-        """Data time moves on without data (the daemon, while every feed is quiet): the
-        periodic outputs that fall due go out."""
-        if self._start is None:
-            return
-        self._advance_to(now)
-        self._periodic()
-
-    def _advance_to(self, time: float) -> None:
-        if self._start is None:
-            self._start = time
-            self._next = {
-                "cat062": time + self.timings.cat062_s,
-                "status": time + self.timings.status_s,
-                "bias": time + self.timings.bias_s,
-            }
-        self._now = max(self._now, time)
-
-    def _error(self, name: str, what: str) -> None:
+    def error(self, name: str, what: str) -> None:
         self.counts.errors += 1
         self._radars[radar_key(name)].decode_errors += 1
         log.warning("%s: datagram at %.3f dropped: %s", name, self._now, what)
 
     # --- per batch ---------------------------------------------------------------------
 
-    def _publish_batch(self, output: BatchOutput) -> None:
+    def batch(self, output: BatchOutput, sources: Sequence[str]) -> None:
+        """What the chain made of one radar's part of a datagram; ``sources`` names the
+        chain's radars by index (``Chain.sources``)."""
         plots = output.plots
         counters = self._radars[output.source]
         self.counts.plots += len(plots)
@@ -331,7 +316,7 @@ class TrackerService:
             counters.last_plot_time = float(plots["time"].max())
         self._publish_local(output.source, output.local)
         if len(output.system):
-            self._publish_system(output.system, plots)
+            self._publish_system(output.system, plots, sources)
 
     def _publish_local(self, source: str, rows: npt.NDArray[Any]) -> None:
         sac, sic = (int(part) for part in source.split("/"))
@@ -339,7 +324,9 @@ class TrackerService:
         for row in rows:
             number, time = int(row["track_number"]), float(row["time"])
             self._local_times[(source, number)] = time
-            message = LocalTrackMessage(
+            # Built from the chain's own rows, whose types and ranges hold by construction:
+            # no validation on the path every track update takes.
+            message = LocalTrackMessage.model_construct(
                 radar=source,
                 number=number,
                 time=time,
@@ -356,14 +343,17 @@ class TrackerService:
                 address=_hex_address(int(row["address"])),
                 model_probabilities=row["model_probabilities"].tolist(),
             )
+            payload = message.model_dump_json().encode()
             if self.publisher is not None:
-                self.publisher.put_local_track((sac, sic), number, message)
+                self.publisher.put_local_track((sac, sic), number, payload)
             if self.log is not None:
-                self.log.log(topic, message, self._now)
+                self.log.log_json(topic, LocalTrackMessage, payload, self._now)
             if message.status == "deleted":
                 self._local_times.pop((source, number), None)
 
-    def _publish_system(self, rows: npt.NDArray[Any], plots: npt.NDArray[Any]) -> None:
+    def _publish_system(
+        self, rows: npt.NDArray[Any], plots: npt.NDArray[Any], sources: Sequence[str]
+    ) -> None:
         lat, lon = self.plane.to_geodetic(rows["x"], rows["y"])
         plot_index = {int(p): i for i, p in enumerate(plots["plot_id"].tolist())}
         plot_lat, plot_lon = self.plane.to_geodetic(plots["x"], plots["y"])
@@ -372,10 +362,12 @@ class TrackerService:
             if plot is not None and bool(row["fresh"]):
                 plot_position = (float(plot_lat[plot]), float(plot_lon[plot]))
                 message = self._system_message(
-                    row, float(lat[k]), float(lon[k]), plots[plot], plot_position
+                    row, float(lat[k]), float(lon[k]), plots[plot], plot_position, sources
                 )
             else:
-                message = self._system_message(row, float(lat[k]), float(lon[k]), None, None)
+                message = self._system_message(
+                    row, float(lat[k]), float(lon[k]), None, None, sources
+                )
             self._emit_system(message)
 
     def _system_message(
@@ -385,13 +377,14 @@ class TrackerService:
         lon: float,
         plot: Any,
         plot_position: tuple[float, float] | None,
+        chain_sources: Sequence[str],
     ) -> SystemTrackMessage:
         number, time = int(row["system_number"]), float(row["time"])
         previous = self._tracks.get(number)
         sensor_times = {} if previous is None else previous.sensor_times
         last_plot = None if previous is None else previous.last_plot
         if plot is not None and plot_position is not None:
-            radar = self.chain.sources[int(row["radar"])]
+            radar = chain_sources[int(row["radar"])]
             typ = int(plot["typ"])
             for sensor, types in (
                 ("psr", _PSR_TYPES),
@@ -400,7 +393,7 @@ class TrackerService:
             ):
                 if typ in types:
                     sensor_times[sensor] = float(plot["time"])
-            last_plot = LastPlot(
+            last_plot = LastPlot.model_construct(
                 radar=radar,
                 time=float(plot["time"]),
                 lat=plot_position[0],
@@ -410,12 +403,12 @@ class TrackerService:
             )
         sources = []
         for slot in range(int(row["n_sources"])):
-            radar = self.chain.sources[int(row["local_radars"][slot])]
+            radar = chain_sources[int(row["local_radars"][slot])]
             local = int(row["local_numbers"][slot])
             local_time = self._local_times.get((radar, local), time)
             plot_id = int(row["local_plot_ids"][slot])
             sources.append(
-                TrackSource(
+                TrackSource.model_construct(
                     radar=radar,
                     local_track=local,
                     age_s=max(time - local_time, 0.0),
@@ -425,6 +418,8 @@ class TrackerService:
         address = _hex_address(int(row["address"]))
         mode3a = _octal_code(int(row["mode3a"]))
         status = int(row["status"])
+        if previous is not None and previous.last.address is not None:
+            self._by_address[previous.last.address].discard(number)
         message = SystemTrackMessage.from_state(
             time=time,
             x_m=float(row["x"]),
@@ -433,6 +428,7 @@ class TrackerService:
             vy_mps=float(row["vy"]),
             covariance=row["P"].reshape(4, 4).tolist(),
             climb_rate_fl_per_s=_none_if_nan(float(row["climb_rate_fl_per_s"])),
+            validate=False,
             number=number,
             lat=lat,
             lon=(lon + 180.0) % 360.0 - 180.0,
@@ -448,27 +444,31 @@ class TrackerService:
             if status == COASTING
             else "confirmed",
             last_plot=last_plot,
-            ages=SensorAges(**{k: max(time - t, 0.0) for k, t in sensor_times.items()}),
-            duplicate_address=address is not None
-            and any(t.last.address == address for n, t in self._tracks.items() if n != number),
+            ages=SensorAges.model_construct(
+                None, **{k: max(time - t, 0.0) for k, t in sensor_times.items()}
+            ),
+            duplicate_address=address is not None and bool(self._by_address.get(address)),
         )
         if status == ENDED:
             self._tracks.pop(number, None)
         else:
             self._tracks[number] = _SystemTrack(message, last_plot, sensor_times)
+            if address is not None:
+                self._by_address[address].add(number)
         return message
 
     def _emit_system(self, message: SystemTrackMessage) -> None:
         self.counts.system_updates += 1
         self.counts.system_tracks.add(message.number)
         self._pending_cat062[message.number] = message
+        payload = message.model_dump_json().encode()
         if self.publisher is not None:
             if message.status == "ended":
-                self.publisher.end_system_track(message.number, message)
+                self.publisher.end_system_track(message.number, payload)
             else:
-                self.publisher.put_system_track(message.number, message)
+                self.publisher.put_system_track(message.number, payload)
         if self.log is not None:
-            self.log.log(SYSTEM_TRACKS_TOPIC, message, self._now)
+            self.log.log_json(SYSTEM_TRACKS_TOPIC, SystemTrackMessage, payload, self._now)
             if message.status != "ended":
                 p = message.covariance
                 # ENU position covariance: the plane's axes are east and north near the
@@ -479,25 +479,9 @@ class TrackerService:
                     LOCATION_TOPIC, message.time, message.lat, message.lon, altitude, covariance
                 )
 
-    # --- periodic outputs ----------------------------------------------------------------
+    # --- periodic outputs (the core says when) -----------------------------------------
 
-    def _periodic(self) -> None:
-        if self._due("cat062", self.timings.cat062_s):
-            self._publish_cat062()
-        if self._due("bias", self.timings.bias_s):
-            self._publish_bias()
-        if self._due("status", self.timings.status_s):
-            self._publish_status()
-
-    def _due(self, what: str, period: float) -> bool:
-        due = self._next[what]
-        if self._now < due:
-            return False
-        # The next one on the grid after now: a long silence does not make a burst.
-        self._next[what] = due + period * (math.floor((self._now - due) / period) + 1)
-        return True
-
-    def _publish_cat062(self) -> None:
+    def publish_cat062(self) -> None:
         messages = [self._pending_cat062[n] for n in sorted(self._pending_cat062)]
         self._pending_cat062.clear()
         system = self.config.system
@@ -513,15 +497,15 @@ class TrackerService:
             )
             self.log.log(CAT062_TOPIC, record, self._now)
 
-    def _publish_bias(self) -> None:
+    def publish_bias(self, estimates: dict[str, tuple[npt.NDArray[Any], npt.NDArray[Any]]]) -> None:
         prior = self._bias_prior
-        for source, (bias, covariance) in self.chain.bias_estimates().items():
+        for source, (bias, covariance) in estimates.items():
             sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0))
             # Observable once the data has shrunk the prior: before, the estimate is the
             # prior's mean and says nothing.
             observable = sigma < 0.5 * prior
             scale = (1.0, 1.0, math.degrees(1.0), 1.0)
-            estimates = [
+            values = [
                 Estimate(
                     estimate=float(bias[i]) * scale[i],
                     sigma=float(sigma[i]) * scale[i],
@@ -532,10 +516,10 @@ class TrackerService:
             message = BiasMessage(
                 radar=source,
                 time=self._now,
-                range_offset_m=estimates[0],
-                range_gain=estimates[1],
-                azimuth_deg=estimates[2],
-                time_s=estimates[3],
+                range_offset_m=values[0],
+                range_gain=values[1],
+                azimuth_deg=values[2],
+                time_s=values[3],
             )
             sac, sic = (int(part) for part in source.split("/"))
             if self.publisher is not None:
@@ -574,7 +558,7 @@ class TrackerService:
             radars=radars,
         )
 
-    def _publish_status(self) -> None:
+    def publish_status(self) -> None:
         message = self.status()
         for counters in self._radars.values():
             counters.plots_at_last_status = counters.plots
@@ -583,7 +567,156 @@ class TrackerService:
         if self.log is not None:
             self.log.log(STATUS_TOPIC, message, self._now)
 
-    # --- end ---------------------------------------------------------------------------
+    def close(self) -> None:
+        """Ends every live track (an "ended" message each, and its key deleted), sends the
+        last CAT062 batch and a status."""
+        if self._start is None:
+            return
+        for number in sorted(self._tracks):
+            track = self._tracks.pop(number)
+            ended = track.last.model_copy(update={"status": "ended", "first": False})
+            self._emit_system(ended)
+        self._by_address.clear()
+        self.publish_cat062()
+        self.publish_status()
+        log.info(
+            "%d datagrams, %d system tracks (%d updates), %d errors",
+            self.counts.datagrams,
+            len(self.counts.system_tracks),
+            self.counts.system_updates,
+            self.counts.errors,
+        )
+
+
+class OutputSink(Protocol):
+    """What the core calls on its outputs: ``Outputs`` itself, or a proxy that sends each
+    call to ``Outputs`` in another process (``command.OutputProcess``)."""
+
+    def advance(self, time: float) -> None: ...
+    def set_input_counters(self, counters: dict[str, InputCounters]) -> None: ...
+    def received(self, name: str, datagram: Datagram) -> None: ...
+    def error(self, name: str, what: str) -> None: ...
+    def batch(self, output: BatchOutput, sources: Sequence[str]) -> None: ...
+    def publish_cat062(self) -> None: ...
+    def publish_bias(
+        self, estimates: dict[str, tuple[npt.NDArray[Any], npt.NDArray[Any]]]
+    ) -> None: ...
+    def publish_status(self) -> None: ...
+    def close(self) -> None: ...
+
+
+class TrackerService:
+    """See the module docstring: the chain, the cadence of the periodic outputs, and the
+    outputs (``Outputs`` in this process unless ``outputs`` gives another sink)."""
+
+    def __init__(
+        self,
+        config: ServiceConfig,
+        publisher: ZenohPublisher | None = None,
+        log_file: McapLog | None = None,
+        timings: ServiceTimings | None = None,
+        outputs: OutputSink | None = None,
+    ) -> None:
+        self.config = config
+        self.chain = build_chain(config)
+        self.plane = self.chain.plane
+        self.timings = timings or ServiceTimings()
+        self.outputs = outputs or Outputs(config, publisher, log_file, self.timings)
+        self._start: float | None = None
+        self._now = -math.inf
+        self._next: dict[str, float] = {}
+        self._closed = False
+
+    @property
+    def local(self) -> Outputs:
+        """The outputs when they run in this process (the replay, tests)."""
+        if not isinstance(self.outputs, Outputs):
+            raise RuntimeError("the outputs run in another process")
+        return self.outputs
+
+    @property
+    def counts(self) -> ServiceCounts:
+        return self.local.counts
+
+    @property
+    def log(self) -> McapLog | None:
+        return self.local.log
+
+    @property
+    def live_tracks(self) -> list[int]:
+        return self.local.live_tracks
+
+    def picture(self) -> dict[int, SystemTrackMessage]:
+        """The latest message of every live system track."""
+        return self.local.picture()
+
+    def status(self) -> StatusMessage:
+        return self.local.status()
+
+    def set_input_counters(self, counters: dict[str, InputCounters]) -> None:
+        """Per input name, what the input stage counted (duplicates, drops, malformed)."""
+        self.outputs.set_input_counters(counters)
+
+    @property
+    def now(self) -> float:
+        """Data time: the latest reception time seen."""
+        return self._now
+
+    def process(self, name: str, datagram: Datagram) -> None:
+        """One datagram that input ``name`` received at ``datagram.time``. Nothing raises
+        out of here for bad data: an error is logged and counted, and the service goes on."""
+        if datagram.time is None:
+            raise ValueError("the service needs each datagram's reception time")
+        received = datagram.time
+        self._advance_to(received)
+        self.outputs.received(name, datagram)
+        reason = block_chain_error(datagram.payload)
+        if reason is not None:
+            self.outputs.error(name, f"not ASTERIX ({reason})")
+            return
+        try:
+            outputs = self.chain.feed(datagram.payload, received)
+            for output in outputs:
+                self.outputs.batch(output, self.chain.sources)
+        except Exception:
+            log.exception("%s: datagram at %.3f could not be processed", name, received)
+            self.outputs.error(name, "processing failed")
+        self._periodic()
+
+    def advance(self, now: float) -> None:
+        """Data time moves on without data (the daemon, while every feed is quiet): the
+        periodic outputs that fall due go out."""
+        if self._start is None:
+            return
+        self._advance_to(now)
+        self.outputs.advance(now)
+        self._periodic()
+
+    def _advance_to(self, time: float) -> None:
+        if self._start is None:
+            self._start = time
+            self._next = {
+                "cat062": time + self.timings.cat062_s,
+                "status": time + self.timings.status_s,
+                "bias": time + self.timings.bias_s,
+            }
+        self._now = max(self._now, time)
+
+    def _periodic(self) -> None:
+        if self._due("cat062", self.timings.cat062_s):
+            self.outputs.publish_cat062()
+        if self._due("bias", self.timings.bias_s):
+            self.outputs.publish_bias(self.chain.bias_estimates())
+        if self._due("status", self.timings.status_s):
+            self.outputs.publish_status()
+
+    def _due(self, what: str, period: float) -> bool:
+        due = self._next[what]
+        if self._now < due:
+            return False
+        # The next one on the grid after now: a long silence does not make a burst.
+        self._next[what] = due + period * (math.floor((self._now - due) / period) + 1)
+        return True
 
     def close(self) -> None:
         """Ends every live track (an "ended" message each, and its key deleted), sends the
@@ -591,11 +724,4 @@ class TrackerService:
         if self._closed:
             return
         self._closed = True
-        if self._start is None:
-            return
-        for number in sorted(self._tracks):
-            track = self._tracks.pop(number)
-            ended = track.last.model_copy(update={"status": "ended", "first": False})
-            self._emit_system(ended)
-        self._publish_cat062()
-        self._publish_status()
+        self.outputs.close()

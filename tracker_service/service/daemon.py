@@ -7,6 +7,10 @@ the datagrams of every radar reach the core in reception-time order (ties by inp
 even when a thread ran late; the core logs them in that order, and the replay of the
 log feeds them the same way. An exception in the processing of one datagram is logged
 and counted; the daemon goes on.
+
+The chain runs here; the outputs (messages, Zenoh, CAT062, MCAP) in a second process
+(``command.OutputProcess``), fed the chain's rows in order, so that the chain has a core
+of its own and the messages are those of a single process.
 """
 
 from __future__ import annotations
@@ -107,7 +111,7 @@ class Daemon:
             log.info("%s: listening on %s", udp.name, udp.endpoints)
         merger = Merger(config.system.holding_window_s)
         try:
-            with open_service(config, config.mcap.directory) as service:
+            with open_service(config, config.mcap.directory, output_process=True) as service:
                 log.info("running: publishing under %s/", config.zenoh.prefix)
                 last_datagram = time.time()
                 next_counters = 0.0
@@ -120,7 +124,7 @@ class Daemon:
                     for name, datagram in merger.release(now):
                         self._process(service, name, datagram)
                     if now >= next_counters:
-                        service.input_counters = {udp.name: udp.counters for udp in inputs}
+                        service.set_input_counters({udp.name: udp.counters for udp in inputs})
                         next_counters = now + COUNTERS_S
                     if now - last_datagram > QUIET_S and not merger:
                         service.advance(now - config.system.holding_window_s)
@@ -134,13 +138,12 @@ class Daemon:
                 self._collect(inputs, merger)
                 for name, datagram in merger.release(float("inf")):
                     self._process(service, name, datagram)
-                service.input_counters = {udp.name: udp.counters for udp in inputs}
+                service.set_input_counters({udp.name: udp.counters for udp in inputs})
                 log.info(
-                    "stopping: %d datagrams, %d system tracks, %d errors; ending %d live tracks",
-                    service.counts.datagrams,
-                    len(service.counts.system_tracks),
-                    service.counts.errors + self.failures,
-                    len(service.live_tracks),
+                    "stopping: %d datagrams through the chain, %d failures; ending every "
+                    "live track",
+                    service.chain.stats.datagrams,
+                    self.failures,
                 )
         finally:
             for udp in inputs:
