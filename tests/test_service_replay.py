@@ -217,7 +217,7 @@ def test_cat062_content_matches_the_json_messages(published: Published) -> None:
     logged_cat062 = [bytes.fromhex(m.data["payload"]) for m in messages if m.topic == "/cat062"]
     assert zenoh_cat062 and zenoh_cat062 == logged_cat062[: len(zenoh_cat062)]
     latest: dict[int, dict[str, Any]] = {}
-    compared = 0
+    compared = named = 0
     for message in messages:
         if message.topic == "/system_tracks":
             latest[message.data["number"]] = message.data
@@ -239,11 +239,15 @@ def test_cat062_content_matches_the_json_messages(published: Published) -> None:
                 assert record["136"] == pytest.approx(track["flight_level"], abs=0.25)
             assert record.get("060", {}).get("MODE3A") == track["mode3a"]
             assert record.get("380", {}).get("ADR") == track["address"]
+            if track["callsign"] is not None:
+                assert record["245"]["CHR"].strip() == track["callsign"]
+                named += 1
             if track["last_plot"] is not None:
                 sac, sic = (int(p) for p in track["last_plot"]["radar"].split("/"))
                 assert record["340"]["SID"] == {"SAC": sac, "SIC": sic}
             compared += 1
     assert compared > 100
+    assert named > 50  # the Mode S aircraft's callsigns (I048/240) reach the system tracks
 
 
 def test_replays_are_identical_and_so_is_the_replay_of_the_log(

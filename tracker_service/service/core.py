@@ -264,6 +264,8 @@ class Outputs:
         self._feeds = [r.key for r in config.radars] + [a.key for a in config.adsb]
         self._radars: dict[str, _RadarCounters] = defaultdict(_RadarCounters)
         self._tracks: dict[int, _SystemTrack] = {}
+        self._callsigns: dict[int, str] = {}
+        """The latest callsign (I048/240) each Mode S address sent."""
         self._by_address: dict[str, set[int]] = defaultdict(set)
         """Live system tracks per Mode S address: the duplicate-address flag without a
         scan of every track at each update."""
@@ -314,6 +316,11 @@ class Outputs:
         counters.plots += len(plots)
         if len(plots):
             counters.last_plot_time = float(plots["time"].max())
+        named = plots[(plots["address"] >= 0) & (plots["callsign"] != "")]
+        for address, callsign in zip(
+            named["address"].tolist(), named["callsign"].tolist(), strict=True
+        ):
+            self._callsigns[address] = callsign
         self._publish_local(output.source, output.local)
         if len(output.system):
             self._publish_system(output.system, plots, sources)
@@ -434,6 +441,7 @@ class Outputs:
             lon=(lon + 180.0) % 360.0 - 180.0,
             flight_level=_none_if_nan(float(row["flight_level"])),
             address=address,
+            callsign=self._callsigns.get(int(row["address"])),
             mode3a=mode3a,
             mode3a_changed=previous is not None and previous.last.mode3a not in (None, mode3a),
             first=previous is None,
