@@ -19,10 +19,9 @@ import struct
 import threading
 import time
 from dataclasses import dataclass, replace
-from types import TracebackType
-from typing import Self
 
 from asterix.containers import Datagram
+from tracker_service.closing import Closing
 from tracker_service.ingest import DuplicateFilter, DuplicateWindow
 
 __all__ = ["InputCounters", "UdpEndpoint", "UdpInput", "block_chain_error"]
@@ -123,7 +122,7 @@ def _open_socket(endpoint: UdpEndpoint) -> socket.socket:
     return sock
 
 
-class UdpInput:
+class UdpInput(Closing):
     """One radar's feed: LAN A, optionally LAN B whose copies of A's datagrams are
     dropped, into a bounded queue of :class:`Datagram` (reception time from
     ``time.time()``, sender address as source, the endpoint as destination).
@@ -255,14 +254,3 @@ class UdpInput:
     def _close_sockets(self) -> None:
         for sock in self._sockets:
             sock.close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()

@@ -21,8 +21,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from types import TracebackType
-from typing import IO, Any, NamedTuple, Self
+from typing import IO, Any, NamedTuple
 
 from mcap.exceptions import EndOfFile
 from mcap.records import Channel, Message, Metadata, Schema
@@ -31,6 +30,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 from pydantic import BaseModel, ConfigDict, Field
 
 from asterix.containers import Datagram
+from tracker_service.closing import Closing
 from tracker_service.simulator.recording import _time_ns, json_schema, schema_name
 
 __all__ = [
@@ -131,7 +131,7 @@ class _File:
     sequences: dict[int, int] = field(default_factory=dict)
 
 
-class McapLog:
+class McapLog(Closing):
     """Writes the log into ``directory``, one file at a time.
 
     A file is closed and the next one started when it reaches ``rotate_size_mb`` or when
@@ -333,17 +333,6 @@ class McapLog:
         if not self._closed:
             self._closed = True
             self._finish()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 class LoggedMessage(NamedTuple):

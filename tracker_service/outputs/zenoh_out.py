@@ -17,11 +17,12 @@ import json
 import threading
 from collections.abc import Sequence
 from pathlib import Path
-from types import TracebackType
-from typing import Literal, Self
+from typing import Literal
 
 import zenoh
 from pydantic import BaseModel
+
+from tracker_service.closing import Closing
 
 __all__ = ["ZenohPublisher", "zenoh_config"]
 
@@ -63,7 +64,7 @@ def _source_key(sac_sic: tuple[int, int]) -> str:
     return f"{sac}_{sic}"
 
 
-class ZenohPublisher:
+class ZenohPublisher(Closing):
     """Publishes the service's messages (any pydantic model, as JSON) on one session.
     A message may also come as its JSON already (bytes), when the caller serialised it
     once for every output."""
@@ -169,14 +170,3 @@ class ZenohPublisher:
         # zenoh's stubs leave both unannotated.
         self._queryable.undeclare()  # type: ignore[no-untyped-call]
         self._session.close()  # type: ignore[no-untyped-call]
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()

@@ -22,8 +22,7 @@ import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
-from typing import IO, Annotated, Any, Literal, NamedTuple, Self
+from typing import IO, Annotated, Any, Literal, NamedTuple
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -32,6 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from pydantic_core import to_jsonable_python
 
 from asterix.containers import detect_format, write_pcap
+from tracker_service.closing import Closing
 
 __all__ = [
     "FORMAT_NAME",
@@ -355,7 +355,7 @@ def _check_datagram(
 # ---------------------------------------------------------------------------
 
 
-class RecordingWriter:
+class RecordingWriter(Closing):
     """What the simulator calls, in the order of reception times.
 
     The base class keeps nothing, so it is also the writer of a run without output;
@@ -400,18 +400,6 @@ class RecordingWriter:
     def close(self) -> None:
         """Finishes the file; later calls do nothing."""
         self._closed = True
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        # Closed on errors too: what was simulated until then remains a readable file.
-        self.close()
 
     def _check_open(self) -> None:
         if self._closed:
