@@ -446,7 +446,7 @@ def test_the_reader_sorts_by_log_time_and_keeps_call_order_on_ties(tmp_path: Pat
 
 @given(st.floats(min_value=0.0, max_value=2.0**34, allow_nan=False, allow_infinity=False))
 def test_time_to_nanoseconds_is_exact(t: float) -> None:
-    ns = recording._time_ns(t)
+    ns = recording.time_ns(t)
     assert ns == _ns(t)
     if t >= 2.0**23:  # floats more than 1 ns apart from there: the float itself comes back
         assert ns / 10**9 == t

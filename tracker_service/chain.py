@@ -438,49 +438,15 @@ class Chain:
         first_id = int(table["plot_id"][0])
         n_radars = len(self.sources)
         observations = []
-        refs = self.fuser.references(radar, local, batch)
         # Other radars' tracks are a relative reference that carries their own residual
         # errors, which separate filters cannot tell apart: a radar with an absolute
         # reference (ADS-B) keeps to it. Measured on three_sites: with traffic beside
         # ADS-B the time offsets came out 55-115 ms off, without it within 27 ms.
-        usable = refs.others_valid & (self._absolute_references[radar] < ABSOLUTE_ENOUGH)
-        if self._geometry is not None:
-            self._remember_geometry(radar, refs, table["R"], c, first_id)
-        if usable.any():
-            row = refs.plot_id[usable] - first_id
-            rc = c[row].copy()
-            rc[:, :, 3] = -refs.others_v[usable]
-            contributors = refs.radars_seen[usable]
-            contributor_r = contributor_c = None
-            if self._geometry is not None:
-                contributor_r, contributor_c = self._contributor_geometry(
-                    refs.system_number[usable]
-                )
-                contributors = contributors & (contributor_r[:, :, 0, 0] > 0)
-            # The reference at the plot's time as labelled, where the uncorrected plot
-            # lies: the batch's time had the estimated time offset taken off.
-            ref_xy = refs.others_xy[usable] + refs.others_v[usable] * bias[3]
-            y = np.column_stack([table["x"][row], table["y"][row]])  # as sent: uncorrected
-            observations.append(
-                make_observations(
-                    n_radars,
-                    np.full(len(row), radar),
-                    table["time"][row],
-                    y,
-                    table["R"][row],
-                    rc,
-                    ref_xy,
-                    refs.others_P[usable],
-                    kind=ObservationKind.AIRCRAFT,
-                    group=refs.system_number[usable],
-                    reference_v=refs.others_v[usable],
-                    prediction_xy=refs.all_xy[usable] + refs.others_v[usable] * bias[3],
-                    prediction_P=refs.all_P[usable],
-                    contributors=contributors,
-                    contributor_R=contributor_r,
-                    contributor_C=contributor_c,
-                )
-            )
+        relative = self._absolute_references[radar] < ABSOLUTE_ENOUGH
+        if relative or self._geometry is not None:
+            traffic = self._traffic_observations(radar, table, batch, local, c, bias, relative)
+            if traffic is not None:
+                observations.append(traffic)
         monitor = np.flatnonzero(table["rab"])
         surveyed = self._monitors.get(state.info.source)
         if monitor.size and surveyed is not None:
@@ -512,6 +478,57 @@ class Chain:
             cu[:, :, 3] = -np.column_stack([local["vx"][with_plot], local["vy"][with_plot]])
             extra[with_plot] = cu @ bias_cov @ np.swapaxes(cu, 1, 2)
         return extra
+
+    def _traffic_observations(
+        self,
+        radar: int,
+        table: npt.NDArray[Any],
+        batch: npt.NDArray[Any],
+        local: npt.NDArray[Any],
+        c: FloatArray,
+        bias: FloatArray,
+        relative: bool,
+    ) -> BiasObservations | None:
+        """The batch's plots of aircraft that other radars see, against those radars'
+        fused tracks (``relative``: still wanted as a reference); the macro filter's
+        record of each aircraft's radars is kept up to date either way."""
+        assert self.fuser is not None
+        first_id = int(table["plot_id"][0])
+        refs = self.fuser.references(radar, local, batch)
+        if self._geometry is not None:
+            self._remember_geometry(radar, refs, table["R"], c, first_id)
+        usable = refs.others_valid & relative
+        if not usable.any():
+            return None
+        row = refs.plot_id[usable] - first_id
+        rc = c[row].copy()
+        rc[:, :, 3] = -refs.others_v[usable]
+        contributors = refs.radars_seen[usable]
+        contributor_r = contributor_c = None
+        if self._geometry is not None:
+            contributor_r, contributor_c = self._contributor_geometry(refs.system_number[usable])
+            contributors = contributors & (contributor_r[:, :, 0, 0] > 0)
+        # The reference at the plot's time as labelled, where the uncorrected plot lies:
+        # the batch's time had the estimated time offset taken off.
+        ref_xy = refs.others_xy[usable] + refs.others_v[usable] * bias[3]
+        return make_observations(
+            len(self.sources),
+            np.full(len(row), radar),
+            table["time"][row],
+            np.column_stack([table["x"][row], table["y"][row]]),  # as sent: uncorrected
+            table["R"][row],
+            rc,
+            ref_xy,
+            refs.others_P[usable],
+            kind=ObservationKind.AIRCRAFT,
+            group=refs.system_number[usable],
+            reference_v=refs.others_v[usable],
+            prediction_xy=refs.all_xy[usable] + refs.others_v[usable] * bias[3],
+            prediction_P=refs.all_P[usable],
+            contributors=contributors,
+            contributor_R=contributor_r,
+            contributor_C=contributor_c,
+        )
 
     def _remember_geometry(
         self, radar: int, refs: References, r: FloatArray, c: FloatArray, first_id: int

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 from collections import defaultdict
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig
 from tracker_service.geodesy import SystemPlane
 from tracker_service.simulator.recording import Recording, read_recording
 from tracker_service.tracking import LocalTracker, TrackerConfig
+from tracker_service.validation import dataclass_kwargs
 
 __all__ = [
     "KIND_AIRCRAFT",
@@ -105,24 +106,11 @@ class EvaluationConfig:
         allowed = {"geoid_m", "association_gate_m", "min_identity_updates"}
         if set(evaluation) - allowed:
             raise ValueError(f"[evaluation] knows only {sorted(allowed)}")
-        tracker = dataclass_fields("tracker", doc, TrackerConfig)
-        fusion = FusionConfig(**dataclass_fields("fusion", doc, FusionConfig))
-        bias = BiasConfig(**dataclass_fields("bias", doc, BiasConfig))
+        tracker = dataclass_kwargs("tracker", doc.get("tracker", {}), TrackerConfig)
+        fusion = FusionConfig(**dataclass_kwargs("fusion", doc.get("fusion", {}), FusionConfig))
+        bias = BiasConfig(**dataclass_kwargs("bias", doc.get("bias", {}), BiasConfig))
         radars = {str(k): dict(v) for k, v in dict(doc.get("radars", {})).items()}
         return cls(radars=radars, tracker=tracker, fusion=fusion, bias=bias, **evaluation)
-
-
-def dataclass_fields(table: str, doc: Mapping[str, Any], cls: type) -> dict[str, Any]:
-    """The ``[table]`` of a TOML document as keyword arguments of the dataclass ``cls``,
-    its keys checked against the fields (TOML arrays become the tuples the fields want)."""
-    values = dict(doc.get(table, {}))
-    names = {f.name for f in fields(cls)}
-    unknown = sorted(set(values) - names)
-    if unknown:
-        raise ValueError(
-            f"[{table}] fields {unknown} are not {cls.__name__} fields: {sorted(names)}"
-        )
-    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
 
 
 @dataclass

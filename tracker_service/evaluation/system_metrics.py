@@ -37,7 +37,7 @@ from tracker_service.evaluation.metrics import (
 )
 from tracker_service.fusion import ENDED
 from tracker_service.simulator.recording import Recording
-from tracker_service.tracking import CONFIRMED
+from tracker_service.tracking import CONFIRMED, track_update_dtype
 
 __all__ = [
     "BIAS_COMPONENTS",
@@ -57,20 +57,12 @@ BIAS_COMPONENTS = ("range_offset_m", "range_gain", "azimuth_deg", "time_s")
 """The bias vector's components as ``evaluate --json`` names them; the estimator's state
 holds the azimuth in radians."""
 
+_SHARED_FIELDS = ("time", "x", "y", "vx", "vy", "P", "flight_level", "status")
+"""Fields a system-track row has as a local-track row has them."""
 _LOCAL_VIEW = np.dtype(
-    [
-        ("track_number", np.int64),
-        ("time", np.float64),
-        ("x", np.float64),
-        ("y", np.float64),
-        ("vx", np.float64),
-        ("vy", np.float64),
-        ("P", np.float64, (16,)),
-        ("flight_level", np.float64),
-        ("status", np.int8),
-        ("plot_id", np.int64),
-    ]
+    [(name, track_update_dtype(1)[name]) for name in ("track_number", *_SHARED_FIELDS, "plot_id")]
 )
+"""The fields of local-track updates that the metrics read."""
 
 
 def as_track_rows(system: npt.NDArray[Any]) -> npt.NDArray[Any]:
@@ -89,7 +81,7 @@ def as_track_rows(system: npt.NDArray[Any]) -> npt.NDArray[Any]:
         if status == ENDED:
             lives[number] = life + 1
     rows["track_number"] = numbers
-    for name in ("time", "x", "y", "vx", "vy", "P", "flight_level", "status"):
+    for name in _SHARED_FIELDS:
         rows[name] = system[name]
     rows["plot_id"] = np.where(system["fresh"], system["plot_id"], -1)
     return rows

@@ -26,12 +26,12 @@ from typing import IO, Any, NamedTuple
 from mcap.exceptions import EndOfFile
 from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, IndexType, Writer
+from mcap.writer import Writer
 from pydantic import BaseModel, ConfigDict, Field
 
 from asterix.containers import Datagram
 from tracker_service.closing import Closing
-from tracker_service.simulator.recording import _time_ns, json_schema, schema_name
+from tracker_service.simulator.recording import json_schema, schema_name, start_mcap, time_ns
 
 __all__ = [
     "LOCATION_FIX_SCHEMA",
@@ -206,7 +206,7 @@ class McapLog(Closing):
         values = [float(v) for v in covariance] if covariance is not None else [0.0] * 9
         if not all(map(math.isfinite, (lat, lon, alt, *values))):
             raise ValueError("a location must be finite")
-        ns = _time_ns(time)
+        ns = time_ns(time)
         fix = {
             "timestamp": {"sec": ns // _NS_PER_S, "nsec": ns % _NS_PER_S},
             "frame_id": "",
@@ -236,7 +236,7 @@ class McapLog(Closing):
     ) -> None:
         if self._closed:
             raise ValueError("the log is closed")
-        log_time = _time_ns(time)
+        log_time = time_ns(time)
         file = self._file_for(log_time)
         known = file.channels.get(topic)
         if known is None:
@@ -287,20 +287,7 @@ class McapLog(Closing):
             path = self.directory / f"{self.name}_{stamp}_{sequence:04d}.mcap"
         stream = open(path, "xb")  # noqa: SIM115 - closed by _finish()
         try:
-            writer = Writer(
-                stream,
-                chunk_size=self._chunk_size,
-                compression=CompressionType.ZSTD,
-                index_types=IndexType.ALL,
-                repeat_channels=True,
-                repeat_schemas=True,
-                use_chunking=True,
-                use_statistics=True,
-                use_summary_offsets=True,
-                enable_crcs=True,
-                enable_data_crcs=True,
-            )
-            writer.start(profile="", library=MCAP_LIBRARY)
+            writer = start_mcap(stream, self._chunk_size)
             # Each file carries the metadata, right after its header: a file alone, even
             # one cut short by a kill, says what produced it.
             for metadata_name, values in self._metadata.items():

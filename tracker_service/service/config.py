@@ -10,17 +10,16 @@ from __future__ import annotations
 
 import dataclasses
 import tomllib
-import types
-import typing
 from ipaddress import IPv4Address
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args, get_origin
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from tracker_service.geodesy.plane import PlaneKind
 from tracker_service.simulator.scenario import FieldMonitor
 from tracker_service.tracking import TrackerConfig
+from tracker_service.validation import describe_errors
 
 ANY_ADDRESS = IPv4Address("0.0.0.0")
 TRACKER_FIELDS = {f.name: f for f in dataclasses.fields(TrackerConfig)}
@@ -235,49 +234,4 @@ def parse_service_config(data: dict[str, Any], origin: str = "configuration") ->
     try:
         return ServiceConfig.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(f"{origin}: {describe_errors(exc)}") from None
-
-
-def describe_errors(exc: ValidationError) -> str:
-    """One line per problem: the dotted path, the value given and what is allowed."""
-    lines = []
-    for error in exc.errors():
-        loc = error["loc"]
-        where = ".".join(str(part) for part in loc) or "(top level)"
-        value = error.get("input")
-        shown = "" if isinstance(value, dict | list) else f" = {value!r}"
-        message = error["msg"]
-        if error["type"] == "extra_forbidden":
-            model = _model_at(loc[:-1])
-            if model is not None:
-                message += f"; allowed here: {', '.join(model.model_fields)}"
-        lines.append(f"{where}{shown}: {message}")
-    return f"{len(lines)} problem(s)\n  " + "\n  ".join(lines)
-
-
-def _model_at(loc: tuple[int | str, ...]) -> type[BaseModel] | None:
-    """The model class validating the value at ``loc`` (list indices skipped)."""
-    model: type[BaseModel] = ServiceConfig
-    for part in loc:
-        if isinstance(part, int):
-            continue
-        field = model.model_fields.get(part)
-        if field is None:
-            return None
-        inner = _inner_model(field.annotation)
-        if inner is None:
-            return None
-        model = inner
-    return model
-
-
-def _inner_model(annotation: Any) -> type[BaseModel] | None:
-    """The model inside ``M``, ``M | None``, ``list[M]`` or ``Annotated[list[M], ...]``."""
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return annotation
-    if get_origin(annotation) in (list, typing.Union, types.UnionType, typing.Annotated):
-        for arg in get_args(annotation):
-            found = _inner_model(arg)
-            if found is not None:
-                return found
-    return None
+        raise ConfigError(f"{origin}: {describe_errors(exc, ServiceConfig)}") from None

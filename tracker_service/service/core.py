@@ -18,7 +18,7 @@ import logging
 import math
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -46,6 +46,7 @@ from tracker_service.outputs.messages import (
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.service.config import ServiceConfig, parse_service_config
 from tracker_service.tracking import TrackerConfig
+from tracker_service.validation import dataclass_kwargs
 
 __all__ = [
     "CAT062_TOPIC",
@@ -112,19 +113,10 @@ def _radar_info(radar: Any) -> RadarInfo:
     )
 
 
-def _dataclass_kwargs(table: str, values: Mapping[str, Any], cls: type) -> dict[str, Any]:
-    names = {f.name for f in fields(cls)}
-    unknown = sorted(set(values) - names)
-    if unknown:
-        raise ValueError(f"[{table}]: {unknown} are not settings; allowed: {sorted(names)}")
-    # TOML has no tuples: the tuple-valued fields arrive as lists.
-    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
-
-
 def bias_config(config: ServiceConfig) -> BiasConfig:
     """The ``[bias]`` table as a ``BiasConfig``; radars marked ``reference`` anchor the bias
     filters with a zero bias (their index is their place in the chain's SAC/SIC order)."""
-    values = _dataclass_kwargs("bias", config.bias, BiasConfig)
+    values = dataclass_kwargs("bias", config.bias, BiasConfig)
     order = sorted((radar.key for radar in config.radars), key=source_order)
     references = {
         order.index(radar.key): (0.0, 0.0, 0.0, 0.0) for radar in config.radars if radar.reference
@@ -140,8 +132,8 @@ def build_chain(config: ServiceConfig) -> Chain:
     plane = SystemPlane(
         config.system.centre_lat, config.system.centre_lon, config.system.projection
     )
-    fusion = FusionConfig(**_dataclass_kwargs("fusion", config.fusion, FusionConfig))
-    tracker = _dataclass_kwargs("tracker", config.tracker, TrackerConfig)
+    fusion = FusionConfig(**dataclass_kwargs("fusion", config.fusion, FusionConfig))
+    tracker = dataclass_kwargs("tracker", config.tracker, TrackerConfig)
     return Chain(infos, plane, tracker, fusion=fusion, bias=bias_config(config))
 
 

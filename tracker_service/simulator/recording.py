@@ -301,7 +301,28 @@ def _check_source(source: str) -> None:
         raise ValueError(f"source {source!r} must be SAC/SIC in decimal, e.g. '25/11'")
 
 
-def _time_ns(time: float) -> int:
+def start_mcap(stream: IO[bytes], chunk_size: int) -> Writer:
+    """An MCAP writer on ``stream``, started: zstd chunks, every index, statistics, CRCs.
+    Every option spelled out: the defaults of a later mcap release must not change the
+    bytes. zstd is applied at mcap-python's fixed level (zstandard's default, 3)."""
+    writer = Writer(
+        stream,
+        chunk_size=chunk_size,
+        compression=CompressionType.ZSTD,
+        index_types=IndexType.ALL,
+        repeat_channels=True,
+        repeat_schemas=True,
+        use_chunking=True,
+        use_statistics=True,
+        use_summary_offsets=True,
+        enable_crcs=True,
+        enable_data_crcs=True,
+    )
+    writer.start(profile="", library=MCAP_LIBRARY)
+    return writer
+
+
+def time_ns(time: float) -> int:
     """POSIX seconds to integer nanoseconds, exact to the float's own resolution."""
     if not math.isfinite(time) or time < 0:
         raise ValueError(f"time {time!r} must be finite POSIX seconds >= 0")
@@ -347,7 +368,7 @@ def _check_datagram(
         raise ValueError(
             f"a datagram payload needs 1..{_MAX_UDP_PAYLOAD} bytes, not {len(payload)}"
         )
-    return _time_ns(time), _endpoint_text(src, "src"), _endpoint_text(dst, "dst")
+    return time_ns(time), _endpoint_text(src, "src"), _endpoint_text(dst, "dst")
 
 
 # ---------------------------------------------------------------------------
@@ -496,22 +517,7 @@ class _McapWriter(RecordingWriter):
         scenario = _metadata_json(metadata)
         self._stream: IO[bytes] = open(path, "wb")  # noqa: SIM115 - closed by close()
         try:
-            # Every option spelled out: the defaults of a later mcap release must not change
-            # the bytes. zstd is applied at mcap-python's fixed level (zstandard's default, 3).
-            self._writer = Writer(
-                self._stream,
-                chunk_size=_CHUNK_SIZE,
-                compression=CompressionType.ZSTD,
-                index_types=IndexType.ALL,
-                repeat_channels=True,
-                repeat_schemas=True,
-                use_chunking=True,
-                use_statistics=True,
-                use_summary_offsets=True,
-                enable_crcs=True,
-                enable_data_crcs=True,
-            )
-            self._writer.start(profile="", library=MCAP_LIBRARY)
+            self._writer = start_mcap(self._stream, _CHUNK_SIZE)
             self._writer.add_metadata("scenario", {"json": scenario})
             self._writer.add_metadata("format", {"name": FORMAT_NAME, "version": FORMAT_VERSION})
             self._schemas: dict[type[BaseModel], int] = {
@@ -605,7 +611,7 @@ class _McapWriter(RecordingWriter):
         self._add_truth(TRUTH_COVERAGE, time, message)
 
     def _add_truth(self, topic: str, time: float, message: BaseModel) -> None:
-        self._add((topic, ""), self._channels[topic], _time_ns(time), message)
+        self._add((topic, ""), self._channels[topic], time_ns(time), message)
 
     def close(self) -> None:
         if not self._closed:

@@ -15,6 +15,8 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from tracker_service.validation import describe_errors
+
 NM = 1852.0
 
 
@@ -336,14 +338,3 @@ def load_scenario(path: str | Path) -> Scenario:
         return Scenario.model_validate(data)
     except ValidationError as exc:
         raise ScenarioError(f"{file}: {describe_errors(exc)}") from None
-
-
-def describe_errors(exc: ValidationError) -> str:
-    """One line per problem: where (dotted path with list indices), the value, and why."""
-    lines = []
-    for error in exc.errors():
-        where = ".".join(str(part) for part in error["loc"]) or "(top level)"
-        value = error.get("input")
-        shown = "" if isinstance(value, dict | list) else f" = {value!r}"
-        lines.append(f"{where}{shown}: {error['msg']}")
-    return f"{len(lines)} problem(s)\n  " + "\n  ".join(lines)
