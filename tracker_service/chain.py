@@ -20,6 +20,7 @@ import logging
 import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
+from enum import IntEnum
 from typing import Any
 
 import numpy as np
@@ -48,10 +49,12 @@ __all__ = [
     "BatchOutput",
     "Chain",
     "FieldMonitor",
+    "PlotUse",
     "RadarInfo",
     "blocks_of",
     "convert_batch",
     "radar_infos",
+    "rejections",
     "source_order",
     "system_plane",
 ]
@@ -95,10 +98,27 @@ RAW_PLOT_DTYPE = np.dtype(
         ("kind", np.int8),  # what the plot truly is, when an evaluation knows (KIND_*)
         ("aircraft", np.int64),  # origin aircraft index, -1 when none or unknown
         ("detection_time", np.float64),  # true time of detection, NaN when unknown
+        ("use", np.int8),  # PlotUse: what the chain did with the plot
     ]
 )
 """One converted plot of one radar, as received (before any bias correction), with room
 for its truth origin."""
+
+
+class PlotUse(IntEnum):
+    """What the chain did with a plot: tracked, or kept out of traffic tracking and why.
+    Every plot of a radar's table carries one; status counts the others per radar by
+    their lower-case name."""
+
+    TRACKED = 0
+    FIELD_MONITOR = 1
+    """I020 RAB = 1: a radar's test transponder, a bias reference, never tracked."""
+
+
+def rejections(use: npt.NDArray[np.int8]) -> dict[str, int]:
+    """Counts of a table's plots kept out of tracking, by reason (``PlotUse`` names)."""
+    codes, counts = np.unique(use[use != PlotUse.TRACKED], return_counts=True)
+    return {PlotUse(code).name.lower(): int(n) for code, n in zip(codes, counts, strict=True)}
 
 
 @dataclass(frozen=True)
@@ -237,6 +257,7 @@ def convert_batch(
     table["kind"] = KIND_UNKNOWN
     table["aircraft"] = -1
     table["detection_time"] = np.nan
+    table["use"] = np.where(rab, PlotUse.FIELD_MONITOR, PlotUse.TRACKED)
     if bias is not None and c is not None:
         # The table keeps the plots as sent: uncorrected, to first order.
         shift = c[:, :, :3] @ bias[:3]
@@ -411,7 +432,10 @@ class Chain:
         n_monitor = int(np.count_nonzero(monitor))
         if n_monitor:
             self.stats.field_monitor_plots += n_monitor
-            batch = batch[~monitor]
+        # The batch keeps the tracker's plots only; the table keeps every plot with its use.
+        tracked = table["use"] == PlotUse.TRACKED
+        if not tracked.all():
+            batch = batch[tracked]
         local = state.tracker.process(batch)
         if self.fuser is None or index is None or not len(local):
             return BatchOutput(source, table, local, _NO_SYSTEM_ROWS)

@@ -208,12 +208,16 @@ class RadarStatus(_Message):
     duplicates: Annotated[int, Field(ge=0)]
     drops: Annotated[int, Field(ge=0)]
     """Plots or datagrams dropped under overload (counted, also in the MCAP log)."""
+    rejected: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
+    """Plots since start kept out of traffic tracking, by reason (field_monitor, ...)."""
 
 
 class StatusMessage(_Message):
     time: float
     uptime_s: Seconds
     health: Literal["ok", "degraded"]
+    reasons: list[str] = Field(default_factory=list)
+    """Why health is not "ok", one line each, naming the radar or output concerned."""
     radars: list[RadarStatus]
 
 

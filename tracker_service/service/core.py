@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
@@ -26,7 +26,14 @@ import numpy.typing as npt
 
 from asterix.containers import Datagram
 from tracker_service.bias import BiasConfig
-from tracker_service.chain import BatchOutput, Chain, FieldMonitor, RadarInfo, source_order
+from tracker_service.chain import (
+    BatchOutput,
+    Chain,
+    FieldMonitor,
+    RadarInfo,
+    rejections,
+    source_order,
+)
 from tracker_service.fusion import COASTING, ENDED, FusionConfig
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
@@ -211,6 +218,7 @@ class _RadarCounters:
     plots: int = 0
     plots_at_last_status: int = 0
     decode_errors: int = 0
+    rejected: Counter[str] = field(default_factory=Counter)
 
 
 @dataclass
@@ -308,6 +316,7 @@ class Outputs:
         counters.plots += len(plots)
         if len(plots):
             counters.last_plot_time = float(plots["time"].max())
+            counters.rejected.update(rejections(plots["use"]))
         named = plots[(plots["address"] >= 0) & (plots["callsign"] != "")]
         for address, callsign in zip(
             named["address"].tolist(), named["callsign"].tolist(), strict=True
@@ -549,6 +558,7 @@ class Outputs:
                     decode_errors=counters.decode_errors + inputs.malformed,
                     duplicates=inputs.duplicates,
                     drops=inputs.dropped,
+                    rejected=dict(sorted(counters.rejected.items())),
                 )
             )
         return StatusMessage(
