@@ -47,62 +47,87 @@ class Block:
     supported: bool = True
 
 
+Plan = tuple[tuple[str, Decoder], ...]
+
+
+def _fspec_end(b: bytes, p: int, end: int, limit_octets: int) -> int:
+    """Position just past the FX-chained FSPEC at ``p``."""
+    q = p
+    limit = min(end, p + limit_octets)
+    while True:
+        if q >= limit:
+            raise Malformed(p, "FSPEC runs past the UAP or the block")
+        if not b[q] & 1:
+            return q + 1
+        q += 1
+
+
 class CategoryCodec:
-    """Record decoder and encoder of one category edition."""
+    """Record decoder and encoder of one category edition (with one UAP)."""
 
     def __init__(self, compiled: CompiledCategory) -> None:
         self.compiled = compiled
         self.number = compiled.number
-        self.uap = compiled.uap
-        self.fspec_limit = (len(self.uap) + 6) // 7
-        self.positions = {slot[0]: i for i, slot in enumerate(self.uap) if slot is not None}
-        self._plans: dict[bytes, tuple[tuple[str, Decoder], ...]] = {}
+        self.uaps = compiled.uaps or (compiled.uap,)
+        self.uap = self.uaps[0]
+        self.fspec_limit = max((len(uap) + 6) // 7 for uap in self.uaps)
+        self.uap_positions = tuple(
+            {slot[0]: i for i, slot in enumerate(uap) if slot is not None} for uap in self.uaps
+        )
+        self.positions = self.uap_positions[0]
+        self._plans: dict[bytes, Plan] = {}
 
-    def _plan(self, fspec: bytes, offset: int) -> tuple[tuple[str, Decoder], ...]:
+    def _plan(
+        self, fspec: bytes, offset: int, uap: int = 0, first_frn: int = 0, last_frn: int = 1 << 16
+    ) -> Plan:
+        """The items an FSPEC names in a UAP, FRNs ``first_frn`` to ``last_frn`` (0-based)."""
         plan = []
+        slots = self.uaps[uap]
         for i, octet in enumerate(fspec):
             for bit in range(7):
                 if octet & (0x80 >> bit):
                     frn = i * 7 + bit
-                    slot = self.uap[frn] if frn < len(self.uap) else None
+                    if not first_frn <= frn <= last_frn:
+                        continue
+                    slot = slots[frn] if frn < len(slots) else None
                     if slot is None:
                         raise Malformed(offset, f"FSPEC names undefined FRN {frn + 1}")
                     plan.append((slot[0], slot[1]))
-        if not plan:
+        if not plan and not first_frn:
             raise Malformed(offset, "empty FSPEC")
-        if len(self._plans) < PLAN_CACHE_LIMIT:
-            self._plans[fspec] = tuple(plan)
         return tuple(plan)
 
     def decode_record(self, b: bytes, p: int, end: int) -> tuple[dict[str, Any], int]:
         """Decode the record at ``p``; returns its items and the position after it."""
-        q = p
-        limit = min(end, p + self.fspec_limit)
-        while True:
-            if q >= limit:
-                raise Malformed(p, "FSPEC runs past the UAP or the block")
-            if not b[q] & 1:
-                break
-            q += 1
-        q += 1
+        q = _fspec_end(b, p, end, self.fspec_limit)
         fspec = b[p:q]
-        plan = self._plans.get(fspec) or self._plan(fspec, p)
+        plan = self._plans.get(fspec)
+        if plan is None:
+            plan = self._plan(fspec, p)
+            if len(self._plans) < PLAN_CACHE_LIMIT:
+                self._plans[fspec] = plan
         items = new_items(fspec)
         for name, decode in plan:
             items[name], q = decode(b, q, end)
         return items, q
 
+    def uap_of(self, items: Mapping[str, Any]) -> int:
+        """The UAP (index into ``uaps``) the items are encoded with."""
+        return 0
+
     def encode_record(self, items: Mapping[str, Any]) -> bytes:
-        unknown = items.keys() - self.positions.keys()
+        uap = self.uap_of(items)
+        slots, positions = self.uaps[uap], self.uap_positions[uap]
+        unknown = items.keys() - positions.keys()
         if unknown:
             raise EncodeError(
                 f"CAT{self.number:03d}: unknown item(s) {sorted(unknown)}; "
-                f"the UAP has {sorted(self.positions)}"
+                f"the UAP has {sorted(positions)}"
             )
-        indices = sorted(self.positions[k] for k in items)
+        indices = sorted(positions[k] for k in items)
         parts = [build_fspec(indices, 0, getattr(items, "fspec_octets", 0))]
         for i in indices:
-            slot = self.uap[i]
+            slot = slots[i]
             assert slot is not None
             try:
                 parts.append(slot[2](items[slot[0]]))
@@ -111,10 +136,76 @@ class CategoryCodec:
         return b"".join(parts)
 
 
+class SelectedUapCodec(CategoryCodec):
+    """A category with several UAPs, chosen per record by the value of an element of one
+    item (``spec.UapSelector``). The spec guarantees that the UAPs agree up to that item:
+    a record's items are read with the first UAP up to it, then with the one it selects."""
+
+    def __init__(self, compiled: CompiledCategory) -> None:
+        super().__init__(compiled)
+        selector = compiled.spec.uap_selector
+        assert selector is not None
+        self.selector = selector
+        names = [name for name, _ in compiled.spec.uaps]
+        self._uap_of_value = {value: names.index(name) for value, name in selector.cases}
+        self._selector_frn = compiled.spec.uap.index(selector.item)
+        self._where = f"I{self.number:03d}/{'/'.join((selector.item, *selector.element))}"
+        self._prefixes: dict[bytes, Plan] = {}
+        self._rests: dict[tuple[bytes, int], Plan] = {}
+
+    def _selector_value(self, items: Mapping[str, Any]) -> Any:
+        value: Any = items.get(self.selector.item)
+        for name in self.selector.element:
+            value = value.get(name) if isinstance(value, dict) else None
+        return value
+
+    def _prefix(self, fspec: bytes, p: int) -> Plan:
+        octet, bit = divmod(self._selector_frn, 7)
+        if octet >= len(fspec) or not fspec[octet] & (0x80 >> bit):
+            raise Malformed(p, f"no I{self.number:03d}/{self.selector.item}, which selects the UAP")
+        plan = self._plan(fspec, p, 0, 0, self._selector_frn)
+        if len(self._prefixes) < PLAN_CACHE_LIMIT:
+            self._prefixes[fspec] = plan
+        return plan
+
+    def _rest(self, fspec: bytes, uap: int, p: int) -> Plan:
+        plan = self._plan(fspec, p, uap, self._selector_frn + 1)
+        if len(self._rests) < PLAN_CACHE_LIMIT:
+            self._rests[fspec, uap] = plan
+        return plan
+
+    def decode_record(self, b: bytes, p: int, end: int) -> tuple[dict[str, Any], int]:
+        q = _fspec_end(b, p, end, self.fspec_limit)
+        fspec = b[p:q]
+        items = new_items(fspec)
+        for name, decode in self._prefixes.get(fspec) or self._prefix(fspec, p):
+            items[name], q = decode(b, q, end)
+        value = self._selector_value(items)
+        uap = self._uap_of_value.get(value)
+        if uap is None:
+            raise Malformed(p, f"{self._where} = {value!r} selects no UAP")
+        for name, decode in self._rests.get((fspec, uap)) or self._rest(fspec, uap, p):
+            items[name], q = decode(b, q, end)
+        return items, q
+
+    def uap_of(self, items: Mapping[str, Any]) -> int:
+        value = self._selector_value(items)
+        uap = self._uap_of_value.get(value)
+        if uap is None:
+            raise EncodeError(
+                f"CAT{self.number:03d}: {self._where} is {value!r}; it must be one of "
+                f"{sorted(self._uap_of_value)} to select the UAP"
+            )
+        return uap
+
+
 @cache
 def codec(cat: int) -> CategoryCodec:
     """The codec of a supported category (KeyError for others)."""
-    return CategoryCodec(compile_category(spec.category(cat)))
+    compiled = compile_category(spec.category(cat))
+    if compiled.spec.uap_selector is not None:
+        return SelectedUapCodec(compiled)
+    return CategoryCodec(compiled)
 
 
 def decode_blocks(data: bytes, offset: int = 0) -> Iterator[Block | DecodeError]:

@@ -725,11 +725,17 @@ def _encode_explicit(v: Any, expansion: _Expansion | None, path: str) -> bytes:
 # --- compiled categories ----------------------------------------------------------------
 
 
+CompiledUap = tuple[tuple[str, Decoder, Encoder] | None, ...]
+
+
 @dataclass(frozen=True)
 class CompiledCategory:
     spec: spec.Category
-    uap: tuple[tuple[str, Decoder, Encoder] | None, ...]
+    uap: CompiledUap
+    """The first (for most categories the only) UAP."""
     source: str
+    uaps: tuple[CompiledUap, ...] = ()
+    """Every UAP, in the order of ``spec.uaps``."""
 
     @property
     def number(self) -> int:
@@ -785,11 +791,61 @@ def compile_category(category: spec.Category) -> CompiledCategory:
     for key, item in category.items.items():
         if isinstance(item.variation, Explicit) and item.variation.kind == "re":
             _rebind_expansion(namespace, names[key], re_expansion)
-    uap = tuple(
-        None if key is None else (key, namespace[names[key][0]], namespace[names[key][1]])
-        for key in category.uap
-    )
-    return CompiledCategory(category, uap, source)
+    uaps = []
+    for _, keys in category.uaps or (("", category.uap),):
+        slots: list[tuple[str, Decoder, Encoder] | None] = []
+        for slot_key in keys:
+            if slot_key is None:
+                slots.append(None)
+            elif slot_key == spec.RFS:
+                slots.append((slot_key, *_rfs_coders(slots, f"I{category.number:03d}/RFS")))
+            else:
+                coders = names[slot_key]
+                slots.append((slot_key, namespace[coders[0]], namespace[coders[1]]))
+        uaps.append(tuple(slots))
+    return CompiledCategory(category, uaps[0], source, tuple(uaps))
+
+
+def _rfs_coders(
+    uap: list[tuple[str, Decoder, Encoder] | None], path: str
+) -> tuple[Decoder, Encoder]:
+    """Random Field Sequencing: a count, then that many (FRN, item) pairs of the same UAP
+    (``uap``, filled in by the caller). The value is a list of one-item objects, in order."""
+
+    def slot_of(frn: int) -> tuple[str, Decoder, Encoder] | None:
+        slot = uap[frn - 1] if 1 <= frn <= len(uap) else None
+        return None if slot is None or slot[0] == spec.RFS else slot
+
+    def decode(b: bytes, p: int, end: int) -> tuple[Any, int]:
+        if p >= end:
+            raise _short(p, 1, end)
+        out, q = [], p + 1
+        for _ in range(b[p]):
+            if q >= end:
+                raise _short(q, 1, end)
+            slot = slot_of(b[q])
+            if slot is None:
+                raise Malformed(q, f"{path} names FRN {b[q]}, which is no item of the UAP")
+            value, q = slot[1](b, q + 1, end)
+            out.append({slot[0]: value})
+        return out, q
+
+    def encode(v: Any) -> bytes:
+        if not isinstance(v, list) or len(v) > 255:
+            raise EncodeError(f"{path}: expected a list of at most 255 {{item: value}} objects")
+        frns = {slot[0]: i + 1 for i, slot in enumerate(uap) if slot is not None}
+        parts = [bytes([len(v)])]
+        for entry in v:
+            if not isinstance(entry, dict) or len(entry) != 1:
+                raise EncodeError(f"{path}: {entry!r} is not one {{item: value}} object")
+            ((name, value),) = entry.items()
+            slot = slot_of(frns.get(name, 0))
+            if slot is None:
+                raise EncodeError(f"{path}: {name!r} is no item of the UAP")
+            parts += [bytes([frns[name]]), slot[2](value)]
+        return b"".join(parts)
+
+    return decode, encode
 
 
 def _rebind_expansion(

@@ -9,7 +9,7 @@ encoders. Nothing here knows about bytes: it only describes structure, sizes and
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from fractions import Fraction
 from functools import cache
 from importlib import resources
@@ -125,14 +125,36 @@ class Compound:
 Variation = Element | Group | Extended | Repetitive | Explicit | Compound
 
 
+RFS = "RFS"
+"""The UAP slot of Random Field Sequencing ("rfs" in the spec): items named by FRN, in any
+order, after the ordinary ones."""
+
+Uap = tuple[str | None, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class UapSelector:
+    """How a record of a multi-UAP category says which UAP it follows: the value of an
+    element of one of its items (CAT001: I020 TYP, 0 plot, 1 track)."""
+
+    item: str
+    element: tuple[str, ...]
+    cases: tuple[tuple[int, str], ...]
+
+
 @dataclass(frozen=True, slots=True)
 class Category:
     number: int
     title: str
     edition: str
     items: dict[str, Named]
-    uap: tuple[str | None, ...]
+    uap: Uap
+    """The UAP; for a multi-UAP category, the first of ``uaps``."""
     expansion: Compound | None = None  # the Reserved Expansion Field, from a "ref" file
+    uaps: tuple[tuple[str, Uap], ...] = ()
+    """Every UAP by name (one, unnamed, for most categories)."""
+    uap_selector: UapSelector | None = None
+    """None for a category with one UAP."""
 
 
 # --- parser -----------------------------------------------------------------------------
@@ -340,7 +362,8 @@ def parse_category(text: str) -> Category:
     number, title = int(match.group(1)), match.group(2)
     edition = ""
     items: dict[str, Named] = {}
-    uap: list[str | None] = []
+    uaps: list[tuple[str, Uap]] = []
+    selector: UapSelector | None = None
     while (line := parser.peek()) is not None:
         parser.take()
         if line.text.startswith("edition "):
@@ -352,13 +375,73 @@ def parse_category(text: str) -> Category:
                 named = parser.named()
                 items[named.name] = named
         elif line.text == "uap":
-            uap = [None if u.text == "-" else u.text for u in parser.children(line.indent)]
+            uaps = [("", _uap(parser.children(line.indent)))]
+        elif line.text == "uaps":
+            uaps, selector = _uaps(parser, line)
         else:
             raise parser.fail(line, "unexpected top-level line")
-    for name in uap:
-        if name is not None and name not in items:
-            raise SpecError(f"UAP names unknown item {name}")
-    return Category(number, title, edition, _with_display_hints(items), tuple(uap))
+    if not uaps:
+        raise SpecError(f"category {number} has no UAP")
+    for uap_name, uap in uaps:
+        for name in uap:
+            if name is not None and name != RFS and name not in items:
+                raise SpecError(f"UAP {uap_name or number} names unknown item {name}")
+    if selector is not None:
+        _check_selector(selector, items, dict(uaps))
+    return Category(
+        number,
+        title,
+        edition,
+        _with_display_hints(items),
+        uaps[0][1],
+        uaps=tuple(uaps),
+        uap_selector=selector,
+    )
+
+
+def _uap(lines: list[_Line]) -> Uap:
+    return tuple(None if u.text == "-" else RFS if u.text == "rfs" else u.text for u in lines)
+
+
+def _uaps(parser: _Parser, head: _Line) -> tuple[list[tuple[str, Uap]], UapSelector]:
+    """A "uaps" block: its "variations" (named UAPs) and the "case ITEM/ELEMENT" choosing them."""
+    uaps: list[tuple[str, Uap]] = []
+    selector: UapSelector | None = None
+    while (line := parser.peek()) is not None and line.indent > head.indent:
+        parser.take()
+        if line.text == "variations":
+            while (name := parser.peek()) is not None and name.indent > line.indent:
+                parser.take()
+                uaps.append((name.text, _uap(parser.children(name.indent))))
+        elif line.text.startswith("case "):
+            item, *element = line.text.split()[1].split("/")
+            cases = []
+            for entry in parser.children(line.indent):
+                value, _, uap_name = entry.text.partition(":")
+                cases.append((int(value), uap_name.strip()))
+            selector = UapSelector(item, tuple(element), tuple(cases))
+        else:
+            raise parser.fail(line, "expected 'variations' or 'case' in 'uaps'")
+    if not uaps or selector is None:
+        raise parser.fail(head, "'uaps' needs its variations and the case selecting them")
+    return uaps, selector
+
+
+def _check_selector(selector: UapSelector, items: dict[str, Named], uaps: dict[str, Uap]) -> None:
+    """The engine reads the selecting item before it knows the UAP: that item, and every
+    slot before it, must be the same in every UAP."""
+    if selector.item not in items:
+        raise SpecError(f"UAP selector names unknown item {selector.item}")
+    for _, uap_name in selector.cases:
+        if uap_name not in uaps:
+            raise SpecError(f"UAP selector names unknown UAP {uap_name}")
+    first = next(iter(uaps.values()))
+    if selector.item not in first:
+        raise SpecError(f"UAP selector item {selector.item} is not in every UAP")
+    prefix = first[: first.index(selector.item) + 1]
+    for name, uap in uaps.items():
+        if uap[: len(prefix)] != prefix:
+            raise SpecError(f"UAP {name} does not start as the others up to {selector.item}")
 
 
 def parse_expansion(text: str) -> tuple[int, str, Compound]:
@@ -438,6 +521,8 @@ def _with_display_hints(items: dict[str, Named]) -> dict[str, Named]:
 # --- the bundled editions ---------------------------------------------------------------
 
 SPEC_FILES: dict[int, tuple[str, str | None]] = {
+    1: ("cat001_cat-1.4.ast", None),
+    2: ("cat002_cat-1.2.ast", None),
     21: ("cat021_cat-2.7.ast", "cat021_ref-1.5.ast"),
     34: ("cat034_cat-1.29.ast", None),
     48: ("cat048_cat-1.32.ast", "cat048_ref-1.13.ast"),
@@ -462,5 +547,5 @@ def category(number: int) -> Category:
         ref_cat, _, expansion = parse_expansion(_read(ref_file))
         if ref_cat != number:
             raise SpecError(f"{ref_file} is for category {ref_cat}")
-        spec = Category(spec.number, spec.title, spec.edition, spec.items, spec.uap, expansion)
+        spec = replace(spec, expansion=expansion)
     return spec

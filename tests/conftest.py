@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data" / "asterix"
+# A worktree beside the repo (../wt/NAME) finds the data through TRACKER_SHARED_DIR.
+SHARED = Path(os.environ.get("TRACKER_SHARED_DIR", REPO.parent / "shared"))
+SHARED_DATA = SHARED / "data" / "asterix"
 
 
 def shared_file(relative: str) -> Path:

@@ -124,9 +124,19 @@ def _same(a: Any, b: Any) -> bool:
 @st.composite
 def _record(draw: st.DrawFn, cat: int) -> dict[str, Any]:
     category = spec.category(cat)
-    keys = [k for k in category.uap if k is not None and k != "RE"]
+    uap_name, uap = draw(st.sampled_from(category.uaps))
+    keys = [k for k in uap if k is not None and k not in ("RE", spec.RFS)]
     chosen = draw(st.lists(st.sampled_from(keys), unique=True, min_size=1, max_size=8))
-    return {k: draw(_variation(category.items[k].variation)) for k in chosen}
+    record = {k: draw(_variation(category.items[k].variation)) for k in chosen}
+    selector = category.uap_selector
+    if selector is not None:
+        # The record says which UAP it follows (CAT001: I020 TYP).
+        (element,) = selector.element
+        item = record.setdefault(
+            selector.item, draw(_variation(category.items[selector.item].variation))
+        )
+        item[element] = next(value for value, name in selector.cases if name == uap_name)
+    return record
 
 
 @pytest.mark.parametrize("cat", SUPPORTED_CATEGORIES)

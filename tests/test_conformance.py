@@ -29,6 +29,7 @@ RECORDINGS = [
     "croatiacontrol/parsegps.gps",
     "reader_network/068test_bds30.gps",
     "reader_network/066test_filter.gps",
+    "reader_network/canalA.gps",
     "jade/final_frame_cat062_one_packet.ff",
     "jade/final_frame_062_one_packet_sample2.FF",
     "jasterix/cat021ed2.1.bin",
@@ -47,6 +48,8 @@ CAT048_RECORDINGS = [
     "jasterix/cat048ed1.23.bin",
 ]
 ORACLE_CATEGORIES = {21, 34, 48, 62, 65}
+EXTRA_ORACLE_CATEGORIES = {"reader_network/canalA.gps": {1, 2}}
+"""Categories the oracle holds for one file only (SOURCES.md, oracle-full)."""
 
 
 def _blocks(relative: str) -> Iterator[tuple[Datagram, Block | DecodeError]]:
@@ -58,9 +61,10 @@ def _blocks(relative: str) -> Iterator[tuple[Datagram, Block | DecodeError]]:
 
 def _records(relative: str) -> list[dict[str, Any]]:
     out = []
+    categories = ORACLE_CATEGORIES | EXTRA_ORACLE_CATEGORIES.get(relative, set())
     for block, (_, event) in enumerate(_blocks(relative), 1):
         assert isinstance(event, Block), event
-        if event.cat in ORACLE_CATEGORIES:
+        if event.cat in categories:
             out += [
                 {"cat": event.cat, "block": block, "record": i, "items": items}
                 for i, items in enumerate(event.records)
