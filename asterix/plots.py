@@ -1,4 +1,4 @@
-"""The plot-extraction path: CAT048 bytes straight to numpy columns for the tracker.
+"""The plot-extraction path: CAT048 and CAT001 bytes straight to numpy columns for the tracker.
 
 The general decoder builds a dict per item; a tracker fed with tens of radars needs only a
 dozen fields per plot. This path walks each record once to find where the wanted items
@@ -28,45 +28,73 @@ from asterix.engine import (
 )
 from asterix.spec import Element, Extended, Group, Integer, Named, Quantity, Spare, String
 
-CAT = 48
-
 
 @dataclass(frozen=True)
 class Column:
-    """A plot column: an element of a CAT048 item, by item key and element path."""
+    """A plot column: an element of an item, by item key and element path."""
 
     name: str
     item: str
     path: tuple[str, ...] = ()
 
 
-COLUMNS = (
-    Column("sac", "010", ("SAC",)),
-    Column("sic", "010", ("SIC",)),
-    Column("time_of_day", "140"),
-    Column("typ", "020", ("TYP",)),
-    Column("sim", "020", ("SIM",)),
-    Column("spi", "020", ("SPI",)),
-    Column("rab", "020", ("RAB",)),
-    Column("tst", "020", ("TST",)),
-    Column("rho", "040", ("RHO",)),
-    Column("theta", "040", ("THETA",)),
-    Column("mode3a", "070", ("MODE3A",)),
-    Column("mode3a_invalid", "070", ("V",)),
-    Column("mode3a_garbled", "070", ("G",)),
-    Column("mode3a_smoothed", "070", ("L",)),
-    Column("flight_level", "090", ("FL",)),
-    Column("flight_level_invalid", "090", ("V",)),
-    Column("flight_level_garbled", "090", ("G",)),
-    Column("address", "220"),
-    Column("track_number", "161", ("TRN",)),
-    Column("height_3d", "110", ("3DH",)),
-    Column("ground_speed", "200", ("GSP",)),
-    Column("heading", "200", ("HDG",)),
-)
-"""Floats (NaN when absent) for quantities, integers (-1 when absent) for the rest.
-``mode3a`` is the 12-bit code as an integer (print it with ``%04o``), ``address`` the
-24-bit ICAO address. V bits keep the spec's sense: 1 = not validated."""
+COLUMNS: dict[int, tuple[Column, ...]] = {
+    48: (
+        Column("sac", "010", ("SAC",)),
+        Column("sic", "010", ("SIC",)),
+        Column("time_of_day", "140"),
+        Column("typ", "020", ("TYP",)),
+        Column("sim", "020", ("SIM",)),
+        Column("spi", "020", ("SPI",)),
+        Column("rab", "020", ("RAB",)),
+        Column("tst", "020", ("TST",)),
+        Column("rho", "040", ("RHO",)),
+        Column("theta", "040", ("THETA",)),
+        Column("mode3a", "070", ("MODE3A",)),
+        Column("mode3a_invalid", "070", ("V",)),
+        Column("mode3a_garbled", "070", ("G",)),
+        Column("mode3a_smoothed", "070", ("L",)),
+        Column("flight_level", "090", ("FL",)),
+        Column("flight_level_invalid", "090", ("V",)),
+        Column("flight_level_garbled", "090", ("G",)),
+        Column("address", "220"),
+        Column("track_number", "161", ("TRN",)),
+        Column("height_3d", "110", ("3DH",)),
+        Column("ground_speed", "200", ("GSP",)),
+        Column("heading", "200", ("HDG",)),
+    ),
+    # CAT001 says PSR/SSR/combined in SSRPSR, which has the values of CAT048 TYP 0-3; its
+    # TYP says plot or track (a radar's own track: ``track_report``); its I141 is the time
+    # of day truncated to 512 s (``ingest.PlotClock`` unrolls it).
+    1: (
+        Column("sac", "010", ("SAC",)),
+        Column("sic", "010", ("SIC",)),
+        Column("truncated_time", "141"),
+        Column("typ", "020", ("SSRPSR",)),
+        Column("track_report", "020", ("TYP",)),
+        Column("sim", "020", ("SIM",)),
+        Column("spi", "020", ("SPI",)),
+        Column("rab", "020", ("RAB",)),
+        Column("tst", "020", ("TST",)),
+        Column("rho", "040", ("RHO",)),
+        Column("theta", "040", ("THETA",)),
+        Column("mode3a", "070", ("MODE3A",)),
+        Column("mode3a_invalid", "070", ("V",)),
+        Column("mode3a_garbled", "070", ("G",)),
+        Column("mode3a_smoothed", "070", ("L",)),
+        Column("flight_level", "090", ("HGT",)),
+        Column("flight_level_invalid", "090", ("V",)),
+        Column("flight_level_garbled", "090", ("G",)),
+        Column("track_number", "161"),
+        Column("ground_speed", "200", ("GSP",)),
+        Column("heading", "200", ("HDG",)),
+    ),
+}
+"""The columns of each category's plots. Floats (NaN when absent) for quantities, integers
+(-1 when absent) for the rest. ``mode3a`` is the 12-bit code as an integer (print it with
+``%04o``), ``address`` the 24-bit ICAO address. V bits keep the spec's sense: 1 = not
+validated. ``typ`` is CAT048 I020 TYP (CAT001: SSRPSR, the same values 0-3)."""
+CATEGORIES = tuple(COLUMNS)
 
 
 @dataclass(frozen=True)
@@ -81,9 +109,9 @@ class _Field:
     signed: bool
 
 
-def _locate(column: Column) -> _Field:
+def _locate(cat: int, column: Column) -> _Field:
     """Where an element sits inside its item, from the specification model."""
-    item = spec.category(CAT).items[column.item]
+    item = spec.category(cat).items[column.item]
     variation = item.variation
     if isinstance(variation, Extended):
         offset = 0
@@ -124,124 +152,245 @@ def _field(
     return _Field(column, offset, octets, shift, bits, extent, lsb, signed)
 
 
-_FIELDS = tuple(_locate(c) for c in COLUMNS)
-_ITEMS = (*dict.fromkeys(c.item for c in COLUMNS), "240", "RE")
-_SLOT = {key: i + 1 for i, key in enumerate(_ITEMS)}  # slot 0 holds the record offset
+_FIELDS = {cat: tuple(_locate(cat, c) for c in columns) for cat, columns in COLUMNS.items()}
+_TEXT_ITEMS = {48: ("240", "RE")}  # callsign and extended range, read apart
+_ITEMS = {
+    cat: (*dict.fromkeys(c.item for c in columns), *_TEXT_ITEMS.get(cat, ()))
+    for cat, columns in COLUMNS.items()
+}
+_SLOTS = {cat: {key: i + 1 for i, key in enumerate(items)} for cat, items in _ITEMS.items()}
+"""Per category, the row slot of each wanted item's start; slot 0 holds the record offset."""
+
+
+def _column_dtypes() -> list[tuple[str, Any]]:
+    kinds: dict[str, Any] = {}
+    for fields in _FIELDS.values():
+        for f in fields:
+            kind = np.float64 if f.lsb is not None else np.int32
+            if kinds.setdefault(f.column.name, kind) is not kind:
+                raise spec.SpecError(f"column {f.column.name} is a number in one category only")
+    return list(kinds.items())
+
 
 PLOT_DTYPE = np.dtype(
-    [("offset", np.int64)]
-    + [(f.column.name, np.float64 if f.lsb is not None else np.int32) for f in _FIELDS]
-    + [("callsign", "U8"), ("extended_range", np.bool_)]
+    [
+        ("offset", np.int64),
+        ("category", np.uint8),
+        *_column_dtypes(),
+        ("callsign", "U8"),
+        ("extended_range", np.bool_),
+    ]
 )
 
 
 @dataclass
 class PlotBatch:
-    """Plots of one input: one row per CAT048 record, and the decode errors met."""
+    """Plots of one input: one row per CAT048 or CAT001 record, in input order, and the
+    decode errors met."""
 
     plots: npt.NDArray[Any]
     errors: list[DecodeError]
 
 
 _Step = tuple[int, int, Skipper | None]
+_Plan = tuple[_Step, ...]
+
+
+@dataclass(frozen=True)
+class _Selection:
+    """The plans of one FSPEC in a multi-UAP category, by the value of the selector (read
+    ``at`` octets after the FSPEC: the items before it are fixed-size)."""
+
+    at: int
+    by_value: dict[int, _Plan]
 
 
 class _Walker:
-    """Finds where the wanted items of each record start, stepping over the others."""
+    """Finds where the wanted items of each record of one category start, stepping over
+    the others."""
 
-    def __init__(self) -> None:
-        category = codec(CAT)
-        self.uap = category.uap
+    def __init__(self, cat: int) -> None:
+        self.cat = cat
+        category = codec(cat)
         self.fspec_limit = category.fspec_limit
-        self.steps: list[tuple[int, int, Skipper | None]] = []
-        for slot in self.uap:
-            if slot is None:
-                self.steps.append((-1, 0, None))
-                continue
-            step = skipper(spec.category(CAT).items[slot[0]].variation)
-            size, fn = (step, None) if isinstance(step, int) else (0, step)
-            self.steps.append((_SLOT.get(slot[0], -1), size, fn))
-        self.plans: dict[bytes, tuple[_Step, ...]] = {}
+        slots = _SLOTS[cat]
+        self.blank = [-1] * (len(_ITEMS[cat]) + 1)
+        self.uaps: list[list[_Step | None]] = []
+        for uap in category.uaps:
+            steps: list[_Step | None] = []
+            for slot in uap:
+                if slot is None or slot[0] == spec.RFS:
+                    steps.append(None)  # RFS records are left to the general decoder
+                    continue
+                step = skipper(spec.category(cat).items[slot[0]].variation)
+                size, fn = (step, None) if isinstance(step, int) else (0, step)
+                steps.append((slots.get(slot[0], -1), size, fn))
+            self.uaps.append(steps)
+        self.plans: dict[bytes, _Plan | _Selection] = {}
+        selector = spec.category(cat).uap_selector
+        self.selector: tuple[int, _Field, dict[int, int]] | None = None
+        if selector is not None:
+            frn = spec.category(cat).uap.index(selector.item)
+            names = [name for name, _ in spec.category(cat).uaps]
+            located = _locate(cat, Column("", selector.item, selector.element))
+            if located.extent or any(
+                s is not None and s[2] is not None for s in self.uaps[0][:frn]
+            ):
+                raise spec.SpecError(
+                    f"CAT{cat:03d}: the plot path needs the UAP selector in a "
+                    "first extent after fixed-size items"
+                )
+            cases = {value: names.index(name) for value, name in selector.cases}
+            self.selector = (frn, located, cases)
 
-    def plan(self, fspec: bytes, p: int) -> tuple[_Step, ...]:
+    def _steps(self, fspec: bytes, p: int, uap: int) -> _Plan:
         plan = []
+        steps = self.uaps[uap]
         for i, octet in enumerate(fspec):
             for bit in range(7):
                 if octet & (0x80 >> bit):
                     frn = i * 7 + bit
-                    if frn >= len(self.uap) or self.uap[frn] is None:
-                        raise Malformed(p, f"FSPEC names undefined FRN {frn + 1}")
-                    plan.append(self.steps[frn])
+                    step = steps[frn] if frn < len(steps) else None
+                    if step is None:
+                        raise Malformed(p, f"FSPEC names undefined FRN {frn + 1} (or RFS)")
+                    plan.append(step)
         if not plan:
             raise Malformed(p, "empty FSPEC")
-        if len(self.plans) < PLAN_CACHE_LIMIT:
-            self.plans[fspec] = tuple(plan)
         return tuple(plan)
 
-    def walk(self, b: bytes, offset: int, rows: array[int], errors: list[DecodeError]) -> None:
-        blank = [-1] * (len(_ITEMS) + 1)
-        pos, size = 0, len(b)
-        plans, fspec_limit = self.plans, self.fspec_limit
-        while pos < size:
-            if size - pos < 3:
-                errors.append(DecodeError(offset + pos, None, "stray octets after the last block"))
-                return
-            cat, end = b[pos], pos + int.from_bytes(b[pos + 1 : pos + 3])
-            if end - pos < 3 or end > size:
-                errors.append(DecodeError(offset + pos, cat, "block length does not fit"))
-                return
-            if cat != CAT:
-                pos = end
-                continue
-            p = pos + 3
-            try:
-                while p < end:
-                    q, limit = p, min(end, p + fspec_limit)
-                    while q < limit and b[q] & 1:
-                        q += 1
-                    if q >= limit:
-                        raise Malformed(p, "FSPEC runs past the UAP or the block")
+    def plan(self, fspec: bytes, p: int) -> _Plan | _Selection:
+        found: _Plan | _Selection
+        if self.selector is None:
+            found = self._steps(fspec, p, 0)
+        else:
+            frn, _, cases = self.selector
+            octet, bit = divmod(frn, 7)
+            if octet >= len(fspec) or not fspec[octet] & (0x80 >> bit):
+                raise Malformed(p, f"no I{self.cat:03d} item selecting the UAP")
+            at = sum(
+                step[1]
+                for i, step in enumerate(self.uaps[0][:frn])
+                if step is not None and fspec[i // 7] & (0x80 >> (i % 7))
+            )
+            by_value = {}
+            for value, uap in cases.items():
+                try:
+                    by_value[value] = self._steps(fspec, p, uap)
+                except Malformed:
+                    continue  # an FSPEC that is wrong for this UAP: an error when selected
+            found = _Selection(at, by_value)
+        if len(self.plans) < PLAN_CACHE_LIMIT:
+            self.plans[fspec] = found
+        return found
+
+    def _select(self, b: bytes, q: int, p: int, selection: _Selection) -> _Plan:
+        assert self.selector is not None
+        _, f, _ = self.selector
+        at = q + selection.at + f.offset
+        value = (int.from_bytes(b[at : at + f.octets]) >> f.shift) & ((1 << f.bits) - 1)
+        plan = selection.by_value.get(value)
+        if plan is None:
+            raise Malformed(p, f"FSPEC names items the UAP selected by {value} does not have")
+        return plan
+
+    def walk_block(
+        self, b: bytes, pos: int, end: int, rows: array[int], errors: list[DecodeError]
+    ) -> None:
+        blank, plans, fspec_limit = self.blank, self.plans, self.fspec_limit
+        selecting = self.selector is not None
+        p = pos + 3
+        try:
+            while p < end:
+                q, limit = p, min(end, p + fspec_limit)
+                while q < limit and b[q] & 1:
                     q += 1
-                    fspec = b[p:q]
-                    plan = plans.get(fspec) or self.plan(fspec, p)
-                    row = blank.copy()
-                    row[0] = p
-                    for slot, step, fn in plan:
-                        if slot >= 0:
-                            row[slot] = q
-                        q = q + step if fn is None else fn(b, q, end)
-                    if q > end:
-                        raise Malformed(p, "record runs past its block")
-                    rows.extend(row)
-                    p = q
-            except Malformed as exc:
-                errors.append(DecodeError(offset + exc.offset, cat, exc.reason))
-            pos = end
+                if q >= limit:
+                    raise Malformed(p, "FSPEC runs past the UAP or the block")
+                q += 1
+                fspec = b[p:q]
+                plan = plans.get(fspec) or self.plan(fspec, p)
+                if selecting:
+                    assert isinstance(plan, _Selection)
+                    plan = self._select(b, q, p, plan)
+                assert not isinstance(plan, _Selection)
+                row = blank.copy()
+                row[0] = p
+                for slot, step, fn in plan:
+                    if slot >= 0:
+                        row[slot] = q
+                    q = q + step if fn is None else fn(b, q, end)
+                if q > end:
+                    raise Malformed(p, "record runs past its block")
+                rows.extend(row)
+                p = q
+        except Malformed as exc:
+            errors.append(DecodeError(exc.offset, self.cat, exc.reason))
 
 
-_WALKER: _Walker | None = None
+_WALKERS: dict[int, _Walker] = {}
+
+
+def _walker(cat: int) -> _Walker:
+    walker = _WALKERS.get(cat)
+    if walker is None:
+        walker = _WALKERS[cat] = _Walker(cat)
+    return walker
 
 
 def extract_plots(data: bytes, offset: int = 0) -> PlotBatch:
-    """Plots of every CAT048 record in a run of data blocks (other categories skipped).
+    """Plots of every CAT048 and CAT001 record in a run of data blocks (other categories
+    skipped), in input order.
 
     ``offset`` is added to the reported positions (record offsets and errors).
     """
-    global _WALKER
-    if _WALKER is None:
-        _WALKER = _Walker()
-    rows: array[int] = array("q")
+    rows: dict[int, array[int]] = {}
     errors: list[DecodeError] = []
-    _WALKER.walk(data, 0, rows, errors)
-    starts = np.frombuffer(rows, dtype=np.int64).reshape(-1, len(_ITEMS) + 1)
+    pos, size = 0, len(data)
+    while pos < size:
+        if size - pos < 3:
+            errors.append(DecodeError(pos, None, "stray octets after the last block"))
+            break
+        cat, end = data[pos], pos + int.from_bytes(data[pos + 1 : pos + 3])
+        if end - pos < 3 or end > size:
+            errors.append(DecodeError(pos, cat, "block length does not fit"))
+            break
+        if cat in COLUMNS:
+            found = rows.get(cat)
+            if found is None:
+                found = rows[cat] = array("q")
+            _walker(cat).walk_block(data, pos, end, found, errors)
+        pos = end
     buf = np.frombuffer(data, dtype=np.uint8)
-    plots = np.zeros(len(starts), dtype=PLOT_DTYPE)
-    plots["offset"] = starts[:, 0] + offset
-    for f in _FIELDS:
-        plots[f.column.name] = _column(buf, starts[:, _SLOT[f.column.item]], f)
-    plots["callsign"] = _callsigns(buf, starts[:, _SLOT["240"]])
-    _apply_extended_range(data, plots, starts[:, 0], starts[:, _SLOT["RE"]])
+    parts = [_plots(cat, data, buf, found) for cat, found in rows.items()]
+    if not parts:
+        plots = np.zeros(0, dtype=PLOT_DTYPE)
+    elif len(parts) == 1:
+        plots = parts[0]
+    else:  # only odd feeds mix CAT001 and CAT048 in one datagram
+        plots = np.concatenate(parts)
+        plots = plots[np.argsort(plots["offset"], kind="stable")]
+    plots["offset"] += offset
     return PlotBatch(plots, [_shifted(e, offset) for e in errors])
+
+
+def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) -> Any:
+    slots = _SLOTS[cat]
+    starts = np.frombuffer(rows, dtype=np.int64).reshape(-1, len(_ITEMS[cat]) + 1)
+    plots = np.zeros(len(starts), dtype=PLOT_DTYPE)
+    for name in PLOT_DTYPE.names or ():
+        if PLOT_DTYPE[name] == np.float64:
+            plots[name] = np.nan
+        elif PLOT_DTYPE[name] == np.int32:
+            plots[name] = -1
+    plots["offset"] = starts[:, 0]
+    plots["category"] = cat
+    for f in _FIELDS[cat]:
+        plots[f.column.name] = _column(buf, starts[:, slots[f.column.item]], f)
+    if "240" in slots:
+        plots["callsign"] = _callsigns(buf, starts[:, slots["240"]])
+    if "RE" in slots:
+        _apply_extended_range(data, plots, starts[:, 0], starts[:, slots["RE"]])
+    return plots
 
 
 def _shifted(error: DecodeError, offset: int) -> DecodeError:
@@ -294,9 +443,10 @@ def _callsigns(buf: npt.NDArray[np.uint8], starts: npt.NDArray[np.int64]) -> Any
 def _apply_extended_range(
     data: bytes, plots: npt.NDArray[Any], records: npt.NDArray[np.int64], re: npt.NDArray[np.int64]
 ) -> None:
-    """Beyond 256 NM the range is in the RE field (REF ERR); rare, so decode those fully."""
+    """Beyond 256 NM the CAT048 range is in the RE field (REF ERR); rare, so decode those
+    fully."""
     for row in np.flatnonzero(re >= 0):
-        items, _ = codec(CAT).decode_record(data, int(records[row]), len(data))
+        items, _ = codec(48).decode_record(data, int(records[row]), len(data))
         expansion = items.get("RE")
         if isinstance(expansion, dict) and "ERR" in expansion:
             plots["rho"][row] = expansion["ERR"]

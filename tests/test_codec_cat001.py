@@ -7,10 +7,12 @@ bytes written out by hand from the specification's UAP tables.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from asterix import Block, DecodeError, EncodeError, decode_blocks, encode_block, spec
 from asterix.codec import SelectedUapCodec, codec
+from asterix.plots import extract_plots
 from tests.conftest import shared_file
 
 PLOT = {
@@ -113,3 +115,40 @@ def test_cat002_sector_crossing_of_the_filter_recording() -> None:
             "050": [0x40 >> 1],
         }
     ]
+
+
+def test_plot_path_reads_both_uaps_and_keeps_the_input_order() -> None:
+    track = {
+        "010": {"SAC": 20, "SIC": 130},
+        "020": {"TYP": 1, "SIM": 0, "SSRPSR": 1, "ANT": 0, "SPI": 0, "RAB": 0},
+        "161": 77,
+        "040": {"RHO": 12.0, "THETA": 45.0},
+        "200": {"GSP": 0.0625, "HDG": 90.0},
+        "141": 511.5,
+    }
+    cat048 = {
+        "010": {"SAC": 1, "SIC": 2},
+        "140": 100.0,
+        "020": {"TYP": 2, "SIM": 0, "RDP": 0, "SPI": 0, "RAB": 0},
+        "040": {"RHO": 10.0, "THETA": 1.0},
+    }
+    payload = encode_block(1, [PLOT]) + encode_block(48, [cat048]) + encode_block(1, [track])
+    batch = extract_plots(payload, 1000)
+    assert batch.errors == []
+    plots = batch.plots
+    assert plots["category"].tolist() == [1, 48, 1]
+    assert plots["offset"].tolist() == sorted(plots["offset"].tolist())
+    assert plots["track_report"].tolist() == [0, -1, 1]
+    assert plots["typ"].tolist() == [3, 2, 1]  # SSRPSR for CAT001
+    assert plots["rho"].tolist() == [100.5, 10.0, 12.0]
+    assert plots["track_number"].tolist() == [-1, -1, 77]
+    assert plots["ground_speed"][2] == 0.0625 and plots["heading"][2] == 90.0
+    assert plots["truncated_time"][2] == 511.5 and np.isnan(plots["truncated_time"][1])
+    assert np.isnan(plots["time_of_day"][[0, 2]]).all() and plots["time_of_day"][1] == 100.0
+
+
+def test_plot_path_reports_a_record_whose_uap_has_no_such_item() -> None:
+    body = bytes([0xE1, 0x01, 0x40]) + encode_block(1, [PLOT])[4:] + b"\x00"
+    batch = extract_plots(b"\x01" + (len(body) + 3).to_bytes(2) + body)
+    assert len(batch.plots) == 0
+    assert [e.category for e in batch.errors] == [1]

@@ -187,24 +187,30 @@ def test_dual_lan_capture_identifies_duplicate_payloads() -> None:
     assert len(payloads) == 100 and len(set(payloads)) == 50
 
 
-@pytest.mark.parametrize("relative", CAT048_RECORDINGS)
+@pytest.mark.parametrize("relative", [*CAT048_RECORDINGS, "reader_network/canalA.gps"])
 def test_plot_extraction_gives_the_general_decoders_values(relative: str) -> None:
-    for unit in read_file(shared_file(relative)):
-        assert isinstance(unit, Datagram)
-        batch = extract_plots(unit.payload, unit.offset)
+    plots = 0
+    units = [u.payload for u in read_file(shared_file(relative)) if isinstance(u, Datagram)]
+    # Datagrams joined by the hundred: canalA sends one plot a datagram, 28,645 of them.
+    for start in range(0, len(units), 100):
+        payload = b"".join(units[start : start + 100])
+        batch = extract_plots(payload)
         assert batch.errors == []
         records = [
-            items
-            for event in decode_blocks(unit.payload)
-            if isinstance(event, Block) and event.cat == 48
+            (event.cat, items)
+            for event in decode_blocks(payload)
+            if isinstance(event, Block) and event.cat in (1, 48)
             for items in event.records
         ]
         assert len(batch.plots) == len(records)
-        for plot, items in zip(batch.plots, records, strict=True):
-            _assert_plot_matches(plot, items)
+        for plot, (cat, items) in zip(batch.plots, records, strict=True):
+            assert plot["category"] == cat
+            _assert_plot_matches(plot, items, cat)
+        plots += len(records)
+    assert plots > 0
 
 
-def _assert_plot_matches(plot: Any, items: dict[str, Any]) -> None:
+def _assert_plot_matches(plot: Any, items: dict[str, Any], cat: int) -> None:
     def same(column: str, value: Any) -> None:
         got = plot[column].item()
         if value is None:
@@ -217,14 +223,13 @@ def _assert_plot_matches(plot: Any, items: dict[str, Any]) -> None:
 
     same("sac", element("010", "SAC"))
     same("sic", element("010", "SIC"))
-    same("time_of_day", items.get("140"))
-    for column, name in (
-        ("typ", "TYP"),
-        ("sim", "SIM"),
-        ("spi", "SPI"),
-        ("rab", "RAB"),
-        ("tst", "TST"),
-    ):
+    cat001 = cat == 1
+    same("time_of_day", None if cat001 else items.get("140"))
+    same("truncated_time", items.get("141") if cat001 else None)
+    # CAT001 says PSR/SSR/combined in SSRPSR (CAT048 TYP 0-3) and plot/track in TYP.
+    same("typ", element("020", "SSRPSR" if cat001 else "TYP"))
+    same("track_report", element("020", "TYP") if cat001 else None)
+    for column, name in (("sim", "SIM"), ("spi", "SPI"), ("rab", "RAB"), ("tst", "TST")):
         same(column, element("020", name))
     extended = items.get("RE", {}).get("ERR") if isinstance(items.get("RE"), dict) else None
     same("rho", extended if extended is not None else element("040", "RHO"))
@@ -235,11 +240,11 @@ def _assert_plot_matches(plot: Any, items: dict[str, Any]) -> None:
     same("mode3a_invalid", element("070", "V"))
     same("mode3a_garbled", element("070", "G"))
     same("mode3a_smoothed", element("070", "L"))
-    same("flight_level", element("090", "FL"))
+    same("flight_level", element("090", "HGT" if cat001 else "FL"))
     same("flight_level_invalid", element("090", "V"))
     same("flight_level_garbled", element("090", "G"))
     same("address", int(items["220"], 16) if "220" in items else None)
-    same("track_number", element("161", "TRN"))
+    same("track_number", items.get("161") if cat001 else element("161", "TRN"))
     same("height_3d", element("110", "3DH"))
     same("ground_speed", element("200", "GSP"))
     same("heading", element("200", "HDG"))
