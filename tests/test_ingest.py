@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from asterix import Block, decode_blocks
+from asterix import Block, decode_blocks, encode_block
 from asterix.plots import extract_plots
 from tracker_service.ingest import (
+    SERVICE_REFERENCE_S,
     DuplicateFilter,
     DuplicateWindow,
     PlotClock,
     TimeSource,
     posix_from_time_of_day,
+    unroll_truncated_time,
 )
 from tracker_service.simulator.recording import read_recording
 from tracker_service.simulator.run import simulate
@@ -111,3 +114,95 @@ def test_plots_without_i140_are_timed_from_their_azimuth(tmp_path: Path) -> None
     assert np.abs(errors[TimeSource.AZIMUTH]).max() < 0.02
     # Before the first north marker only the reception time is known: it is late.
     assert all(0.0 < e < 6.0 / 16 + 0.1 for e in errors[TimeSource.RECEPTION])
+
+
+# --- CAT001: the truncated time of day (I141, modulo 512 s) -------------------------------
+
+MIDNIGHT = 1_780_272_000.0  # 2026-06-01T00:00:00Z
+
+
+def _truncated(posix: np.ndarray) -> np.ndarray:
+    """I141 of a time: the time of day in 1/128 s, its low 16 bits (written out here
+    independently of the clock)."""
+    ticks = np.round(np.mod(posix, 86400.0) * 128).astype(np.int64)
+    return np.asarray((ticks & 0xFFFF) / 128.0)
+
+
+def test_truncated_time_unrolls_to_the_time_nearest_the_reference() -> None:
+    rng = np.random.default_rng(7)
+    # True times quantised to I141's 1/128 s: within a day, the reference may be up to
+    # 256 s away; around midnight the day's last period is 384 s long, so 192 s.
+    within = MIDNIGHT + rng.uniform(600.0, 86400.0 - 600.0, 10_000)
+    around = MIDNIGHT + rng.uniform(-600.0, 600.0, 10_000)
+    true = np.round(np.concatenate([within, around]) * 128) / 128
+    offsets = np.concatenate(
+        [rng.uniform(-255.0, 255.0, len(within)), rng.uniform(-191.0, 191.0, len(around))]
+    )
+    for t, offset in zip(true.tolist(), offsets.tolist(), strict=True):
+        (got,) = unroll_truncated_time(_truncated(np.array([t])), t + offset)
+        assert got == t, (t, offset, got)
+
+
+def test_midnight_in_both_directions() -> None:
+    # Received just after midnight, measured just before (I141 383.0 = 86399 s mod 512).
+    assert unroll_truncated_time(np.array([383.0]), MIDNIGHT + 1.0)[0] == MIDNIGHT - 1.0
+    # Received just before midnight, measured just after.
+    assert unroll_truncated_time(np.array([2.0]), MIDNIGHT - 0.5)[0] == MIDNIGHT + 2.0
+
+
+def _cat001_plot(truncated: float, sac: int = 20, sic: int = 130) -> np.ndarray:
+    payload = encode_block(
+        1,
+        [
+            {
+                "010": {"SAC": sac, "SIC": sic},
+                "020": {"TYP": 0, "SIM": 0, "SSRPSR": 2, "ANT": 0, "SPI": 0, "RAB": 0},
+                "040": {"RHO": 50.0, "THETA": 10.0},
+                "141": truncated,
+            }
+        ],
+    )
+    return extract_plots(payload).plots
+
+
+def _cat002(kind: int, time_of_day: float, sac: int = 20, sic: int = 130) -> dict[str, Any]:
+    block = encode_block(2, [{"010": {"SAC": sac, "SIC": sic}, "000": kind, "030": time_of_day}])
+    (event,) = decode_blocks(block)
+    assert isinstance(event, Block)
+    return event.records[0]
+
+
+def test_cat001_plots_are_timed_on_the_radars_own_clock() -> None:
+    # The capture's clock is an hour ahead of the radar's: only the radar's service
+    # messages (CAT002 I030) give the plots their time.
+    lag = 3600.0
+    measured = MIDNIGHT + 40_000.25
+    clock = PlotClock()
+    plots = _cat001_plot(float(_truncated(np.array([measured]))[0]))
+    times, sources = clock.times(plots, measured + lag)
+    assert sources.tolist() == [TimeSource.I141_RECEPTION]
+    assert abs(times[0] - (measured + lag)) <= 256.0 and times[0] != measured
+    # A sector crossing 2 s before the plot, received 0.1 s after its I030.
+    clock.service_message(_cat002(2, measured - 2.0 - MIDNIGHT), measured - 1.9 + lag)
+    times, sources = clock.times(plots, measured + 0.5 + lag)
+    assert sources.tolist() == [TimeSource.I141_SERVICE]
+    assert times[0] == measured
+    # Another radar's messages are no reference for this one.
+    other = PlotClock()
+    other.service_message(_cat002(1, measured - MIDNIGHT, sic=131), measured + lag)
+    assert other.times(plots, measured + lag)[1].tolist() == [TimeSource.I141_RECEPTION]
+    # A reference too old is not used.
+    times, sources = clock.times(plots, measured + lag + SERVICE_REFERENCE_S + 1.0)
+    assert sources.tolist() == [TimeSource.I141_RECEPTION]
+
+
+def test_cat002_north_markers_time_plots_without_any_time() -> None:
+    clock = PlotClock()
+    record = _cat002(1, 1000.0)
+    record["041"] = 4.0
+    clock.service_message(record, MIDNIGHT + 1000.1)
+    plots = _cat001_plot(0.0)
+    plots["truncated_time"] = np.nan  # a plot without I141
+    times, sources = clock.times(plots, MIDNIGHT + 1003.0)
+    assert sources.tolist() == [TimeSource.AZIMUTH]
+    assert abs(times[0] - (MIDNIGHT + 1000.0 + plots["theta"][0] / 360.0 * 4.0)) < 1e-9

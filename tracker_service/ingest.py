@@ -2,8 +2,8 @@
 
 Radar feeds send every datagram on two LANs; the copy is recognised by its content within
 a short window. A capture without times (raw, hex) uses a window counted in datagrams.
-Plots carry a time of day (I140) or none: ``PlotClock`` turns both into POSIX times of
-measurement and says where each came from.
+Plots carry a time of day (CAT048 I140), a time of day modulo 512 s (CAT001 I141) or none:
+``PlotClock`` turns each into a POSIX time of measurement and says where it came from.
 """
 
 from __future__ import annotations
@@ -76,6 +76,20 @@ class TimeSource(IntEnum):
     RECEPTION = 2
     """No I140 and no CAT034 yet: the datagram's reception time (late by the sector's
     buffering and the network)."""
+    I141_SERVICE = 3
+    """CAT001 I141 (the time of day modulo 512 s) unrolled on the radar's own time: its
+    last north marker or sector message (CAT002 I030), advanced by the reception time
+    since."""
+    I141_RECEPTION = 4
+    """CAT001 I141 unrolled on the reception time: no recent service message of the radar
+    (exact unless the radar's clock and ours are more than 256 s apart)."""
+
+
+TRUNCATED_PERIOD_S = 512.0
+"""CAT001 I141 is the low 16 bits of the time of day in 1/128 s."""
+SERVICE_REFERENCE_S = 64.0
+"""How long a radar's last service message serves to unroll its I141: over a few turns,
+the radar's clock and the reception's drift apart by no more than the network's jitter."""
 
 
 def posix_from_time_of_day(
@@ -89,37 +103,92 @@ def posix_from_time_of_day(
     return np.asarray(posix - DAY_S * np.round((posix - reference_posix) / DAY_S))
 
 
+def unroll_truncated_time(
+    truncated: npt.NDArray[np.float64], reference_posix: float
+) -> npt.NDArray[np.float64]:
+    """POSIX times of times of day known modulo 512 s (CAT001 I141): each the time of day
+    of that residue nearest the reference, on its day or the one before or after. The time
+    of day restarts at midnight, so the day's last 384 s carry residues 0-384 s only."""
+    truncated = np.asarray(truncated, dtype=np.float64)
+    day = np.floor(reference_posix / DAY_S) * DAY_S
+    of_day = reference_posix - day
+    best = np.full(truncated.shape, np.nan)
+    best_gap = np.full(truncated.shape, np.inf)
+    for day_shift in (-DAY_S, 0.0, DAY_S):
+        reference = of_day - day_shift  # the reference counted on the candidate day
+        below = reference - np.mod(reference - truncated, TRUNCATED_PERIOD_S)
+        for candidate in (below, below + TRUNCATED_PERIOD_S):
+            gap = np.abs(candidate - reference)
+            better = (candidate >= 0.0) & (candidate < DAY_S) & (gap < best_gap)
+            best = np.where(better, day + day_shift + candidate, best)
+            best_gap = np.where(better, gap, best_gap)
+    return best
+
+
 @dataclass
 class _Antenna:
     north_posix: float
     period_s: float
 
 
-class PlotClock:
-    """Gives every CAT048 plot a POSIX time of measurement, per radar (SAC/SIC).
+@dataclass
+class _RadarTime:
+    """A radar's own time (its last service message's I030) and when it was received."""
 
-    Keeps each radar's last north marker (CAT034 I000 = 1, its I030 and I041) to time the
-    plots that come without I140, from their azimuth; says for each plot where its time
-    came from (``TimeSource``).
+    posix: float
+    received: float
+
+
+class PlotClock:
+    """Gives every CAT048 and CAT001 plot a POSIX time of measurement, per radar (SAC/SIC).
+
+    Keeps each radar's last north marker (CAT034 or CAT002 I000 = 1, its I030 and I041) to
+    time the plots that come without I140, from their azimuth, and its last north marker
+    or sector message (I000 = 1 or 2) to unroll CAT001's truncated I141; says for each
+    plot where its time came from (``TimeSource``).
     """
 
     def __init__(self) -> None:
         self._antennas: dict[tuple[int, int], _Antenna] = {}
+        self._radar_times: dict[tuple[int, int], _RadarTime] = {}
 
     def service_message(self, items: dict[str, Any], reception_posix: float) -> None:
-        """Take note of a CAT034 record (north markers carry the antenna period)."""
+        """Take note of a CAT034 or CAT002 record (the two name their items alike: I000
+        message type, I010 source, I030 time of day, I041 antenna period)."""
         source, kind, tod = items.get("010"), items.get("000"), items.get("030")
-        if kind != 1 or not isinstance(source, dict) or not isinstance(tod, float):
+        if kind not in (1, 2) or not isinstance(source, dict) or not isinstance(tod, float):
             return
         key = (source["SAC"], source["SIC"])
+        posix = float(posix_from_time_of_day(np.array([tod]), reception_posix)[0])
+        self._radar_times[key] = _RadarTime(posix, reception_posix)
+        if kind != 1:
+            return
         period = items.get("041")
         if not isinstance(period, float) or period <= 0.0:
             known = self._antennas.get(key)
             if known is None:
                 return
             period = known.period_s
-        north = float(posix_from_time_of_day(np.array([tod]), reception_posix)[0])
-        self._antennas[key] = _Antenna(north, period)
+        self._antennas[key] = _Antenna(posix, period)
+
+    def _unroll(
+        self, plots: npt.NDArray[Any], rows: npt.NDArray[np.intp], reception_posix: float
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int8]]:
+        """Times and sources of the plots ``rows`` that carry a truncated I141 only."""
+        times = np.empty(len(rows))
+        sources = np.empty(len(rows), dtype=np.int8)
+        keys = plots["sac"][rows].astype(np.int64) * 256 + plots["sic"][rows]
+        for key in np.unique(keys).tolist():
+            mine = keys == key
+            known = self._radar_times.get((key >> 8, key & 255))
+            if known is not None and 0.0 <= reception_posix - known.received < SERVICE_REFERENCE_S:
+                reference = known.posix + (reception_posix - known.received)
+                sources[mine] = TimeSource.I141_SERVICE
+            else:
+                reference = reception_posix
+                sources[mine] = TimeSource.I141_RECEPTION
+            times[mine] = unroll_truncated_time(plots["truncated_time"][rows[mine]], reference)
+        return times, sources
 
     def times(
         self, plots: npt.NDArray[Any], reception_posix: float
@@ -130,6 +199,11 @@ class PlotClock:
         stamped = np.isfinite(plots["time_of_day"])
         times[stamped] = posix_from_time_of_day(plots["time_of_day"][stamped], reception_posix)
         sources[stamped] = TimeSource.I140
+        truncated = ~stamped & np.isfinite(plots["truncated_time"])
+        if truncated.any():
+            rows = np.flatnonzero(truncated)
+            times[rows], sources[rows] = self._unroll(plots, rows, reception_posix)
+            stamped |= truncated
         for row in np.flatnonzero(~stamped):
             antenna = self._antennas.get((int(plots["sac"][row]), int(plots["sic"][row])))
             theta = plots["theta"][row]
