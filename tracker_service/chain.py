@@ -62,9 +62,14 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 NM = 1852.0
+CAT001 = 1
+CAT002 = 2
 CAT021 = 21
 CAT034 = 34
 CAT048 = 48
+PLOT_CATEGORIES = (CAT048, CAT001)
+SERVICE_CATEGORIES = (CAT034, CAT002)
+"""Radar service messages (north markers, sector crossings) of CAT048 and CAT001 radars."""
 MONITOR_SURVEY_VARIANCE_M2 = 1.0
 """A field monitor's surveyed position: metre-level, against plots of tens of metres."""
 BIAS_HISTORY_S = 10.0
@@ -113,6 +118,8 @@ class PlotUse(IntEnum):
     TRACKED = 0
     FIELD_MONITOR = 1
     """I020 RAB = 1: a radar's test transponder, a bias reference, never tracked."""
+    RADAR_TRACK = 2
+    """A CAT001 track report (I020 TYP = 1): the radar's own smoothed track, not a plot."""
 
 
 def rejections(use: npt.NDArray[np.int8]) -> dict[str, int]:
@@ -258,6 +265,7 @@ def convert_batch(
     table["aircraft"] = -1
     table["detection_time"] = np.nan
     table["use"] = np.where(rab, PlotUse.FIELD_MONITOR, PlotUse.TRACKED)
+    table["use"][raw["track_report"] == 1] = PlotUse.RADAR_TRACK
     if bias is not None and c is not None:
         # The table keeps the plots as sent: uncorrected, to first order.
         shift = c[:, :, :3] @ bias[:3]
@@ -354,15 +362,16 @@ class Chain:
     def feed(self, payload: bytes, received: float) -> list[BatchOutput]:
         """Process one datagram received at ``received`` (POSIX s)."""
         self.stats.datagrams += 1
-        for block in blocks_of(payload, CAT034):
-            for event in decode_blocks(block):
-                if isinstance(event, Block):
-                    for items in event.records:
-                        self._clock.service_message(items, received)
+        for category in SERVICE_CATEGORIES:
+            for block in blocks_of(payload, category):
+                for event in decode_blocks(block):
+                    if isinstance(event, Block):
+                        for items in event.records:
+                            self._clock.service_message(items, received)
         if self.adsb is not None:
             for block in blocks_of(payload, CAT021):
                 self.adsb.feed(block, received)
-        if next(blocks_of(payload, CAT048), None) is None:
+        if not any(next(blocks_of(payload, c), None) for c in PLOT_CATEGORIES):
             return []  # service messages or ADS-B only: no plot to extract
         raw = extract_plots(payload).plots
         if len(raw) == 0:
@@ -392,7 +401,9 @@ class Chain:
             )
             self.stats.unknown_radars.append(source)
             site = RadarSite(plane.centre_lat, plane.centre_lon, 0.0)
-            info = RadarInfo(source, site, 5.0, 50.0, 0.07, 50.0, 0.07, surveyed=False)
+            sac, sic = source_order(source)
+            period = self._clock.antenna_period(sac, sic) or 5.0  # from its north markers
+            info = RadarInfo(source, site, period, 50.0, 0.07, 50.0, 0.07, surveyed=False)
             plane = SystemPlane(site.lat_deg, site.lon_deg, plane.kind)
         overrides = {"scan_period_s": info.period_s, **self._tracker_overrides}
         config = TrackerConfig(**overrides)

@@ -17,8 +17,9 @@ from asterix.containers import ContainerError, Datagram, read_file
 from tracker_service.ingest import DuplicateFilter
 from tracker_service.simulator.recording import is_mcap, read_recording
 
-# The item holding each category's time of day, for the summary's time span.
-TIME_OF_DAY_ITEM = {21: "073", 34: "030", 48: "140", 62: "070", 65: "030"}
+# The item holding each category's time of day, for the summary's time span (CAT001's
+# I141 is truncated to 512 s: its CAT002 I030 gives the span).
+TIME_OF_DAY_ITEM = {2: "030", 21: "073", 34: "030", 48: "140", 62: "070", 65: "030"}
 
 
 @dataclass

@@ -9,6 +9,7 @@ Plots carry a time of day (CAT048 I140), a time of day modulo 512 s (CAT001 I141
 from __future__ import annotations
 
 import hashlib
+import math
 from collections import OrderedDict
 from dataclasses import dataclass
 from enum import IntEnum
@@ -87,6 +88,9 @@ class TimeSource(IntEnum):
 
 TRUNCATED_PERIOD_S = 512.0
 """CAT001 I141 is the low 16 bits of the time of day in 1/128 s."""
+MIN_PERIOD_S, MAX_PERIOD_S = 0.5, 20.0
+"""Antenna periods of surveillance radars (1 s for some surface radars, 12 s en route)
+with room: between two north markers outside it, one was lost or the clock jumped."""
 SERVICE_REFERENCE_S = 64.0
 """How long a radar's last service message serves to unroll its I141: over a few turns,
 the radar's clock and the reception's drift apart by no more than the network's jitter."""
@@ -164,12 +168,23 @@ class PlotClock:
         if kind != 1:
             return
         period = items.get("041")
+        known = self._antennas.get(key)
         if not isinstance(period, float) or period <= 0.0:
-            known = self._antennas.get(key)
             if known is None:
+                # Without I041 (many CAT002 radars), the next north marker gives the period.
+                self._antennas[key] = _Antenna(posix, math.nan)
                 return
-            period = known.period_s
+            # A lost north marker makes one turn look twice as long: shorter ones win.
+            turn = posix - known.north_posix
+            plausible = MIN_PERIOD_S <= turn <= MAX_PERIOD_S
+            longer = math.isfinite(known.period_s) and turn > 1.5 * known.period_s
+            period = turn if plausible and not longer else known.period_s
         self._antennas[key] = _Antenna(posix, period)
+
+    def antenna_period(self, sac: int, sic: int) -> float | None:
+        """The radar's antenna period (I041, or between its last north markers)."""
+        known = self._antennas.get((sac, sic))
+        return None if known is None or not math.isfinite(known.period_s) else known.period_s
 
     def _unroll(
         self, plots: npt.NDArray[Any], rows: npt.NDArray[np.intp], reception_posix: float
@@ -207,7 +222,7 @@ class PlotClock:
         for row in np.flatnonzero(~stamped):
             antenna = self._antennas.get((int(plots["sac"][row]), int(plots["sic"][row])))
             theta = plots["theta"][row]
-            if antenna is None or not np.isfinite(theta):
+            if antenna is None or not np.isfinite(theta) or not math.isfinite(antenna.period_s):
                 continue
             # Clockwise rotation, as nearly every ATC radar turns; the plot was seen in the
             # last turn that ends before the datagram arrived.

@@ -37,7 +37,14 @@ import numpy.typing as npt
 from asterix.codec import Block, decode_blocks
 from asterix.containers import Datagram, read_file
 from asterix.plots import extract_plots
-from tracker_service.chain import CAT034, NM, Chain, RadarInfo, blocks_of, source_order
+from tracker_service.chain import (
+    NM,
+    SERVICE_CATEGORIES,
+    Chain,
+    RadarInfo,
+    blocks_of,
+    source_order,
+)
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.ingest import DAY_S
 from tracker_service.tracking import CONFIRMED, TrackerConfig
@@ -116,10 +123,11 @@ def north_marker_periods(datagrams: Sequence[Datagram]) -> dict[str, float]:
 
 def _cat034_records(payload: bytes) -> list[dict[str, Any]]:
     records: list[dict[str, Any]] = []
-    for block in blocks_of(payload, CAT034):
-        for event in decode_blocks(block):
-            if isinstance(event, Block):
-                records.extend(event.records)
+    for category in SERVICE_CATEGORIES:  # CAT034, and CAT002 of CAT001 radars
+        for block in blocks_of(payload, category):
+            for event in decode_blocks(block):
+                if isinstance(event, Block):
+                    records.extend(event.records)
     return records
 
 

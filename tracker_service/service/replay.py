@@ -32,7 +32,7 @@ import numpy as np
 from asterix.codec import Block, decode_blocks
 from asterix.containers import ContainerError, Datagram, read_file
 from asterix.plots import extract_plots
-from tracker_service.chain import CAT034, blocks_of
+from tracker_service.chain import SERVICE_CATEGORIES, blocks_of
 from tracker_service.ingest import DAY_S, DuplicateFilter
 from tracker_service.inputs.udp import InputCounters
 from tracker_service.outputs.mcap_log import read_log_messages, read_log_metadata
@@ -218,17 +218,18 @@ def _first_source(payload: bytes) -> str | None:
 
 def _own_time_of_day(payload: bytes) -> float | None:
     """The latest time of day the datagram itself carries: its plots' I140, or the I030
-    of its CAT034 messages."""
+    of its CAT034 or CAT002 messages (CAT001's I141 is only the time modulo 512 s)."""
     found = extract_plots(payload).plots["time_of_day"]
     found = found[np.isfinite(found)]
     if len(found):
         return float(found.max())
-    for block in blocks_of(payload, CAT034):
-        for event in decode_blocks(block):
-            if isinstance(event, Block):
-                times = [r["030"] for r in event.records if "030" in r]
-                if times:
-                    return float(max(times))
+    for category in SERVICE_CATEGORIES:
+        for block in blocks_of(payload, category):
+            for event in decode_blocks(block):
+                if isinstance(event, Block):
+                    times = [r["030"] for r in event.records if "030" in r]
+                    if times:
+                        return float(max(times))
     return None
 
 

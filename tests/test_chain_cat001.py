@@ -1,0 +1,74 @@
+"""A real CAT001/CAT002 radar through the chain: canalA.gps (48 min, SAC 20/SIC 130).
+
+The radar is in no configuration, so it is tracked at an assumed site (local tracks are
+shaped right there). Its plots carry only the truncated I141; their times come from the
+radar's CAT002 north markers and sector messages. The first 700 datagrams (about 70 s,
+17 scans) keep the test to a few seconds.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from asterix.containers import Datagram, read_file
+from tests.conftest import shared_file
+from tracker_service.chain import Chain, PlotUse
+from tracker_service.geodesy import SystemPlane
+from tracker_service.ingest import TimeSource
+from tracker_service.tracking import CONFIRMED
+
+DAY = 1_780_272_000.0  # any UTC midnight: the GPS capture holds times of day
+KT = 1852.0 / 3600.0
+DATAGRAMS = 700
+
+
+@pytest.fixture(scope="module")
+def run() -> tuple[Chain, Any, Any, Any]:
+    units = [u for u in read_file(shared_file("reader_network/canalA.gps"))]
+    units = [u for u in units if isinstance(u, Datagram)][:DATAGRAMS]
+    chain = Chain({}, SystemPlane(40.4, -3.7))
+    local, plots, received = [], [], []
+    for unit in units:
+        assert unit.time is not None
+        for output in chain.feed(unit.payload, DAY + unit.time):
+            local.append(output.local)
+            plots.append(output.plots)
+            received.append(np.full(len(output.plots), DAY + unit.time))
+    return chain, np.concatenate(local), np.concatenate(plots), np.concatenate(received)
+
+
+def test_the_plots_are_timed_on_the_radars_clock(run: tuple[Chain, Any, Any, Any]) -> None:
+    chain, _, plots, received = run
+    assert chain.stats.unknown_radars == ["20/130"]
+    assert len(plots) > 700
+    sources = plots["time_source"]
+    # Until the first CAT002 message only the reception time is a reference.
+    assert np.mean(sources == TimeSource.I141_SERVICE) > 0.97
+    assert set(np.unique(sources).tolist()) <= {TimeSource.I141_SERVICE, TimeSource.I141_RECEPTION}
+    # Each plot is measured before it is sent, within about a sector's buffering.
+    lag = received - plots["time"]
+    assert np.all(lag > -0.5) and np.median(lag) < 2.0 and np.all(lag < 10.0)
+    # The north markers (no I041) give the antenna period: about 4 s.
+    period = chain._clock.antenna_period(20, 130)
+    assert period is not None and 3.9 < period < 4.1
+    assert np.all(plots["use"] == PlotUse.TRACKED)
+
+
+def test_the_radar_is_tracked_plausibly(run: tuple[Chain, Any, Any, Any]) -> None:
+    _, local, _, _ = run
+    confirmed = local[local["status"] == CONFIRMED]
+    assert len(np.unique(confirmed["track_number"])) >= 30
+    speed_kt = np.hypot(confirmed["vx"], confirmed["vy"]) / KT
+    assert speed_kt.max() < 650.0
+    steps = jumps = 0
+    for number in np.unique(confirmed["track_number"]).tolist():
+        track = confirmed[confirmed["track_number"] == number]
+        track = track[np.argsort(track["time"], kind="stable")]
+        moved = np.hypot(np.diff(track["x"]), np.diff(track["y"]))
+        steps += len(moved)
+        jumps += int(np.count_nonzero(moved > 1852.0))
+    assert steps > 500
+    assert jumps <= 0.01 * steps
