@@ -73,7 +73,8 @@ def _short(pos: int, need: int, end: int) -> Malformed:
 _ICAO_PAIRS = tuple(a + b for a in ICAO_CHARACTERS for b in ICAO_CHARACTERS)
 
 
-def _icao(raw: int, chars: int) -> str:
+def icao_text(raw: int, chars: int) -> str:
+    """The text of ``chars`` ICAO 6-bit characters held in ``raw``."""
     if chars % 2:
         return "".join(ICAO_CHARACTERS[(raw >> (6 * (chars - 1 - i))) & 63] for i in range(chars))
     return "".join(_ICAO_PAIRS[(raw >> (12 * i)) & 4095] for i in range(chars // 2 - 1, -1, -1))
@@ -746,7 +747,7 @@ _RUNTIME = {
     "Malformed": Malformed,
     "EncodeError": EncodeError,
     "_short": _short,
-    "_icao": _icao,
+    "_icao": icao_text,
     "_icao_raw": _icao_raw,
     "_octal": _octal,
     "_octal_raw": _octal_raw,

@@ -24,6 +24,7 @@ from asterix.engine import (
     Malformed,
     Skipper,
     field_layout,
+    icao_text,
     skipper,
 )
 from asterix.spec import Element, Extended, Group, Integer, Named, Quantity, Spare, String
@@ -373,24 +374,84 @@ def extract_plots(data: bytes, offset: int = 0) -> PlotBatch:
     return PlotBatch(plots, [_shifted(e, offset) for e in errors])
 
 
+def _blank() -> Any:
+    """A plot row with every column absent: NaN, -1, "" and False."""
+    row = np.zeros(1, dtype=PLOT_DTYPE)
+    for name in PLOT_DTYPE.names or ():
+        if PLOT_DTYPE[name] == np.float64:
+            row[name] = np.nan
+        elif PLOT_DTYPE[name] == np.int32:
+            row[name] = -1
+    return row[0]
+
+
+_BLANK = _blank()
+_BLANK_VALUES = tuple(_BLANK.tolist())
+SMALL_BATCH = 6
+"""Up to this many records of a category, a datagram's plots are read record by record in
+Python: numpy's per-call cost (about 20 calls per column) outweighs its per-row gain. Many
+CAT001 radars send one plot a datagram."""
+_ROW_FIELDS = {
+    cat: tuple(
+        (
+            (PLOT_DTYPE.names or ()).index(f.column.name),
+            _SLOTS[cat][f.column.item],
+            f.offset,
+            f.octets,
+            f.shift,
+            (1 << f.bits) - 1,
+            1 << (f.bits - 1) if f.signed else 0,
+            f.lsb,
+            f.extent > 0,
+        )
+        for f in fields
+    )
+    for cat, fields in _FIELDS.items()
+}
+
+
 def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) -> Any:
     slots = _SLOTS[cat]
     starts = np.frombuffer(rows, dtype=np.int64).reshape(-1, len(_ITEMS[cat]) + 1)
-    plots = np.zeros(len(starts), dtype=PLOT_DTYPE)
-    for name in PLOT_DTYPE.names or ():
-        if PLOT_DTYPE[name] == np.float64:
-            plots[name] = np.nan
-        elif PLOT_DTYPE[name] == np.int32:
-            plots[name] = -1
-    plots["offset"] = starts[:, 0]
-    plots["category"] = cat
-    for f in _FIELDS[cat]:
-        plots[f.column.name] = _column(buf, starts[:, slots[f.column.item]], f)
-    if "240" in slots:
-        plots["callsign"] = _callsigns(buf, starts[:, slots["240"]])
+    if len(starts) <= SMALL_BATCH:
+        plots = _plots_by_record(cat, data, starts.tolist())
+    else:
+        plots = np.full(len(starts), _BLANK, dtype=PLOT_DTYPE)
+        plots["offset"] = starts[:, 0]
+        plots["category"] = cat
+        for f in _FIELDS[cat]:
+            plots[f.column.name] = _column(buf, starts[:, slots[f.column.item]], f)
+        if "240" in slots:
+            plots["callsign"] = _callsigns(buf, starts[:, slots["240"]])
     if "RE" in slots:
         _apply_extended_range(data, plots, starts[:, 0], starts[:, slots["RE"]])
     return plots
+
+
+def _plots_by_record(cat: int, data: bytes, starts: list[list[int]]) -> Any:
+    """The same columns as ``_column`` and ``_callsigns`` give, one record at a time."""
+    callsign = _SLOTS[cat].get("240", -1)
+    callsign_column = (PLOT_DTYPE.names or ()).index("callsign")
+    out = []
+    for row in starts:
+        values = list(_BLANK_VALUES)
+        values[0], values[1] = row[0], cat
+        for column, slot, offset, octets, shift, mask, half, lsb, extended in _ROW_FIELDS[cat]:
+            at = row[slot]
+            if at < 0:
+                continue
+            at += offset
+            if extended and not data[at - 1] & 1:
+                continue  # the extent is not there
+            raw = (int.from_bytes(data[at : at + octets]) >> shift) & mask
+            if half and raw >= half:
+                raw -= half << 1
+            values[column] = raw if lsb is None else raw * lsb
+        if callsign >= 0 and row[callsign] >= 0:
+            at = row[callsign]
+            values[callsign_column] = icao_text(int.from_bytes(data[at : at + 6]), 8)
+        out.append(tuple(values))
+    return np.array(out, dtype=PLOT_DTYPE)
 
 
 def _shifted(error: DecodeError, offset: int) -> DecodeError:

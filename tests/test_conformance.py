@@ -207,6 +207,12 @@ def test_plot_extraction_gives_the_general_decoders_values(relative: str) -> Non
             assert plot["category"] == cat
             _assert_plot_matches(plot, items, cat)
         plots += len(records)
+        # Datagram by datagram, small batches are read record by record: the same values.
+        singles = [extract_plots(u).plots for u in units[start : start + 100]]
+        one_by_one = np.concatenate(singles)
+        for name in one_by_one.dtype.names or ():
+            if name != "offset":
+                np.testing.assert_array_equal(one_by_one[name], batch.plots[name], name)
     assert plots > 0
 
 
