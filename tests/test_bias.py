@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import get_args
 
 import numpy as np
 import pytest
@@ -20,11 +21,13 @@ from tracker_service.bias import (
     BiasObservations,
     CoupledSizeError,
     ObservationKind,
+    common,
     fuse_references,
     make_bias_estimator,
     make_observations,
 )
 from tracker_service.bias.config import TIME
+from tracker_service.outputs.messages import BiasSource
 
 SITES = np.array([[0.0, 0.0], [150e3, 0.0], [75e3, 130e3]])
 TRUE_BIAS = np.array(
@@ -182,6 +185,11 @@ def test_recovers_biases_and_time_with_adsb(method: str) -> None:
     assert est.estimated.all()
     assert_recovered(est, TRUE_BIAS, [0, 1, 2, 3])
     assert (est.n_used > 0).all()
+    # The separated filters learn time offsets from ADS-B alone (traffic never moves them).
+    time_sources = {"adsb"} if method == "separated" else {"adsb", "other_radars"}
+    for radar in est.observed_from:
+        assert [set(c) for c in radar[:TIME]] == [{"adsb", "other_radars"}] * TIME
+        assert set(radar[TIME]) == time_sources
 
 
 def test_time_offset_left_at_prior_without_clock_reference() -> None:
@@ -191,6 +199,7 @@ def test_time_offset_left_at_prior_without_clock_reference() -> None:
     est = estimator.estimates()
     assert not est.estimated[:, TIME].any()
     assert est.estimated[:, :TIME].all()
+    assert est.observed_from == ((("other_radars",),) * TIME + ((),),) * 3
     assert np.all(est.s[:, TIME] == 0.0)
     assert np.allclose(est.sigma()[:, TIME], 0.3)
     assert_recovered(est, no_time, [0, 1, 2])
@@ -201,6 +210,7 @@ def test_one_radar_without_reference_keeps_the_prior(method: str) -> None:
     estimator, _ = run(method, n_radars=1, n_adsb=0, n_scans=20)
     est = estimator.estimates()
     assert not est.estimated.any()
+    assert est.observed_from == (((),) * 4,)
     assert np.all(est.s == 0.0)
     assert np.allclose(est.sigma()[0], BiasConfig().prior_sigma())
 
@@ -213,6 +223,8 @@ def test_reference_radar_is_not_estimated_and_anchors_time() -> None:
     estimator, _ = run("macro", n_adsb=0, n_scans=150, reference_radars=reference)
     est = estimator.estimates()
     assert est.reference[0] and not est.estimated[0].any()
+    assert est.observed_from[0] == (("configuration",),) * 4
+    assert est.observed_from[1:] == ((("reference_radar", "other_radars"),) * 4,) * 2
     assert np.array_equal(est.s[0], known) and np.all(est.P[0] == 0.0)
     assert est.estimated[1:].all()
     error = est.s[1:] - TRUE_BIAS[1:]
@@ -247,6 +259,7 @@ def test_field_monitor_pins_range_and_azimuth_of_a_single_radar() -> None:
     assert abs(seen - truth) < 15.0
     assert abs(est.s[0, 2] - TRUE_BIAS[0, 2]) < math.radians(0.01)
     assert not est.estimated[0, TIME]
+    assert est.observed_from == ((("field_monitor",),) * TIME + ((),),)
 
 
 @pytest.mark.parametrize("method", ["separated", "macro", "coupled"])
@@ -371,3 +384,8 @@ def test_observation_shapes_are_checked() -> None:
             np.zeros((1, 2)),
             np.zeros((1, 2, 2)),
         )
+
+
+def test_bias_sources_are_the_messages_vocabulary() -> None:
+    names = {value for key, value in vars(common).items() if key.startswith("FROM_")}
+    assert names == set(get_args(BiasSource))

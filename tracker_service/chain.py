@@ -34,6 +34,7 @@ from tracker_service.bias import (
     BiasEstimator,
     BiasObservations,
     ObservationKind,
+    ObservedFrom,
     concatenate,
     make_bias_estimator,
     make_observations,
@@ -418,6 +419,14 @@ class Chain:
         if self.bias is None:
             return {}
         return {source: self.bias.correction(k) for k, source in enumerate(self.sources)}
+
+    def bias_observed_from(self) -> dict[str, ObservedFrom]:
+        """Each fused radar's sources of each bias component (``BiasEstimates``); empty
+        without bias estimation."""
+        if self.bias is None:
+            return {}
+        observed = self.bias.estimates().observed_from
+        return {source: observed[k] for k, source in enumerate(self.sources)}
 
     def _radar_batch(self, source: str, raw: npt.NDArray[Any], received: float) -> BatchOutput:
         state = self._radar(source)

@@ -11,6 +11,7 @@ from tracker_service.bias.common import (
     BiasEstimates,
     BiasEstimator,
     BiasFilterBase,
+    ObservedFrom,
     OffEstimator,
 )
 from tracker_service.bias.config import COMPONENTS, N_BIAS, BiasConfig
@@ -51,6 +52,7 @@ __all__ = [
     "CoupledSizeError",
     "MacroBiasFilter",
     "ObservationKind",
+    "ObservedFrom",
     "SeparatedBiasFilter",
     "concatenate",
     "fuse_references",

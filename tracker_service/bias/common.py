@@ -19,11 +19,27 @@ from tracker_service.bias.config import N_BIAS, TIME, BiasConfig
 from tracker_service.bias.observations import BiasObservations, ObservationKind
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
+FROM_OTHER_RADARS = "other_radars"
+"""Traffic this radar shares with other radars whose bias is estimated (relative)."""
+FROM_REFERENCE_RADAR = "reference_radar"
+"""Traffic this radar shares with a reference radar (a radar whose bias is configured)."""
+FROM_FIELD_MONITOR = "field_monitor"
+"""A fixed transponder of this radar at a surveyed position (range and azimuth)."""
+FROM_ADSB = "adsb"
+"""ADS-B reports of aircraft this radar sees (position and, alone, time)."""
+FROM_CONFIGURATION = "configuration"
+"""The radar is a reference: its bias is given, not estimated."""
+
+ObservedFrom = tuple[tuple[str, ...], ...]
+"""One radar's, per component [range offset, gain, azimuth, time]: the sources that make it
+observable (empty: not observable, the prior is kept)."""
+
 
 @dataclass(frozen=True)
 class BiasEstimates:
     """Per radar (L): bias s (L,4), covariance P (L,4,4), observations used and rejected,
-    which components are estimated (L,4) and which radars are references (L,)."""
+    which components are estimated (L,4), which radars are references (L,), and what each
+    component is observable from (``ObservedFrom``)."""
 
     s: FloatArray
     P: FloatArray
@@ -31,6 +47,7 @@ class BiasEstimates:
     n_rejected: IntArray
     estimated: BoolArray
     reference: BoolArray
+    observed_from: tuple[ObservedFrom, ...]
 
     def sigma(self) -> FloatArray:
         """1-sigma of each component (L,4)."""
@@ -94,6 +111,10 @@ def information_update(
 class BiasFilterBase(ABC):
     """State bookkeeping common to the variants: time, observability, references, counts."""
 
+    times_from_traffic = True
+    """Whether traffic shared with other radars updates the time offsets (once a clock is
+    pinned): what ``observed_from`` reports."""
+
     def __init__(self, config: BiasConfig, n_radars: int) -> None:
         self.config = config
         self.n_radars = n_radars
@@ -102,6 +123,7 @@ class BiasFilterBase(ABC):
         self.n_rejected = np.zeros(n_radars, dtype=np.int64)
         self._traffic_seen = np.zeros(n_radars, dtype=bool)
         self._absolute_seen = np.zeros(n_radars, dtype=bool)
+        self._monitor_seen = np.zeros(n_radars, dtype=bool)
         self._clock_seen = np.zeros(n_radars, dtype=bool)
         # The filters work on s / prior sigma: gain (1e-3) and azimuth (1e-3 rad) beside
         # positions (1e5 m) made the joint covariance so ill-conditioned (1e-9 beside 1e4)
@@ -135,6 +157,44 @@ class BiasFilterBase(ABC):
         free[self.is_reference] = False
         return free
 
+    def observed_from(self) -> tuple[ObservedFrom, ...]:
+        """What makes each radar's free components observable (``free``): its field
+        monitors and ADS-B (absolute), the traffic it shares with reference radars or with
+        other radars; a reference radar's come from the configuration. A time offset is
+        observable from ADS-B, and from traffic only where ``free`` says a clock is pinned
+        (ADS-B elsewhere, a reference radar, or ``estimate_time = "yes"``)."""
+        free = self.free()
+        out: list[ObservedFrom] = []
+        for radar in range(self.n_radars):
+            if self.is_reference[radar]:
+                out.append(((FROM_CONFIGURATION,),) * N_BIAS)
+                continue
+            others = self._traffic_seen.copy()
+            others[radar] = False
+            traffic: tuple[str, ...] = ()
+            if self._traffic_seen[radar]:
+                traffic = tuple(
+                    name
+                    for name, seen in (
+                        (FROM_REFERENCE_RADAR, (others & self.is_reference).any()),
+                        (FROM_OTHER_RADARS, (others & ~self.is_reference).any()),
+                    )
+                    if seen
+                )
+            absolute = tuple(
+                name
+                for name, seen in (
+                    (FROM_FIELD_MONITOR, self._monitor_seen[radar]),
+                    (FROM_ADSB, self._clock_seen[radar]),
+                )
+                if seen
+            )
+            sources: list[tuple[str, ...]] = [absolute + traffic] * N_BIAS
+            clock = (FROM_ADSB,) if self._clock_seen[radar] else ()
+            sources[TIME] = clock + (traffic if self.times_from_traffic else ())
+            out.append(tuple(names if free[radar, k] else () for k, names in enumerate(sources)))
+        return tuple(out)
+
     def update(self, obs: BiasObservations) -> None:
         if obs.n_radars != self.n_radars:
             raise ValueError(
@@ -145,6 +205,7 @@ class BiasFilterBase(ABC):
         traffic = obs.kind == ObservationKind.AIRCRAFT
         self._traffic_seen[obs.radar[traffic]] = True
         self._absolute_seen[obs.radar[~traffic]] = True
+        self._monitor_seen[obs.radar[obs.kind == ObservationKind.FIELD_MONITOR]] = True
         self._clock_seen[obs.radar[obs.kind == ObservationKind.ADSB]] = True
         ordered = obs.subset(np.argsort(obs.time, kind="stable"))
         self._process(
@@ -171,6 +232,7 @@ class BiasFilterBase(ABC):
             n_rejected=self.n_rejected.copy(),
             estimated=self.free(),
             reference=self.is_reference.copy(),
+            observed_from=self.observed_from(),
         )
 
     def correction(self, radar: int) -> tuple[FloatArray, FloatArray]:

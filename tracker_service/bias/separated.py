@@ -22,6 +22,9 @@ from tracker_service.tracking.plots import BoolArray, FloatArray
 
 
 class SeparatedBiasFilter(BiasFilterBase):
+    times_from_traffic = False
+    """See ``free``: only ADS-B moves a separated filter's clock."""
+
     def __init__(self, config: BiasConfig, n_radars: int) -> None:
         super().__init__(config, n_radars)
         s, P = self.prior()

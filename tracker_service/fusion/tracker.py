@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.fusion import consider
 from tracker_service.fusion.config import FusionConfig
 from tracker_service.fusion.messages import (
     COASTING,
@@ -44,46 +45,55 @@ from tracker_service.tracking.tracker import TENTATIVE as LOCAL_TENTATIVE
 KEY_SHIFT = 32
 """Local-track key: radar << KEY_SHIFT | local track number."""
 
-_LOCAL_DTYPE = np.dtype(
-    [
-        ("key", np.int64),
-        ("radar", np.int64),
-        ("number", np.int64),
-        ("system", np.int64),  # 0: none
-        ("status", np.int8),
-        ("alive", np.bool_),
-        ("t", np.float64),  # time of the state
-        ("x", np.float64, (4,)),
-        ("P", np.float64, (4, 4)),
-        ("extra", np.float64, (2, 2)),  # residual-bias covariance of the latest plot
-        ("plot_id", np.int64),
-        ("t_plot", np.float64),
-        ("fl", np.float64),
-        ("rate", np.float64),
-        ("t_fl", np.float64),
-        ("address", np.int64),
-        ("mode3a", np.int64),
-        ("fails", np.int64),
-        ("t_founder", np.float64),  # first time it could have founded a system track
-    ]
-)
+
+def _local_dtype(n_models: int) -> np.dtype[Any]:
+    return np.dtype(
+        [
+            ("key", np.int64),
+            ("radar", np.int64),
+            ("number", np.int64),
+            ("system", np.int64),  # 0: none
+            ("status", np.int8),
+            ("alive", np.bool_),
+            ("t", np.float64),  # time of the state
+            ("x", np.float64, (4,)),
+            ("P", np.float64, (4, 4)),
+            ("extra", np.float64, (2, 2)),  # residual-bias covariance of the latest plot
+            ("plot_id", np.int64),
+            ("t_plot", np.float64),
+            ("fl", np.float64),
+            ("rate", np.float64),
+            ("t_fl", np.float64),
+            ("address", np.int64),
+            ("mode3a", np.int64),
+            ("fails", np.int64),
+            ("t_founder", np.float64),  # first time it could have founded a system track
+            ("mu", np.float64, (n_models,)),  # its model probabilities (0: not known)
+        ]
+    )
 
 
-def _system_dtype(n_models: int) -> np.dtype[Any]:
+def _system_dtype(n_models: int, n_radars: int) -> np.dtype[Any]:
     return np.dtype(
         [
             ("alive", np.bool_),
-            ("t", np.float64),  # time of x, P: the latest output (or filter) state
+            ("t", np.float64),  # time of x, P, M: the latest output (or filter) state
             ("x", np.float64, (4,)),
+            # "plots": the error's covariance without the residual biases, which enter
+            # through M and B (fusion/consider.py); "tracks": the whole covariance, M = 0.
             ("P", np.float64, (4, 4)),
+            ("M", np.float64, (n_radars, 4, 2)),  # sensitivity to each radar's bias
+            ("B", np.float64, (n_radars, 2, 2)),  # each radar's latest residual bias cov.
             ("t_plot", np.float64),  # latest plot of any of its local tracks
             ("freed_at", np.float64),
             ("born", np.float64),
             ("address", np.int64),
             ("mode3a", np.int64),
+            ("solo", np.bool_),  # fed by its founding local track alone so far
             ("mx", np.float64, (n_models, 4)),  # "plots" method: the IMM's models
             ("mP", np.float64, (n_models, 4, 4)),
             ("mu", np.float64, (n_models,)),
+            ("mM", np.float64, (n_models, n_radars, 4, 2)),
         ]
     )
 
@@ -135,12 +145,12 @@ class SystemTracker:
         self.config = config or FusionConfig()
         self.models = ModelSet.from_config(self.config.plot_filter)
         self.stats = FusionStats()
-        self._loc: npt.NDArray[Any] = np.zeros(64, dtype=_LOCAL_DTYPE)
+        self._loc: npt.NDArray[Any] = np.zeros(64, dtype=_local_dtype(self.models.n_models))
         self._n = 0
         self._index_keys = np.zeros(0, dtype=np.int64)
         self._index_rows = np.zeros(0, dtype=np.int64)
         self._sys: npt.NDArray[Any] = np.zeros(
-            MAX_SYSTEM_NUMBER + 1, dtype=_system_dtype(self.models.n_models)
+            MAX_SYSTEM_NUMBER + 1, dtype=_system_dtype(self.models.n_models, n_radars)
         )
         self._sys["freed_at"] = -np.inf
         self._now = -np.inf
@@ -161,8 +171,10 @@ class SystemTracker:
         extra_R: FloatArray | None = None,
     ) -> npt.NDArray[Any]:
         """One radar's batch: its local-track updates (``track_update_dtype``), the plots
-        they used, and optionally a residual-bias covariance (N, 2, 2) per update, added
-        to that local track's position covariance when it is fused."""
+        they used, and optionally the radar's residual-bias covariance (N, 2, 2) at each
+        update's plot: a considered error common to the radar's plots in the "plots"
+        method (fusion/consider.py), added to that local track's covariance when it is
+        fused in the "tracks" method."""
         self._check_radar(radar)
         self.stats.batches += 1
         order = np.argsort(updates["time"], kind="stable")
@@ -180,7 +192,7 @@ class SystemTracker:
         old_system = self._loc["system"][touched].copy()
         created = self._associate(radar, touched, has_plot, rows)
         if self.config.method == "plots":
-            self._filter_plots(rows, u, extra, has_plot, as_plot_arrays(plots), created)
+            self._filter_plots(radar, rows, u, extra, has_plot, as_plot_arrays(plots), created)
         merged = self._merge(radar, np.unique(self._loc["system"][rows]))
         systems = self._loc["system"][rows]
         fed_rows = systems > 0
@@ -212,7 +224,7 @@ class SystemTracker:
             new_keys, first = np.unique(keys[missing], return_index=True)
             start = self._grow(new_keys.size)
             fresh = self._loc[start : start + new_keys.size]
-            fresh[...] = np.zeros(1, dtype=_LOCAL_DTYPE)
+            fresh[...] = np.zeros(1, dtype=self._loc.dtype)
             fresh["key"] = new_keys
             fresh["radar"] = radar
             fresh["number"] = u["track_number"][missing][first]
@@ -236,7 +248,7 @@ class SystemTracker:
     def _grow(self, k: int) -> int:
         start = self._n
         if start + k > self._loc.shape[0]:
-            grown = np.zeros(max(2 * self._loc.shape[0], start + k), dtype=_LOCAL_DTYPE)
+            grown = np.zeros(max(2 * self._loc.shape[0], start + k), dtype=self._loc.dtype)
             grown[:start] = self._loc[:start]
             self._loc = grown
         self._n = start + k
@@ -282,6 +294,10 @@ class SystemTracker:
         loc["x"][r] = np.column_stack([v["x"], v["y"], v["vx"], v["vy"]])
         loc["P"][r] = v["P"].reshape(-1, 4, 4)
         loc["extra"][r] = extra[last]
+        if v.dtype["model_probabilities"].shape == (self.models.n_models,):
+            # The local trackers' IMM is the plot filter's (both TrackerConfig's model
+            # set): a system track founded by a local track starts in its models.
+            loc["mu"][r] = v["model_probabilities"]
         plotted = has_plot[last]
         loc["plot_id"][r[plotted]] = v["plot_id"][plotted]
         loc["t_plot"][r[plotted]] = v["time"][plotted]
@@ -376,7 +392,13 @@ class SystemTracker:
             dt = sys["t"][a] - sys["t"][others]
             xs, ps = predict_cv(sys["x"][others], sys["P"][others], dt, self.config.q)
             d = xs - sys["x"][a]
-            s = ps + sys["P"][a]
+            # Their errors differ by their different shares of each radar's bias.
+            m = np.einsum("kab,klbc->klac", cv_transition(dt), sys["M"][others]) - sys["M"][a]
+            larger = np.trace(sys["B"][others], axis1=-2, axis2=-1) > np.trace(
+                sys["B"][a], axis1=-2, axis2=-1
+            )
+            b = np.where(larger[..., None, None], sys["B"][others], sys["B"][a])
+            s = ps + sys["P"][a] + consider.bias_share(m, b)
             d2 = np.einsum("ka,ka->k", d, np.linalg.solve(s, d[..., None])[..., 0])
             for b in others[d2 <= self.config.gate].tolist():
                 pair = (min(a, b), max(a, b))
@@ -427,6 +449,7 @@ class SystemTracker:
         )
         loc["system"][same] = 0
         loc["system"][joined] = target
+        self._sys["solo"][target] = False
         loc["fails"][joined] = 0
         loc["t_founder"][joined] = np.nan
         self._sys["t_plot"][target] = np.maximum(self._sys["t_plot"][target], loc["t_plot"][joined])
@@ -438,12 +461,20 @@ class SystemTracker:
             return np.zeros(0)
         loc, sys = self._loc, self._sys
         t = loc["t"][local]
-        xs, ps = predict_cv(sys["x"][system], sys["P"][system], t - sys["t"][system], self.config.q)
+        dt = t - sys["t"][system]
+        xs, ps = predict_cv(sys["x"][system], sys["P"][system], dt, self.config.q)
         d = loc["x"][local] - xs
-        s = loc["P"][local] + ps
-        # The local track's share of the radars' residual bias: before the biases are
-        # known, two radars' tracks of one aircraft lie apart by as much.
-        s[:, :2, :2] += loc["extra"][local]
+        # The residual biases: the local track carries its radar's whole, the system
+        # track its shares of each radar's (M). Before the biases are known, two radars'
+        # tracks of one aircraft lie apart by as much; a radar's local track and a system
+        # track only it feeds share the same bias, which cancels.
+        radar = loc["radar"][local]
+        rows = np.arange(local.size)
+        m = -np.einsum("kab,klbc->klac", cv_transition(dt), sys["M"][system])
+        m[rows, radar] += consider.POSITION
+        b = sys["B"][system].copy()
+        b[rows, radar] = loc["extra"][local]
+        s = loc["P"][local] + ps + consider.bias_share(m, b)
         d2: FloatArray = np.einsum("ka,ka->k", d, np.linalg.solve(s, d[..., None])[..., 0])
         return d2
 
@@ -475,15 +506,25 @@ class SystemTracker:
             return numbers
         sys["alive"][numbers] = True
         sys["born"][numbers] = self._now
+        sys["solo"][numbers] = True
         sys["t"][numbers] = loc["t"][founders]
         sys["x"][numbers] = loc["x"][founders]
         sys["P"][numbers] = loc["P"][founders]
+        radars = loc["radar"][founders]
+        sys["B"][numbers] = 0.0
+        sys["B"][numbers, radars] = loc["extra"][founders]
+        sys["M"][numbers] = 0.0
+        if self.config.method == "plots":
+            sys["M"][numbers, radars] = consider.POSITION
+        sys["mM"][numbers] = sys["M"][numbers][:, None]
         sys["t_plot"][numbers] = loc["t_plot"][founders]
         sys["address"][numbers] = loc["address"][founders]
         sys["mode3a"][numbers] = loc["mode3a"][founders]
         sys["mx"][numbers] = loc["x"][founders][:, None, :]
         sys["mP"][numbers] = loc["P"][founders][:, None, :, :]
-        sys["mu"][numbers] = self.models.initial_probabilities
+        mu = loc["mu"][founders]
+        known = mu.sum(axis=1) > 0.0
+        sys["mu"][numbers] = np.where(known[:, None], mu, self.models.initial_probabilities)
         loc["system"][founders] = numbers
         loc["fails"][founders] = 0
         loc["t_founder"][founders] = np.nan
@@ -494,6 +535,7 @@ class SystemTracker:
 
     def _filter_plots(
         self,
+        radar: int,
         rows: IntArray,
         u: npt.NDArray[Any],
         extra: FloatArray,
@@ -502,9 +544,13 @@ class SystemTracker:
         created: IntArray,
     ) -> None:
         """Update each system track's IMM with the batch's plots of its local tracks, in
-        time order; a system track created by this batch already holds its founder's."""
+        time order; a system track created by this batch already holds its founder's, and
+        one its founder alone has fed follows it (``_follow_founder``)."""
         systems = self._loc["system"][rows]
         use = np.flatnonzero(has_plot & (systems > 0) & ~np.isin(systems, created))
+        solo = self._sys["solo"][systems[use]]
+        self._follow_founder(radar, systems[use[solo]], u[use[solo]], extra[use[solo]])
+        use = use[~solo]
         if use.size == 0:
             return
         found = _positions(plots.plot_id, u["plot_id"][use])
@@ -514,9 +560,33 @@ class SystemTracker:
         rank = _rank_within(systems)
         for r in range(int(rank.max(initial=-1)) + 1):
             now = rank == r
-            self._filter_round(systems[now], plots.take(found[now]), extra[use[now]])
+            self._filter_round(radar, systems[now], plots.take(found[now]), extra[use[now]])
 
-    def _filter_round(self, numbers: IntArray, p: PlotArrays, extra: FloatArray) -> None:
+    def _follow_founder(
+        self, radar: int, numbers: IntArray, u: npt.NDArray[Any], extra: FloatArray
+    ) -> None:
+        """A system track that only its founding local track has fed takes that track's
+        state: the same plots through the same IMM, whose per-model states (which the
+        system track's models, started from the combined state, would take a few scans
+        to regain) only the local tracker holds. Its sensitivity stays that of its
+        radar's bias whole (``consider.POSITION``); once another local track joins, the
+        plot filter goes on from here."""
+        if numbers.size == 0:
+            return
+        last = _last_of_each(numbers)
+        n, v = numbers[last], u[last]
+        sys = self._sys
+        x = np.column_stack([v["x"], v["y"], v["vx"], v["vy"]])
+        p = v["P"].reshape(-1, 4, 4)
+        sys["x"][n], sys["P"][n], sys["t"][n] = x, p, v["time"]
+        sys["mx"][n], sys["mP"][n] = x[:, None], p[:, None]
+        if v.dtype["model_probabilities"].shape == (self.models.n_models,):
+            sys["mu"][n] = v["model_probabilities"]
+        sys["B"][n, radar] = extra[last]
+
+    def _filter_round(
+        self, radar: int, numbers: IntArray, p: PlotArrays, extra: FloatArray
+    ) -> None:
         sys = self._sys
         dt = p.time - sys["t"][numbers]
         late = dt < -self.config.max_backward_s
@@ -526,13 +596,16 @@ class SystemTracker:
         p = p.select(keep)
         if numbers.size == 0:
             return
+        sys["B"][numbers, radar] = extra
         s = sys[numbers]
-        pred = imm.predict(s["mx"], s["mP"], s["mu"], dt, self.models)
+        pred = consider.predict(s["mx"], s["mP"], s["mM"], s["mu"], dt, self.models)
         z = np.column_stack([p.x, p.y])
-        x, pm, mu = imm.update(pred, z, p.R + extra)
+        x, pm, mm, mu = consider.update(pred, z, p.R, radar, s["B"])
         xc, pc = imm.combine(x, pm, mu)
-        sys["mx"][numbers], sys["mP"][numbers], sys["mu"][numbers] = x, pm, mu
+        sys["mx"][numbers], sys["mP"][numbers], sys["mM"][numbers] = x, pm, mm
+        sys["mu"][numbers] = mu
         sys["x"][numbers], sys["P"][numbers], sys["t"][numbers] = xc, pc, p.time
+        sys["M"][numbers] = consider.combine(mm, mu)
 
     # ----------------------------------------------------------------- output
 
@@ -557,8 +630,9 @@ class SystemTracker:
             sys["x"][numbers], sys["P"][numbers], sys["t"][numbers] = x, p, t
         else:
             s = sys[numbers]
-            pred = imm.predict(s["mx"], s["mP"], s["mu"], t - s["t"], self.models)
-            x, p = pred.x_comb, pred.P_comb
+            pred = consider.predict(s["mx"], s["mP"], s["mM"], s["mu"], t - s["t"], self.models)
+            x = pred.imm.x_comb
+            p = pred.imm.P_comb + consider.bias_share(pred.M_comb, s["B"])
         status = np.where(fresh, CONFIRMED, COASTING).astype(np.int8)
         out = self._rows(numbers, t, x, p, status, slots)
         out["fresh"] = fresh
@@ -629,7 +703,7 @@ class SystemTracker:
             numbers,
             sys["t"][numbers],
             sys["x"][numbers],
-            sys["P"][numbers],
+            sys["P"][numbers] + consider.bias_share(sys["M"][numbers], sys["B"][numbers]),
             np.full(numbers.size, ENDED, dtype=np.int8),
             self._slots(numbers),
         )
@@ -640,6 +714,7 @@ class SystemTracker:
         else:
             for number, target in zip(numbers.tolist(), moved_to.tolist(), strict=True):
                 loc["system"][loc["system"] == number] = target
+            sys["solo"][moved_to] = False
         sys["alive"][numbers] = False
         sys["freed_at"][numbers] = self._now
         self.stats.system_tracks_ended += int(numbers.size)

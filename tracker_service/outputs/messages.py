@@ -181,11 +181,21 @@ class LocalTrackMessage(_Message):
     """IMM model probabilities, in the order of the tracker's model set."""
 
 
+BiasSource = Literal["other_radars", "reference_radar", "field_monitor", "adsb", "configuration"]
+"""What makes a bias component observable: traffic shared with other radars (relative to
+their estimates), traffic shared with a reference radar, the radar's field monitor, ADS-B,
+or the configuration (a reference radar's bias is given)."""
+
+
 class Estimate(_Message):
     estimate: float
     sigma: Annotated[float, Field(ge=0.0)]
     observable: bool
-    """False while the geometry does not yet separate this error from the others."""
+    """False while no source separates this error from the others: the estimate is then
+    the prior's mean, and its sigma the prior's (a radar alone, without ADS-B or a field
+    monitor, cannot tell its own biases from the aircraft's positions)."""
+    observed_from: list[BiasSource] = Field(default_factory=list)
+    """The sources the estimate is observable from (empty when not observable)."""
 
 
 class BiasMessage(_Message):

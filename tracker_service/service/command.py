@@ -25,6 +25,7 @@ from typing import Any, Self
 import numpy.typing as npt
 
 from asterix.containers import Datagram
+from tracker_service.bias import ObservedFrom
 from tracker_service.chain import BatchOutput
 from tracker_service.inputs.udp import InputCounters
 from tracker_service.outputs.mcap_log import McapLog
@@ -272,8 +273,12 @@ class OutputProcess:
     def publish_cat062(self) -> None:
         self._call("publish_cat062")
 
-    def publish_bias(self, estimates: dict[str, tuple[npt.NDArray[Any], npt.NDArray[Any]]]) -> None:
-        self._call("publish_bias", estimates)
+    def publish_bias(
+        self,
+        estimates: dict[str, tuple[npt.NDArray[Any], npt.NDArray[Any]]],
+        observed_from: dict[str, ObservedFrom],
+    ) -> None:
+        self._call("publish_bias", estimates, observed_from)
 
     def publish_status(self) -> None:
         self._call("publish_status")

@@ -19,13 +19,13 @@ import math
 from collections import Counter, defaultdict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal, Protocol
+from typing import Any, Literal, Protocol, cast
 
 import numpy as np
 import numpy.typing as npt
 
 from asterix.containers import Datagram
-from tracker_service.bias import BiasConfig
+from tracker_service.bias import BiasConfig, ObservedFrom
 from tracker_service.chain import (
     BatchOutput,
     Chain,
@@ -41,6 +41,7 @@ from tracker_service.outputs.cat062 import encode_cat065, encode_system_tracks
 from tracker_service.outputs.mcap_log import LoggedDatagram, McapLog
 from tracker_service.outputs.messages import (
     BiasMessage,
+    BiasSource,
     Estimate,
     LastPlot,
     LocalTrackMessage,
@@ -252,7 +253,6 @@ class Outputs:
         self.plane = SystemPlane(
             config.system.centre_lat, config.system.centre_lon, config.system.projection
         )
-        self._bias_prior = bias_config(config).prior_sigma()
         self.publisher = publisher
         self.log = log_file
         self.timings = timings or ServiceTimings()
@@ -506,19 +506,21 @@ class Outputs:
             )
             self.log.log(CAT062_TOPIC, record, self._now)
 
-    def publish_bias(self, estimates: dict[str, tuple[npt.NDArray[Any], npt.NDArray[Any]]]) -> None:
-        prior = self._bias_prior
+    def publish_bias(
+        self,
+        estimates: dict[str, tuple[npt.NDArray[Any], npt.NDArray[Any]]],
+        observed_from: dict[str, ObservedFrom],
+    ) -> None:
         for source, (bias, covariance) in estimates.items():
             sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-            # Observable once the data has shrunk the prior: before, the estimate is the
-            # prior's mean and says nothing.
-            observable = sigma < 0.5 * prior
+            sources = observed_from.get(source, ((),) * 4)
             scale = (1.0, 1.0, math.degrees(1.0), 1.0)
             values = [
                 Estimate(
                     estimate=float(bias[i]) * scale[i],
                     sigma=float(sigma[i]) * scale[i],
-                    observable=bool(observable[i]),
+                    observable=bool(sources[i]),
+                    observed_from=[cast(BiasSource, name) for name in sources[i]],
                 )
                 for i in range(4)
             ]
@@ -609,7 +611,9 @@ class OutputSink(Protocol):
     def batch(self, output: BatchOutput, sources: Sequence[str]) -> None: ...
     def publish_cat062(self) -> None: ...
     def publish_bias(
-        self, estimates: dict[str, tuple[npt.NDArray[Any], npt.NDArray[Any]]]
+        self,
+        estimates: dict[str, tuple[npt.NDArray[Any], npt.NDArray[Any]]],
+        observed_from: dict[str, ObservedFrom],
     ) -> None: ...
     def publish_status(self) -> None: ...
     def close(self) -> None: ...
@@ -716,7 +720,7 @@ class TrackerService:
         if self._due("cat062", self.timings.cat062_s):
             self.outputs.publish_cat062()
         if self._due("bias", self.timings.bias_s):
-            self.outputs.publish_bias(self.chain.bias_estimates())
+            self.outputs.publish_bias(self.chain.bias_estimates(), self.chain.bias_observed_from())
         if self._due("status", self.timings.status_s):
             self.outputs.publish_status()
 

@@ -58,13 +58,19 @@ def combine(x: FloatArray, P: FloatArray, w: FloatArray) -> tuple[FloatArray, Fl
     return xc, np.einsum("km,kmab->kab", w, spread)
 
 
+def mixing(mu: FloatArray, dt: FloatArray, models: ModelSet) -> tuple[FloatArray, FloatArray]:
+    """Predicted model probabilities c (k, M) and mixing weights w[k, i, j] = P(model i
+    before | model j after) over steps dt (k,)."""
+    pi = models.switching(dt)
+    c = np.einsum("kij,ki->kj", pi, mu)
+    return c, pi * mu[:, :, None] / np.maximum(c[:, None, :], TINY)
+
+
 def predict(
     x: FloatArray, P: FloatArray, mu: FloatArray, dt: FloatArray, models: ModelSet
 ) -> ImmPrediction:
     """IMM mixing, then each model's prediction over its own step dt (k,)."""
-    pi = models.switching(dt)
-    c = np.einsum("kij,ki->kj", pi, mu)
-    w = pi * mu[:, :, None] / np.maximum(c[:, None, :], TINY)
+    c, w = mixing(mu, dt, models)
     x0 = np.einsum("kij,kia->kja", w, x)
     d = x[:, :, None, :] - x0[:, None, :, :]
     p0 = np.einsum("kij,kiab->kjab", w, P) + np.einsum("kija,kijb->kjab", w[..., None] * d, d)
@@ -100,19 +106,33 @@ def update(
     s_inv, det = inv2(s)
     k_gain = pp[:, :, :, :2] @ s_inv
     x_new = xp + np.einsum("kmab,kmb->kma", k_gain, y)
+    p_new = joseph(pp, k_gain, R[:, None])
+    return x_new, p_new, model_probabilities(pred.c, y, s_inv, det)
+
+
+def joseph(pp: FloatArray, k_gain: FloatArray, R: FloatArray) -> FloatArray:
+    """(I - K H) P (I - K H)^T + K R K^T for H = [I2 0]: the updated covariance for any
+    gain K (..., 4, 2), optimal or not."""
     # I - K H, written entry by entry (the diagonal is every fifth entry of the flat 4x4):
     # cheaper than copying a broadcast identity.
     ikh = np.zeros((*pp.shape[:-2], 16))
     ikh[..., ::5] = 1.0
     ikh = ikh.reshape(pp.shape)
     ikh[..., :, :2] -= k_gain
-    p_new = ikh @ pp @ np.swapaxes(ikh, -1, -2) + k_gain @ R[:, None] @ np.swapaxes(k_gain, -1, -2)
-    p_new = 0.5 * (p_new + np.swapaxes(p_new, -1, -2))
+    p_new = ikh @ pp @ np.swapaxes(ikh, -1, -2) + k_gain @ R @ np.swapaxes(k_gain, -1, -2)
+    return 0.5 * (p_new + np.swapaxes(p_new, -1, -2))
+
+
+def model_probabilities(
+    c: FloatArray, y: FloatArray, s_inv: FloatArray, det: FloatArray
+) -> FloatArray:
+    """Updated model probabilities (k, M) from the predicted ones and each model's
+    innovation y (k, M, 2) with its covariance's inverse and determinant."""
     nis = np.einsum("kma,kmab,kmb->km", y, s_inv, y)
     log_lik = -0.5 * (nis + np.log(np.maximum(det, TINY))) - LOG_2PI
-    log_post = np.log(np.maximum(pred.c, TINY)) + log_lik
+    log_post = np.log(np.maximum(c, TINY)) + log_lik
     # Log-sum-exp: far from every model, the plain likelihoods all underflow to 0.
     log_post -= log_post.max(axis=1, keepdims=True)
     mu = np.exp(log_post)
     mu /= mu.sum(axis=1, keepdims=True)
-    return x_new, p_new, mu
+    return np.asarray(mu)
