@@ -21,9 +21,9 @@ from typing import Any
 import pytest
 
 from tests.conftest import REPO
+from tests.zenoh_example import example_copy, make_certs
 
 ROLES = Path(__file__).with_name("zenoh_roles.py")
-EXAMPLE = REPO / "config" / "zenoh"
 TIMEOUT_S = 10.0
 
 
@@ -45,28 +45,15 @@ class Pki:
     """TLS with the right CA but no certificate of its own."""
 
 
-def make_certs(directory: Path) -> None:
-    subprocess.run(
-        ["sh", str(EXAMPLE / "make-certs.sh"), str(directory / "certs")],
-        check=True,
-        capture_output=True,
-    )
-
-
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
-    if shutil.which("openssl") is None:
-        pytest.skip("the openssl command line is absent: no certificates to test with")
-    base = tmp_path_factory.mktemp("pki")
-    make_certs(base)
+    base = example_copy(tmp_path_factory.mktemp("pki"))
     rogue = base / "rogue"
     make_certs(rogue)
     # The rogue's subscriber identity, as the service's name, under the rogue CA.
     for ext in ("crt", "key"):
         shutil.copy(rogue / "certs" / f"service.{ext}", rogue / "certs" / f"subscriber.{ext}")
-    for name in ("service.json5", "subscriber.json5"):
-        shutil.copy(EXAMPLE / name, base / name)
-    shutil.copy(EXAMPLE / "subscriber.json5", rogue / "subscriber.json5")
+    shutil.copy(base / "subscriber.json5", rogue / "subscriber.json5")
     no_certificate = base / "no-certificate.json5"
     no_certificate.write_text(
         json.dumps(

@@ -13,6 +13,7 @@ import pytest
 import zenoh
 
 from tests.conftest import REPO
+from tests.zenoh_example import example_copy
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_session import (
     PlaintextEndpointError,
@@ -20,7 +21,10 @@ from tracker_service.outputs.zenoh_session import (
     zenoh_config,
 )
 
-EXAMPLE = REPO / "config" / "zenoh"
+
+@pytest.fixture(scope="module")
+def example(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return example_copy(tmp_path_factory.mktemp("example"))
 
 
 def get(config: zenoh.Config, key: str) -> object:
@@ -83,8 +87,8 @@ def test_scouting_the_file_asks_for_is_kept(tmp_path: Path) -> None:
     assert get(config, "scouting/gossip/enabled") is False
 
 
-def test_mode_is_the_files_unless_given() -> None:
-    file = EXAMPLE / "subscriber.json5"
+def test_mode_is_the_files_unless_given(example: Path) -> None:
+    file = example / "subscriber.json5"
     assert get(zenoh_config(config_file=file, connect=["tls/localhost:1"]), "mode") == "client"
     assert get(zenoh_config("peer", config_file=file), "mode") == "peer"
 
@@ -92,14 +96,14 @@ def test_mode_is_the_files_unless_given() -> None:
 @pytest.mark.parametrize(
     "tls",
     [
-        {"transport": {"link": {"tls": {"root_ca_certificate": "/ca.crt"}}}},
+        {"transport": {"link": {"tls": {"root_ca_certificate": "certs/ca.crt"}}}},
         {"transport": {"link": {"protocols": ["tls", "quic"]}}},
         {"listen": {"endpoints": ["tls/0.0.0.0:7447"]}},
     ],
     ids=["certificates", "protocols", "endpoints"],
 )
-def test_plaintext_added_to_tls_is_refused(tmp_path: Path, tls: dict[str, object]) -> None:
-    file = write(tmp_path / "tls.json5", tls)
+def test_plaintext_added_to_tls_is_refused(example: Path, tls: dict[str, object]) -> None:
+    file = write(example / "tls.json5", tls)
     with pytest.raises(PlaintextEndpointError) as raised:
         zenoh_config(listen=["tcp/0.0.0.0:7447"], config_file=file)
     assert str(raised.value) == (
@@ -115,9 +119,9 @@ def test_plaintext_added_to_tls_is_refused(tmp_path: Path, tls: dict[str, object
     zenoh_config(listen=["tcp/0.0.0.0:7447"])
 
 
-def test_relative_files_are_taken_from_the_files_directory() -> None:
-    config = zenoh_config(config_file=EXAMPLE / "service.json5")
-    certs = EXAMPLE.absolute() / "certs"
+def test_relative_files_are_taken_from_the_files_directory(example: Path) -> None:
+    config = zenoh_config(config_file=example / "service.json5")
+    certs = example.absolute() / "certs"
     assert get(config, "transport/link/tls/root_ca_certificate") == str(certs / "ca.crt")
     assert get(config, "transport/link/tls/listen_private_key") == str(certs / "service.key")
 
@@ -143,31 +147,43 @@ def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_cli_refuses_plaintext_beside_tls_naming_the_option() -> None:
+def test_missing_or_unreadable_certificate_is_one_line(example: Path, tmp_path: Path) -> None:
+    file = write(
+        tmp_path / "z.json5", {"transport": {"link": {"tls": {"listen_certificate": "x.crt"}}}}
+    )
+    with pytest.raises(ZenohConfigError) as raised:
+        zenoh_config(config_file=file)
+    assert str(raised.value) == (
+        f"{file}: transport/link/tls/listen_certificate {tmp_path / 'x.crt'}: no such file "
+        "(certificates and keys: config/zenoh/make-certs.sh, docs/security.md)"
+    )
+
+
+def test_cli_refuses_plaintext_beside_tls_naming_the_option(example: Path) -> None:
     # The Dockerfile's old command on the TLS example: refused before anything starts.
     done = run_cli(
         "run",
         "--config",
         "config/example.toml",
         "--zenoh-config",
-        "config/zenoh/service.json5",
+        str(example / "service.json5"),
         "--zenoh-listen",
         "tcp/0.0.0.0:7447",
     )
     assert done.returncode == 2
     assert done.stderr == (
         "tracker-service run: --zenoh-listen tcp/0.0.0.0:7447 is plaintext but "
-        "config/zenoh/service.json5 configures TLS: use --zenoh-listen tls/0.0.0.0:7447, "
+        f"{example / 'service.json5'} configures TLS: use --zenoh-listen tls/0.0.0.0:7447, "
         "or give --zenoh-allow-plaintext to add it anyway\n"
     )
 
 
-def test_subscribe_needs_somewhere_to_find_the_service() -> None:
+def test_subscribe_needs_somewhere_to_find_the_service(example: Path) -> None:
     done = run_cli("subscribe", "--json")
     assert done.returncode == 2
     assert "give --connect ENDPOINT" in done.stderr and done.stderr.count("\n") == 1
     done = run_cli(
-        "subscribe", "--zenoh-config", "config/zenoh/subscriber.json5", "--connect", "tcp/h:1"
+        "subscribe", "--zenoh-config", str(example / "subscriber.json5"), "--connect", "tcp/h:1"
     )
     assert done.returncode == 2
     assert "--connect tcp/h:1 is plaintext" in done.stderr and "--allow-plaintext" in done.stderr

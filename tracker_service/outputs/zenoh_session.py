@@ -18,6 +18,7 @@ Nothing given anywhere is silently dropped, and TLS never silently becomes plain
 from __future__ import annotations
 
 import json
+import os
 import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -141,8 +142,21 @@ def _load(file: Path) -> zenoh.Config:
         ) from None
     for key in _FILE_FIELDS:
         name = _get(config, key)
-        if isinstance(name, str) and not Path(name).is_absolute():
-            _set(config, key, str((file.parent / name).absolute()))
+        if not isinstance(name, str):
+            continue
+        path = Path(name) if Path(name).is_absolute() else (file.parent / name).absolute()
+        # Zenoh would say so only when a link opens, in the output process, at length.
+        if not path.is_file():
+            raise ZenohConfigError(
+                f"{file}: {key} {path}: no such file (certificates and keys: "
+                "config/zenoh/make-certs.sh, docs/security.md)"
+            )
+        if not os.access(path, os.R_OK):
+            raise ZenohConfigError(
+                f"{file}: {key} {path}: not readable by this user (uid {os.getuid()}): "
+                "give it read access (e.g. chown)"
+            )
+        _set(config, key, str(path))
     return config
 
 
