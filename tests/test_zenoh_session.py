@@ -4,6 +4,8 @@ TLS never silently plaintext, and the command line's one-line errors."""
 from __future__ import annotations
 
 import json
+import re
+import shutil
 import socket
 import subprocess
 import sys
@@ -14,12 +16,15 @@ import zenoh
 
 from tests.conftest import REPO
 from tests.zenoh_example import example_copy
+from tracker_service.cli import build_parser
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_session import (
     PlaintextEndpointError,
     ZenohConfigError,
     zenoh_config,
 )
+from tracker_service.service.command import _with_cli
+from tracker_service.service.config import load_service_config
 
 
 @pytest.fixture(scope="module")
@@ -187,3 +192,28 @@ def test_subscribe_needs_somewhere_to_find_the_service(example: Path) -> None:
     )
     assert done.returncode == 2
     assert "--connect tcp/h:1 is plaintext" in done.stderr and "--allow-plaintext" in done.stderr
+
+
+def dockerfile_command() -> list[str]:
+    text = (REPO / "Dockerfile").read_text().replace("\\\n", " ")
+    match = re.search(r"^CMD (\[.*\])$", text, re.MULTILINE)
+    assert match, "the Dockerfile has no CMD in exec form"
+    command: list[str] = json.loads(match.group(1))
+    return command
+
+
+def test_docker_command_keeps_tls(example: Path, tmp_path: Path) -> None:
+    """The image's command, on a volume holding tracker.toml and the example with its
+    certificates, listens on TLS only, with the example's access control."""
+    volume = tmp_path / "config"
+    shutil.copytree(example, volume / "zenoh")
+    shutil.copy(REPO / "config" / "example.toml", volume / "tracker.toml")
+    command = [arg.replace("/config/", f"{volume}/") for arg in dockerfile_command()]
+    args = build_parser().parse_args(command)
+    zenoh_settings = _with_cli(load_service_config(args.config), args).zenoh
+    assert zenoh_settings.config_file == volume / "zenoh" / "service.json5"
+    assert zenoh_settings.listen == ["tls/0.0.0.0:7447"] and zenoh_settings.connect == []
+    assert not zenoh_settings.allow_plaintext and not zenoh_settings.scouting
+    config = zenoh_config(config_file=zenoh_settings.config_file)
+    assert get(config, "access_control/enabled") is True
+    assert get(config, "transport/link/tls/enable_mtls") is True
