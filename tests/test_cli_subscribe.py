@@ -32,7 +32,7 @@ def free_port() -> int:
 
 def test_subscribe_prints_picture_then_updates_and_ends_on_sigterm() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    with ZenohPublisher(listen=[endpoint], multicast_scouting=False) as publisher:
+    with ZenohPublisher(listen=[endpoint]) as publisher:
         publisher.put_system_track(1, Track(number=1, callsign="AFR1", status="confirmed"))
         publisher.put_system_track(2, Track(number=2, callsign="BAW2", status="coasting"))
         command = [sys.executable, "-m", "tracker_service.cli", "subscribe", "--json"]

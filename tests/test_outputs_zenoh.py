@@ -72,7 +72,7 @@ def endpoint() -> str:
 
 @pytest.fixture
 def publisher(endpoint: str) -> Iterator[ZenohPublisher]:
-    with ZenohPublisher(listen=[endpoint], multicast_scouting=False) as pub:
+    with ZenohPublisher(listen=[endpoint]) as pub:
         yield pub
 
 

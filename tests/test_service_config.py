@@ -133,7 +133,8 @@ def test_replay_needs_no_inputs_and_defaults_apply() -> None:
     config = _load(data)
     assert config.radars[0].input is None
     assert config.system.holding_window_s == 1.0
-    assert config.zenoh.mode == "peer" and config.zenoh.prefix == "tracker"
+    assert config.zenoh.mode is None and config.zenoh.prefix == "tracker"
+    assert not config.zenoh.scouting and not config.zenoh.allow_plaintext
     assert config.mcap.directory is None
 
 

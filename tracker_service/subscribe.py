@@ -14,13 +14,17 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
 from types import FrameType
 from typing import Any, TextIO
 
 import zenoh
 
-from tracker_service.outputs.zenoh_out import DEFAULT_PREFIX, zenoh_config
+from tracker_service.outputs.zenoh_out import DEFAULT_PREFIX
+from tracker_service.outputs.zenoh_session import (
+    PlaintextEndpointError,
+    ZenohConfigError,
+    zenoh_config,
+)
 
 __all__ = ["add_arguments", "run", "subscribe"]
 
@@ -49,8 +53,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="ENDPOINT",
-        help="Zenoh endpoint of the service, e.g. tcp/127.0.0.1:7447 (repeatable); "
-        "given, multicast scouting is off; without, peers are found by scouting",
+        help="Zenoh endpoint of the service, e.g. tls/127.0.0.1:7447 (repeatable); added "
+        "to --zenoh-config's",
+    )
+    parser.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        help="Zenoh JSON5 configuration, e.g. the subscriber's certificate for mTLS "
+        "(config/zenoh/subscriber.json5, docs/security.md)",
+    )
+    parser.add_argument(
+        "--scouting",
+        action="store_true",
+        help="find the service by multicast and gossip scouting (off by default)",
+    )
+    parser.add_argument(
+        "--allow-plaintext",
+        action="store_true",
+        help="allow a plaintext --connect beside a --zenoh-config that configures TLS",
     )
     parser.add_argument("--prefix", default=DEFAULT_PREFIX, help="the service's key prefix")
     parser.add_argument(
@@ -94,8 +114,9 @@ def _sort_key(key: str) -> tuple[int, int, str]:
     return (0, int(last), key) if last.isdigit() else (1, 0, key)
 
 
-def subscribe(connect: Sequence[str], key: str, as_json: bool, out: TextIO = sys.stdout) -> int:
-    """Follows ``key`` until SIGINT or SIGTERM; returns the exit status."""
+def subscribe(config: zenoh.Config, key: str, as_json: bool, out: TextIO = sys.stdout) -> int:
+    """Follows ``key`` on a session of ``config`` until SIGINT or SIGTERM; returns the
+    exit status."""
     stop = threading.Event()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
@@ -109,7 +130,6 @@ def subscribe(connect: Sequence[str], key: str, as_json: bool, out: TextIO = sys
         deleted = sample.kind == zenoh.SampleKind.DELETE
         samples.put((str(sample.key_expr), None if deleted else sample.payload.to_bytes()))
 
-    config = zenoh_config(connect=connect, multicast_scouting=False if connect else None)
     session = zenoh.open(config)
     try:
         # Subscribed before asking, so that nothing falls between the picture and updates.
@@ -152,7 +172,30 @@ def subscribe(connect: Sequence[str], key: str, as_json: bool, out: TextIO = sys
 def run(args: argparse.Namespace) -> int:
     key = args.key or f"{args.prefix}/system_tracks/**"
     try:
-        return subscribe(args.connect, key, args.json)
+        config = zenoh_config(
+            connect=args.connect,
+            config_file=args.zenoh_config,
+            scouting=args.scouting,
+            allow_plaintext=args.allow_plaintext,
+        )
+    except PlaintextEndpointError as exc:
+        print(
+            f"tracker-service subscribe: {exc.describe('--connect', 'give --allow-plaintext')}",
+            file=sys.stderr,
+        )
+        return 2
+    except ZenohConfigError as exc:
+        print(f"tracker-service subscribe: {exc}", file=sys.stderr)
+        return 2
+    if config.get_json("connect/endpoints") == "[]" and not args.scouting:
+        print(
+            "tracker-service subscribe: nowhere to find the service: give --connect ENDPOINT "
+            "(or a --zenoh-config with connect endpoints, or --scouting)",
+            file=sys.stderr,
+        )
+        return 2
+    try:
+        return subscribe(config, key, args.json)
     except BrokenPipeError:
         # `subscribe --json | head` closes the pipe early; that is not an error.
         sys.stderr.close()

@@ -13,44 +13,19 @@ Keys (``tracker`` being the default prefix):
 
 from __future__ import annotations
 
-import json
 import threading
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal
 
 import zenoh
 from pydantic import BaseModel
 
 from tracker_service.closing import Closing
+from tracker_service.outputs.zenoh_session import Mode, zenoh_config
 
-__all__ = ["ZenohPublisher", "zenoh_config"]
+__all__ = ["ZenohPublisher"]
 
 DEFAULT_PREFIX = "tracker"
-
-
-def zenoh_config(
-    mode: Literal["peer", "client", "router"] = "peer",
-    listen: Sequence[str] = (),
-    connect: Sequence[str] = (),
-    config_file: str | Path | None = None,
-    multicast_scouting: bool | None = None,
-) -> zenoh.Config:
-    """A session configuration: ``config_file`` (JSON5, for routers, TLS, access control)
-    when given, with the mode, endpoints and scouting given here on top of it.
-
-    ``multicast_scouting`` None keeps the file's (or Zenoh's default) setting; False keeps
-    a session from discovering peers on the LAN, which tests on loopback need.
-    """
-    config = zenoh.Config() if config_file is None else zenoh.Config.from_file(str(config_file))
-    config.insert_json5("mode", json.dumps(mode))
-    if listen:
-        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    if connect:
-        config.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    if multicast_scouting is not None:
-        config.insert_json5("scouting/multicast/enabled", json.dumps(multicast_scouting))
-    return config
 
 
 def _json(model: BaseModel | bytes) -> bytes:
@@ -73,17 +48,27 @@ class ZenohPublisher(Closing):
         self,
         prefix: str = DEFAULT_PREFIX,
         *,
-        mode: Literal["peer", "client", "router"] = "peer",
+        mode: Mode | None = None,
         listen: Sequence[str] = (),
         connect: Sequence[str] = (),
         config_file: str | Path | None = None,
-        multicast_scouting: bool | None = None,
+        scouting: bool = False,
+        allow_plaintext: bool = False,
     ) -> None:
+        """The session is ``zenoh_session.zenoh_config`` of the arguments: endpoints add
+        to the file's, scouting off unless asked for, TLS kept TLS."""
         if not prefix or prefix.startswith("/") or prefix.endswith("/") or "*" in prefix:
             raise ValueError(f"prefix {prefix!r} must be a key expression without wildcards")
         self.prefix = prefix
         self._session = zenoh.open(
-            zenoh_config(mode, listen, connect, config_file, multicast_scouting)
+            zenoh_config(
+                mode,
+                listen,
+                connect,
+                config_file,
+                scouting=scouting,
+                allow_plaintext=allow_plaintext,
+            )
         )
         # The queryable answers from Zenoh's own threads while the service publishes.
         self._lock = threading.Lock()

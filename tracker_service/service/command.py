@@ -30,6 +30,13 @@ from tracker_service.chain import BatchOutput
 from tracker_service.inputs.udp import InputCounters
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.zenoh_out import ZenohPublisher
+from tracker_service.outputs.zenoh_session import (
+    TLS_PROTOCOLS,
+    PlaintextEndpointError,
+    ZenohConfigError,
+    endpoint_protocol,
+    zenoh_config,
+)
 from tracker_service.service.config import ConfigError, ServiceConfig, load_service_config
 from tracker_service.service.core import Outputs, TrackerService
 from tracker_service.service.replay import (
@@ -65,17 +72,32 @@ def _add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="ENDPOINT",
-        help="Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
+        help="Zenoh endpoint to listen on, e.g. tls/0.0.0.0:7447 (repeatable); added to "
+        "[zenoh] listen and to --zenoh-config's",
     )
     parser.add_argument(
         "--zenoh-connect",
         action="append",
         default=[],
         metavar="ENDPOINT",
-        help="Zenoh endpoint (router or peer) to connect to (repeatable)",
+        help="Zenoh endpoint (router or peer) to connect to (repeatable); added to "
+        "[zenoh] connect and to --zenoh-config's",
     )
     parser.add_argument(
-        "--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration (routers, TLS, ACL)"
+        "--zenoh-config",
+        metavar="FILE",
+        help="Zenoh JSON5 configuration: TLS, access control, routers (docs/security.md)",
+    )
+    parser.add_argument(
+        "--zenoh-scouting",
+        action="store_true",
+        help="find and answer peers by multicast and gossip scouting (off by default)",
+    )
+    parser.add_argument(
+        "--zenoh-allow-plaintext",
+        action="store_true",
+        help="allow a plaintext endpoint (tcp/, udp/...) beside a --zenoh-config that "
+        "configures TLS (refused by default)",
     )
 
 
@@ -129,16 +151,40 @@ def add_health_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _with_cli(config: ServiceConfig, args: argparse.Namespace) -> ServiceConfig:
-    """The configuration with the command line's Zenoh settings on top."""
+    """The configuration with the command line's Zenoh settings on top: endpoints
+    added, scouting and plaintext when either asks. Checked here, so that a Zenoh file
+    or endpoint that cannot work, or TLS turned plaintext, is one line at start-up."""
     zenoh = config.zenoh
-    updates: dict[str, object] = {}
-    if args.zenoh_listen:
-        updates["listen"] = list(args.zenoh_listen)
-    if args.zenoh_connect:
-        updates["connect"] = list(args.zenoh_connect)
+    updates: dict[str, object] = {
+        "listen": list(dict.fromkeys([*zenoh.listen, *args.zenoh_listen])),
+        "connect": list(dict.fromkeys([*zenoh.connect, *args.zenoh_connect])),
+        "scouting": zenoh.scouting or args.zenoh_scouting,
+        "allow_plaintext": zenoh.allow_plaintext or args.zenoh_allow_plaintext,
+    }
     if args.zenoh_config:
         updates["config_file"] = Path(args.zenoh_config)
-    return config.model_copy(update={"zenoh": zenoh.model_copy(update=updates)})
+    zenoh = zenoh.model_copy(update=updates)
+    try:
+        zenoh_config(
+            zenoh.mode,
+            zenoh.listen,
+            zenoh.connect,
+            zenoh.config_file,
+            scouting=zenoh.scouting,
+            allow_plaintext=zenoh.allow_plaintext,
+        )
+    except PlaintextEndpointError as exc:
+        cli = {"listen": args.zenoh_listen, "connect": args.zenoh_connect}[exc.direction]
+        if exc.endpoint in cli:
+            raise ConfigError(
+                exc.describe(f"--zenoh-{exc.direction}", "give --zenoh-allow-plaintext")
+            ) from None
+        raise ConfigError(
+            exc.describe(f"[zenoh] {exc.direction}", "set [zenoh] allow_plaintext = true")
+        ) from None
+    except ZenohConfigError as exc:
+        raise ConfigError(f"zenoh: {exc}") from None
+    return config.model_copy(update={"zenoh": zenoh})
 
 
 @contextmanager
@@ -157,8 +203,8 @@ def open_outputs(
                 listen=z.listen,
                 connect=z.connect,
                 config_file=z.config_file,
-                # Explicit endpoints: no scouting for strangers on the LAN.
-                multicast_scouting=False if (z.listen or z.connect) else None,
+                scouting=z.scouting,
+                allow_plaintext=z.allow_plaintext,
             )
         if mcap_dir is not None:
             m = config.mcap
@@ -359,6 +405,9 @@ def _watch_hint(config: ServiceConfig) -> str:
     z = config.zenoh
     endpoints = [e.replace("0.0.0.0", "127.0.0.1") for e in z.listen]
     connect = " ".join(f"--connect {e}" for e in endpoints[:1])
+    # A subscriber of a TLS endpoint needs its own certificate (config/zenoh/).
+    if any(endpoint_protocol(e) in TLS_PROTOCOLS for e in endpoints[:1]):
+        connect = f"--zenoh-config SUBSCRIBER.json5 {connect}"
     prefix = "" if z.prefix == "tracker" else f" --prefix {z.prefix}"
     return f"tracker-service subscribe {connect}{prefix}".replace("  ", " ").strip()
 

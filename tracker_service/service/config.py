@@ -113,12 +113,18 @@ class SystemConfig(_Strict):
 
 
 class ZenohConfig(_Strict):
-    mode: Literal["peer", "client", "router"] = "peer"
+    mode: Literal["peer", "client", "router"] | None = None
+    """None: the config_file's mode, else peer."""
     listen: list[str] = []
     connect: list[str] = []
+    """Endpoints added to the config_file's (and the command line's to these)."""
     config_file: Path | None = None
-    """A zenoh JSON5 configuration (routers, TLS, access control); the fields above
-    override its mode and endpoints."""
+    """A zenoh JSON5 configuration (TLS, access control, routers): docs/security.md."""
+    scouting: bool = False
+    """Multicast and gossip scouting (finding peers on the LAN), off unless asked for
+    here, on the command line or in the config_file."""
+    allow_plaintext: bool = False
+    """Allow plaintext endpoints beside a config_file that configures TLS."""
     prefix: str = "tracker"
 
     @field_validator("listen", "connect")

@@ -1,0 +1,221 @@
+"""A Zenoh session's configuration: a JSON5 file (TLS, access control, routers) with the
+endpoints and scouting that the service's configuration and command line add to it.
+
+Nothing given anywhere is silently dropped, and TLS never silently becomes plaintext:
+
+- endpoints add: the file's first, then the caller's (each once); with none anywhere the
+  session listens nowhere (Zenoh's own default is a peer on ``tcp/[::]:0``, every
+  interface, plaintext);
+- scouting (multicast and gossip) is off unless asked for, by the caller or by the file
+  setting it explicitly: peers are the endpoints named, not whoever answers on the LAN;
+- a file that configures TLS (certificates or keys, a TLS-only protocol list, TLS-only
+  endpoints) gets no plaintext endpoint from the caller unless the caller allows it;
+- relative file names in the file (certificates, keys, password dictionary, known keys)
+  are taken from the file's directory, so that a configuration directory can move (into
+  a container's volume) with its certificates.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Literal, get_args
+
+import zenoh
+
+__all__ = [
+    "TLS_PROTOCOLS",
+    "Mode",
+    "PlaintextEndpointError",
+    "ZenohConfigError",
+    "endpoint_protocol",
+    "zenoh_config",
+]
+
+Mode = Literal["peer", "client", "router"]
+
+TLS_PROTOCOLS = frozenset({"tls", "quic"})
+"""Link protocols that are TLS (QUIC carries TLS 1.3)."""
+
+_TLS = "transport/link/tls"
+_FILE_FIELDS = (
+    *(
+        f"{_TLS}/{name}"
+        for name in (
+            "root_ca_certificate",
+            "listen_certificate",
+            "listen_private_key",
+            "connect_certificate",
+            "connect_private_key",
+        )
+    ),
+    "transport/auth/usrpwd/dictionary_file",
+    "transport/auth/pubkey/public_key_file",
+    "transport/auth/pubkey/private_key_file",
+    "transport/auth/pubkey/known_keys_file",
+)
+"""Fields of a Zenoh configuration that name a file."""
+_TLS_MATERIAL = _FILE_FIELDS[:5]
+_SCOUTING = ("scouting/multicast/enabled", "scouting/gossip/enabled")
+# zenoh's errors end with the Rust source location, which says nothing to an operator.
+_RUST_LOCATION = re.compile(r"\s+at /\S+\.rs:\d+\.?")
+_JSON5_MESSAGE = re.compile(r'msg: "(.*?)", location')
+
+
+class ZenohConfigError(ValueError):
+    """A Zenoh configuration that cannot be used; the message says why and the fix."""
+
+
+class PlaintextEndpointError(ZenohConfigError):
+    """A plaintext endpoint added to a configuration file that configures TLS."""
+
+    def __init__(self, direction: Literal["listen", "connect"], endpoint: str, file: Path):
+        self.direction = direction
+        self.endpoint = endpoint
+        self.file = file
+        super().__init__(self.describe(f"{direction} endpoint", "allow plaintext explicitly"))
+
+    @property
+    def tls_endpoint(self) -> str:
+        """The same address over TLS."""
+        return "tls/" + self.endpoint.partition("/")[2]
+
+    def describe(self, option: str, allow: str) -> str:
+        """The one-line error, naming the option the endpoint came from and how to allow
+        it when plaintext is really meant."""
+        return (
+            f"{option} {self.endpoint} is plaintext but {self.file} configures TLS: "
+            f"use {option} {self.tls_endpoint}, or {allow} to add it anyway"
+        )
+
+
+def endpoint_protocol(endpoint: str) -> str:
+    """``tcp`` of ``tcp/127.0.0.1:7447``."""
+    return endpoint.partition("/")[0]
+
+
+def _zenoh_error(exc: Exception) -> str:
+    text = str(exc)
+    inner = _JSON5_MESSAGE.search(text)
+    return _RUST_LOCATION.sub("", inner.group(1) if inner else text).strip()
+
+
+def _get(config: zenoh.Config, key: str) -> object:
+    value: object = json.loads(config.get_json(key))
+    return value
+
+
+def _set(config: zenoh.Config, key: str, value: object) -> None:
+    config.insert_json5(key, json.dumps(value))
+
+
+def _endpoints(config: zenoh.Config, key: str, mode: Mode) -> list[str]:
+    """A file's endpoints for the session's mode (Zenoh allows a list or a list per
+    mode); none when the file leaves Zenoh's default (a peer on ``tcp/[::]:0``)."""
+    value = _get(config, key)
+    if value == _get(zenoh.Config(), key):
+        return []
+    if isinstance(value, dict):
+        value = value.get(mode)
+    return [str(endpoint) for endpoint in value] if isinstance(value, list) else []
+
+
+def _configures_tls(config: zenoh.Config, endpoints: Iterable[str]) -> bool:
+    if any(_get(config, key) is not None for key in _TLS_MATERIAL):
+        return True
+    protocols = _get(config, "transport/link/protocols")
+    if isinstance(protocols, list) and protocols and set(protocols) <= TLS_PROTOCOLS:
+        return True
+    protocols = {endpoint_protocol(endpoint) for endpoint in endpoints}
+    return bool(protocols) and protocols <= TLS_PROTOCOLS
+
+
+def _load(file: Path) -> zenoh.Config:
+    try:
+        config = zenoh.Config.from_file(str(file))
+    except zenoh.ZError as exc:
+        raise ZenohConfigError(
+            f"{file}: not a usable Zenoh configuration: {_zenoh_error(exc)}"
+        ) from None
+    for key in _FILE_FIELDS:
+        name = _get(config, key)
+        if not isinstance(name, str):
+            continue
+        path = Path(name) if Path(name).is_absolute() else (file.parent / name).absolute()
+        # Zenoh would say so only when a link opens, in the output process, at length.
+        if not path.is_file():
+            raise ZenohConfigError(
+                f"{file}: {key} {path}: no such file (certificates and keys: "
+                "config/zenoh/make-certs.sh, docs/security.md)"
+            )
+        if not os.access(path, os.R_OK):
+            raise ZenohConfigError(
+                f"{file}: {key} {path}: not readable by this user (uid {os.getuid()}): "
+                "give it read access (e.g. chown)"
+            )
+        _set(config, key, str(path))
+    return config
+
+
+def _file_mode(config: zenoh.Config) -> Mode:
+    value = _get(config, "mode")
+    return next((mode for mode in get_args(Mode) if mode == value), "peer")
+
+
+def _refuse_plaintext(file: Path, listen: Sequence[str], connect: Sequence[str]) -> None:
+    for endpoint in listen:
+        if endpoint_protocol(endpoint) not in TLS_PROTOCOLS:
+            raise PlaintextEndpointError("listen", endpoint, file)
+    for endpoint in connect:
+        if endpoint_protocol(endpoint) not in TLS_PROTOCOLS:
+            raise PlaintextEndpointError("connect", endpoint, file)
+
+
+def _merged(first: Iterable[str], then: Iterable[str]) -> list[str]:
+    return list(dict.fromkeys([*first, *then]))
+
+
+def zenoh_config(
+    mode: Mode | None = None,
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    config_file: str | Path | None = None,
+    *,
+    scouting: bool = False,
+    allow_plaintext: bool = False,
+) -> zenoh.Config:
+    """The session configuration: ``config_file`` when given, with ``listen`` and
+    ``connect`` added to its endpoints (see the module's rules).
+
+    ``mode`` None is the file's mode, or peer. ``scouting`` turns multicast and gossip
+    scouting on; False leaves them off unless the file turns them on. Raises
+    ``PlaintextEndpointError`` for a plaintext endpoint added to a TLS configuration
+    (unless ``allow_plaintext``), ``ZenohConfigError`` for a file or an endpoint Zenoh
+    refuses.
+    """
+    file = None if config_file is None else Path(config_file)
+    if file is None:
+        config = zenoh.Config()
+        own_listen: list[str] = []
+        own_connect: list[str] = []
+        mode = mode or "peer"
+    else:
+        config = _load(file)
+        mode = mode or _file_mode(config)
+        own_listen = _endpoints(config, "listen/endpoints", mode)
+        own_connect = _endpoints(config, "connect/endpoints", mode)
+        if not allow_plaintext and _configures_tls(config, own_listen + own_connect):
+            _refuse_plaintext(file, listen, connect)
+    try:
+        _set(config, "mode", mode)
+        _set(config, "listen/endpoints", _merged(own_listen, listen))
+        _set(config, "connect/endpoints", _merged(own_connect, connect))
+        for key in _SCOUTING:
+            if scouting or _get(config, key) is None:
+                _set(config, key, scouting)
+    except zenoh.ZError as exc:
+        raise ZenohConfigError(_zenoh_error(exc)) from None
+    return config
