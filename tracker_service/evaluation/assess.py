@@ -10,8 +10,9 @@ radar's local tracks and for the system tracks:
   codes are shared by many aircraft and are left out); a track counts for an identity
   once ``MIN_IDENTITY_UPDATES`` of its plots carry it;
 - track breaks while plots continue: an identity's plots fall into stretches with no gap
-  a confirmed track would not survive (``delete_misses + miss_tolerance`` scans); every
-  track beyond the first within one stretch is a break;
+  a confirmed track would not survive (``delete_misses + miss_tolerance`` scans); within
+  one stretch, a track that starts after the previous one's last update is a break, one
+  that starts while it still updates an overlap (a split track, or a duplicated address);
 - kinematics of the published (confirmed or coasting) tracks: ground speed and
   acceleration (velocity difference over at least ``MIN_ACCELERATION_DT_S``) percentiles
   and maxima; position jumps, the distance between an update and its predecessor
@@ -83,7 +84,8 @@ from tracker_service.service.config import parse_service_config as parse_config
 from tracker_service.service.core import build_chain
 from tracker_service.service.replay import open_replay, parse_date
 from tracker_service.simulator.recording import is_mcap
-from tracker_service.tracking import TrackerConfig
+from tracker_service.tracking import LocalTracker, TrackerConfig
+from tracker_service.tracking.plots import PlotArrays, as_plot_arrays
 from tracker_service.validation import dataclass_kwargs
 
 __all__ = [
@@ -122,6 +124,7 @@ MIN_ACCELERATION_DT_S = 1.0
 STATIONARY_M = 500.0
 STATIONARY_SPAN_S = 20.0
 STATIONARY_UPDATES = 5
+ADSB_OTHER_AIRCRAFT_M = 5 * 1852.0
 MAX_SPEED_KT = 650.0
 MAX_JUMP_M = NM
 KT = NM / 3600.0
@@ -135,6 +138,16 @@ CHECKS = (
 )
 """The criteria of issue 10 on real recordings, in the order they are printed."""
 
+TRACKED_PLOT_DTYPE = np.dtype(
+    [
+        ("plot_id", np.int64),
+        ("time", np.float64),
+        ("x", np.float64),
+        ("y", np.float64),
+        ("R", np.float64, (2, 2)),
+    ]
+)
+"""A plot as the local tracker and the fuser took it (bias-corrected where estimated)."""
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
@@ -174,6 +187,8 @@ class AssessRun:
     periods: dict[str, float]
     plots: npt.NDArray[Any]
     extra: npt.NDArray[Any]
+    tracked: npt.NDArray[Any]
+    """Every plot the trackers took, as they took it (``TRACKED_PLOT_DTYPE``)."""
     local: dict[str, TrackSet]
     system: TrackSet | None
     adsb_reports: int
@@ -227,13 +242,34 @@ def _assumed_config(sources: list[str], periods: Mapping[str, float]) -> Service
     return parse_config({"radars": radars, "system": system}, "the assumed configuration")
 
 
-def _chain(config: ServiceConfig, fuse: bool) -> Chain:
-    chain = build_chain(config)
+class _KeepingTracker(LocalTracker):
+    """A local tracker that keeps each plot as it tracked it: after the chain's bias
+    correction, which the plot table does not carry."""
+
+    def __init__(self, config: TrackerConfig, kept: list[npt.NDArray[Any]]) -> None:
+        super().__init__(config)
+        self._kept = kept
+
+    def process(self, plots: PlotArrays | npt.NDArray[Any]) -> npt.NDArray[Any]:
+        rows = as_plot_arrays(plots).rows
+        kept = np.zeros(len(rows), TRACKED_PLOT_DTYPE)
+        for name in TRACKED_PLOT_DTYPE.names or ():
+            kept[name] = rows[name]
+        self._kept.append(kept)
+        return super().process(plots)
+
+
+def _chain(config: ServiceConfig, fuse: bool, kept: list[npt.NDArray[Any]]) -> Chain:
+    def make_tracker(_source: str, tracker_config: TrackerConfig) -> LocalTracker:
+        return _KeepingTracker(tracker_config, kept)
+
+    chain = build_chain(config, make_tracker)
     if fuse:
         return chain
     # Several radars at one assumed site must not be fused: each keeps its own tracks.
     infos = {k: replace(v, surveyed=False) for k, v in chain.infos.items()}
-    return Chain(infos, chain.plane, dataclass_kwargs("tracker", config.tracker, TrackerConfig))
+    tracker = dataclass_kwargs("tracker", config.tracker, TrackerConfig)
+    return Chain(infos, chain.plane, tracker, make_tracker)
 
 
 def run_recording(
@@ -262,7 +298,8 @@ def run_recording(
                 "(no system tracks)"
             )
     replay = open_replay(file, config, DEFAULT_DAY_POSIX if day_posix is None else day_posix)
-    chain = _chain(replay.config, fuse)
+    kept: list[npt.NDArray[Any]] = []
+    chain = _chain(replay.config, fuse, kept)
     adsb = AdsbReference(chain.plane)
     tables: list[npt.NDArray[Any]] = []
     extras: list[npt.NDArray[Any]] = []
@@ -298,6 +335,7 @@ def run_recording(
 
     plots = np.concatenate(tables) if tables else np.zeros(0, RAW_PLOT_DTYPE)
     extra_all = np.concatenate(extras) if extras else np.zeros(0, PLOT_EXTRA_DTYPE)
+    tracked = np.concatenate(kept) if kept else np.zeros(0, TRACKED_PLOT_DTYPE)
     track_sets: dict[str, TrackSet] = {}
     for source in sorted(chain.radars, key=source_order):
         state = chain.radars[source]
@@ -332,6 +370,7 @@ def run_recording(
         periods=periods,
         plots=plots,
         extra=extra_all,
+        tracked=tracked,
         local=track_sets,
         system=system_set,
         adsb_reports=adsb.reports,
@@ -443,11 +482,10 @@ def _kinematics(ts: TrackSet) -> dict[str, Any]:
     }
 
 
-def nis_samples(
-    ts: TrackSet, plots: npt.NDArray[Any], index: Mapping[int, int]
-) -> tuple[FloatArray, FloatArray]:
-    """(time, NIS) of every plot that updated a track that had a previous update: see the
-    module docstring."""
+def nis_samples(ts: TrackSet, tracked: npt.NDArray[Any]) -> tuple[FloatArray, FloatArray]:
+    """(time, NIS) of every plot that updated a track that had a previous update, against
+    the plot as the tracker took it (``tracked``): see the module docstring."""
+    index = _plot_index(tracked)
     order, follows = _ordered(ts.rows, ts.number)
     r = ts.rows[order]
     q = ts.q_of[order]
@@ -459,7 +497,7 @@ def nis_samples(
         return np.zeros(0), np.zeros(0)
     prev, cur = r[take - 1], r[take]
     qk = q[take - 1]
-    plot = plots[[index[int(p)] for p in cur["plot_id"]]]
+    plot = tracked[[index[int(p)] for p in cur["plot_id"]]]
     dt_ = plot["time"] - prev["time"]
     f = np.zeros((len(take), 4, 4))
     f[:, [0, 1, 2, 3], [0, 1, 2, 3]] = 1.0
@@ -479,8 +517,8 @@ def nis_samples(
     return np.asarray(plot["time"], float), nis
 
 
-def _consistency(ts: TrackSet, plots: npt.NDArray[Any], index: Mapping[int, int]) -> dict[str, Any]:
-    _, nis = nis_samples(ts, plots, index)
+def _consistency(ts: TrackSet, tracked: npt.NDArray[Any]) -> dict[str, Any]:
+    _, nis = nis_samples(ts, tracked)
     return {
         "samples": int(nis.size),
         "mean": round(float(nis.mean()), 3) if nis.size else None,
@@ -535,31 +573,57 @@ def _stretches(times: FloatArray, gap: float) -> list[tuple[float, float]]:
     return [(float(times[a]), float(times[b])) for a, b in zip(starts, ends, strict=True)]
 
 
+def _stretch_changes(
+    tracks: Mapping[int, FloatArray], first: float, last: float
+) -> tuple[int, int, bool]:
+    """Within one plot stretch of an identity: the breaks (a track that starts after the
+    previous one's last update) and the overlaps (a track that starts while the previous
+    one still updates: a split track or a duplicated identity); and whether any track
+    held it."""
+    spans = sorted(
+        (float(t[inside].min()), float(t[inside].max()))
+        for t in tracks.values()
+        if (inside := (t >= first) & (t <= last)).any()
+    )
+    breaks = overlaps = 0
+    end = -math.inf
+    for start, stop in spans:
+        if end > -math.inf:
+            if start > end:
+                breaks += 1
+            else:
+                overlaps += 1
+        end = max(end, stop)
+    return breaks, overlaps, bool(spans)
+
+
 def _identity_measures(per_identity: Mapping[int, Mapping[str, Any]], label: str) -> dict[str, Any]:
-    """Tracks per identity and the breaks while its plots continue."""
+    """Tracks per identity, and the breaks and overlaps while its plots continue."""
     counts = []
-    breaks = 0
-    untracked = 0
+    breaks = overlaps = untracked = 0
     worst: list[dict[str, Any]] = []
     for identity, entry in per_identity.items():
         tracks = entry["tracks"]
         counts.append(len(tracks))
-        own_breaks = 0
+        own_breaks = own_overlaps = 0
         for first, last in entry["stretches"]:
-            inside = [n for n, t in tracks.items() if np.any((t >= first) & (t <= last))]
-            own_breaks += max(0, len(inside) - 1)
-            untracked += not inside
+            b, o, held = _stretch_changes(tracks, first, last)
+            own_breaks += b
+            own_overlaps += o
+            untracked += not held
         breaks += own_breaks
-        if own_breaks or len(tracks) > len(entry["stretches"]):
+        overlaps += own_overlaps
+        if own_breaks or own_overlaps or len(tracks) > len(entry["stretches"]):
             worst.append(
                 {
                     label: _identity_text(identity, label),
                     "tracks": len(tracks),
                     "stretches": len(entry["stretches"]),
                     "breaks": own_breaks,
+                    "overlaps": own_overlaps,
                 }
             )
-    worst.sort(key=lambda w: (-w["breaks"], -w["tracks"]))
+    worst.sort(key=lambda w: (-w["breaks"] - w["overlaps"], -w["tracks"]))
     return {
         "identities": len(counts),
         "tracked": int(sum(c > 0 for c in counts)),
@@ -571,6 +635,7 @@ def _identity_measures(per_identity: Mapping[int, Mapping[str, Any]], label: str
         "stretches": int(sum(len(e["stretches"]) for e in per_identity.values())),
         "untracked_stretches": untracked,
         "breaks": breaks,
+        "overlaps": overlaps,
         "worst": worst[:10],
     }
 
@@ -624,10 +689,14 @@ def _suspect_tracks(
 
 
 def _adsb_measures(errors: list[tuple[float, int, float]]) -> dict[str, Any]:
-    e = np.array([x[2] for x in errors], dtype=float)
+    """Errors against ADS-B; beyond ``ADSB_OTHER_AIRCRAFT_M`` the ADS-B of that address is
+    another aircraft (a duplicated address), counted apart."""
+    all_errors = np.array([x[2] for x in errors], dtype=float)
+    e = all_errors[all_errors <= ADSB_OTHER_AIRCRAFT_M]
     return {
         "updates": int(e.size),
         "addresses": len({x[1] for x in errors}),
+        "other_aircraft": int(all_errors.size - e.size),
         "rms_m": round(float(np.sqrt(np.mean(e**2))), 1) if e.size else None,
         "error_m": _stats(e),
     }
@@ -650,7 +719,7 @@ def _track_measures(
         ),
     }
     doc |= _kinematics(ts)
-    doc["nis"] = _consistency(ts, plots, index)
+    doc["nis"] = _consistency(ts, run.tracked)
     doc["suspect_tracks"] = _suspect_tracks(ts, plots, run.extra, index)
     errors = run.adsb_errors.get(ts.name)
     doc["adsb"] = _adsb_measures(errors) if errors else None
@@ -756,9 +825,10 @@ def _checks(doc: Mapping[str, Any]) -> list[dict[str, Any]]:
         out.append(
             _check(
                 CHECKS[0],
-                a["breaks"] == 0,
+                a["breaks"] + a["overlaps"] == 0,
                 f"{a['tracks']} system tracks for {a['identities']} addresses in "
-                f"{a['stretches']} plot stretches: {a['breaks']} breaks",
+                f"{a['stretches']} plot stretches: {a['breaks']} breaks, {a['overlaps']} "
+                "overlaps",
             )
         )
     fast = {k: v["speed_kt"]["max"] for k, v in sets.items() if v["speed_kt"]["max"] is not None}
@@ -859,11 +929,11 @@ def _set_lines(title: str, m: Mapping[str, Any]) -> list[str]:
         head,
         f"    per Mode S address: {a['tracks']} tracks for {a['identities']} addresses "
         f"({_v(a['tracks_per_identity'])} per address, max {a['max_tracks']}), "
-        f"{a['stretches']} plot stretches, {a['breaks']} breaks, "
+        f"{a['stretches']} plot stretches, {a['breaks']} breaks, {a['overlaps']} overlaps, "
         f"{a['untracked_stretches']} untracked",
         f"    per discrete Mode 3/A: {c['tracks']} tracks for {c['identities']} codes "
         f"({_v(c['tracks_per_identity'])} per code, max {c['max_tracks']}), "
-        f"{c['breaks']} breaks",
+        f"{c['breaks']} breaks, {c['overlaps']} overlaps",
         f"    speed kt: p50 {_v(s['p50'])} p95 {_v(s['p95'])} p99 {_v(s['p99'])} "
         f"max {_v(s['max'])}; acceleration m/s2: p50 {_v(acc['p50'])} p95 {_v(acc['p95'])} "
         f"p99 {_v(acc['p99'])} max {_v(acc['max'])}",
@@ -875,7 +945,7 @@ def _set_lines(title: str, m: Mapping[str, Any]) -> list[str]:
     for w in a["worst"][:5]:
         lines.append(
             f"    address {w['address']}: {w['tracks']} tracks, {w['stretches']} stretches, "
-            f"{w['breaks']} breaks"
+            f"{w['breaks']} breaks, {w['overlaps']} overlaps"
         )
     for t in m["suspect_tracks"][:5]:
         lines.append(
@@ -886,7 +956,9 @@ def _set_lines(title: str, m: Mapping[str, Any]) -> list[str]:
         e = m["adsb"]
         lines.append(
             f"    against ADS-B: {e['updates']} updates of {e['addresses']} addresses, RMS "
-            f"{_v(e['rms_m'])} m, p95 {_v(e['error_m']['p95'])} m, max {_v(e['error_m']['max'])} m"
+            f"{_v(e['rms_m'])} m, p50 {_v(e['error_m']['p50'])} m, p95 "
+            f"{_v(e['error_m']['p95'])} m, max {_v(e['error_m']['max'])} m; "
+            f"{e['other_aircraft']} beyond 5 NM (another aircraft with that address)"
         )
     return lines
 

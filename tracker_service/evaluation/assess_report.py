@@ -112,7 +112,7 @@ def _distributions(
     title: str,
 ) -> None:
     speed, jump, _ = published_kinematics(ts)
-    _, nis = nis_samples(ts, run.plots, index)
+    _, nis = nis_samples(ts, run.tracked)
     fig, (ax_s, ax_j, ax_n) = plt.subplots(1, 3, figsize=(15, 4.2))
     if speed.size:
         ax_s.hist(speed, bins=50, color="C0")
