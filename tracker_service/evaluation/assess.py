@@ -202,15 +202,21 @@ class AssessRun:
 # --- running the recording ----------------------------------------------------------------
 
 
-def _capture_radars(path: Path) -> tuple[list[str], dict[str, float]]:
-    """The SAC/SIC of every radar that sends plots in a capture, and their north-marker
-    periods."""
+def _capture_radars(path: Path) -> tuple[list[str], dict[str, float], dict[int, int]]:
+    """The SAC/SIC of every radar that sends plots in a capture, their north-marker
+    periods, and the number of data blocks of each category."""
     datagrams = [d for d in read_file(path) if isinstance(d, Datagram)]
     sources: set[str] = set()
+    categories: dict[int, int] = defaultdict(int)
     for datagram in datagrams:
         raw = extract_plots(datagram.payload).plots
         sources.update(f"{a}/{b}" for a, b in zip(raw["sac"], raw["sic"], strict=True))
-    return sorted(sources, key=source_order), north_marker_periods(datagrams)
+        payload, pos = datagram.payload, 0
+        while pos + 3 <= len(payload):  # data block headers: CAT, LEN
+            categories[payload[pos]] += 1
+            pos += max(3, int.from_bytes(payload[pos + 1 : pos + 3]))
+    present = dict(sorted(categories.items()))
+    return sorted(sources, key=source_order), north_marker_periods(datagrams), present
 
 
 def _assumed_config(sources: list[str], periods: Mapping[str, float]) -> ServiceConfig:
@@ -284,12 +290,13 @@ def run_recording(
     notes: list[str] = []
     periods: dict[str, float] = {}
     if config is None and not is_mcap(file) and not file.is_dir():
-        sources, periods = _capture_radars(file)
+        sources, periods, categories = _capture_radars(file)
         config = _assumed_config(sources, periods)
         assumed = True
         fuse = len(sources) == 1
         if not sources:
-            notes.append("the recording holds no plot this chain reads")
+            blocks = ", ".join(f"CAT{c:03d} x{n}" for c, n in categories.items())
+            notes.append(f"no plot this chain reads; data blocks: {blocks or 'none'}")
         elif fuse:
             notes.append(f"no configuration: radar {sources[0]} at an assumed site, fused alone")
         else:
