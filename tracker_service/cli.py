@@ -58,6 +58,17 @@ def build_parser() -> argparse.ArgumentParser:
     from tracker_service.evaluation.command import add_arguments
 
     add_arguments(evaluate)
+    assess = commands.add_parser(
+        "assess",
+        help="judge the tracker on a recording without truth (opportunity traffic)",
+        description="Run a recording through the chain and measure what needs no truth: "
+        "tracks per Mode S address and Mode 3/A code, breaks while plots continue, speeds, "
+        "accelerations, position jumps, NIS, test and fixed targets, time faults, ADS-B as "
+        "reference; then the pass/fail checks of real-data tracking. Exit 1 when one fails.",
+    )
+    from tracker_service.evaluation.assess import add_arguments as add_assess_arguments
+
+    add_assess_arguments(assess)
     subscribe = commands.add_parser(
         "subscribe",
         help="print the system tracks a running service publishes over Zenoh",
@@ -142,6 +153,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tracker_service.evaluation.command import run
 
         return run(args)
+    if args.command == "assess":
+        from tracker_service.evaluation.assess import run as assess_run
+
+        return assess_run(args)
     if args.command == "subscribe":
         from tracker_service.subscribe import run as subscribe_run
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter, defaultdict
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol, cast
 
@@ -53,7 +53,7 @@ from tracker_service.outputs.messages import (
 )
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.service.config import ServiceConfig, parse_service_config
-from tracker_service.tracking import TrackerConfig
+from tracker_service.tracking import LocalTracker, TrackerConfig
 from tracker_service.validation import dataclass_kwargs
 
 __all__ = [
@@ -134,15 +134,19 @@ def bias_config(config: ServiceConfig) -> BiasConfig:
     return BiasConfig(**values)
 
 
-def build_chain(config: ServiceConfig) -> Chain:
-    """The chain of a configuration: its radars, plane, tracker, fusion and bias settings."""
+def build_chain(
+    config: ServiceConfig,
+    make_tracker: Callable[[str, TrackerConfig], LocalTracker] | None = None,
+) -> Chain:
+    """The chain of a configuration: its radars, plane, tracker, fusion and bias settings;
+    ``make_tracker`` as for ``Chain`` (assess passes one that keeps the plots it tracks)."""
     infos = {radar.key: _radar_info(radar) for radar in config.radars}
     plane = SystemPlane(
         config.system.centre_lat, config.system.centre_lon, config.system.projection
     )
     fusion = FusionConfig(**dataclass_kwargs("fusion", config.fusion, FusionConfig))
     tracker = dataclass_kwargs("tracker", config.tracker, TrackerConfig)
-    return Chain(infos, plane, tracker, fusion=fusion, bias=bias_config(config))
+    return Chain(infos, plane, tracker, make_tracker, fusion, bias_config(config))
 
 
 def config_from_recording(metadata: Mapping[str, Any]) -> ServiceConfig:

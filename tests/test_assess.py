@@ -1,0 +1,306 @@
+"""``tracker-service assess`` on every real recording of ../shared/data/asterix, and on a
+simulated one where truth says what the measures must give.
+
+Every recording is run once (``_assessed`` caches it for the module). A recording from
+which the chain reads no plot (CAT062 system tracks, CAT021 or CAT034 alone, or a
+category the chain does not read yet, as CAT001 before it does) is skipped with that
+reason: once the chain reads it, it joins ``test_every_recording`` without a change
+here, and its measured figures belong in ``MEASURED``.
+
+The figures below were measured on this tracker (no configuration: the radar at the
+assumed site, fused alone). Where a criterion of issue 10 fails today, the test bounds
+the failure instead of asserting it, so that a fix passes and a regression fails.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tests.conftest import REPO, SHARED_DATA
+from tracker_service.cli import main
+from tracker_service.evaluation.assess import (
+    CHECKS,
+    SCHEMA,
+    AssessRun,
+    assess,
+    format_summary,
+    is_discrete,
+    run_recording,
+)
+
+NOT_RECORDINGS = {"oracle", "oracle-full", "expected"}
+RECORDINGS = sorted(
+    path
+    for path in SHARED_DATA.rglob("*")
+    if path.is_file()
+    and path.name != "SOURCES.md"
+    and not NOT_RECORDINGS & set(path.relative_to(SHARED_DATA).parts)
+)
+Assessed = tuple[AssessRun, dict[str, Any]]
+
+
+@pytest.fixture(scope="module")
+def assessed() -> Callable[[Path], Assessed]:
+    cache: dict[Path, Assessed] = {}
+
+    def get(path: Path) -> Assessed:
+        if path not in cache:
+            result = run_recording(path)
+            cache[path] = (result, assess(result))
+        return cache[path]
+
+    return get
+
+
+def _recording(relative: str) -> Path:
+    path = SHARED_DATA / relative
+    if not path.is_file():
+        pytest.skip(f"{path} is absent: the shared sample data is not beside the repo")
+    return path
+
+
+def _with_plots(assessed: Callable[[Path], Assessed], path: Path) -> Assessed:
+    result, doc = assessed(path)
+    if doc["plots"] == 0:
+        pytest.skip(f"{path.name}: the chain reads no plot from it ({'; '.join(doc['notes'])})")
+    return result, doc
+
+
+def _track_sets(doc: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    sets = {f"local {s}": r["local"] for s, r in doc["radars"].items()}
+    if doc["system"] is not None:
+        sets["system"] = doc["system"]
+    return sets
+
+
+@pytest.mark.parametrize(
+    "path", RECORDINGS, ids=[str(p.relative_to(SHARED_DATA)) for p in RECORDINGS]
+)
+def test_every_recording(assessed: Callable[[Path], Assessed], path: Path) -> None:
+    """The document is whole and consistent on every recording with plots."""
+    result, doc = _with_plots(assessed, path)
+    assert json.loads(json.dumps(doc, allow_nan=False)) == doc
+    assert doc["schema"] == SCHEMA
+    assert [c["name"] for c in doc["checks"]] == list(CHECKS)
+    assert doc["plots"] == sum(r["plots"] for r in doc["radars"].values()) == len(result.plots)
+    verdicts = [c["passed"] for c in doc["checks"] if c["passed"] is not None]
+    assert doc["passed"] == (all(verdicts) if verdicts else None)
+    for source, radar in doc["radars"].items():
+        assert sum(radar["plot_uses"].values()) == radar["plots"], source
+        assert sum(radar["time"]["time_sources"].values()) == radar["plots"], source
+    for name, m in _track_sets(doc).items():
+        assert m["published_tracks"] <= m["tracks"], name
+        for identity in ("per_address", "per_mode3a"):
+            a = m[identity]
+            assert a["tracked"] <= a["identities"] <= a["stretches"], name
+            assert a["untracked_stretches"] <= a["stretches"], name
+        if m["speed_kt"]["samples"]:
+            assert 0 <= m["speed_kt"]["p50"] <= m["speed_kt"]["max"], name
+        if m["nis"]["samples"]:
+            assert m["nis"]["mean"] > 0, name
+    summary = format_summary(doc)
+    for check in CHECKS:
+        assert check in summary
+
+
+# --- what each recording shows -----------------------------------------------------------
+
+
+def test_068_two_aircraft_for_79_minutes(assessed: Callable[[Path], Assessed]) -> None:
+    """068test_bds30.gps: 343085 never lost (one track), 3430D8 with two gaps beyond the
+    deletion threshold (three stretches). The local tracks hold each stretch with one
+    track; the system track of 3430D8 bridges its 55 s gap and jumps 10.8 NM there
+    (issue 10's jump criterion fails today: at most that one jump is allowed)."""
+    _, doc = _with_plots(assessed, _recording("reader_network/068test_bds30.gps"))
+    radar = doc["radars"]["20/4"]
+    assert radar["plots"] == 1830
+    assert radar["period_s"] == pytest.approx(4.98, abs=0.01)
+    assert radar["span_s"] / 60 == pytest.approx(79.0, abs=0.2)
+    assert radar["flags"] == {"tst": 0, "sim": 0, "rab": 0, "code_7777": 0}
+    assert radar["targets_seen"] == []
+    time = radar["time"]
+    assert time["median_offset_s"] == pytest.approx(-0.18, abs=0.05)
+    assert time["far_from_reception"] == time["older_than_latest"] == 0
+
+    local = radar["local"]
+    address = local["per_address"]
+    assert (address["identities"], address["stretches"]) == (2, 4)
+    assert address["tracks"] == 4  # one per stretch
+    assert address["breaks"] == address["overlaps"] == address["untracked_stretches"] == 0
+    assert local["per_mode3a"]["tracks"] == 4
+    assert local["speed_kt"]["max"] < 300  # 268 kt measured; the aircraft fly 130-260 kt
+    assert local["speed_kt"]["p50"] == pytest.approx(193, abs=10)
+    assert local["acceleration_m_s2"]["p95"] < 8.0  # 5.8 measured
+    assert local["jump_m"]["p95"] < 300  # 218 m measured
+    assert local["jump_m"]["over_1_nm"] == 0
+    assert local["nis"]["samples"] >= 1800
+    assert 0.8 < local["nis"]["mean"] < 1.5  # 1.12: the assumed 50 m / 0.07 deg are generous
+    assert local["nis"]["share_over_99"] < 0.01  # 0.27 %
+    assert local["suspect_tracks"] == []
+
+    system = doc["system"]
+    assert system["radars"] == ["20/4"]
+    s_address = system["per_address"]
+    assert s_address["breaks"] == s_address["overlaps"] == 0
+    assert s_address["tracks"] <= 3
+    assert system["speed_kt"]["max"] < 300
+    assert system["jump_m"]["over_1_nm"] <= 1
+    assert system["jump_m"]["p95"] < 400  # 336 m measured: worse than the local 218 m
+    assert system["nis"]["share_over_99"] <= 0.01
+    verdicts = {c["name"]: c["passed"] for c in doc["checks"]}
+    assert verdicts["one_system_track_per_address"] is True
+    assert verdicts["max_speed_650_kt"] is True
+    assert verdicts["no_test_or_fixed_target_published"] is True
+
+
+def test_parsegps_test_transponder_and_test_target(
+    assessed: Callable[[Path], Assessed],
+) -> None:
+    """parsegps.gps (10 s, SAC 20/SIC 193): three I020 TST plots of a primary test target
+    at 15.0 NM and three plots of 344041 squawking 7777 (a transponder in test, RAB 0).
+    Today a local and a system track take 344041's plots and are flagged; whatever is
+    flagged must be that transponder, and nothing else of this capture."""
+    _, doc = _with_plots(assessed, _recording("croatiacontrol/parsegps.gps"))
+    radar = doc["radars"]["20/193"]
+    assert radar["plots"] == 15
+    assert radar["flags"]["tst"] == 3
+    assert radar["flags"]["code_7777"] == 3
+    seen = {(t["address"], t["mode3a"]): t for t in radar["targets_seen"]}
+    assert seen[("344041", "7777")]["plots"] == 3
+    assert seen[("344041", "7777")]["range_nm"] == pytest.approx(49.09, abs=0.05)
+    test_target = next(t for t in radar["targets_seen"] if "tst" in t["marks"])
+    assert test_target["range_nm"] == pytest.approx(15.0, abs=0.05)
+    for m in _track_sets(doc).values():
+        for track in m["suspect_tracks"]:
+            assert track["address"] == "344041" or "tst" in track["reasons"], track
+        assert m["speed_kt"]["max"] is None or m["speed_kt"]["max"] < 650
+
+
+def test_croatian_pcap_seven_radars_and_one_late_plot(
+    assessed: Callable[[Path], Assessed],
+) -> None:
+    """cat_034_048.pcap: 128 CAT048 records, each sent on two LANs: 64 plots once the
+    duplicates are dropped, from 7 radars without a configuration (not fused); 2 s is
+    too short to confirm a track. The one SIC 13 plot 18 s older than the others is a
+    time fault both ways."""
+    _, doc = _with_plots(assessed, _recording("croatiacontrol/cat_034_048.pcap"))
+    assert doc["plots"] == 64
+    assert sorted(doc["radars"]) == [
+        "25/11",
+        "25/12",
+        "25/13",
+        "25/14",
+        "25/201",
+        "25/204",
+        "25/205",
+    ]
+    assert doc["system"] is None
+    assert {c["name"]: c["passed"] for c in doc["checks"]}["one_system_track_per_address"] is None
+    late = doc["radars"]["25/13"]["time"]
+    assert late["far_from_reception"] == late["older_than_latest"] == 1
+    assert sum(r["time"]["far_from_reception"] for r in doc["radars"].values()) == 1
+    assert doc["radars"]["25/201"]["flags"]["code_7777"] == 1
+
+
+def test_066_filter_fixture(assessed: Callable[[Path], Assessed]) -> None:
+    """066test_filter.gps: 3 plots, two of them 344045 squawking 7777 at 89.5 NM."""
+    _, doc = _with_plots(assessed, _recording("reader_network/066test_filter.gps"))
+    radar = doc["radars"]["20/132"]
+    assert radar["plots"] == 3
+    assert radar["flags"]["code_7777"] == 2
+    assert radar["local"]["published_tracks"] == 0
+
+
+# --- the measures themselves --------------------------------------------------------------
+
+
+def test_discrete_codes() -> None:
+    codes = np.array([0o2000, 0o7000, 0o1200, 0o7777, 0o7700, 0o0000, 0o5050, 0o1234, -1])
+    assert is_discrete(codes).tolist() == [False] * 6 + [True, True, False]
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """90 s of three_sites without systematic errors: three radars and ADS-B."""
+    from tracker_service.simulator.run import simulate
+    from tracker_service.simulator.scenario import load_scenario
+
+    path = tmp_path_factory.mktemp("assess") / "three_sites.mcap"
+    scenario = load_scenario(REPO / "config/scenarios/three_sites.toml")
+    simulate(scenario, path, 7, 90.0, True)
+    return assess(run_recording(path))
+
+
+def test_nis_is_chi_square_where_the_model_holds(simulated: dict[str, Any]) -> None:
+    """Unbiased radars whose sigmas the configuration knows: the NIS of each radar's
+    local tracks and of the system tracks is chi-square(2) (mean 2, 1 % beyond the 99 %
+    gate) to within young tracks and turn onsets: the measure is sound."""
+    for name, m in _track_sets(simulated).items():
+        assert 1.3 < m["nis"]["mean"] < 2.8, name
+        assert m["nis"]["share_over_99"] < 0.04, name
+
+
+def test_adsb_as_reference(simulated: dict[str, Any]) -> None:
+    """The tracks against ADS-B of the same address at the same time: the system tracks
+    within tens of metres (68 m RMS measured), each radar's local tracks within its
+    accuracy at range (127-225 m); one address per stretch (one overlap measured: two
+    system tracks of 13C735 for a while)."""
+    assert simulated["adsb_reports"] > 500
+    adsb = simulated["system"]["adsb"]
+    assert adsb["updates"] > 150
+    assert adsb["rms_m"] < 120
+    for source, radar in simulated["radars"].items():
+        assert radar["local"]["adsb"]["updates"] > 30, source
+        assert radar["local"]["adsb"]["rms_m"] < 400, source
+    assert simulated["system"]["per_address"]["overlaps"] <= 1
+    assert simulated["system"]["per_address"]["breaks"] == 0
+
+
+def test_field_monitors_counted_by_use(simulated: dict[str, Any]) -> None:
+    """Every non-TRACKED use shows under its own name (here the field monitors, RAB)."""
+    for source, radar in simulated["radars"].items():
+        assert radar["plot_uses"]["field_monitor"] == radar["flags"]["rab"] > 0, source
+        assert radar["local"]["suspect_tracks"] == [], source
+
+
+# --- the command ----------------------------------------------------------------------------
+
+
+def test_command_json_and_exit_code(capsys: pytest.CaptureFixture[str]) -> None:
+    path = _recording("croatiacontrol/parsegps.gps")
+    code = main(["assess", str(path), "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["recording"] == "parsegps.gps"
+    assert code == (1 if doc["passed"] is False else 0)
+    code = main(["assess", str(path)])
+    text = capsys.readouterr().out
+    assert "checks:" in text and "radar 20/193" in text
+
+
+def test_command_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["assess", str(tmp_path / "missing.gps")]) == 2
+    assert "missing.gps" in capsys.readouterr().err
+    config = tmp_path / "bad.toml"
+    config.write_text("[system]\ncentre_lat = 100\n")
+    path = _recording("croatiacontrol/parsegps.gps")
+    assert main(["assess", str(path), "--config", str(config)]) == 2
+    assert "bad.toml" in capsys.readouterr().err
+
+
+def test_report(assessed: Callable[[Path], Assessed], tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    from tracker_service.evaluation.assess_report import write_report
+
+    result, doc = _with_plots(assessed, _recording("reader_network/068test_bds30.gps"))
+    path = write_report(result, doc, tmp_path)
+    text = path.read_text()
+    assert "max_jump_1_nm" in text
+    for figure in ("map_20_4", "timeline_20_4", "distributions_20_4", "timeline_system"):
+        assert f"({figure}.png)" in text
+        assert (tmp_path / f"{figure}.png").stat().st_size > 10_000
