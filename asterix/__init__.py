@@ -1,5 +1,6 @@
 """A pure ASTERIX codec: categories 001, 002, 021, 034, 048, 062 and 065, generated from
-their structured specifications (CAT001 with its two UAPs, plot and track). It knows nothing of tracking.
+their structured specifications (CAT001 with its two UAPs, plot and track). It knows
+nothing of tracking.
 
 - ``decode_blocks(data)`` yields ``Block`` (records as dicts of items) and ``DecodeError``
   events; it never raises on bad bytes.

@@ -227,7 +227,8 @@ class _Walker:
                 size, fn = (step, None) if isinstance(step, int) else (0, step)
                 steps.append((slots.get(slot[0], -1), size, fn))
             self.uaps.append(steps)
-        self.plans: dict[bytes, _Plan | _Selection] = {}
+        self.plans: dict[bytes, _Plan] = {}
+        self.selections: dict[bytes, _Selection] = {}
         selector = spec.category(cat).uap_selector
         self.selector: tuple[int, _Field, dict[int, int]] | None = None
         if selector is not None:
@@ -259,32 +260,38 @@ class _Walker:
             raise Malformed(p, "empty FSPEC")
         return tuple(plan)
 
-    def plan(self, fspec: bytes, p: int) -> _Plan | _Selection:
-        found: _Plan | _Selection
-        if self.selector is None:
-            found = self._steps(fspec, p, 0)
-        else:
-            frn, _, cases = self.selector
-            octet, bit = divmod(frn, 7)
-            if octet >= len(fspec) or not fspec[octet] & (0x80 >> bit):
-                raise Malformed(p, f"no I{self.cat:03d} item selecting the UAP")
-            at = sum(
-                step[1]
-                for i, step in enumerate(self.uaps[0][:frn])
-                if step is not None and fspec[i // 7] & (0x80 >> (i % 7))
-            )
-            by_value = {}
-            for value, uap in cases.items():
-                try:
-                    by_value[value] = self._steps(fspec, p, uap)
-                except Malformed:
-                    continue  # an FSPEC that is wrong for this UAP: an error when selected
-            found = _Selection(at, by_value)
+    def plan(self, fspec: bytes, p: int) -> _Plan:
+        """The steps of an FSPEC (single-UAP categories)."""
+        found = self._steps(fspec, p, 0)
         if len(self.plans) < PLAN_CACHE_LIMIT:
             self.plans[fspec] = found
         return found
 
-    def _select(self, b: bytes, q: int, p: int, selection: _Selection) -> _Plan:
+    def selection(self, fspec: bytes, p: int) -> _Selection:
+        """The steps of an FSPEC in each UAP, by selector value (multi-UAP categories)."""
+        assert self.selector is not None
+        frn, _, cases = self.selector
+        octet, bit = divmod(frn, 7)
+        if octet >= len(fspec) or not fspec[octet] & (0x80 >> bit):
+            raise Malformed(p, f"no I{self.cat:03d} item selecting the UAP")
+        at = sum(
+            step[1]
+            for i, step in enumerate(self.uaps[0][:frn])
+            if step is not None and fspec[i // 7] & (0x80 >> (i % 7))
+        )
+        by_value = {}
+        for value, uap in cases.items():
+            try:
+                by_value[value] = self._steps(fspec, p, uap)
+            except Malformed:
+                continue  # an FSPEC that is wrong for this UAP: an error when selected
+        found = _Selection(at, by_value)
+        if len(self.selections) < PLAN_CACHE_LIMIT:
+            self.selections[fspec] = found
+        return found
+
+    def select(self, b: bytes, q: int, p: int, selection: _Selection) -> _Plan:
+        """The steps of the UAP the record at ``p`` (items from ``q``) selects."""
         assert self.selector is not None
         _, f, _ = self.selector
         at = q + selection.at + f.offset
@@ -293,39 +300,6 @@ class _Walker:
         if plan is None:
             raise Malformed(p, f"FSPEC names items the UAP selected by {value} does not have")
         return plan
-
-    def walk_block(
-        self, b: bytes, pos: int, end: int, rows: array[int], errors: list[DecodeError]
-    ) -> None:
-        blank, plans, fspec_limit = self.blank, self.plans, self.fspec_limit
-        selecting = self.selector is not None
-        p = pos + 3
-        try:
-            while p < end:
-                q, limit = p, min(end, p + fspec_limit)
-                while q < limit and b[q] & 1:
-                    q += 1
-                if q >= limit:
-                    raise Malformed(p, "FSPEC runs past the UAP or the block")
-                q += 1
-                fspec = b[p:q]
-                plan = plans.get(fspec) or self.plan(fspec, p)
-                if selecting:
-                    assert isinstance(plan, _Selection)
-                    plan = self._select(b, q, p, plan)
-                assert not isinstance(plan, _Selection)
-                row = blank.copy()
-                row[0] = p
-                for slot, step, fn in plan:
-                    if slot >= 0:
-                        row[slot] = q
-                    q = q + step if fn is None else fn(b, q, end)
-                if q > end:
-                    raise Malformed(p, "record runs past its block")
-                rows.extend(row)
-                p = q
-        except Malformed as exc:
-            errors.append(DecodeError(exc.offset, self.cat, exc.reason))
 
 
 _WALKERS: dict[int, _Walker] = {}
@@ -338,6 +312,58 @@ def _walker(cat: int) -> _Walker:
     return walker
 
 
+def _walk(b: bytes, rows: dict[int, array[int]], errors: list[DecodeError]) -> None:
+    """Every record of the plot categories: its offset and where its wanted items start,
+    appended to ``rows`` of its category. One loop for all blocks and records: real feeds
+    send many small blocks, and a call per block would cost as much as its records."""
+    pos, size = 0, len(b)
+    current = -1
+    while pos < size:
+        if size - pos < 3:
+            errors.append(DecodeError(pos, None, "stray octets after the last block"))
+            return
+        cat, end = b[pos], pos + int.from_bytes(b[pos + 1 : pos + 3])
+        if end - pos < 3 or end > size:
+            errors.append(DecodeError(pos, cat, "block length does not fit"))
+            return
+        if cat not in COLUMNS:
+            pos = end
+            continue
+        if cat != current:
+            current, walker = cat, _walker(cat)
+            out = rows.setdefault(cat, array("q"))
+            blank, plans, fspec_limit = walker.blank, walker.plans, walker.fspec_limit
+            selections = walker.selections if walker.selector is not None else None
+        p = pos + 3
+        try:
+            while p < end:
+                q, limit = p, min(end, p + fspec_limit)
+                while q < limit and b[q] & 1:
+                    q += 1
+                if q >= limit:
+                    raise Malformed(p, "FSPEC runs past the UAP or the block")
+                q += 1
+                fspec = b[p:q]
+                if selections is None:
+                    plan = plans.get(fspec) or walker.plan(fspec, p)
+                else:
+                    selection = selections.get(fspec) or walker.selection(fspec, p)
+                    plan = walker.select(b, q, p, selection)
+                row = blank.copy()
+                row[0] = p
+                for slot, step, fn in plan:
+                    if slot >= 0:
+                        row[slot] = q
+                    q = q + step if fn is None else fn(b, q, end)
+                if q > end:
+                    raise Malformed(p, "record runs past its block")
+                out.extend(row)
+                p = q
+        except Malformed as exc:
+            errors.append(DecodeError(exc.offset, cat, exc.reason))
+        pos = end
+
+
 def extract_plots(data: bytes, offset: int = 0) -> PlotBatch:
     """Plots of every CAT048 and CAT001 record in a run of data blocks (other categories
     skipped), in input order.
@@ -346,21 +372,7 @@ def extract_plots(data: bytes, offset: int = 0) -> PlotBatch:
     """
     rows: dict[int, array[int]] = {}
     errors: list[DecodeError] = []
-    pos, size = 0, len(data)
-    while pos < size:
-        if size - pos < 3:
-            errors.append(DecodeError(pos, None, "stray octets after the last block"))
-            break
-        cat, end = data[pos], pos + int.from_bytes(data[pos + 1 : pos + 3])
-        if end - pos < 3 or end > size:
-            errors.append(DecodeError(pos, cat, "block length does not fit"))
-            break
-        if cat in COLUMNS:
-            found = rows.get(cat)
-            if found is None:
-                found = rows[cat] = array("q")
-            _walker(cat).walk_block(data, pos, end, found, errors)
-        pos = end
+    _walk(data, rows, errors)
     buf = np.frombuffer(data, dtype=np.uint8)
     parts = [_plots(cat, data, buf, found) for cat, found in rows.items()]
     if not parts:
@@ -370,7 +382,8 @@ def extract_plots(data: bytes, offset: int = 0) -> PlotBatch:
     else:  # only odd feeds mix CAT001 and CAT048 in one datagram
         plots = np.concatenate(parts)
         plots = plots[np.argsort(plots["offset"], kind="stable")]
-    plots["offset"] += offset
+    if offset:
+        plots["offset"] += offset
     return PlotBatch(plots, [_shifted(e, offset) for e in errors])
 
 
@@ -387,6 +400,15 @@ def _blank() -> Any:
 
 _BLANK = _blank()
 _BLANK_VALUES = tuple(_BLANK.tolist())
+_ABSENT = {
+    cat: [
+        n
+        for n in PLOT_DTYPE.names or ()
+        if n not in {f.column.name for f in fields} and PLOT_DTYPE[n] in (np.float64, np.int32)
+    ]
+    for cat, fields in _FIELDS.items()
+}
+"""The number columns a category never fills (NaN or -1 in all its rows)."""
 SMALL_BATCH = 6
 """Up to this many records of a category, a datagram's plots are read record by record in
 Python: numpy's per-call cost (about 20 calls per column) outweighs its per-row gain. Many
@@ -416,7 +438,9 @@ def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) 
     if len(starts) <= SMALL_BATCH:
         plots = _plots_by_record(cat, data, starts.tolist())
     else:
-        plots = np.full(len(starts), _BLANK, dtype=PLOT_DTYPE)
+        plots = np.zeros(len(starts), dtype=PLOT_DTYPE)
+        for name in _ABSENT[cat]:
+            plots[name] = _BLANK[name]
         plots["offset"] = starts[:, 0]
         plots["category"] = cat
         for f in _FIELDS[cat]:

@@ -8,21 +8,26 @@ radar's CAT002 north markers and sector messages. The first 700 datagrams (about
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
 from asterix.containers import Datagram, read_file
-from tests.conftest import shared_file
+from tests.conftest import REPO, shared_file
 from tracker_service.chain import Chain, PlotUse
 from tracker_service.geodesy import SystemPlane
 from tracker_service.ingest import TimeSource
+from tracker_service.service.config import load_service_config
+from tracker_service.service.core import TrackerService
+from tracker_service.service.replay import open_replay, parse_date
 from tracker_service.tracking import CONFIRMED
 
 DAY = 1_780_272_000.0  # any UTC midnight: the GPS capture holds times of day
 KT = 1852.0 / 3600.0
 DATAGRAMS = 700
+GPS_HEADER, GPS_POST = 2200, 10  # SOURCES.md: a header, then [data block][10 octets]
 
 
 @pytest.fixture(scope="module")
@@ -72,3 +77,26 @@ def test_the_radar_is_tracked_plausibly(run: tuple[Chain, Any, Any, Any]) -> Non
         jumps += int(np.count_nonzero(moved > 1852.0))
     assert steps > 500
     assert jumps <= 0.01 * steps
+
+
+def test_replay_of_the_capture_tracks_the_radar(tmp_path: Path) -> None:
+    """The first 800 items of the GPS capture (about 80 s) through the service, with
+    a configuration that does not know the radar."""
+    data = shared_file("reader_network/canalA.gps").read_bytes()
+    pos = GPS_HEADER
+    for _ in range(800):
+        pos += int.from_bytes(data[pos + 1 : pos + 3]) + GPS_POST
+    capture = tmp_path / "canalA-start.gps"
+    capture.write_bytes(data[:pos])
+    config = load_service_config(REPO / "config" / "example.toml")
+    source = open_replay(capture, config, parse_date("2026-06-01"))
+    service = TrackerService(source.config)
+    for name, datagram in source.datagrams:
+        service.process(name, datagram)
+    status = service.status()
+    service.close()
+    assert service.counts.plots > 800 and service.counts.errors == 0
+    (radar,) = (r for r in status.radars if r.radar == "20/130")
+    assert radar.decode_errors == 0 and radar.last_plot_time is not None
+    stats = service.chain.radars["20/130"].tracker.stats
+    assert stats.tracks_confirmed >= 30 and stats.plots_associated > 0.85 * stats.plots

@@ -87,3 +87,15 @@ def test_bds_option_names_the_register_fields() -> None:
     registers = [entry["BDS"]["register"] for entry in record["items"]["250"]]
     assert registers == ["6,0", "5,0", "4,0"]
     assert record["items"]["250"][1]["BDS"]["ground_speed_kt"] == 460
+
+
+def test_summary_of_a_cat001_radar() -> None:
+    result = _decode(str(shared_file("reader_network/canalA.gps")), "--summary")
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert summary["records"] == {"001": 30651, "002": 716}
+    assert summary["records_by_source"] == {"001 20/130": 30651, "002 20/130": 716}
+    assert summary["unsupported_blocks"] == {} and summary["errors"] == 0
+    # CAT001 I141 is truncated: the radar's time span is its CAT002 I030's.
+    first, last = summary["time_of_day"]["002"]
+    assert 66431.0 < first < last < 69302.0

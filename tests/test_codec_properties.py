@@ -196,6 +196,17 @@ def test_callsign_with_invalid_characters_survives_a_round_trip() -> None:
 # --- robustness ---------------------------------------------------------------------------
 
 _SEED_RECORDS = {
+    1: {
+        "010": {"SAC": 20, "SIC": 130},
+        "020": {"TYP": 0, "SSRPSR": 2},
+        "040": {"RHO": 5.28125, "THETA": 175.8},
+        "070": {"MODE3A": "2270"},
+        "090": {"HGT": 221.0},
+        "130": [6],
+        "141": 383.578125,
+        "RFS": [{"131": -70.0}],
+    },
+    2: {"010": {"SAC": 20, "SIC": 130}, "000": 1, "030": 66433.6328125, "041": 4.0},
     48: {
         "010": {"SAC": 25, "SIC": 201},
         "140": 27354.6015625,
@@ -241,7 +252,17 @@ _SEED_RECORDS = {
         "RE": {"SGV": {"STP": 1}},
     },
 }
-_SEED = b"".join(encode_block(cat, [rec, rec]) for cat, rec in _SEED_RECORDS.items())
+_CAT001_TRACK = {
+    "010": {"SAC": 20, "SIC": 130},
+    "020": {"TYP": 1, "SSRPSR": 3, "TST": 0},
+    "161": 77,
+    "040": {"RHO": 100.5, "THETA": 12.0},
+    "200": {"GSP": 0.1, "HDG": 45.0},
+    "170": {"CON": 0, "TRE": 0},
+}
+_SEED = b"".join(
+    encode_block(cat, [rec, rec]) for cat, rec in _SEED_RECORDS.items()
+) + encode_block(1, [_CAT001_TRACK])
 
 
 def _check_decoder_survives(data: bytes) -> None:

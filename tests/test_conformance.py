@@ -191,6 +191,8 @@ def test_dual_lan_capture_identifies_duplicate_payloads() -> None:
 def test_plot_extraction_gives_the_general_decoders_values(relative: str) -> None:
     plots = 0
     units = [u.payload for u in read_file(shared_file(relative)) if isinstance(u, Datagram)]
+    # canalA's 28,645 datagrams are all alike (one plot record each): 10 minutes of them.
+    units = units[:6000]
     # Datagrams joined by the hundred: canalA sends one plot a datagram, 28,645 of them.
     for start in range(0, len(units), 100):
         payload = b"".join(units[start : start + 100])

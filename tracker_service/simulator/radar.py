@@ -20,6 +20,7 @@ import numpy.typing as npt
 from asterix import encode_block, encode_record
 from asterix.bds import encode_bds40, encode_bds50, encode_bds60
 from tracker_service.simulator import geometry
+from tracker_service.simulator.cat001 import cat001_plot
 from tracker_service.simulator.scenario import NM, Radar, Scenario, SystematicErrors, Wandering
 from tracker_service.simulator.trajectories import Truth
 
@@ -565,14 +566,12 @@ class RadarModel:
             sector += 1
 
     def _plot_datagrams(self, plots: list[Plot], sent: float) -> list[Emission]:
-        return pack_datagrams(
-            48,
-            [
-                (encode_record(48, p.record), p.origin | {"detection_time": p.detection_time})
-                for p in plots
-            ],
-            sent,
-        )
+        origins = [p.origin | {"detection_time": p.detection_time} for p in plots]
+        if self.radar.asterix == "cat001":
+            records = [encode_record(1, cat001_plot(p.record)) for p in plots]
+            return pack_datagrams(1, list(zip(records, origins, strict=True)), sent)
+        records = [encode_record(48, p.record) for p in plots]
+        return pack_datagrams(48, list(zip(records, origins, strict=True)), sent)
 
     def _service_message(self, boundary: int, t: float) -> bytes:
         """The message of the beam crossing sector boundary ``boundary`` (0 = north) at t,
@@ -588,7 +587,8 @@ class RadarModel:
             record["041"] = _quantise(self.period, 1 / 128)
         else:
             record["020"] = wrapped_angle(self.direction * index * 360.0 / r.sectors, 360 / 256)
-        return encode_block(34, [record])
+        # CAT002 names its items as CAT034 does (I000, I010, I020, I030, I041).
+        return encode_block(2 if r.asterix == "cat001" else 34, [record])
 
     def scan_of(self, t: float) -> int:
         return min(max(int(t // self.period), 0), self.scans - 1)

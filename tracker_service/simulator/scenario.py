@@ -136,6 +136,9 @@ class Radar(_Station):
     field_monitor: FieldMonitor | None = None
     dual_lan: bool = False
     output: Output = Output()
+    asterix: Literal["cat048", "cat001"] = "cat048"
+    """What the radar sends: CAT048 plots with CAT034 service messages, or, as older
+    radars do, CAT001 plots (no Mode S items, the truncated I141) with CAT002."""
 
     @model_validator(mode="after")
     def _ranges(self) -> Radar:
