@@ -28,8 +28,8 @@ class TwoPointInitiator:
         max_dt = cfg.init_max_dt_periods * period
         # Both ways: a plot stamped ahead of the clock (it was refused or re-synchronised
         # away) must not wait forever.
-        waiting = self.pending.time
-        pending = self.pending.select((waiting >= now - max_dt) & (waiting <= now + max_dt))
+        age = now - self.pending.time
+        pending = self.pending.select((age <= max_dt) & (age >= -max_dt))
         if len(pending) == 0 or len(plots) == 0:
             self.pending = PlotArrays.concat(pending, plots)
             return PlotArrays.empty(), PlotArrays.empty()
