@@ -41,6 +41,7 @@ from tracker_service.bias import (
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, References, SystemTracker
 from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
 from tracker_service.ingest import PlotClock
+from tracker_service.time_sanity import TimeBase, TimeReport, TimeSanity, TimeSanityConfig
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 
 __all__ = [
@@ -113,6 +114,8 @@ class PlotUse(IntEnum):
     TRACKED = 0
     FIELD_MONITOR = 1
     """I020 RAB = 1: a radar's test transponder, a bias reference, never tracked."""
+    TIME_IMPLAUSIBLE = 2
+    """Its time does not fit its radar's timeline (``time_sanity``)."""
 
 
 def rejections(use: npt.NDArray[np.int8]) -> dict[str, int]:
@@ -144,6 +147,8 @@ class RadarInfo:
     field_monitor: FieldMonitor | None = None
     surveyed: bool = True
     """False for a radar the configuration does not know (an assumed site)."""
+    time_base: TimeBase = "data"
+    """"reception": its plots' times re-based on reception (``time_sanity``)."""
 
 
 def source_order(source: str) -> tuple[int, ...]:
@@ -277,6 +282,8 @@ class BatchOutput:
     plots: npt.NDArray[Any]
     local: npt.NDArray[Any]
     system: npt.NDArray[Any]
+    time: TimeReport | None = None
+    """The radar's time as status shows it."""
 
 
 @dataclass
@@ -290,6 +297,8 @@ class RadarState:
     index: int | None
     """The radar's number in fusion and bias estimation; None when kept out of them."""
     sequence: int = 0
+    clock_resyncs: int = 0
+    """Re-synchronisations of its tracker's clock already warned of."""
 
 
 @dataclass
@@ -314,6 +323,7 @@ class Chain:
         make_tracker: Callable[[str, TrackerConfig], LocalTracker] | None = None,
         fusion: FusionConfig | None = None,
         bias: BiasConfig | None = None,
+        time_sanity: TimeSanityConfig | None = None,
     ) -> None:
         self.infos = dict(radars)
         self.plane = plane
@@ -348,6 +358,11 @@ class Chain:
         self._make_tracker = make_tracker or (lambda _source, config: LocalTracker(config))
         self._bias_recorded: dict[str, float] = {}
         self._clock = PlotClock()
+        self.time_sanity = TimeSanity(
+            time_sanity,
+            {source: info.time_base for source, info in self.infos.items()},
+            {source: info.period_s for source, info in self.infos.items()},
+        )
         self._heights = HeightModel()
         self._next_plot_id = 0
 
@@ -359,6 +374,7 @@ class Chain:
                 if isinstance(event, Block):
                     for items in event.records:
                         self._clock.service_message(items, received)
+                        self.time_sanity.service_message(items, received)
         if self.adsb is not None:
             for block in blocks_of(payload, CAT021):
                 self.adsb.feed(block, received)
@@ -425,6 +441,15 @@ class Chain:
             state.sequence,
             bias,
         )
+        times, implausible = self.time_sanity.check(
+            source, table["time"], table["time_source"], table["theta_deg"], received
+        )
+        shift = times - table["time"]
+        if shift.any():
+            table["time"] = times
+            batch["time"] += shift
+        if implausible.any():
+            table["use"][implausible & (table["use"] == PlotUse.TRACKED)] = PlotUse.TIME_IMPLAUSIBLE
         state.sequence += 1
         self._next_plot_id += len(raw)
         self.stats.plots += len(raw)
@@ -437,12 +462,34 @@ class Chain:
         if not tracked.all():
             batch = batch[tracked]
         local = state.tracker.process(batch)
-        if self.fuser is None or index is None or not len(local):
-            return BatchOutput(source, table, local, _NO_SYSTEM_ROWS)
+        report = self._time_report(state)
+        # A radar out of step with the others would be fused at the wrong time.
+        if self.fuser is None or index is None or not len(local) or report.out_of_step_s:
+            return BatchOutput(source, table, local, _NO_SYSTEM_ROWS, report)
         extra = None
         if bias is not None and bias_cov is not None and c is not None:
             extra = self._estimate_biases(state, table, batch, local, c, bias, bias_cov)
-        return BatchOutput(source, table, local, self.fuser.process(index, local, batch, extra))
+        system = self.fuser.process(index, local, batch, extra)
+        return BatchOutput(source, table, local, system, report)
+
+    def _time_report(self, state: RadarState) -> TimeReport:
+        """The radar's time sanity and its tracker's clock, for status; a warning when
+        the tracker's clock has just followed a jump."""
+        stats = state.tracker.stats
+        report = replace(
+            self.time_sanity.report(state.info.source),
+            clock_resyncs=stats.clock_resyncs,
+            last_clock_jump_s=stats.last_clock_jump_s,
+            last_clock_jump_at=stats.last_clock_jump_at,
+        )
+        if stats.clock_resyncs > state.clock_resyncs:
+            state.clock_resyncs = stats.clock_resyncs
+            log.warning(
+                "radar %s: its time jumped by %+.1f s for good: its tracker re-synchronised",
+                state.info.source,
+                stats.last_clock_jump_s,
+            )
+        return report
 
     def _estimate_biases(
         self,

@@ -109,6 +109,7 @@ class TrackerStats:
     clock_resyncs: int = 0
     """Times the clock followed a sustained jump of the radar's time."""
     last_clock_jump_s: float = 0.0
+    last_clock_jump_at: float = -np.inf
 
 
 class LocalTracker:
@@ -206,6 +207,7 @@ class LocalTracker:
         tracks age as after any silence. Then the held batches and this one are tracked."""
         self.stats.clock_resyncs += 1
         self.stats.last_clock_jump_s = jump_s
+        self.stats.last_clock_jump_at = self.clock.now
         parts = []
         if jump_s < 0:
             parts.append(self._delete_all())
