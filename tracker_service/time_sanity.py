@@ -32,7 +32,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -166,7 +166,7 @@ class _Timeline:
     unlogged: int = 0
 
     def offset(self) -> float | None:
-        return float(np.median(self.offsets)) if self.offsets else None
+        return _median(self.offsets) if self.offsets else None
 
 
 class TimeSanity:
@@ -230,7 +230,7 @@ class TimeSanity:
         batch = float(np.median(times[stamped] - received)) if stamped.any() else None
         history = list(timeline.offsets)
         if batch is not None and len(history) >= 2:
-            offset = float(np.median([*history, batch]))
+            offset = _median([*history, batch])
         elif batch is not None:
             offset = batch
         else:
@@ -381,6 +381,12 @@ class TimeSanity:
             out_of_step_s=self.out_of_step(source),
             implausible=timeline.implausible,
         )
+
+
+def _median(values: Sequence[float]) -> float:
+    """The middle one of the values (the upper of the two middle ones): always a value
+    that was seen, never the mean of two times that disagree."""
+    return float(sorted(values)[len(values) // 2])
 
 
 def _nearest(times: FloatArray, reference: float, step: float) -> FloatArray:
