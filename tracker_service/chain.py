@@ -298,7 +298,12 @@ class RadarState:
     """The radar's number in fusion and bias estimation; None when kept out of them."""
     sequence: int = 0
     clock_resyncs: int = 0
-    """Re-synchronisations of its tracker's clock already warned of."""
+    """Re-synchronisations of its tracker's clock already seen."""
+    clock_jumps: int = 0
+    """Those of them that followed a jump of the radar's clock (not an outage)."""
+    last_clock_jump: tuple[float, float] = (0.0, -math.inf)
+    """(jump, the tracker's clock after it) of the latest."""
+    last_received: float = -math.inf
 
 
 @dataclass
@@ -462,7 +467,7 @@ class Chain:
         if not tracked.all():
             batch = batch[tracked]
         local = state.tracker.process(batch)
-        report = self._time_report(state)
+        report = self._time_report(state, received)
         # A radar out of step with the others would be fused at the wrong time.
         if self.fuser is None or index is None or not len(local) or report.out_of_step_s:
             return BatchOutput(source, table, local, _NO_SYSTEM_ROWS, report)
@@ -472,24 +477,35 @@ class Chain:
         system = self.fuser.process(index, local, batch, extra)
         return BatchOutput(source, table, local, system, report)
 
-    def _time_report(self, state: RadarState) -> TimeReport:
-        """The radar's time sanity and its tracker's clock, for status; a warning when
-        the tracker's clock has just followed a jump."""
+    def _time_report(self, state: RadarState, received: float) -> TimeReport:
+        """The radar's time sanity and its tracker's clock, for status. When the tracker's
+        clock has just followed a jump, the reception says what it was: data again after
+        an outage (the reception jumped as much), or the radar's clock (a warning, and a
+        reason in status)."""
         stats = state.tracker.stats
-        report = replace(
-            self.time_sanity.report(state.info.source),
-            clock_resyncs=stats.clock_resyncs,
-            last_clock_jump_s=stats.last_clock_jump_s,
-            last_clock_jump_at=stats.last_clock_jump_at,
-        )
+        source = state.info.source
         if stats.clock_resyncs > state.clock_resyncs:
             state.clock_resyncs = stats.clock_resyncs
-            log.warning(
-                "radar %s: its time jumped by %+.1f s for good: its tracker re-synchronised",
-                state.info.source,
-                stats.last_clock_jump_s,
-            )
-        return report
+            jump = stats.last_clock_jump_s
+            gap = received - state.last_received
+            if abs(jump - gap) <= max(2.0 * state.tracker_config.scan_period_s, 10.0):
+                log.info("radar %s: data again after %.1f s", source, gap)
+            else:
+                state.clock_jumps += 1
+                state.last_clock_jump = (jump, float(state.tracker.clock.now))
+                log.warning(
+                    "radar %s: its time jumped by %+.1f s for good: its tracker follows",
+                    source,
+                    jump,
+                )
+        state.last_received = received
+        report = self.time_sanity.report(source)
+        if not state.clock_jumps:
+            return report
+        jump, at = state.last_clock_jump
+        return replace(
+            report, clock_resyncs=state.clock_jumps, last_clock_jump_s=jump, last_clock_jump_at=at
+        )
 
     def _estimate_biases(
         self,

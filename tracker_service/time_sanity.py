@@ -110,7 +110,7 @@ class TimeReport:
     implausible: int
     """Plots kept out of tracking as implausible, since start."""
     clock_resyncs: int = 0
-    """Times its local tracker's clock followed a jump of its time."""
+    """Times its local tracker's clock followed a jump of its time (not an outage)."""
     last_clock_jump_s: float = 0.0
     last_clock_jump_at: float = -math.inf
     """The tracker's clock just after that jump."""

@@ -89,7 +89,7 @@ class TrackerConfig:
     clock_resync_batches: int = 3
     """Batches in a row that jump the same way, over at least one antenna period of their
     own time, after which the tracker re-synchronises to them (a radar restarted with
-    another clock, or back after an outage); the held batches are then tracked, not lost."""
+    another clock, or back after an outage); the held plots are lost (counted)."""
     max_position_variance_m2: float = 4.0e6
     """A coasting track whose position variance (trace) exceeds this is deleted."""
     q_vertical: float = 0.02

@@ -109,7 +109,6 @@ class TrackerStats:
     clock_resyncs: int = 0
     """Times the clock followed a sustained jump of the radar's time."""
     last_clock_jump_s: float = 0.0
-    last_clock_jump_at: float = -np.inf
 
 
 class LocalTracker:
@@ -135,7 +134,7 @@ class LocalTracker:
             jump, jump, self.config.clock_resync_batches, self.config.scan_period_s
         )
         self._held: list[PlotArrays] = []
-        """The out-of-line batches of the current run: tracked if the clock follows them."""
+        """The out-of-line plots of the current run of batches, counted when dropped."""
         self._now = -np.inf
         self._hist_mask = (1 << self.config.confirm_n) - 1
         # Per-tracker constants of the pre-selection radius, hoisted out of every batch.
@@ -202,19 +201,22 @@ class LocalTracker:
         return self._track(p)
 
     def _resynchronise(self, jump_s: float, p: PlotArrays) -> npt.NDArray[Any]:
-        """The radar's time jumped for good: follow it. Back in time, every track (and
-        every waiting plot) lies in the abandoned future and is deleted; forward, the
-        tracks age as after any silence. Then the held batches and this one are tracked."""
+        """The radar's time jumped for good (a restart with another clock, or data again
+        after an outage): follow it. Back in time, every track (and every waiting plot)
+        lies in the abandoned future and is deleted; forward, the tracks age as after
+        any silence. The held batches are not tracked: every update of a batch must
+        come from its own plots (the chain, the fuser and the outputs look them up)."""
         self.stats.clock_resyncs += 1
         self.stats.last_clock_jump_s = jump_s
-        self.stats.last_clock_jump_at = self.clock.now
+        self.stats.out_of_line_plots += sum(len(h) for h in self._held)
+        self._held = []
         parts = []
         if jump_s < 0:
             parts.append(self._delete_all())
             self.initiator.pending = PlotArrays.empty()
             self._now = -np.inf
-        held, self._held = self._held, []
-        parts += [self._track(batch) for batch in [*held, p] if len(batch)]
+        if len(p):
+            parts.append(self._track(p))
         return _join(parts, self.output_dtype)
 
     def _delete_all(self) -> npt.NDArray[Any]:
