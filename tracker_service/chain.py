@@ -303,7 +303,8 @@ class RadarState:
     """Those of them that followed a jump of the radar's clock (not an outage)."""
     last_clock_jump: tuple[float, float] = (0.0, -math.inf)
     """(jump, the tracker's clock after it) of the latest."""
-    last_received: float = -math.inf
+    settled_offset: float | None = None
+    """Its offset from reception at its tracker's latest re-synchronisation (or start)."""
 
 
 @dataclass
@@ -467,7 +468,7 @@ class Chain:
         if not tracked.all():
             batch = batch[tracked]
         local = state.tracker.process(batch)
-        report = self._time_report(state, received)
+        report = self._time_report(state)
         # A radar out of step with the others would be fused at the wrong time.
         if self.fuser is None or index is None or not len(local) or report.out_of_step_s:
             return BatchOutput(source, table, local, _NO_SYSTEM_ROWS, report)
@@ -477,19 +478,24 @@ class Chain:
         system = self.fuser.process(index, local, batch, extra)
         return BatchOutput(source, table, local, system, report)
 
-    def _time_report(self, state: RadarState, received: float) -> TimeReport:
+    def _time_report(self, state: RadarState) -> TimeReport:
         """The radar's time sanity and its tracker's clock, for status. When the tracker's
-        clock has just followed a jump, the reception says what it was: data again after
-        an outage (the reception jumped as much), or the radar's clock (a warning, and a
-        reason in status)."""
+        clock has just followed a jump, the radar's offset from reception says what it
+        was: data again after an outage (the offset has not moved), or the radar's clock
+        (a warning, and a reason in status)."""
         stats = state.tracker.stats
         source = state.info.source
+        report = self.time_sanity.report(source)
+        offset = report.offset_s
+        if state.settled_offset is None:
+            state.settled_offset = offset
         if stats.clock_resyncs > state.clock_resyncs:
             state.clock_resyncs = stats.clock_resyncs
             jump = stats.last_clock_jump_s
-            gap = received - state.last_received
-            if abs(jump - gap) <= max(2.0 * state.tracker_config.scan_period_s, 10.0):
-                log.info("radar %s: data again after %.1f s", source, gap)
+            settled, state.settled_offset = state.settled_offset, offset
+            tolerance = max(2.0 * state.tracker_config.scan_period_s, 10.0)
+            if offset is not None and settled is not None and abs(offset - settled) <= tolerance:
+                log.info("radar %s: data again, %+.1f s on", source, jump)
             else:
                 state.clock_jumps += 1
                 state.last_clock_jump = (jump, float(state.tracker.clock.now))
@@ -498,8 +504,6 @@ class Chain:
                     source,
                     jump,
                 )
-        state.last_received = received
-        report = self.time_sanity.report(source)
         if not state.clock_jumps:
             return report
         jump, at = state.last_clock_jump
