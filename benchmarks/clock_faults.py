@@ -30,7 +30,7 @@ from asterix.codec import Block, decode_blocks, encode_block
 from asterix.containers import Datagram
 from asterix.plots import extract_plots
 from tracker_service.chain import BatchOutput
-from tracker_service.service.config import ServiceConfig, parse_service_config
+from tracker_service.service.config import ConfigError, ServiceConfig, parse_service_config
 from tracker_service.service.core import Outputs, TrackerService
 from tracker_service.service.replay import open_replay
 
@@ -185,7 +185,11 @@ def main() -> None:
     logging.disable(logging.WARNING)
     key = args.radar.replace("_", "/")
     for label, (fault, update) in faults(args.radar).items():
-        print(f"{label:50s} {run(args.recording, key, fault, update)}", flush=True)
+        try:
+            result = run(args.recording, key, fault, update)
+        except ConfigError as exc:  # an older checkout without the setting
+            result = f"not configurable: {str(exc).splitlines()[1].strip()}"
+        print(f"{label:50s} {result}", flush=True)
 
 
 if __name__ == "__main__":

@@ -42,7 +42,7 @@ REPO = Path(__file__).resolve().parents[1]
 SCENARIO = REPO / "config" / "scenarios" / "three_sites.toml"
 START = "2026-06-01T23:59:58Z"
 MIDNIGHT = datetime.datetime(2026, 6, 2, tzinfo=datetime.UTC).timestamp()
-DURATION_S = 80.0
+DURATION_S = 60.0
 RADAR = "25_13"  # Koris-hegy, 5 s antenna
 KEY = "25/13"
 
@@ -328,7 +328,8 @@ def test_a_radar_restarting_with_a_wrong_clock(
     assert later and faulty.confirmed_tracks(KEY) > clean.confirmed_tracks(KEY)
     tracker = faulty.service.chain.radars[KEY].tracker
     assert tracker.stats.clock_resyncs == 1
-    assert tracker.stats.last_clock_jump_s == pytest.approx(offset_s, abs=10.0)
+    # Plus the time its plots were held as implausible, then out of line.
+    assert tracker.stats.last_clock_jump_s == pytest.approx(offset_s, abs=20.0)
     final = faulty.statuses[-1]
     assert final.health == "degraded"
     assert any(KEY in line and "kept out of fusion" in line for line in final.reasons)
