@@ -19,10 +19,12 @@ import numpy as np
 import pytest
 
 from asterix.codec import Block, decode_blocks, encode_block
-from asterix.containers import Datagram
+from asterix.containers import Datagram, read_file
 from asterix.plots import extract_plots
+from tests.conftest import shared_file
 from tracker_service.chain import BatchOutput, PlotUse
 from tracker_service.cli import main
+from tracker_service.evaluation.real_data import NOMINAL_SITE_068, track_capture
 from tracker_service.fusion import FusionConfig, SystemTracker
 from tracker_service.ingest import DAY_S
 from tracker_service.outputs.messages import StatusMessage
@@ -504,3 +506,44 @@ def test_north_markers_alone_give_the_offset() -> None:
     day = np.floor(1_780_000_000.0 / DAY_S) * DAY_S
     assert report.offset_s == pytest.approx(day + 36000.0 - 1_780_000_000.0)
     assert report.offset_reported
+
+
+def test_real_recordings_keep_their_plots_and_lose_their_odd_one() -> None:
+    """79 minutes of a real radar (068test_bds30.gps) and the multi-radar capture: no plot
+    kept out but the one SIC 13 record stamped 18 s before its neighbours (both copies)."""
+    long = track_capture(shared_file("reader_network/068test_bds30.gps"), NOMINAL_SITE_068)
+    assert sum(len(r.plots) for r in long.values()) == 1830
+    assert all(np.all(r.plots["use"] == PlotUse.TRACKED) for r in long.values())
+    pcap = track_capture(shared_file("croatiacontrol/cat_034_048.pcap"), NOMINAL_SITE_068)
+    odd = {
+        source: r.plots["time"][r.plots["use"] == PlotUse.TIME_IMPLAUSIBLE]
+        for source, r in pcap.items()
+    }
+    assert {s for s, t in odd.items() if len(t)} == {"25/13"}
+    assert len(odd["25/13"]) == 2
+    assert np.all(np.abs(odd["25/13"] % DAY_S - 27336.26) < 0.01)
+
+
+def test_a_corrupt_i140_at_a_real_radars_midnight(tmp_path: Path) -> None:
+    """parsegps.gps: a Spanish radar just after midnight; one plot's I140 made 19,711 s,
+    as in the capture of issue 10: that plot alone is kept out."""
+    original = shared_file("croatiacontrol/parsegps.gps").read_bytes()
+    clean_run = track_capture(shared_file("croatiacontrol/parsegps.gps"), NOMINAL_SITE_068)
+    data = bytearray(original)
+    units = [d for d in read_file(shared_file("croatiacontrol/parsegps.gps"))]
+    datagrams = [d for d in units if isinstance(d, Datagram) and d.payload[0] == 48]
+    target = next(d for d in datagrams if len(extract_plots(d.payload).plots) > 1)
+    changed = retimed(target.payload, lambda i, t: 19711.0 if i == 1 else t, ("140",))
+    assert len(changed) == len(target.payload)
+    data[target.offset : target.offset + len(changed)] = changed
+    faulty_file = tmp_path / "parsegps.gps"
+    faulty_file.write_bytes(bytes(data))
+    faulty = track_capture(faulty_file, NOMINAL_SITE_068)
+    (run_clean,) = clean_run.values()
+    (run_faulty,) = faulty.values()
+    assert np.all(run_clean.plots["use"] == PlotUse.TRACKED)
+    rejected = run_faulty.plots["use"] == PlotUse.TIME_IMPLAUSIBLE
+    assert int(np.count_nonzero(rejected)) == 1
+    kept = run_faulty.plots[~rejected]
+    assert np.all(np.abs(np.diff(np.sort(kept["time"]))) < 5.0)
+    assert len(run_faulty.updates) >= len(run_clean.updates) - 1

@@ -227,16 +227,20 @@ class TimeSanity:
         prior = timeline.offset()
         if prior is not None and stamped.any():
             times[stamped] = _nearest(times[stamped], received + prior, DAY_S)
-        batch = float(np.median(times[stamped] - received)) if stamped.any() else None
+        plot_offsets = (times[stamped] - received).tolist()
         history = list(timeline.offsets)
-        if batch is not None and len(history) >= 2:
-            offset = _median([*history, batch])
-        elif batch is not None:
-            offset = batch
+        if plot_offsets and len(history) >= 2:
+            # This datagram is one piece of evidence beside the others, however many
+            # plots it holds: a jump is followed only once half the evidence shows it.
+            offset = _median([*history, _median(plot_offsets)])
+        elif plot_offsets:
+            # Thin evidence (the start): the plots themselves, the middle one nearest
+            # reception when they split evenly.
+            offset = _median([*history, *plot_offsets], toward=0.0)
         else:
             offset = prior if prior is not None else 0.0
         expected = received + offset
-        if prior is None and batch is not None:
+        if prior is None and plot_offsets:
             times[stamped] = _nearest(times[stamped], expected, DAY_S)
         by_reception = time_sources == TimeSource.RECEPTION
         times[by_reception] = expected
@@ -247,8 +251,10 @@ class TimeSanity:
             times[by_azimuth] = _nearest(times[by_azimuth], expected, period)
         implausible = np.abs(times - expected) > cfg.latency_s + cfg.plausible_periods * period
         implausible |= self._off_azimuth(timeline, times, stamped & ~implausible, theta_deg)
-        if batch is not None:
-            timeline.offsets.append(batch)
+        if plot_offsets:
+            plausible = stamped & ~implausible
+            evidence = plausible if plausible.any() else stamped
+            timeline.offsets.append(_median((times[evidence] - received).tolist()))
         self._note(timeline, times, implausible, expected, received)
         if timeline.time_base == "reception":
             times -= self._rebase(timeline, offset)
@@ -383,10 +389,15 @@ class TimeSanity:
         )
 
 
-def _median(values: Sequence[float]) -> float:
-    """The middle one of the values (the upper of the two middle ones): always a value
-    that was seen, never the mean of two times that disagree."""
-    return float(sorted(values)[len(values) // 2])
+def _median(values: Sequence[float], toward: float | None = None) -> float:
+    """The middle one of the values: always a value that was seen, never the mean of two
+    times that disagree. Of two middle ones, the upper, or the one nearer ``toward``."""
+    ordered = sorted(values)
+    upper = ordered[len(ordered) // 2]
+    if toward is None or len(ordered) % 2:
+        return float(upper)
+    lower = ordered[len(ordered) // 2 - 1]
+    return float(lower if abs(lower - toward) < abs(upper - toward) else upper)
 
 
 def _nearest(times: FloatArray, reference: float, step: float) -> FloatArray:
