@@ -116,6 +116,7 @@ class TimeReport:
     """The tracker's clock just after that jump."""
 
 
+CONSENSUS_INTERVAL_S = 1.0
 RECENT_JUMP_S = 300.0
 """A jump its tracker's clock followed stays a reason in status this long (data time)."""
 
@@ -183,6 +184,9 @@ class TimeSanity:
         self._bases = dict(bases or {})
         self._periods = dict(periods or {})
         self._timelines: dict[str, _Timeline] = {}
+        self._latest = -math.inf
+        self._consensus_at = -math.inf
+        self._consensus_value: float | None = None
 
     def _timeline(self, source: str) -> _Timeline:
         timeline = self._timelines.get(source)
@@ -220,6 +224,7 @@ class TimeSanity:
         """One datagram's plots of one radar: their times put on the radar's timeline (and
         re-based, if so configured), and which are implausible."""
         cfg = self.config
+        self._latest = received
         timeline = self._timeline(source)
         period = timeline.period_s
         times = np.array(times, dtype=np.float64)
@@ -350,31 +355,40 @@ class TimeSanity:
         offset = timeline.offset()
         return offset if offset is not None and abs(offset) > self.config.max_offset_s else None
 
-    def _effective(self) -> dict[str, float]:
-        """Each radar's offset from reception with enough evidence, after re-basing."""
-        out = {}
-        for source, timeline in self._timelines.items():
-            offset = timeline.offset()
-            if offset is None or len(timeline.offsets) < self.config.min_evidence:
-                continue
-            if timeline.time_base == "reception" and timeline.rebase_s is not None:
-                offset -= timeline.rebase_s
-            out[source] = offset
-        return out
+    def _effective(self, timeline: _Timeline) -> float | None:
+        """A radar's offset from reception with enough evidence, after re-basing."""
+        offset = timeline.offset()
+        if offset is None or len(timeline.offsets) < self.config.min_evidence:
+            return None
+        if timeline.time_base == "reception" and timeline.rebase_s is not None:
+            offset -= timeline.rebase_s
+        return offset
+
+    def _consensus(self) -> float | None:
+        """The offset of the largest group of radars whose offsets agree (the one nearest
+        reception on a tie); None with fewer than two radars known. Recomputed once per
+        ``CONSENSUS_INTERVAL_S`` of reception time: it moves as slowly as its medians."""
+        if abs(self._latest - self._consensus_at) < CONSENSUS_INTERVAL_S:
+            return self._consensus_value
+        self._consensus_at = self._latest
+        values = [v for t in self._timelines.values() if (v := self._effective(t)) is not None]
+        limit = self.config.max_offset_s
+        self._consensus_value = (
+            max(values, key=lambda v: (sum(abs(v - w) <= limit for w in values), -abs(v)))
+            if len(values) >= 2
+            else None
+        )
+        return self._consensus_value
 
     def out_of_step(self, source: str) -> float | None:
-        """How far a radar's time is from the other radars' (the offset of the largest
-        group of radars that agree, the one nearest reception on a tie), when beyond
+        """How far a radar's time is from the other radars' (``_consensus``), when beyond
         ``max_offset_s``; None when in step or unknown."""
-        effective = self._effective()
-        own = effective.get(source)
-        if own is None or len(effective) < 2:
+        own = self._effective(self._timeline(source))
+        consensus = self._consensus()
+        if own is None or consensus is None:
             return None
-        limit = self.config.max_offset_s
-        values = list(effective.values())
-        consensus = max(values, key=lambda v: (sum(abs(v - w) <= limit for w in values), -abs(v)))
         step = own - consensus
-        return step if abs(step) > limit else None
+        return step if abs(step) > self.config.max_offset_s else None
 
     def report(self, source: str) -> TimeReport:
         timeline = self._timeline(source)
