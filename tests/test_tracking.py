@@ -299,14 +299,14 @@ def test_late_and_invalid_plots_are_handled() -> None:
     last = float(track["t"][0]) - T0
     rng = np.random.default_rng(9)
     late = np.zeros(3, dtype=PLOT_DTYPE)
-    for i, (dt, pid) in enumerate(((-1.0, 1000), (-20.0, 1001), (0.5, 1002))):
+    for i, (dt, pid) in enumerate(((-1.0, 1000), (-8.0, 1001), (0.5, 1002))):
         s = target.truth(last + dt)
         x, y, r = _plot(rng, s[0], s[1])
         late[i] = (T0 + last + dt, x, y, r, np.nan, False, -1, False, -1, 2, pid)
     late["x"][2] = np.nan  # an invalid plot
     out = tracker.process(late)
     assert tracker.stats.invalid_plots == 1
-    assert tracker.stats.late_plots_dropped == 1  # 20 s old: beyond the backward limit
+    assert tracker.stats.late_plots_dropped == 1  # 8 s old: beyond the backward limit
     assert list(out["plot_id"][out["plot_id"] >= 0]) == [1000]  # 1 s late: predicted back
     assert tracker.process(np.zeros(0, dtype=PLOT_DTYPE)).size == 0
     later = simulate([target], scans=16)

@@ -42,6 +42,7 @@ from tracker_service.bias import (
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, References, SystemTracker
 from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
 from tracker_service.ingest import PlotClock
+from tracker_service.time_sanity import TimeBase, TimeReport, TimeSanity, TimeSanityConfig
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 
 __all__ = [
@@ -121,6 +122,8 @@ class PlotUse(IntEnum):
     """I020 RAB = 1: a radar's test transponder, a bias reference, never tracked."""
     RADAR_TRACK = 2
     """A CAT001 track report (I020 TYP = 1): the radar's own smoothed track, not a plot."""
+    TIME_IMPLAUSIBLE = 3
+    """Its time does not fit its radar's timeline (``time_sanity``)."""
 
 
 def rejections(use: npt.NDArray[np.int8]) -> dict[str, int]:
@@ -152,6 +155,8 @@ class RadarInfo:
     field_monitor: FieldMonitor | None = None
     surveyed: bool = True
     """False for a radar the configuration does not know (an assumed site)."""
+    time_base: TimeBase = "data"
+    """"reception": its plots' times re-based on reception (``time_sanity``)."""
 
 
 def source_order(source: str) -> tuple[int, ...]:
@@ -286,6 +291,8 @@ class BatchOutput:
     plots: npt.NDArray[Any]
     local: npt.NDArray[Any]
     system: npt.NDArray[Any]
+    time: TimeReport | None = None
+    """The radar's time as status shows it."""
 
 
 @dataclass
@@ -299,6 +306,14 @@ class RadarState:
     index: int | None
     """The radar's number in fusion and bias estimation; None when kept out of them."""
     sequence: int = 0
+    clock_resyncs: int = 0
+    """Re-synchronisations of its tracker's clock already seen."""
+    clock_jumps: int = 0
+    """Those of them that followed a jump of the radar's clock (not an outage)."""
+    last_clock_jump: tuple[float, float] = (0.0, -math.inf)
+    """(jump, the tracker's clock after it) of the latest."""
+    settled_offset: float | None = None
+    """Its offset from reception at its tracker's latest re-synchronisation (or start)."""
 
 
 @dataclass
@@ -323,6 +338,7 @@ class Chain:
         make_tracker: Callable[[str, TrackerConfig], LocalTracker] | None = None,
         fusion: FusionConfig | None = None,
         bias: BiasConfig | None = None,
+        time_sanity: TimeSanityConfig | None = None,
     ) -> None:
         self.infos = dict(radars)
         self.plane = plane
@@ -357,6 +373,11 @@ class Chain:
         self._make_tracker = make_tracker or (lambda _source, config: LocalTracker(config))
         self._bias_recorded: dict[str, float] = {}
         self._clock = PlotClock()
+        self.time_sanity = TimeSanity(
+            time_sanity,
+            {source: info.time_base for source, info in self.infos.items()},
+            {source: info.period_s for source, info in self.infos.items()},
+        )
         self._heights = HeightModel()
         self._next_plot_id = 0
 
@@ -369,6 +390,7 @@ class Chain:
                     if isinstance(event, Block):
                         for items in event.records:
                             self._clock.service_message(items, received)
+                            self.time_sanity.service_message(items, received)
         if self.adsb is not None:
             for block in blocks_of(payload, CAT021):
                 self.adsb.feed(block, received)
@@ -445,6 +467,15 @@ class Chain:
             state.sequence,
             bias,
         )
+        times, implausible = self.time_sanity.check(
+            source, table["time"], table["time_source"], table["theta_deg"], received
+        )
+        shift = times - table["time"]
+        if shift.any():
+            table["time"] = times
+            batch["time"] += shift
+        if implausible.any():
+            table["use"][implausible & (table["use"] == PlotUse.TRACKED)] = PlotUse.TIME_IMPLAUSIBLE
         state.sequence += 1
         self._next_plot_id += len(raw)
         self.stats.plots += len(raw)
@@ -457,12 +488,48 @@ class Chain:
         if not tracked.all():
             batch = batch[tracked]
         local = state.tracker.process(batch)
-        if self.fuser is None or index is None or not len(local):
-            return BatchOutput(source, table, local, _NO_SYSTEM_ROWS)
+        report = self._time_report(state)
+        # A radar out of step with the others would be fused at the wrong time.
+        if self.fuser is None or index is None or not len(local) or report.out_of_step_s:
+            return BatchOutput(source, table, local, _NO_SYSTEM_ROWS, report)
         extra = None
         if bias is not None and bias_cov is not None and c is not None:
             extra = self._estimate_biases(state, table, batch, local, c, bias, bias_cov)
-        return BatchOutput(source, table, local, self.fuser.process(index, local, batch, extra))
+        system = self.fuser.process(index, local, batch, extra)
+        return BatchOutput(source, table, local, system, report)
+
+    def _time_report(self, state: RadarState) -> TimeReport:
+        """The radar's time sanity and its tracker's clock, for status. When the tracker's
+        clock has just followed a jump, the radar's offset from reception says what it
+        was: data again after an outage (the offset has not moved), or the radar's clock
+        (a warning, and a reason in status)."""
+        stats = state.tracker.stats
+        source = state.info.source
+        report = self.time_sanity.report(source)
+        offset = report.offset_s
+        if state.settled_offset is None:
+            state.settled_offset = offset
+        if stats.clock_resyncs > state.clock_resyncs:
+            state.clock_resyncs = stats.clock_resyncs
+            jump = stats.last_clock_jump_s
+            settled, state.settled_offset = state.settled_offset, offset
+            tolerance = max(2.0 * state.tracker_config.scan_period_s, 10.0)
+            if offset is not None and settled is not None and abs(offset - settled) <= tolerance:
+                log.info("radar %s: data again, %+.1f s on", source, jump)
+            else:
+                state.clock_jumps += 1
+                state.last_clock_jump = (jump, float(state.tracker.clock.now))
+                log.warning(
+                    "radar %s: its time jumped by %+.1f s for good: its tracker follows",
+                    source,
+                    jump,
+                )
+        if not state.clock_jumps:
+            return report
+        jump, at = state.last_clock_jump
+        return replace(
+            report, clock_resyncs=state.clock_jumps, last_clock_jump_s=jump, last_clock_jump_at=at
+        )
 
     def _estimate_biases(
         self,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import datetime
 import sys
 from collections.abc import Sequence
 
@@ -47,6 +48,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     simulate.add_argument(
         "--no-bias", action="store_true", help="zero every systematic error of every radar"
+    )
+    simulate.add_argument(
+        "--start",
+        type=_start_time,
+        help="when the scenario starts: 'now' (so that its pcap can feed `run` live) or an "
+        "ISO 8601 UTC time, e.g. 2026-06-01T23:59:30Z (default: the scenario's)",
     )
     evaluate = commands.add_parser(
         "evaluate",
@@ -109,6 +116,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _start_time(text: str) -> datetime.datetime:
+    """``--start``: 'now' or an ISO 8601 time (UTC unless it names its zone)."""
+    if text == "now":
+        return datetime.datetime.now(datetime.UTC)
+    try:
+        when = datetime.datetime.fromisoformat(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is neither 'now' nor an ISO 8601 time such as 2026-06-01T10:00:00Z"
+        ) from None
+    return (
+        when.replace(tzinfo=datetime.UTC) if when.tzinfo is None else when.astimezone(datetime.UTC)
+    )
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from tracker_service.simulator.run import simulate
     from tracker_service.simulator.scenario import ScenarioError, load_scenario
@@ -121,6 +143,8 @@ def _simulate(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration <= 0:
         print("tracker-service simulate: --duration must be positive", file=sys.stderr)
         return 2
+    if args.start is not None:
+        scenario = scenario.model_copy(update={"start": args.start})
     output = args.output or f"{scenario.name}.mcap"
     try:
         summary = simulate(scenario, output, args.seed, args.duration, args.no_bias)

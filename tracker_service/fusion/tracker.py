@@ -29,6 +29,7 @@ from tracker_service.fusion.messages import (
 from tracker_service.fusion.ml import ml_fuse, predict_cv, shared_prediction_noise
 from tracker_service.tracking import imm
 from tracker_service.tracking.associate import global_nearest_neighbour
+from tracker_service.tracking.clock import DataClock
 from tracker_service.tracking.models import ModelSet, cv_transition
 from tracker_service.tracking.plots import (
     BoolArray,
@@ -111,6 +112,10 @@ class FusionStats:
     unknown_plot_ids: int = 0
     numbers_exhausted: int = 0
     system_tracks_merged: int = 0
+    out_of_line_updates: int = 0
+    """Local-track updates refused by the clock: too far ahead of the fuser's clock or
+    behind it (see ``tracking.clock``), e.g. a radar whose time is out of step."""
+    clock_resyncs: int = 0
 
 
 @dataclass(frozen=True)
@@ -153,6 +158,13 @@ class SystemTracker:
             MAX_SYSTEM_NUMBER + 1, dtype=_system_dtype(self.models.n_models, n_radars)
         )
         self._sys["freed_at"] = -np.inf
+        # Ahead: the radars' data interleave within a scan; behind: an update older than
+        # the silence would found a system track only to end it at once.
+        self.clock = DataClock(
+            self.config.longest_period_s,
+            self.config.silence_s,
+            resync_span_s=2.0 * self.config.longest_period_s,
+        )
         self._now = -np.inf
         self._merge_counts: dict[tuple[int, int], int] = {}
 
@@ -182,7 +194,14 @@ class SystemTracker:
         extra = np.zeros((len(u), 2, 2)) if extra_R is None else np.asarray(extra_R)[order]
         if len(u) == 0:
             return self._silence(radar)
-        self._now = max(self._now, float(u["time"].max()))
+        step = self.clock.step(u["time"])
+        out = [self._resynchronised(radar)] if step.resynchronised else []
+        if not step.accepted.all():
+            self.stats.out_of_line_updates += int(np.count_nonzero(~step.accepted))
+            u, extra = u[step.accepted], extra[step.accepted]
+            if len(u) == 0:
+                return np.concatenate([*out, self._silence(radar)])
+        self._now = self.clock.now
         rows = self._local_rows(radar, u)
         known = rows >= 0
         u, extra, rows = u[known], extra[known], rows[known]
@@ -197,7 +216,7 @@ class SystemTracker:
         systems = self._loc["system"][rows]
         fed_rows = systems > 0
         # Emitted before the deleted local tracks leave: their last state still counts.
-        out = [merged, self._emit(radar, systems[fed_rows], u[fed_rows], has_plot[fed_rows])]
+        out += [merged, self._emit(radar, systems[fed_rows], u[fed_rows], has_plot[fed_rows])]
         deleted = touched[self._loc["status"][touched] == LOCAL_DELETED]
         if deleted.size:
             self._loc["alive"][deleted] = False
@@ -209,6 +228,19 @@ class SystemTracker:
         result = np.concatenate(out)
         self.stats.rows += len(result)
         return result
+
+    def _resynchronised(self, radar: int) -> npt.NDArray[Any]:
+        """Every radar's time jumped for good and the clock followed. Back in time, what
+        lies in the abandoned future ends (its rows returned), and no number stays
+        blocked or track waits for longer than its delay from the new present."""
+        self.stats.clock_resyncs += 1
+        now = self.clock.now
+        self._now = now
+        sys, loc = self._sys, self._loc[: self._n]
+        sys["freed_at"] = np.minimum(sys["freed_at"], now)
+        loc["t_founder"] = np.where(loc["t_founder"] > now, now, loc["t_founder"])
+        future = np.flatnonzero(sys["alive"] & (sys["t_plot"] > now + self.clock.max_ahead_s))
+        return self._end(radar, future[future > 0])
 
     def _check_radar(self, radar: int) -> None:
         if not 0 <= radar < self.n_radars:
@@ -494,8 +526,11 @@ class SystemTracker:
 
     def _create(self, founders: IntArray) -> IntArray:
         sys, loc = self._sys, self._loc
+        # A number freed "later" than now (the clock came back from a jump) waits its
+        # delay from now, not from a time that never was.
+        freed_at = np.minimum(sys["freed_at"], self._now)
         free = np.flatnonzero(
-            ~sys["alive"] & (sys["freed_at"] + self.config.number_reuse_delay_s <= self._now)
+            ~sys["alive"] & (freed_at + self.config.number_reuse_delay_s <= self._now)
         )
         free = free[free > 0]
         if free.size < founders.size:

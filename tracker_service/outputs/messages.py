@@ -220,6 +220,10 @@ class RadarStatus(_Message):
     """Plots or datagrams dropped under overload (counted, also in the MCAP log)."""
     rejected: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
     """Plots since start kept out of traffic tracking, by reason (field_monitor, ...)."""
+    time_offset_s: float | None = None
+    """Its data time minus its reception time (median of recent datagrams and north
+    markers); None until measured. Beyond a few seconds: a replayed capture or a wrong
+    clock (see ``reasons``)."""
 
 
 class StatusMessage(_Message):

@@ -2,8 +2,8 @@
 
 Sections: ``[[radars]]`` (sites, accuracy, UDP inputs), ``[[adsb]]`` (ADS-B feeds),
 ``[system]`` (the system plane and the tracker's own SAC/SIC), ``[tracker]`` (fields of
-``tracking.TrackerConfig``), ``[fusion]`` and ``[bias]`` (free tables), ``[zenoh]`` and
-``[mcap]``. Units are in the names, as in the scenario files.
+``tracking.TrackerConfig``), ``[fusion]``, ``[bias]`` and ``[time_sanity]`` (free tables),
+``[zenoh]`` and ``[mcap]``. Units are in the names, as in the scenario files.
 """
 
 from __future__ import annotations
@@ -78,6 +78,11 @@ class Radar(_Strict):
     field_monitor: FieldMonitor | None = None
     reference: bool = False
     """The radar's systematic errors are known (surveyed): the bias filters anchor on it."""
+    time_base: Literal["data", "reception"] = "data"
+    """Whose clock times its plots: "data", the radar's own (I140), checked against its
+    reception (a feed far from it is reported in status); "reception", the radar's time
+    re-based on the reception time (a replayed capture sent live, a radar whose clock is
+    wrong): its plots keep their spacing, shifted by the measured offset."""
     input: Input | None = None
     """Where its datagrams arrive; a replay needs none."""
 
@@ -167,6 +172,8 @@ class ServiceConfig(_Strict):
     tracker: dict[str, Any] = {}
     fusion: dict[str, Any] = {}
     bias: dict[str, Any] = {}
+    time_sanity: dict[str, Any] = {}
+    """Fields of ``time_sanity.TimeSanityConfig`` (tolerances of the plots' times)."""
     zenoh: ZenohConfig = ZenohConfig()
     mcap: McapConfig = McapConfig()
 

@@ -53,6 +53,7 @@ from tracker_service.outputs.messages import (
 )
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.service.config import ServiceConfig, parse_service_config
+from tracker_service.time_sanity import TimeReport, TimeSanityConfig, status_reasons
 from tracker_service.tracking import LocalTracker, TrackerConfig
 from tracker_service.validation import dataclass_kwargs
 
@@ -118,6 +119,7 @@ def _radar_info(radar: Any) -> RadarInfo:
         field_monitor=(
             None if monitor is None else FieldMonitor(monitor.lat, monitor.lon, monitor.alt_m)
         ),
+        time_base=radar.time_base,
     )
 
 
@@ -146,7 +148,18 @@ def build_chain(
     )
     fusion = FusionConfig(**dataclass_kwargs("fusion", config.fusion, FusionConfig))
     tracker = dataclass_kwargs("tracker", config.tracker, TrackerConfig)
-    return Chain(infos, plane, tracker, make_tracker, fusion, bias_config(config))
+    time_sanity = TimeSanityConfig(
+        **dataclass_kwargs("time_sanity", config.time_sanity, TimeSanityConfig)
+    )
+    return Chain(
+        infos,
+        plane,
+        tracker,
+        make_tracker,
+        fusion=fusion,
+        bias=bias_config(config),
+        time_sanity=time_sanity,
+    )
 
 
 def config_from_recording(metadata: Mapping[str, Any]) -> ServiceConfig:
@@ -224,6 +237,7 @@ class _RadarCounters:
     plots_at_last_status: int = 0
     decode_errors: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
+    time: TimeReport | None = None
 
 
 @dataclass
@@ -321,6 +335,8 @@ class Outputs:
         if len(plots):
             counters.last_plot_time = float(plots["time"].max())
             counters.rejected.update(rejections(plots["use"]))
+        if output.time is not None:
+            counters.time = output.time
         named = plots[(plots["address"] >= 0) & (plots["callsign"] != "")]
         for address, callsign in zip(
             named["address"].tolist(), named["callsign"].tolist(), strict=True
@@ -549,13 +565,21 @@ class Outputs:
         interval = self.timings.status_s
         radars = []
         degraded = False
+        reasons: list[str] = []
         for key in sorted({*self._feeds, *self._radars}, key=source_order):
             counters = self._radars[key]
             inputs = self.input_counters.get(input_name(key), InputCounters())
             rate = (counters.plots - counters.plots_at_last_status) / interval
             period = self._periods.get(key)
+            # The radar's own time, not the reception's: a feed's offset from it (reported
+            # below) is no silence.
+            offset = 0.0
+            if counters.time is not None and counters.time.time_base == "data":
+                offset = counters.time.offset_s or 0.0
             if period is not None and counters.last_plot_time is not None:
-                degraded |= self._now - counters.last_plot_time > SILENT_PERIODS * period
+                degraded |= self._now + offset - counters.last_plot_time > SILENT_PERIODS * period
+            if counters.time is not None:
+                reasons += status_reasons(counters.time, counters.last_plot_time)
             radars.append(
                 RadarStatus(
                     radar=key,
@@ -565,12 +589,14 @@ class Outputs:
                     duplicates=inputs.duplicates,
                     drops=inputs.dropped,
                     rejected=dict(sorted(counters.rejected.items())),
+                    time_offset_s=None if counters.time is None else counters.time.offset_s,
                 )
             )
         return StatusMessage(
             time=self._now,
             uptime_s=max(self._now - start, 0.0),
-            health="degraded" if degraded else "ok",
+            health="degraded" if degraded or reasons else "ok",
+            reasons=reasons,
             radars=radars,
         )
 

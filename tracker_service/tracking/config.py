@@ -82,6 +82,14 @@ class TrackerConfig:
     and restart the track two scans later; a wider early gate costs less."""
     max_backward_s: float = 2.0
     """A plot older than its track's state by more than this is dropped and counted."""
+    max_clock_jump_periods: float = 2.0
+    """A batch whose times lie more than this many antenna periods ahead of or behind
+    the tracker's clock is held back, not taken as the present (``tracking.clock``): a
+    2.25-period jump would already delete every tentative track."""
+    clock_resync_batches: int = 3
+    """Batches in a row that jump the same way, over at least one antenna period of their
+    own time, after which the tracker re-synchronises to them (a radar restarted with
+    another clock, or back after an outage); the held plots are lost (counted)."""
     max_position_variance_m2: float = 4.0e6
     """A coasting track whose position variance (trace) exceeds this is deleted."""
     q_vertical: float = 0.02
@@ -106,6 +114,8 @@ class TrackerConfig:
             raise ValueError("need 0 < confirm_m <= confirm_n <= 32")
         if self.scan_period_s <= 0 or self.gate <= 0 or self.address_gate <= 0:
             raise ValueError("scan_period_s, gate and address_gate must be positive")
+        if not self.max_clock_jump_periods > 0 or self.clock_resync_batches < 1:
+            raise ValueError("max_clock_jump_periods and clock_resync_batches must be positive")
 
     @property
     def n_models(self) -> int:

@@ -26,7 +26,10 @@ class TwoPointInitiator:
         cfg = self.config
         period = cfg.scan_period_s
         max_dt = cfg.init_max_dt_periods * period
-        pending = self.pending.select(self.pending.time >= now - max_dt)
+        # Both ways: a plot stamped ahead of the clock (it was refused or re-synchronised
+        # away) must not wait forever.
+        age = now - self.pending.time
+        pending = self.pending.select((age <= max_dt) & (age >= -max_dt))
         if len(pending) == 0 or len(plots) == 0:
             self.pending = PlotArrays.concat(pending, plots)
             return PlotArrays.empty(), PlotArrays.empty()

@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from tracker_service.tracking import imm, vertical
 from tracker_service.tracking.associate import candidate_pairs, global_nearest_neighbour
+from tracker_service.tracking.clock import DataClock
 from tracker_service.tracking.config import TrackerConfig
 from tracker_service.tracking.initiate import TwoPointInitiator, two_point_state
 from tracker_service.tracking.models import ModelSet
@@ -103,6 +104,11 @@ class TrackerStats:
     tracks_initiated: int = 0
     tracks_confirmed: int = 0
     tracks_deleted: int = 0
+    out_of_line_plots: int = 0
+    """Plots refused by the clock (too far ahead of or behind it) and never tracked."""
+    clock_resyncs: int = 0
+    """Times the clock followed a sustained jump of the radar's time."""
+    last_clock_jump_s: float = 0.0
 
 
 class LocalTracker:
@@ -123,6 +129,12 @@ class LocalTracker:
         self._allocate(64)
         self._n = 0
         self._next_number = first_track_number
+        jump = self.config.max_clock_jump_periods * self.config.scan_period_s
+        self.clock = DataClock(
+            jump, jump, self.config.clock_resync_batches, self.config.scan_period_s
+        )
+        self._held: list[PlotArrays] = []
+        """The out-of-line plots of the current run of batches, counted when dropped."""
         self._now = -np.inf
         self._hist_mask = (1 << self.config.confirm_n) - 1
         # Per-tracker constants of the pre-selection radius, hoisted out of every batch.
@@ -171,6 +183,61 @@ class LocalTracker:
             p = p.take(valid)
         if n_valid == 0:
             return self._no_rows
+        step = self.clock.step(p.time)
+        if step.resynchronised:
+            return self._resynchronise(step.jump_s, p.take(step.accepted))
+        if self._held and step.out_of_line != len(self._held) + 1:
+            # The run ended: the held batches were no jump, only bad stamps.
+            self.stats.out_of_line_plots += sum(len(h) for h in self._held)
+            self._held = []
+        if step.out_of_line:
+            self._held.append(p.take(~step.accepted))
+        if not step.accepted.all():
+            if not step.out_of_line:
+                self.stats.out_of_line_plots += int(np.count_nonzero(~step.accepted))
+            p = p.take(step.accepted)
+            if len(p) == 0:
+                return self._no_rows
+        return self._track(p)
+
+    def _resynchronise(self, jump_s: float, p: PlotArrays) -> npt.NDArray[Any]:
+        """The radar's time jumped for good (a restart with another clock, or data again
+        after an outage): follow it. Back in time, every track (and every waiting plot)
+        lies in the abandoned future and is deleted; forward, the tracks age as after
+        any silence. The held batches are not tracked: every update of a batch must
+        come from its own plots (the chain, the fuser and the outputs look them up)."""
+        self.stats.clock_resyncs += 1
+        self.stats.last_clock_jump_s = jump_s
+        self.stats.out_of_line_plots += sum(len(h) for h in self._held)
+        self._held = []
+        parts = []
+        if jump_s < 0:
+            parts.append(self._delete_all())
+            self.initiator.pending = PlotArrays.empty()
+            self._now = -np.inf
+        if len(p):
+            parts.append(self._track(p))
+        return _join(parts, self.output_dtype)
+
+    def _delete_all(self) -> npt.NDArray[Any]:
+        """Every live track deleted, at its own latest time."""
+        n, cols = self._n, self._cols
+        rows = np.arange(n)
+        out = self._rows(
+            rows,
+            cols["t"][:n].copy(),
+            np.full(n, DELETED, dtype=np.int8),
+            np.full(n, -1, dtype=np.int64),
+            cols["mu"][:n].copy(),
+            cols["xc"][:n].copy(),
+            cols["Pc"][:n].copy(),
+        )
+        self.stats.tracks_deleted += n
+        self._n = 0
+        return out
+
+    def _track(self, p: PlotArrays) -> npt.NDArray[Any]:
+        """Association, initiation and ageing of one batch the clock accepted."""
         now = max(self._now, float(p.time.max()))
         self._now = now
         n_old = self._n
@@ -182,13 +249,7 @@ class LocalTracker:
         if len(second):
             rows.append(self._create(first, second))
         self._age(now, updated, n_old, rows)
-        # Concatenating structured arrays promotes their dtypes field by field: join only
-        # when there are several parts (most batches have one), and as raw rows.
-        if len(rows) == 1:
-            return rows[0]
-        if not rows:
-            return self._no_rows
-        return np.concatenate([as_bytes(r) for r in rows]).view(self.output_dtype)
+        return _join(rows, self.output_dtype)
 
     def _associate(
         self, p: PlotArrays, rows: list[npt.NDArray[Any]]
@@ -561,3 +622,14 @@ class LocalTracker:
         out["address"] = cols["address"][ti]
         out["model_probabilities"] = mu
         return out
+
+
+def _join(rows: list[npt.NDArray[Any]], dtype: np.dtype[Any]) -> npt.NDArray[Any]:
+    """Output rows of several parts as one array."""
+    # Concatenating structured arrays promotes their dtypes field by field: join only
+    # when there are several parts (most batches have one), and as raw rows.
+    if len(rows) == 1:
+        return rows[0]
+    if not rows:
+        return np.zeros(0, dtype=dtype)
+    return np.concatenate([as_bytes(r) for r in rows]).view(dtype)

@@ -1,0 +1,423 @@
+"""Per-radar time sanity: each plot's time against its own radar's timeline.
+
+The plot clock (``ingest.PlotClock``) gives every plot a POSIX time from its I140 on the
+day nearest its reception, or from its azimuth, or the reception time itself. Nothing
+there says whether that time is plausible. ``TimeSanity`` keeps, per radar, the evidence
+of its stream: the offset of its data time from the reception time (data - reception,
+the median over the last ``evidence`` datagrams and north markers, so that no single
+stamp moves it), its last north marker and the usual phase of its plots' times against
+the azimuth the antenna had then. Each plot of a datagram is judged against them:
+
+- its time must lie within ``latency_s`` + ``plausible_periods`` antenna periods of the
+  time the radar's data is expected at (reception + offset);
+- where a recent north marker is known, the time must agree with the plot's azimuth
+  (THETA) within ``azimuth_tolerance`` of a turn, beside the radar's usual phase;
+- a time of day is put on the day nearest the radar's expected time, not the reception's:
+  midnight in both directions (ToD already wrapped or still above 86,400 s) lands on the
+  radar's own timeline even when that is hours from the reception;
+- a plot timed by the reception (no I140, no north marker yet) gets reception + offset,
+  and one timed from its azimuth is moved by whole turns onto the radar's timeline.
+
+A plot that fails is not tracked (``PlotUse.TIME_IMPLAUSIBLE``, counted in status) and is
+logged, rate-limited. A feed whose offset exceeds ``max_offset_s`` (a replayed capture
+sent live, a radar with a wrong clock) is reported (``TimeReport``, ``status_reasons``):
+tracked on its own time, or, with ``time_base = "reception"``, re-based on reception
+(times shifted by the offset, re-estimated only when it moves by more than the
+tolerance). A radar whose time is out of step with the other radars' is kept out of
+fusion by the chain: its tracks cannot be fused with theirs.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.ingest import DAY_S, TimeSource, posix_from_time_of_day
+
+__all__ = [
+    "TIME_BASES",
+    "TimeBase",
+    "TimeReport",
+    "TimeSanity",
+    "TimeSanityConfig",
+    "status_reasons",
+]
+
+log = logging.getLogger(__name__)
+
+TimeBase = Literal["data", "reception"]
+TIME_BASES: tuple[TimeBase, ...] = ("data", "reception")
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class TimeSanityConfig:
+    """The knobs of ``TimeSanity``; seconds unless the name says otherwise."""
+
+    evidence: int = 16
+    """Datagrams and north markers of a radar whose offset from reception is kept: the
+    feed offset is their median, so it follows a jump once half of them show it."""
+    min_evidence: int = 4
+    """Pieces of evidence before a feed's offset is reported or compared across radars."""
+    latency_s: float = 4.0
+    """Reception lags measurement by the sector's buffering and the network."""
+    plausible_periods: float = 1.0
+    """A plot further than ``latency_s`` + this many antenna periods from the time its
+    radar's data is expected at is implausible."""
+    azimuth_tolerance: float = 0.125
+    """Turns (0.125: 45 degrees) a plot's time may stray from the phase its azimuth and
+    the last north marker give, beside the radar's usual phase."""
+    max_offset_s: float = 10.0
+    """A feed whose data time is further than this from its reception is reported (and
+    one this far from the other radars' is kept out of fusion)."""
+    log_interval_s: float = 60.0
+    """Implausible plots are logged at most once per this much reception time per radar,
+    with the count of those not logged."""
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.min_evidence <= self.evidence:
+            raise ValueError("need 1 <= min_evidence <= evidence")
+        for name in ("latency_s", "plausible_periods", "max_offset_s", "log_interval_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, not {getattr(self, name)!r}")
+        if not 0 < self.azimuth_tolerance < 0.5:
+            raise ValueError(f"azimuth_tolerance must be in (0, 0.5), not {self.azimuth_tolerance}")
+
+
+@dataclass(frozen=True)
+class TimeReport:
+    """A radar's time as status shows it: plain data, so that it crosses to the output
+    process as it is."""
+
+    source: str
+    time_base: TimeBase
+    offset_s: float | None
+    """Its data time minus its reception time (median of the evidence); None before
+    ``min_evidence`` pieces of it."""
+    offset_reported: bool
+    """``offset_s`` beyond ``max_offset_s``."""
+    out_of_step_s: float | None
+    """Its offset from the other radars' when beyond ``max_offset_s`` (kept out of
+    fusion), else None."""
+    implausible: int
+    """Plots kept out of tracking as implausible, since start."""
+    clock_resyncs: int = 0
+    """Times its local tracker's clock followed a jump of its time (not an outage)."""
+    last_clock_jump_s: float = 0.0
+    last_clock_jump_at: float = -math.inf
+    """The tracker's clock just after that jump."""
+
+
+CONSENSUS_INTERVAL_S = 1.0
+RECENT_JUMP_S = 300.0
+"""A jump its tracker's clock followed stays a reason in status this long (data time)."""
+
+
+def status_reasons(report: TimeReport, data_time: float | None) -> list[str]:
+    """The lines status gives for a radar's time (``data_time``: its latest plot's);
+    empty when it is sane. A feed re-based on reception as configured is no fault."""
+    reasons = []
+    source = report.source
+    if report.offset_reported and report.offset_s is not None and report.time_base == "data":
+        offset = report.offset_s
+        way = "ahead of" if offset > 0 else "behind"
+        reasons.append(
+            f"radar {source}: data time {abs(offset):.1f} s {way} its reception (a "
+            'replayed capture or a wrong clock); time_base = "reception" in its '
+            "[[radars]] table re-bases it"
+        )
+    if report.out_of_step_s is not None:
+        way = "ahead of" if report.out_of_step_s > 0 else "behind"
+        reasons.append(
+            f"radar {source}: time {abs(report.out_of_step_s):.1f} s {way} the other "
+            "radars': kept out of fusion"
+        )
+    recent = data_time is not None and data_time - report.last_clock_jump_at <= RECENT_JUMP_S
+    if report.clock_resyncs and recent:
+        reasons.append(
+            f"radar {source}: its time jumped by {report.last_clock_jump_s:+.1f} s and its "
+            f"tracker followed ({report.clock_resyncs} time(s) since start)"
+        )
+    return reasons
+
+
+@dataclass
+class _Timeline:
+    """What is known of one radar's time."""
+
+    source: str
+    time_base: TimeBase
+    period_s: float
+    offsets: deque[float]
+    north_posix: float = math.nan
+    phases: deque[float] = field(default_factory=lambda: deque(maxlen=32))
+    """Recent per-datagram median phase of plot times against their azimuth (turns)."""
+    rebase_s: float | None = None
+    implausible: int = 0
+    reported_offset: float | None = None
+    logged_at: float = -math.inf
+    unlogged: int = 0
+
+    def offset(self) -> float | None:
+        return _median(self.offsets) if self.offsets else None
+
+
+class TimeSanity:
+    """See the module docstring. ``bases``: each radar's ``TimeBase`` (default "data");
+    ``periods``: each radar's configured antenna period (north markers update it)."""
+
+    def __init__(
+        self,
+        config: TimeSanityConfig | None = None,
+        bases: Mapping[str, TimeBase] | None = None,
+        periods: Mapping[str, float] | None = None,
+    ) -> None:
+        self.config = config or TimeSanityConfig()
+        self._bases = dict(bases or {})
+        self._periods = dict(periods or {})
+        self._timelines: dict[str, _Timeline] = {}
+        self._latest = -math.inf
+        self._consensus_at = -math.inf
+        self._consensus_value: float | None = None
+
+    def _timeline(self, source: str) -> _Timeline:
+        timeline = self._timelines.get(source)
+        if timeline is None:
+            timeline = self._timelines[source] = _Timeline(
+                source,
+                self._bases.get(source, "data"),
+                self._periods.get(source, 5.0),
+                deque(maxlen=self.config.evidence),
+            )
+        return timeline
+
+    def service_message(self, items: dict[str, Any], received: float) -> None:
+        """A CAT034 record: a north marker is evidence of the radar's time and its phase."""
+        source, kind, tod = items.get("010"), items.get("000"), items.get("030")
+        if kind != 1 or not isinstance(source, dict) or not isinstance(tod, float):
+            return
+        timeline = self._timeline(f"{source['SAC']}/{source['SIC']}")
+        period = items.get("041")
+        if isinstance(period, float) and period > 0.0:
+            timeline.period_s = period
+        prior = timeline.offset()
+        north = float(posix_from_time_of_day(np.array([tod]), received + (prior or 0.0))[0])
+        timeline.north_posix = north
+        timeline.offsets.append(north - received)
+
+    def check(
+        self,
+        source: str,
+        times: FloatArray,
+        time_sources: npt.NDArray[np.int8],
+        theta_deg: FloatArray,
+        received: float,
+    ) -> tuple[FloatArray, BoolArray]:
+        """One datagram's plots of one radar: their times put on the radar's timeline (and
+        re-based, if so configured), and which are implausible."""
+        cfg = self.config
+        self._latest = received
+        timeline = self._timeline(source)
+        period = timeline.period_s
+        times = np.array(times, dtype=np.float64)
+        stamped = time_sources == TimeSource.I140
+        prior = timeline.offset()
+        if prior is not None and stamped.any():
+            times[stamped] = _nearest(times[stamped], received + prior, DAY_S)
+        plot_offsets = (times[stamped] - received).tolist()
+        history = list(timeline.offsets)
+        if plot_offsets and len(history) >= 2:
+            # This datagram is one piece of evidence beside the others, however many
+            # plots it holds: a jump is followed only once half the evidence shows it.
+            offset = _median([*history, _median(plot_offsets)])
+        elif plot_offsets:
+            # Thin evidence (the start): the plots themselves, the middle one nearest
+            # reception when they split evenly.
+            offset = _median([*history, *plot_offsets], toward=0.0)
+        else:
+            offset = prior if prior is not None else 0.0
+        expected = received + offset
+        if prior is None and plot_offsets:
+            times[stamped] = _nearest(times[stamped], expected, DAY_S)
+        by_reception = time_sources == TimeSource.RECEPTION
+        times[by_reception] = expected
+        by_azimuth = time_sources == TimeSource.AZIMUTH
+        if by_azimuth.any() and abs(offset) > cfg.max_offset_s:
+            # The plot clock counted the turns up to the reception; the radar's own time
+            # is elsewhere by whole turns.
+            times[by_azimuth] = _nearest(times[by_azimuth], expected, period)
+        implausible = np.abs(times - expected) > cfg.latency_s + cfg.plausible_periods * period
+        implausible |= self._off_azimuth(timeline, times, stamped & ~implausible, theta_deg)
+        if plot_offsets:
+            plausible = stamped & ~implausible
+            evidence = plausible if plausible.any() else stamped
+            timeline.offsets.append(_median((times[evidence] - received).tolist()))
+        self._note(timeline, times, implausible, expected, received)
+        if timeline.time_base == "reception":
+            times -= self._rebase(timeline, offset)
+        return times, implausible
+
+    def _off_azimuth(
+        self, timeline: _Timeline, times: FloatArray, judged: BoolArray, theta_deg: FloatArray
+    ) -> BoolArray:
+        """Plots whose time disagrees with the antenna position their THETA implies."""
+        off = np.zeros(times.size, dtype=bool)
+        period = timeline.period_s
+        recent = judged & (np.abs(times - timeline.north_posix) <= 2.0 * period)
+        recent &= np.isfinite(theta_deg)
+        if not recent.any():
+            return off
+        phase = _wrap((times[recent] - timeline.north_posix) / period - theta_deg[recent] / 360.0)
+        # The radar's usual phase (its stamping convention), from the datagrams' medians:
+        # a lone stray plot is no datagram's median.
+        timeline.phases.append(float(np.median(phase)))
+        usual = float(np.median(timeline.phases))
+        stray = np.abs(_wrap(phase - usual)) > self.config.azimuth_tolerance
+        off[np.flatnonzero(recent)[stray]] = True
+        return off
+
+    def _rebase(self, timeline: _Timeline, offset: float) -> float:
+        """The shift taken off a re-based radar's times: the offset, held steady (the
+        jitter of reception must not jitter the plots) until it moves by more than the
+        plausible tolerance."""
+        cfg = self.config
+        tolerance = cfg.latency_s + cfg.plausible_periods * timeline.period_s
+        if timeline.rebase_s is None or abs(offset - timeline.rebase_s) > tolerance:
+            timeline.rebase_s = offset
+            log.info(
+                "radar %s: time re-based on reception, its data time %+.3f s from it",
+                timeline.source,
+                offset,
+            )
+        return timeline.rebase_s
+
+    def _note(
+        self,
+        timeline: _Timeline,
+        times: FloatArray,
+        implausible: BoolArray,
+        expected: float,
+        received: float,
+    ) -> None:
+        """Count and log (rate-limited) the implausible plots; warn when the feed's
+        offset from reception becomes large, or changes."""
+        cfg = self.config
+        count = int(np.count_nonzero(implausible))
+        if count:
+            timeline.implausible += count
+            timeline.unlogged += count
+            if received - timeline.logged_at >= cfg.log_interval_s:
+                worst = float(times[implausible][np.argmax(np.abs(times[implausible] - expected))])
+                log.warning(
+                    "radar %s: %d plot(s) with an implausible time kept out of tracking "
+                    "(e.g. %+.1f s from the radar's expected time)",
+                    timeline.source,
+                    timeline.unlogged,
+                    worst - expected,
+                )
+                timeline.logged_at = received
+                timeline.unlogged = 0
+        offset = self._reportable(timeline)
+        reported = timeline.reported_offset
+        tolerance = cfg.latency_s + cfg.plausible_periods * timeline.period_s
+        if offset is not None and (reported is None or abs(offset - reported) > tolerance):
+            timeline.reported_offset = offset
+            way = "ahead of" if offset > 0 else "behind"
+            action = (
+                "re-based on reception"
+                if timeline.time_base == "reception"
+                else 'tracked on its own time; time_base = "reception" re-bases it'
+            )
+            log.warning(
+                "radar %s: data time %.1f s %s its reception (a replayed capture or a "
+                "wrong clock?): %s",
+                timeline.source,
+                abs(offset),
+                way,
+                action,
+            )
+        elif offset is None and reported is not None:
+            log.warning("radar %s: data time back in step with its reception", timeline.source)
+            timeline.reported_offset = None
+
+    def _reportable(self, timeline: _Timeline) -> float | None:
+        """The feed's offset when it has enough evidence and exceeds ``max_offset_s``."""
+        if len(timeline.offsets) < self.config.min_evidence:
+            return None
+        offset = timeline.offset()
+        return offset if offset is not None and abs(offset) > self.config.max_offset_s else None
+
+    def _effective(self, timeline: _Timeline) -> float | None:
+        """A radar's offset from reception with enough evidence, after re-basing."""
+        offset = timeline.offset()
+        if offset is None or len(timeline.offsets) < self.config.min_evidence:
+            return None
+        if timeline.time_base == "reception" and timeline.rebase_s is not None:
+            offset -= timeline.rebase_s
+        return offset
+
+    def _consensus(self) -> float | None:
+        """The offset of the largest group of radars whose offsets agree (the one nearest
+        reception on a tie); None with fewer than two radars known. Recomputed once per
+        ``CONSENSUS_INTERVAL_S`` of reception time: it moves as slowly as its medians."""
+        if abs(self._latest - self._consensus_at) < CONSENSUS_INTERVAL_S:
+            return self._consensus_value
+        self._consensus_at = self._latest
+        values = [v for t in self._timelines.values() if (v := self._effective(t)) is not None]
+        limit = self.config.max_offset_s
+        self._consensus_value = (
+            max(values, key=lambda v: (sum(abs(v - w) <= limit for w in values), -abs(v)))
+            if len(values) >= 2
+            else None
+        )
+        return self._consensus_value
+
+    def out_of_step(self, source: str) -> float | None:
+        """How far a radar's time is from the other radars' (``_consensus``), when beyond
+        ``max_offset_s``; None when in step or unknown."""
+        own = self._effective(self._timeline(source))
+        consensus = self._consensus()
+        if own is None or consensus is None:
+            return None
+        step = own - consensus
+        return step if abs(step) > self.config.max_offset_s else None
+
+    def report(self, source: str) -> TimeReport:
+        timeline = self._timeline(source)
+        enough = len(timeline.offsets) >= self.config.min_evidence
+        return TimeReport(
+            source=source,
+            time_base=timeline.time_base,
+            offset_s=timeline.offset() if enough else None,
+            offset_reported=self._reportable(timeline) is not None,
+            out_of_step_s=self.out_of_step(source),
+            implausible=timeline.implausible,
+        )
+
+
+def _median(values: Sequence[float], toward: float | None = None) -> float:
+    """The middle one of the values: always a value that was seen, never the mean of two
+    times that disagree. Of two middle ones, the upper, or the one nearer ``toward``."""
+    ordered = sorted(values)
+    upper = ordered[len(ordered) // 2]
+    if toward is None or len(ordered) % 2:
+        return float(upper)
+    lower = ordered[len(ordered) // 2 - 1]
+    return float(lower if abs(lower - toward) < abs(upper - toward) else upper)
+
+
+def _nearest(times: FloatArray, reference: float, step: float) -> FloatArray:
+    """Each time moved by whole ``step`` (days, turns) to lie nearest ``reference``."""
+    return np.asarray(times + step * np.round((reference - times) / step))
+
+
+def _wrap(turns: FloatArray) -> FloatArray:
+    return np.asarray(turns - np.round(turns))
