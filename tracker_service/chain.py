@@ -38,6 +38,7 @@ from tracker_service.bias import (
     make_bias_estimator,
     make_observations,
 )
+from tracker_service.fixed_targets import FixedTargetConfig, FixedTargets, FixedTransponder
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, References, SystemTracker
 from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
 from tracker_service.ingest import PlotClock
@@ -113,6 +114,13 @@ class PlotUse(IntEnum):
     TRACKED = 0
     FIELD_MONITOR = 1
     """I020 RAB = 1: a radar's test transponder, a bias reference, never tracked."""
+    TEST_TARGET = 2
+    """I020 TST = 1: a test target the radar injects (its check is in status)."""
+    SIMULATED = 3
+    """I020 SIM = 1: a simulated target report."""
+    FIXED_TRANSPONDER = 4
+    """A stationary transponder, configured or detected (``fixed_targets``); a bias
+    reference where its position is surveyed."""
 
 
 def rejections(use: npt.NDArray[np.int8]) -> dict[str, int]:
@@ -142,6 +150,7 @@ class RadarInfo:
     psr_sigma_range_m: float
     psr_sigma_azimuth_deg: float
     field_monitor: FieldMonitor | None = None
+    fixed_transponders: tuple[FixedTransponder, ...] = ()
     surveyed: bool = True
     """False for a radar the configuration does not know (an assumed site)."""
 
@@ -174,6 +183,7 @@ def convert_batch(
     first_id: int,
     sequence: int,
     bias: FloatArray | None = None,
+    surveyed_height: FloatArray | None = None,
 ) -> tuple[npt.NDArray[Any], npt.NDArray[Any], FloatArray | None]:
     """One datagram's plots of one radar (``asterix.plots`` rows): timed, converted to the
     system plane, as the tracker's batch (``tracking.PLOT_DTYPE``), as a
@@ -183,7 +193,8 @@ def convert_batch(
 
     ``bias``: the radar's estimated systematic errors [range offset m, range gain,
     azimuth rad, time s], removed from the batch (not from the table, which keeps the
-    plots as the radar sent them)."""
+    plots as the radar sent them). ``surveyed_height``: per plot, the surveyed height (m
+    above MSL) of the fixed transponder it is, NaN for the others."""
     n = len(raw)
     times, time_sources = clock.times(raw, received)
     fl = np.asarray(raw["flight_level"], dtype=np.float64)
@@ -199,6 +210,11 @@ def convert_batch(
         # The test transponder's height is surveyed: better than its Mode C.
         height = np.where(rab, info.field_monitor.alt_m, height)
         height_sigma = np.where(rab, 0.0, height_sigma)
+    if surveyed_height is not None:
+        # A fixed transponder's Mode C is often a test value (FL719), not its height.
+        known = np.isfinite(surveyed_height)
+        height = np.where(known, surveyed_height, height)
+        height_sigma = np.where(known, 0.0, height_sigma)
     psr_only = raw["typ"] == 1
     sigma_rho = np.where(psr_only, info.psr_sigma_range_m, info.sigma_range_m)
     sigma_theta = np.where(psr_only, info.psr_sigma_azimuth_deg, info.sigma_azimuth_deg)
@@ -257,7 +273,11 @@ def convert_batch(
     table["kind"] = KIND_UNKNOWN
     table["aircraft"] = -1
     table["detection_time"] = np.nan
-    table["use"] = np.where(rab, PlotUse.FIELD_MONITOR, PlotUse.TRACKED)
+    table["use"] = np.select(
+        [rab, np.asarray(raw["tst"]) == 1, np.asarray(raw["sim"]) == 1],
+        [PlotUse.FIELD_MONITOR, PlotUse.TEST_TARGET, PlotUse.SIMULATED],
+        PlotUse.TRACKED,
+    )
     if bias is not None and c is not None:
         # The table keeps the plots as sent: uncorrected, to first order.
         shift = c[:, :, :3] @ bias[:3]
@@ -289,7 +309,11 @@ class RadarState:
     tracker: LocalTracker
     index: int | None
     """The radar's number in fusion and bias estimation; None when kept out of them."""
+    fixed: FixedTargets
     sequence: int = 0
+    monitor_xy: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    """Per plot of the latest batch, the surveyed position of the field monitor or fixed
+    transponder it is (NaN for the others): the bias estimator's monitor observations."""
 
 
 @dataclass
@@ -314,8 +338,10 @@ class Chain:
         make_tracker: Callable[[str, TrackerConfig], LocalTracker] | None = None,
         fusion: FusionConfig | None = None,
         bias: BiasConfig | None = None,
+        fixed_targets: FixedTargetConfig | None = None,
     ) -> None:
         self.infos = dict(radars)
+        self.fixed_targets = fixed_targets or FixedTargetConfig()
         self.plane = plane
         # Fusion numbers the configured radars in SAC/SIC order, so that the same
         # configuration numbers them the same way in every run.
@@ -397,7 +423,10 @@ class Chain:
         overrides = {"scan_period_s": info.period_s, **self._tracker_overrides}
         config = TrackerConfig(**overrides)
         index = self.sources.index(source) if info.surveyed else None
-        state = RadarState(info, plane, config, self._make_tracker(source, config), index)
+        fixed = FixedTargets(
+            info.site, plane, info.period_s, info.fixed_transponders, self.fixed_targets
+        )
+        state = RadarState(info, plane, config, self._make_tracker(source, config), index, fixed)
         self.radars[source] = state
         return state
 
@@ -424,6 +453,7 @@ class Chain:
             self._next_plot_id,
             state.sequence,
             bias,
+            state.fixed.surveyed_heights(raw),
         )
         state.sequence += 1
         self._next_plot_id += len(raw)
@@ -432,6 +462,7 @@ class Chain:
         n_monitor = int(np.count_nonzero(monitor))
         if n_monitor:
             self.stats.field_monitor_plots += n_monitor
+        self._fixed_transponders(state, table, batch)
         # The batch keeps the tracker's plots only; the table keeps every plot with its use.
         tracked = table["use"] == PlotUse.TRACKED
         if not tracked.all():
@@ -443,6 +474,21 @@ class Chain:
         if bias is not None and bias_cov is not None and c is not None:
             extra = self._estimate_biases(state, table, batch, local, c, bias, bias_cov)
         return BatchOutput(source, table, local, self.fuser.process(index, local, batch, extra))
+
+    def _fixed_transponders(
+        self, state: RadarState, table: npt.NDArray[Any], batch: npt.NDArray[Any]
+    ) -> None:
+        """Marks the table's fixed transponders (``fixed_targets``) and keeps, per plot, the
+        surveyed position of each field monitor and surveyed fixed transponder."""
+        found = state.fixed.classify(
+            table, table["use"] == PlotUse.TRACKED, np.asarray(batch["mode3a_valid"])
+        )
+        table["use"][found.fixed] = PlotUse.FIXED_TRANSPONDER
+        monitor_xy = found.reference_xy
+        surveyed = self._monitors.get(state.info.source)
+        if surveyed is not None:
+            monitor_xy[table["rab"]] = surveyed
+        state.monitor_xy = monitor_xy
 
     def _estimate_biases(
         self,
@@ -471,9 +517,8 @@ class Chain:
             traffic = self._traffic_observations(radar, table, batch, local, c, bias, relative)
             if traffic is not None:
                 observations.append(traffic)
-        monitor = np.flatnonzero(table["rab"])
-        surveyed = self._monitors.get(state.info.source)
-        if monitor.size and surveyed is not None:
+        monitor = np.flatnonzero(np.isfinite(state.monitor_xy[:, 0]))
+        if monitor.size:
             observations.append(
                 make_observations(
                     n_radars,
@@ -482,7 +527,7 @@ class Chain:
                     np.column_stack([table["x"][monitor], table["y"][monitor]]),
                     table["R"][monitor],
                     c[monitor],
-                    np.broadcast_to(surveyed, (monitor.size, 2)),
+                    state.monitor_xy[monitor],
                     np.broadcast_to(np.eye(2) * MONITOR_SURVEY_VARIANCE_M2, (monitor.size, 2, 2)),
                     kind=ObservationKind.FIELD_MONITOR,
                 )

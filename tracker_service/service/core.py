@@ -34,6 +34,7 @@ from tracker_service.chain import (
     rejections,
     source_order,
 )
+from tracker_service.fixed_targets import FixedTransponder
 from tracker_service.fusion import COASTING, ENDED, FusionConfig
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
@@ -104,6 +105,18 @@ def radar_key(name: str) -> str:
     return name.replace("_", "/")
 
 
+def _fixed_transponder(entry: Any) -> FixedTransponder:
+    return FixedTransponder(
+        address=None if entry.address is None else int(entry.address, 16),
+        mode3a=None if entry.mode3a is None else int(entry.mode3a, 8),
+        lat_deg=entry.lat,
+        lon_deg=entry.lon,
+        alt_m=entry.alt_m,
+        tolerance_m=entry.tolerance_m,
+        name=entry.name,
+    )
+
+
 def _radar_info(radar: Any) -> RadarInfo:
     monitor = radar.field_monitor
     return RadarInfo(
@@ -117,6 +130,7 @@ def _radar_info(radar: Any) -> RadarInfo:
         field_monitor=(
             None if monitor is None else FieldMonitor(monitor.lat, monitor.lon, monitor.alt_m)
         ),
+        fixed_transponders=tuple(_fixed_transponder(e) for e in radar.fixed_transponders),
     )
 
 
@@ -141,7 +155,14 @@ def build_chain(config: ServiceConfig) -> Chain:
     )
     fusion = FusionConfig(**dataclass_kwargs("fusion", config.fusion, FusionConfig))
     tracker = dataclass_kwargs("tracker", config.tracker, TrackerConfig)
-    return Chain(infos, plane, tracker, fusion=fusion, bias=bias_config(config))
+    return Chain(
+        infos,
+        plane,
+        tracker,
+        fusion=fusion,
+        bias=bias_config(config),
+        fixed_targets=config.fixed_target_config(),
+    )
 
 
 def config_from_recording(metadata: Mapping[str, Any]) -> ServiceConfig:
