@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data" / "asterix"
+# A worktree beside the repository (../wt/NAME) names the data with TRACKER_SHARED_DATA.
+SHARED_DATA = Path(
+    os.environ.get("TRACKER_SHARED_DATA", REPO.parent / "shared" / "data" / "asterix")
+)
 
 
 def shared_file(relative: str) -> Path:

@@ -53,6 +53,7 @@ from tracker_service.outputs.messages import (
 )
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.service.config import ServiceConfig, parse_service_config
+from tracker_service.test_targets import SeenTestTargets
 from tracker_service.tracking import TrackerConfig
 from tracker_service.validation import dataclass_kwargs
 
@@ -240,6 +241,7 @@ class _RadarCounters:
     plots_at_last_status: int = 0
     decode_errors: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
+    test_targets: SeenTestTargets = field(default_factory=SeenTestTargets)
 
 
 @dataclass
@@ -338,6 +340,7 @@ class Outputs:
         if len(plots):
             counters.last_plot_time = float(plots["time"].max())
             counters.rejected.update(rejections(plots["use"]))
+            counters.test_targets.update(plots)
         named = plots[(plots["address"] >= 0) & (plots["callsign"] != "")]
         for address, callsign in zip(
             named["address"].tolist(), named["callsign"].tolist(), strict=True
@@ -580,6 +583,7 @@ class Outputs:
                     duplicates=inputs.duplicates,
                     drops=inputs.dropped,
                     rejected=dict(sorted(counters.rejected.items())),
+                    test_targets=counters.test_targets.checks(),
                 )
             )
         return StatusMessage(
