@@ -469,8 +469,7 @@ class RadarModel:
     def _fixed_plots(self, monitor: FieldMonitor) -> list[Plot]:
         """A stationary transponder's plots: the field monitor (RAB = 1) or a fixed
         transponder, measured with the radar's errors like any SSR plot."""
-        fixed = isinstance(monitor, FixedTransponder)
-        rab = not fixed or monitor.rab
+        rab = monitor.rab if isinstance(monitor, FixedTransponder) else True
         n = geometry.geoid_undulation_m(monitor.lat, monitor.lon)
         x, y, z = geometry.geodetic_to_ecef(monitor.lat, monitor.lon, monitor.alt_m + n)
         rho, azimuth, _ = geometry.measure(self.site, x, y, z)
