@@ -162,7 +162,7 @@ class _Candidates:
     def __len__(self) -> int:
         return len(self.key)
 
-    def keep(self, rows: BoolArray) -> None:
+    def keep(self, rows: IntArray) -> None:
         for name in self.COLUMNS:
             setattr(self, name, getattr(self, name)[rows])
 
@@ -176,9 +176,9 @@ class _Candidates:
             setattr(self, name, np.concatenate([getattr(self, name), new.get(name, zero)]))
         return np.arange(first, first + m, dtype=np.int64)
 
-    def mean(self) -> tuple[FloatArray, FloatArray]:
-        n = np.maximum(self.n, 1)
-        return self.x0 + self.sx / n, self.y0 + self.sy / n
+    def mean(self, rows: IntArray) -> tuple[FloatArray, FloatArray]:
+        n = np.maximum(self.n[rows], 1)
+        return self.x0[rows] + self.sx[rows] / n, self.y0[rows] + self.sy[rows] / n
 
     def accumulate(
         self, rows: IntArray, t: FloatArray, x: FloatArray, y: FloatArray, var: FloatArray
@@ -323,20 +323,27 @@ class FixedTargets:
         x = np.asarray(plots["x"], np.float64)
         y = np.asarray(plots["y"], np.float64)
         sigma = _largest_sigma(np.asarray(plots["R"], np.float64))
-        # Forget candidates that have gone quiet.
+        # Forget candidates that have gone quiet; keep the others sorted by identity, so
+        # that each plot looks at its identity's few candidates only.
         now = float(t.max())
         if len(c):
-            c.keep(c.last >= now - cfg.stale_periods * self.period_s)
+            live = np.flatnonzero(c.last >= now - cfg.stale_periods * self.period_s)
+            c.keep(live[np.argsort(c.key[live], kind="stable")])
         rows = np.full(len(keys), -1, np.int64)
-        if len(c):
-            mx, my = c.mean()
-            d2 = (x[:, None] - mx[None, :]) ** 2 + (y[:, None] - my[None, :]) ** 2
+        first = np.searchsorted(c.key, keys, "left")
+        width = np.searchsorted(c.key, keys, "right") - first
+        if width.any():
+            slots = first[:, None] + np.arange(int(width.max()))
+            mine = slots < (first + width)[:, None]
+            slots = np.where(mine, slots, 0)
+            mx, my = c.mean(slots)
+            d2 = (x[:, None] - mx) ** 2 + (y[:, None] - my) ** 2
             radius = np.maximum(cfg.min_radius_m, cfg.gate_sigmas * sigma)
-            same = (keys[:, None] == c.key[None, :]) & (d2 <= radius[:, None] ** 2)
-            d2 = np.where(same, d2, np.inf)
+            d2 = np.where(mine & (d2 <= radius[:, None] ** 2), d2, np.inf)
             nearest = np.argmin(d2, axis=1)
-            inside = np.isfinite(d2[np.arange(len(keys)), nearest])
-            rows[inside] = nearest[inside]
+            plot = np.arange(len(keys))
+            inside = np.isfinite(d2[plot, nearest])
+            rows[inside] = slots[plot, nearest][inside]
         new = rows < 0
         if new.any():
             rows[new] = c.add(keys[new], t[new], x[new], y[new])
