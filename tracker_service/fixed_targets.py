@@ -146,66 +146,77 @@ def _largest_sigma(r: FloatArray) -> FloatArray:
 
 
 class _Candidates:
-    """Candidate stationary targets as columns; sums are relative to each one's first plot
-    (time t0, position x0, y0) so that they keep their precision over hours."""
+    """Candidate stationary targets: an identity key and one row of ``values`` each (see
+    ``FIELDS``); the sums are relative to the first plot (time t0, position x0, y0), so
+    that they keep their precision over hours. One array, so that keeping, adding and
+    accumulating are one numpy operation each whatever the number of fields."""
 
-    COLUMNS = ("key", "n", "t0", "x0", "y0", "last", "st", "sx", "sy", "stt", "stx", "sty", "var")
+    FIELDS = ("n", "t0", "x0", "y0", "last", "st", "sx", "sy", "stt", "stx", "sty", "var")
+    N, T0, X0, Y0, LAST, ST, SX, SY, STT, STX, STY, VAR = range(len(FIELDS))
+    SUMS = np.array([N, ST, SX, SY, STT, STX, STY, VAR])
 
     def __init__(self) -> None:
         self.key = np.zeros(0, np.int64)
-        self.n = np.zeros(0, np.int64)
-        self.t0, self.x0, self.y0, self.last = (np.zeros(0) for _ in range(4))
-        self.st, self.sx, self.sy, self.stt, self.stx, self.sty, self.var = (
-            np.zeros(0) for _ in range(7)
-        )
+        self.values = np.zeros((0, len(self.FIELDS)))
 
     def __len__(self) -> int:
         return len(self.key)
 
+    @property
+    def last(self) -> FloatArray:
+        return self.values[:, self.LAST]
+
     def keep(self, rows: IntArray) -> None:
-        for name in self.COLUMNS:
-            setattr(self, name, getattr(self, name)[rows])
+        self.key = self.key[rows]
+        self.values = self.values[rows]
 
     def add(self, key: IntArray, t: FloatArray, x: FloatArray, y: FloatArray) -> IntArray:
-        """New candidates, one per plot given; returns their rows."""
+        """New candidates (no plot yet), one per plot given; returns their rows."""
         first = len(self.key)
-        m = len(key)
-        zero = np.zeros(m)
-        new = {"key": key, "n": np.zeros(m, np.int64), "t0": t, "x0": x, "y0": y, "last": t}
-        for name in self.COLUMNS:
-            setattr(self, name, np.concatenate([getattr(self, name), new.get(name, zero)]))
-        return np.arange(first, first + m, dtype=np.int64)
+        new = np.zeros((len(key), len(self.FIELDS)))
+        new[:, self.T0] = new[:, self.LAST] = t
+        new[:, self.X0], new[:, self.Y0] = x, y
+        self.key = np.concatenate([self.key, key])
+        self.values = np.concatenate([self.values, new])
+        return np.arange(first, first + len(key), dtype=np.int64)
 
     def mean(self, rows: IntArray) -> tuple[FloatArray, FloatArray]:
-        n = np.maximum(self.n[rows], 1)
-        return self.x0[rows] + self.sx[rows] / n, self.y0[rows] + self.sy[rows] / n
+        v = self.values[rows]
+        n = np.maximum(v[..., self.N], 1.0)
+        return v[..., self.X0] + v[..., self.SX] / n, v[..., self.Y0] + v[..., self.SY] / n
 
     def accumulate(
         self, rows: IntArray, t: FloatArray, x: FloatArray, y: FloatArray, var: FloatArray
     ) -> None:
-        dt, dx, dy = t - self.t0[rows], x - self.x0[rows], y - self.y0[rows]
-        np.add.at(self.n, rows, 1)
-        for name, value in (
-            ("st", dt),
-            ("sx", dx),
-            ("sy", dy),
-            ("stt", dt * dt),
-            ("stx", dt * dx),
-            ("sty", dt * dy),
-            ("var", var),
-        ):
-            np.add.at(getattr(self, name), rows, value)
-        np.maximum.at(self.last, rows, t)
+        v = self.values[rows]
+        dt, dx, dy = t - v[:, self.T0], x - v[:, self.X0], y - v[:, self.Y0]
+        terms = np.column_stack([np.ones(len(rows)), dt, dx, dy, dt * dt, dt * dx, dt * dy, var])
+        if len(np.unique(rows)) == len(rows):  # the rule: one plot per identity and area
+            self.values[rows[:, None], self.SUMS] += terms
+            self.values[rows, self.LAST] = np.maximum(v[:, self.LAST], t)
+            return
+        np.add.at(self.values, (rows[:, None], self.SUMS[None, :]), terms)
+        np.maximum.at(self.values[:, self.LAST], rows, t)
+
+    def plots(self, rows: IntArray) -> FloatArray:
+        plots: FloatArray = self.values[rows, self.N]
+        return plots
+
+    def span(self, rows: IntArray) -> FloatArray:
+        span: FloatArray = self.values[rows, self.LAST] - self.values[rows, self.T0]
+        return span
 
     def speed_bound(self, rows: IntArray, sigmas: FloatArray) -> FloatArray:
         """Least-squares speed of each candidate plus ``sigmas`` standard errors (m/s);
         infinite while its plots span no time."""
-        n = self.n[rows].astype(float)
-        s_tt = self.stt[rows] - self.st[rows] ** 2 / n
+        v = self.values[rows]
+        n = v[:, self.N]
+        st = v[:, self.ST]
+        s_tt = v[:, self.STT] - st**2 / n
         with np.errstate(divide="ignore", invalid="ignore"):
-            vx = (self.stx[rows] - self.st[rows] * self.sx[rows] / n) / s_tt
-            vy = (self.sty[rows] - self.st[rows] * self.sy[rows] / n) / s_tt
-            sigma_v = np.sqrt(self.var[rows] / n / s_tt)
+            vx = (v[:, self.STX] - st * v[:, self.SX] / n) / s_tt
+            vy = (v[:, self.STY] - st * v[:, self.SY] / n) / s_tt
+            sigma_v = np.sqrt(v[:, self.VAR] / n / s_tt)
             bound = np.hypot(vx, vy) + sigmas * sigma_v
         return np.where(s_tt > 1e-6, bound, np.inf)
 
@@ -356,8 +367,7 @@ class FixedTargets:
         min_duration = np.where(monitor, 0.0, cfg.min_duration_s)
         max_speed = np.where(monitor, cfg.site_monitor_max_speed_kt, cfg.max_speed_kt) * KT
         sigmas = np.where(monitor, cfg.site_monitor_speed_sigmas, cfg.speed_sigmas)
-        span = c.last[rows] - c.t0[rows]
-        enough = (c.n[rows] >= min_plots) & (span >= min_duration)
+        enough = (c.plots(rows) >= min_plots) & (c.span(rows) >= min_duration)
         return enough & (c.speed_bound(rows, sigmas) <= max_speed)
 
 
