@@ -41,7 +41,7 @@ FIXED_ADDRESS = 0x00020A
 AIRCRAFT = {"3C0001", "3C0002", "3C0003", "3C0004"}
 
 
-def scenario(bias: bool = False, reported_fl: float | None = None) -> Scenario:
+def scenario(bias: bool = False, reported_fl: float | None = None, rab: bool = False) -> Scenario:
     radar: dict[str, Any] = {
         "name": "R",
         "sac": 30,
@@ -54,7 +54,7 @@ def scenario(bias: bool = False, reported_fl: float | None = None) -> Scenario:
         "max_range_nm": 250.0,
         "sigma_range_m": 40.0,
         "sigma_azimuth_deg": 0.05,
-        "fixed_transponders": [FIXED | {"reported_fl": reported_fl}],
+        "fixed_transponders": [FIXED | {"reported_fl": reported_fl, "rab": rab}],
         "test_targets": [
             {"range_nm": 200.0, "azimuth_deg": 45.0, "mode3a": "7776", "fl": 660.0},
             {"range_nm": 15.0, "azimuth_deg": 300.0, "mode3a": None, "fl": None},
@@ -222,11 +222,12 @@ def test_slow_aircraft_and_helicopters_are_kept(which: str, request: pytest.Fixt
 # --- a surveyed fixed transponder as a field monitor ----------------------------------
 
 
-@pytest.fixture(scope="module")
-def biased(tmp_path_factory: pytest.TempPathFactory) -> Path:
+@pytest.fixture(scope="module", params=[False, True], ids=["rab0", "rab1"])
+def biased(tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest) -> Path:
     # The transponder sends a test level (FL719), not its height: the survey's is used.
+    # With RAB = 1 it is the same field monitor, configured as a fixed transponder only.
     out = tmp_path_factory.mktemp("biased") / "biased.mcap"
-    simulate(scenario(bias=True, reported_fl=719.0), out)
+    simulate(scenario(bias=True, reported_fl=719.0, rab=request.param), out)
     return out
 
 

@@ -10,8 +10,10 @@ keeps their plots out of traffic tracking, in two ways:
   and/or Mode 3/A code, with their surveyed position when known. A plot of that identity
   within ``tolerance_m`` of the surveyed position (in slant range and across it, so that
   an aircraft wearing the same code elsewhere is not taken) is fixed; without a position,
-  every plot of that identity is. A surveyed one is also a field monitor: its plots are
-  returned with the surveyed position in the plane, a bias reference like an RAB plot's.
+  every plot of that identity is. A surveyed one is also a field monitor, whether or not
+  it sets RAB: its plots are returned with the surveyed position in the plane, a bias
+  reference, and the conversion uses the surveyed height instead of its Mode C (site
+  monitors often send a test level such as FL719).
 - detected (``FixedTargetConfig``): per identity (Mode S address, else a validated Mode
   3/A code that is neither shared by many aircraft nor an emergency code; primary plots
   have none and are never taken), a candidate gathers the plots that fall within a small
@@ -307,7 +309,9 @@ class FixedTargets:
         self, table: npt.NDArray[Any], candidates: BoolArray, mode3a_valid: BoolArray
     ) -> Classification:
         """The fixed transponders among ``table``'s plots whose ``candidates`` is set (the
-        plots still meant for tracking); ``mode3a_valid``: each plot's code is usable."""
+        plots still meant for tracking); ``mode3a_valid``: each plot's code is usable.
+        The surveyed position is given for these and for field-monitor plots (RAB = 1)
+        of a configured transponder."""
         n = len(table)
         fixed = np.zeros(n, np.bool_)
         reference = np.full((n, 2), np.nan)
@@ -316,7 +320,8 @@ class FixedTargets:
         which = self._configured(address, mode3a, mode3a_valid, table["rho_m"], table["theta_deg"])
         configured = candidates & (which >= 0)
         fixed |= configured
-        reference[configured] = self._xy[which[configured]]
+        surveyed = (candidates | table["rab"]) & (which >= 0)
+        reference[surveyed] = self._xy[which[surveyed]]
         if self.config.detect:
             keys = identity_keys(address, mode3a, mode3a_valid)
             rows = np.flatnonzero(candidates & ~configured & (keys != NO_KEY))
