@@ -24,8 +24,11 @@ keeps their plots out of traffic tracking, in two ways:
   reserved for site monitors (``site_monitor_codes``) need a few scans; any other
   identity needs minutes of standing still below walking speed, so that a hovering
   helicopter is not lost: the test runs on every plot, so a target that starts to move
-  leaves the area (or fails the speed bound) and its plots are tracked again at once.
-  Candidates without a plot for ``stale_periods`` antenna periods are forgotten.
+  leaves the area (or fails the speed bound) and its plots are tracked again. Plots on
+  a site-monitor code within ``halo_m`` of a stationary target of their identity are
+  taken too: its reflections and split plots, which come and go too irregularly to
+  stand still on their own. Candidates without a plot for ``stale_periods`` antenna
+  periods are forgotten, stationary ones after ``fixed_memory_s``.
 
 Everything is per radar, on the radar's plot table (``chain.RAW_PLOT_DTYPE``), in arrays.
 """
@@ -108,7 +111,12 @@ class FixedTargetConfig:
     speed_sigmas: float = 2.0
     gate_sigmas: float = 3.0
     min_radius_m: float = 150.0
+    halo_m: float = 1852.0
+    """Plots on a site-monitor code this close to a stationary target of their identity
+    are its reflections and splits (canalA.gps: a 7777 ghost 1.5 km beside its monitor)."""
     stale_periods: float = 3.5
+    fixed_memory_s: float = 120.0
+    """A stationary target is remembered this long without a plot (missed scans)."""
 
     def __post_init__(self) -> None:
         for code in self.site_monitor_codes:
@@ -117,6 +125,9 @@ class FixedTargetConfig:
         if self.site_monitor_min_plots < 2 or self.min_plots < 2:
             raise ValueError("min_plots and site_monitor_min_plots must be at least 2")
         positive = ("site_monitor_max_speed_kt", "max_speed_kt", "gate_sigmas", "stale_periods")
+        for name in ("halo_m", "fixed_memory_s"):
+            if getattr(self, name) < 0.0:
+                raise ValueError(f"{name} must not be negative, not {getattr(self, name)}")
         for name in positive:
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be positive, not {getattr(self, name)}")
@@ -160,6 +171,8 @@ class _Candidates:
     def __init__(self) -> None:
         self.key = np.zeros(0, np.int64)
         self.values = np.zeros((0, len(self.FIELDS)))
+        self.fixed = np.zeros(0, np.bool_)
+        """Each candidate's latest verdict: stationary."""
 
     def __len__(self) -> int:
         return len(self.key)
@@ -171,6 +184,7 @@ class _Candidates:
     def keep(self, rows: IntArray) -> None:
         self.key = self.key[rows]
         self.values = self.values[rows]
+        self.fixed = self.fixed[rows]
 
     def add(self, key: IntArray, t: FloatArray, x: FloatArray, y: FloatArray) -> IntArray:
         """New candidates (no plot yet), one per plot given; returns their rows."""
@@ -180,6 +194,7 @@ class _Candidates:
         new[:, self.X0], new[:, self.Y0] = x, y
         self.key = np.concatenate([self.key, key])
         self.values = np.concatenate([self.values, new])
+        self.fixed = np.concatenate([self.fixed, np.zeros(len(key), np.bool_)])
         return np.arange(first, first + len(key), dtype=np.int64)
 
     def mean(self, rows: IntArray) -> tuple[FloatArray, FloatArray]:
@@ -341,11 +356,13 @@ class FixedTargets:
         sigma = _largest_sigma(np.asarray(plots["R"], np.float64))
         # Forget candidates that have gone quiet; keep the others sorted by identity, so
         # that each plot looks at its identity's few candidates only.
-        now = float(t.max())
+        now = float(np.median(t))  # one plot's wrong time does not age every candidate
         if len(c):
-            live = np.flatnonzero(c.last >= now - cfg.stale_periods * self.period_s)
+            memory = np.where(c.fixed, cfg.fixed_memory_s, cfg.stale_periods * self.period_s)
+            live = np.flatnonzero(c.last >= now - memory)
             c.keep(live[np.argsort(c.key[live], kind="stable")])
         rows = np.full(len(keys), -1, np.int64)
+        halo = np.zeros(len(keys), np.bool_)
         first = np.searchsorted(c.key, keys, "left")
         width = np.searchsorted(c.key, keys, "right") - first
         if width.any():
@@ -354,6 +371,8 @@ class FixedTargets:
             slots = np.where(mine, slots, 0)
             mx, my = c.mean(slots)
             d2 = (x[:, None] - mx) ** 2 + (y[:, None] - my) ** 2
+            near = (mine & c.fixed[slots] & (d2 <= cfg.halo_m**2)).any(axis=1)
+            halo = near & monitor
             radius = np.maximum(cfg.min_radius_m, cfg.gate_sigmas * sigma)
             d2 = np.where(mine & (d2 <= radius[:, None] ** 2), d2, np.inf)
             nearest = np.argmin(d2, axis=1)
@@ -364,7 +383,9 @@ class FixedTargets:
         if new.any():
             rows[new] = c.add(keys[new], t[new], x[new], y[new])
         c.accumulate(rows, t, x, y, sigma**2)
-        return self._stationary(rows, monitor)
+        stationary = self._stationary(rows, monitor)
+        c.fixed[rows] = stationary
+        return stationary | halo
 
     def _stationary(self, rows: IntArray, monitor: BoolArray) -> BoolArray:
         cfg, c = self.config, self._candidates
