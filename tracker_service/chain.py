@@ -12,6 +12,9 @@ plane of its own centred on an assumed site (the system centre): its local track
 shaped right, but without a surveyed site they are placed wrong, so they are kept out of
 fusion and bias estimation. Field-monitor plots (I020 RAB = 1) are a radar's test
 transponder at a surveyed position: never tracked, they are a reference for its biases.
+Test targets (I020 TST) and simulated reports (SIM) are never tracked either, nor fixed
+transponders (``fixed_targets``: configured or detected), the surveyed ones of which are
+bias references like field monitors.
 """
 
 from __future__ import annotations
