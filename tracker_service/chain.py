@@ -12,6 +12,9 @@ plane of its own centred on an assumed site (the system centre): its local track
 shaped right, but without a surveyed site they are placed wrong, so they are kept out of
 fusion and bias estimation. Field-monitor plots (I020 RAB = 1) are a radar's test
 transponder at a surveyed position: never tracked, they are a reference for its biases.
+Test targets (I020 TST) and simulated reports (SIM) are never tracked either, nor fixed
+transponders (``fixed_targets``: configured or detected), the surveyed ones of which are
+bias references like field monitors.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from tracker_service.bias import (
     make_bias_estimator,
     make_observations,
 )
+from tracker_service.fixed_targets import FixedTargetConfig, FixedTargets, FixedTransponder
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, References, SystemTracker
 from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
 from tracker_service.ingest import PlotClock
@@ -124,6 +128,13 @@ class PlotUse(IntEnum):
     """A CAT001 track report (I020 TYP = 1): the radar's own smoothed track, not a plot."""
     TIME_IMPLAUSIBLE = 3
     """Its time does not fit its radar's timeline (``time_sanity``)."""
+    TEST_TARGET = 4
+    """I020 TST = 1: a test target the radar injects (its check is in status)."""
+    SIMULATED = 5
+    """I020 SIM = 1: a simulated target report."""
+    FIXED_TRANSPONDER = 6
+    """A stationary transponder, configured or detected (``fixed_targets``); a bias
+    reference where its position is surveyed."""
 
 
 def rejections(use: npt.NDArray[np.int8]) -> dict[str, int]:
@@ -153,6 +164,7 @@ class RadarInfo:
     psr_sigma_range_m: float
     psr_sigma_azimuth_deg: float
     field_monitor: FieldMonitor | None = None
+    fixed_transponders: tuple[FixedTransponder, ...] = ()
     surveyed: bool = True
     """False for a radar the configuration does not know (an assumed site)."""
     time_base: TimeBase = "data"
@@ -187,6 +199,7 @@ def convert_batch(
     first_id: int,
     sequence: int,
     bias: FloatArray | None = None,
+    surveyed_height: FloatArray | None = None,
 ) -> tuple[npt.NDArray[Any], npt.NDArray[Any], FloatArray | None]:
     """One datagram's plots of one radar (``asterix.plots`` rows): timed, converted to the
     system plane, as the tracker's batch (``tracking.PLOT_DTYPE``), as a
@@ -196,7 +209,8 @@ def convert_batch(
 
     ``bias``: the radar's estimated systematic errors [range offset m, range gain,
     azimuth rad, time s], removed from the batch (not from the table, which keeps the
-    plots as the radar sent them)."""
+    plots as the radar sent them). ``surveyed_height``: per plot, the surveyed height (m
+    above MSL) of the fixed transponder it is, NaN for the others."""
     n = len(raw)
     times, time_sources = clock.times(raw, received)
     fl = np.asarray(raw["flight_level"], dtype=np.float64)
@@ -212,6 +226,11 @@ def convert_batch(
         # The test transponder's height is surveyed: better than its Mode C.
         height = np.where(rab, info.field_monitor.alt_m, height)
         height_sigma = np.where(rab, 0.0, height_sigma)
+    if surveyed_height is not None:
+        # A fixed transponder's Mode C is often a test value (FL719), not its height.
+        known = np.isfinite(surveyed_height)
+        height = np.where(known, surveyed_height, height)
+        height_sigma = np.where(known, 0.0, height_sigma)
     psr_only = raw["typ"] == 1
     sigma_rho = np.where(psr_only, info.psr_sigma_range_m, info.sigma_range_m)
     sigma_theta = np.where(psr_only, info.psr_sigma_azimuth_deg, info.sigma_azimuth_deg)
@@ -270,7 +289,11 @@ def convert_batch(
     table["kind"] = KIND_UNKNOWN
     table["aircraft"] = -1
     table["detection_time"] = np.nan
-    table["use"] = np.where(rab, PlotUse.FIELD_MONITOR, PlotUse.TRACKED)
+    table["use"] = np.select(
+        [rab, np.asarray(raw["tst"]) == 1, np.asarray(raw["sim"]) == 1],
+        [PlotUse.FIELD_MONITOR, PlotUse.TEST_TARGET, PlotUse.SIMULATED],
+        PlotUse.TRACKED,
+    )
     table["use"][raw["track_report"] == 1] = PlotUse.RADAR_TRACK
     if bias is not None and c is not None:
         # The table keeps the plots as sent: uncorrected, to first order.
@@ -305,6 +328,7 @@ class RadarState:
     tracker: LocalTracker
     index: int | None
     """The radar's number in fusion and bias estimation; None when kept out of them."""
+    fixed: FixedTargets
     sequence: int = 0
     clock_resyncs: int = 0
     """Re-synchronisations of its tracker's clock already seen."""
@@ -314,6 +338,9 @@ class RadarState:
     """(jump, the tracker's clock after it) of the latest."""
     settled_offset: float | None = None
     """Its offset from reception at its tracker's latest re-synchronisation (or start)."""
+    monitor_xy: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    """Per plot of the latest batch, the surveyed position of the field monitor or fixed
+    transponder it is (NaN for the others): the bias estimator's monitor observations."""
 
 
 @dataclass
@@ -339,8 +366,10 @@ class Chain:
         fusion: FusionConfig | None = None,
         bias: BiasConfig | None = None,
         time_sanity: TimeSanityConfig | None = None,
+        fixed_targets: FixedTargetConfig | None = None,
     ) -> None:
         self.infos = dict(radars)
+        self.fixed_targets = fixed_targets or FixedTargetConfig()
         self.plane = plane
         # Fusion numbers the configured radars in SAC/SIC order, so that the same
         # configuration numbers them the same way in every run.
@@ -431,7 +460,10 @@ class Chain:
         overrides = {"scan_period_s": info.period_s, **self._tracker_overrides}
         config = TrackerConfig(**overrides)
         index = self.sources.index(source) if info.surveyed else None
-        state = RadarState(info, plane, config, self._make_tracker(source, config), index)
+        fixed = FixedTargets(
+            info.site, plane, info.period_s, info.fixed_transponders, self.fixed_targets
+        )
+        state = RadarState(info, plane, config, self._make_tracker(source, config), index, fixed)
         self.radars[source] = state
         return state
 
@@ -466,6 +498,7 @@ class Chain:
             self._next_plot_id,
             state.sequence,
             bias,
+            state.fixed.surveyed_heights(raw),
         )
         times, implausible = self.time_sanity.check(
             source, table["time"], table["time_source"], table["theta_deg"], received
@@ -483,6 +516,7 @@ class Chain:
         n_monitor = int(np.count_nonzero(monitor))
         if n_monitor:
             self.stats.field_monitor_plots += n_monitor
+        self._fixed_transponders(state, table, batch)
         # The batch keeps the tracker's plots only; the table keeps every plot with its use.
         tracked = table["use"] == PlotUse.TRACKED
         if not tracked.all():
@@ -531,6 +565,21 @@ class Chain:
             report, clock_resyncs=state.clock_jumps, last_clock_jump_s=jump, last_clock_jump_at=at
         )
 
+    def _fixed_transponders(
+        self, state: RadarState, table: npt.NDArray[Any], batch: npt.NDArray[Any]
+    ) -> None:
+        """Marks the table's fixed transponders (``fixed_targets``) and keeps, per plot, the
+        surveyed position of each field monitor and surveyed fixed transponder."""
+        found = state.fixed.classify(
+            table, table["use"] == PlotUse.TRACKED, np.asarray(batch["mode3a_valid"])
+        )
+        table["use"][found.fixed] = PlotUse.FIXED_TRANSPONDER
+        monitor_xy = found.reference_xy
+        surveyed = self._monitors.get(state.info.source)
+        if surveyed is not None:
+            monitor_xy[table["rab"]] = surveyed
+        state.monitor_xy = monitor_xy
+
     def _estimate_biases(
         self,
         state: RadarState,
@@ -558,9 +607,8 @@ class Chain:
             traffic = self._traffic_observations(radar, table, batch, local, c, bias, relative)
             if traffic is not None:
                 observations.append(traffic)
-        monitor = np.flatnonzero(table["rab"])
-        surveyed = self._monitors.get(state.info.source)
-        if monitor.size and surveyed is not None:
+        monitor = np.flatnonzero(np.isfinite(state.monitor_xy[:, 0]))
+        if monitor.size:
             observations.append(
                 make_observations(
                     n_radars,
@@ -569,7 +617,7 @@ class Chain:
                     np.column_stack([table["x"][monitor], table["y"][monitor]]),
                     table["R"][monitor],
                     c[monitor],
-                    np.broadcast_to(surveyed, (monitor.size, 2)),
+                    state.monitor_xy[monitor],
                     np.broadcast_to(np.eye(2) * MONITOR_SURVEY_VARIANCE_M2, (monitor.size, 2, 2)),
                     kind=ObservationKind.FIELD_MONITOR,
                 )

@@ -210,6 +210,23 @@ class BiasMessage(_Message):
     time_s: Estimate
 
 
+class RadarTestTarget(_Message):
+    """A test target the radar injects (I020 TST = 1), as last seen: the radar's own check
+    that its chain works. Kept out of traffic tracking."""
+
+    kind: Literal["primary", "secondary"]
+    """primary: a PSR-only test target; secondary: an SSR or Mode S test transponder."""
+    mode3a: Mode3A | None = None
+    seen: Annotated[int, Field(ge=1)]
+    """Its plots since start."""
+    last_time: float
+    """Time of measurement of its latest plot, POSIX s."""
+    range_nm: Annotated[float, Field(ge=0.0)]
+    """Its latest plot's slant range (I040 RHO) and azimuth (THETA), as sent."""
+    azimuth_deg: Annotated[float, Field(ge=0.0, lt=360.0)]
+    flight_level: float | None = None
+
+
 class RadarStatus(_Message):
     radar: RadarKey
     last_plot_time: float | None = None
@@ -224,6 +241,8 @@ class RadarStatus(_Message):
     """Its data time minus its reception time (median of recent datagrams and north
     markers); None until measured. Beyond a few seconds: a replayed capture or a wrong
     clock (see ``reasons``)."""
+    test_targets: list[RadarTestTarget] = Field(default_factory=list)
+    """The radar's test targets, one per kind and code."""
 
 
 class StatusMessage(_Message):

@@ -3,7 +3,8 @@
 Sections: ``[[radars]]`` (sites, accuracy, UDP inputs), ``[[adsb]]`` (ADS-B feeds),
 ``[system]`` (the system plane and the tracker's own SAC/SIC), ``[tracker]`` (fields of
 ``tracking.TrackerConfig``), ``[fusion]``, ``[bias]`` and ``[time_sanity]`` (free tables),
-``[zenoh]`` and ``[mcap]``. Units are in the names, as in the scenario files.
+``[fixed_targets]`` (fields of ``fixed_targets.FixedTargetConfig``), ``[zenoh]`` and
+``[mcap]``. Units are in the names, as in the scenario files.
 """
 
 from __future__ import annotations
@@ -16,10 +17,11 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from tracker_service.fixed_targets import FixedTargetConfig
 from tracker_service.geodesy.plane import PlaneKind
 from tracker_service.simulator.scenario import FieldMonitor
 from tracker_service.tracking import TrackerConfig
-from tracker_service.validation import describe_errors
+from tracker_service.validation import dataclass_kwargs, describe_errors
 
 ANY_ADDRESS = IPv4Address("0.0.0.0")
 TRACKER_FIELDS = {f.name: f for f in dataclasses.fields(TrackerConfig)}
@@ -59,6 +61,47 @@ class Input(Lan):
         return [first] if self.second_lan is None else [first, self.second_lan]
 
 
+class FixedTransponder(_Strict):
+    """A stationary transponder the radar sees (a site monitor sending RAB = 0, say): never
+    tracked; with its surveyed position, a field monitor for the radar's biases."""
+
+    name: str = ""
+    address: str | None = None
+    """Mode S address, 6 hex digits."""
+    mode3a: str | None = None
+    """Mode 3/A code, 4 octal digits."""
+    lat: Annotated[float, Field(ge=-90.0, le=90.0)] | None = None
+    lon: Annotated[float, Field(ge=-180.0, le=180.0)] | None = None
+    alt_m: float | None = None
+    """Height above mean sea level of the transponder's antenna."""
+    tolerance_m: Annotated[float, Field(gt=0.0, le=20_000.0)] = 1000.0
+    """How far from the surveyed position (in range, and across) a plot of its identity is
+    still taken as this transponder: the radar's biases and noise at that range."""
+
+    @field_validator("address")
+    @classmethod
+    def _address(cls, value: str | None) -> str | None:
+        if value is not None and (len(value) != 6 or set(value.upper()) - set("0123456789ABCDEF")):
+            raise ValueError(f"address {value!r} must be 6 hex digits, e.g. '00020A'")
+        return value
+
+    @field_validator("mode3a")
+    @classmethod
+    def _mode3a(cls, value: str | None) -> str | None:
+        if value is not None and (len(value) != 4 or set(value) - set("01234567")):
+            raise ValueError(f"mode3a {value!r} must be 4 octal digits, e.g. '7777'")
+        return value
+
+    @model_validator(mode="after")
+    def _complete(self) -> FixedTransponder:
+        if self.address is None and self.mode3a is None:
+            raise ValueError("a fixed transponder needs its address or its mode3a (or both)")
+        position = (self.lat, self.lon, self.alt_m)
+        if any(v is None for v in position) and any(v is not None for v in position):
+            raise ValueError("a surveyed position needs lat, lon and alt_m together")
+        return self
+
+
 class Radar(_Strict):
     name: str
     sac: Sac
@@ -76,6 +119,8 @@ class Radar(_Strict):
     psr_sigma_range_m: Annotated[float, Field(gt=0.0)] | None = None
     psr_sigma_azimuth_deg: Annotated[float, Field(gt=0.0)] | None = None
     field_monitor: FieldMonitor | None = None
+    fixed_transponders: list[FixedTransponder] = []
+    """Stationary transponders, by address and/or code, surveyed or not: never tracked."""
     reference: bool = False
     """The radar's systematic errors are known (surveyed): the bias filters anchor on it."""
     time_base: Literal["data", "reception"] = "data"
@@ -174,6 +219,7 @@ class ServiceConfig(_Strict):
     bias: dict[str, Any] = {}
     time_sanity: dict[str, Any] = {}
     """Fields of ``time_sanity.TimeSanityConfig`` (tolerances of the plots' times)."""
+    fixed_targets: dict[str, Any] = {}
     zenoh: ZenohConfig = ZenohConfig()
     mcap: McapConfig = McapConfig()
 
@@ -186,6 +232,19 @@ class ServiceConfig(_Strict):
                 f"unknown tracker setting(s) {unknown}; allowed: {sorted(TRACKER_FIELDS)}"
             )
         return table
+
+    @field_validator("fixed_targets")
+    @classmethod
+    def _fixed_targets(cls, table: dict[str, Any]) -> dict[str, Any]:
+        # Its checks raise ValueError naming the setting; pydantic adds the table's name.
+        FixedTargetConfig(**dataclass_kwargs("fixed_targets", table, FixedTargetConfig))
+        return table
+
+    def fixed_target_config(self) -> FixedTargetConfig:
+        """How the chain detects stationary transponders: the ``[fixed_targets]`` table."""
+        return FixedTargetConfig(
+            **dataclass_kwargs("fixed_targets", self.fixed_targets, FixedTargetConfig)
+        )
 
     @model_validator(mode="after")
     def _unique(self) -> ServiceConfig:

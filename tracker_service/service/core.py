@@ -34,6 +34,7 @@ from tracker_service.chain import (
     rejections,
     source_order,
 )
+from tracker_service.fixed_targets import FixedTransponder
 from tracker_service.fusion import COASTING, ENDED, FusionConfig
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
@@ -53,6 +54,7 @@ from tracker_service.outputs.messages import (
 )
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.service.config import ServiceConfig, parse_service_config
+from tracker_service.test_targets import SeenTestTargets
 from tracker_service.time_sanity import TimeReport, TimeSanityConfig, status_reasons
 from tracker_service.tracking import LocalTracker, TrackerConfig
 from tracker_service.validation import dataclass_kwargs
@@ -106,6 +108,18 @@ def radar_key(name: str) -> str:
     return name.replace("_", "/")
 
 
+def _fixed_transponder(entry: Any) -> FixedTransponder:
+    return FixedTransponder(
+        address=None if entry.address is None else int(entry.address, 16),
+        mode3a=None if entry.mode3a is None else int(entry.mode3a, 8),
+        lat_deg=entry.lat,
+        lon_deg=entry.lon,
+        alt_m=entry.alt_m,
+        tolerance_m=entry.tolerance_m,
+        name=entry.name,
+    )
+
+
 def _radar_info(radar: Any) -> RadarInfo:
     monitor = radar.field_monitor
     return RadarInfo(
@@ -120,6 +134,7 @@ def _radar_info(radar: Any) -> RadarInfo:
             None if monitor is None else FieldMonitor(monitor.lat, monitor.lon, monitor.alt_m)
         ),
         time_base=radar.time_base,
+        fixed_transponders=tuple(_fixed_transponder(e) for e in radar.fixed_transponders),
     )
 
 
@@ -159,6 +174,7 @@ def build_chain(
         fusion=fusion,
         bias=bias_config(config),
         time_sanity=time_sanity,
+        fixed_targets=config.fixed_target_config(),
     )
 
 
@@ -238,6 +254,7 @@ class _RadarCounters:
     decode_errors: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
     time: TimeReport | None = None
+    test_targets: SeenTestTargets = field(default_factory=SeenTestTargets)
 
 
 @dataclass
@@ -335,6 +352,7 @@ class Outputs:
         if len(plots):
             counters.last_plot_time = float(plots["time"].max())
             counters.rejected.update(rejections(plots["use"]))
+            counters.test_targets.update(plots)
         if output.time is not None:
             counters.time = output.time
         named = plots[(plots["address"] >= 0) & (plots["callsign"] != "")]
@@ -590,6 +608,7 @@ class Outputs:
                     drops=inputs.dropped,
                     rejected=dict(sorted(counters.rejected.items())),
                     time_offset_s=None if counters.time is None else counters.time.offset_s,
+                    test_targets=counters.test_targets.checks(),
                 )
             )
         return StatusMessage(

@@ -21,7 +21,16 @@ from asterix import encode_block, encode_record
 from asterix.bds import encode_bds40, encode_bds50, encode_bds60
 from tracker_service.simulator import geometry
 from tracker_service.simulator.cat001 import cat001_plot
-from tracker_service.simulator.scenario import NM, Radar, Scenario, SystematicErrors, Wandering
+from tracker_service.simulator.scenario import (
+    NM,
+    FieldMonitor,
+    FixedTransponder,
+    Radar,
+    Scenario,
+    SystematicErrors,
+    TestTarget,
+    Wandering,
+)
 from tracker_service.simulator.trajectories import Truth
 
 FloatArray = npt.NDArray[Any]  # float64 arrays; numpy arithmetic widens the static type
@@ -282,7 +291,12 @@ class RadarModel:
             plot = self._plot(int(a), float(t[i]), int(scan[i]), m, i, typ, ssr, mode_s)
             out.append(plot)
             out.extend(self._pathologies(plot, int(a), ssr))
-        out.extend(self._field_monitor_plots())
+        if self.radar.field_monitor is not None:
+            out.extend(self._fixed_plots(self.radar.field_monitor))
+        for transponder in self.radar.fixed_transponders:
+            out.extend(self._fixed_plots(transponder))
+        for target in self.radar.test_targets:
+            out.extend(self._test_target_plots(target))
         out.extend(self._clutter_plots())
         out.sort(key=lambda p: p.detection_time)
         return out
@@ -453,10 +467,10 @@ class RadarModel:
             )
         return extra
 
-    def _field_monitor_plots(self) -> list[Plot]:
-        monitor = self.radar.field_monitor
-        if monitor is None:
-            return []
+    def _fixed_plots(self, monitor: FieldMonitor) -> list[Plot]:
+        """A stationary transponder's plots: the field monitor (RAB = 1) or a fixed
+        transponder, measured with the radar's errors like any SSR plot."""
+        rab = monitor.rab if isinstance(monitor, FixedTransponder) else True
         n = geometry.geoid_undulation_m(monitor.lat, monitor.lon)
         x, y, z = geometry.geodetic_to_ecef(monitor.lat, monitor.lon, monitor.alt_m + n)
         rho, azimuth, _ = geometry.measure(self.site, x, y, z)
@@ -471,6 +485,8 @@ class RadarModel:
             )
             / 100.0
         )
+        if isinstance(monitor, FixedTransponder) and monitor.reported_fl is not None:
+            fl = monitor.reported_fl
         pd = self.radar.pd_mode_s if monitor.address else self.radar.pd_ssr
         out = []
         for scan in range(self.scans):
@@ -483,7 +499,7 @@ class RadarModel:
                 "SIM": 0,
                 "RDP": 0,
                 "SPI": 0,
-                "RAB": 1,
+                "RAB": int(rab),
             }
             record["070"] = {"V": 0, "G": 0, "L": 0, "MODE3A": monitor.mode3a}
             record["090"] = {"V": 0, "G": 0, "FL": _quantise(fl, 0.25)}
@@ -503,6 +519,43 @@ class RadarModel:
                     },
                 )
             )
+        return out
+
+    def _test_target_plots(self, target: TestTarget) -> list[Plot]:
+        """A test target injected at the radar's processor: at its exact range and azimuth
+        (no measurement error), each scan when the beam passes its azimuth."""
+        out = []
+        flag = {"TST": 1, "ERR": 0} if target.flag == "tst" else {}
+        for scan in range(self.scans):
+            t = self.crossing_time(target.azimuth_deg, scan)
+            if t >= self.duration:
+                continue
+            record: dict[str, Any] = {
+                "010": {"SAC": self.radar.sac, "SIC": self.radar.sic},
+                "140": self.time_of_day(t + self.bias.time_s[scan]),
+            }
+            _set_polar(record, target.range_nm, target.azimuth_deg)
+            record["020"] = {
+                "TYP": 1 if target.mode3a is None else 2,
+                "SIM": int(target.flag == "sim"),
+                "RDP": 0,
+                "SPI": 0,
+                "RAB": 0,
+                **flag,
+            }
+            if target.mode3a is not None:
+                record["070"] = {"V": 0, "G": 0, "L": 0, "MODE3A": target.mode3a}
+                if target.fl is not None:
+                    record["090"] = {"V": 0, "G": 0, "FL": _quantise(target.fl, 1.0)}
+            origin = {
+                "kind": "field_monitor",
+                "aircraft": None,
+                "true_range_m": target.range_nm * NM,
+                "true_azimuth_deg": target.azimuth_deg,
+                "true_fl": target.fl,
+                "psr_only": target.mode3a is None,
+            }
+            out.append(Plot(t, int(self.sector_of(np.array([t]))[0]), record, origin))
         return out
 
     def _clutter_plots(self) -> list[Plot]:

@@ -83,6 +83,31 @@ class FieldMonitor(_Strict):
     _code = field_validator("mode3a")(lambda v: _octal_code(v))
 
 
+class FixedTransponder(FieldMonitor):
+    """A stationary transponder that does not say so (RAB = 0 unless ``rab``), e.g. a
+    site monitor on code 7777; ``reported_fl``: the test level it sends as Mode C (a
+    site monitor's is often not its height), its true pressure altitude when unset."""
+
+    rab: bool = False
+    reported_fl: Annotated[float, Field(ge=-12.0, le=1270.0)] | None = None
+
+
+class TestTarget(_Strict):
+    """A test target the radar injects into its own plots, exactly at ``range_nm`` and
+    ``azimuth_deg`` (no error), flagged I020 TST (or SIM with ``flag = "sim"``); without
+    ``mode3a`` a primary test target, else an SSR one at ``fl``."""
+
+    __test__ = False  # not a pytest class
+
+    range_nm: Annotated[float, Field(gt=0.0, lt=256.0)] = 200.0
+    azimuth_deg: Annotated[float, Field(ge=0.0, lt=360.0)] = 45.0
+    mode3a: str | None = "7776"
+    fl: Annotated[float, Field(ge=-12.0, le=1270.0)] | None = 660.0
+    flag: Literal["tst", "sim"] = "tst"
+
+    _code = field_validator("mode3a")(lambda v: v if v is None else _octal_code(v))
+
+
 class Output(_Strict):
     """Where the radar's datagrams go in a .pcap (and later a live feed)."""
 
@@ -134,6 +159,8 @@ class Radar(_Station):
     clutter: Clutter = Clutter()
     pathologies: Pathologies = Pathologies()
     field_monitor: FieldMonitor | None = None
+    fixed_transponders: list[FixedTransponder] = []
+    test_targets: list[TestTarget] = []
     dual_lan: bool = False
     output: Output = Output()
     asterix: Literal["cat048", "cat001"] = "cat048"
