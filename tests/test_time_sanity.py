@@ -532,8 +532,14 @@ def test_a_corrupt_i140_at_a_real_radars_midnight(tmp_path: Path) -> None:
     data = bytearray(original)
     units = [d for d in read_file(shared_file("croatiacontrol/parsegps.gps"))]
     datagrams = [d for d in units if isinstance(d, Datagram) and d.payload[0] == 48]
-    target = next(d for d in datagrams if len(extract_plots(d.payload).plots) > 1)
-    changed = retimed(target.payload, lambda i, t: 19711.0 if i == 1 else t, ("140",))
+    # An aircraft's plot (not the capture's test target or its 7777 site monitor).
+    target, index = next(
+        (d, int(aircraft[0]))
+        for d in datagrams[1:]  # not the first plot: a radar's timeline needs one
+        if len(plots := extract_plots(d.payload).plots)
+        and len(aircraft := np.flatnonzero((plots["tst"] != 1) & (plots["mode3a"] != 0o7777)))
+    )
+    changed = retimed(target.payload, lambda i, t: 19711.0 if i == index else t, ("140",))
     assert len(changed) == len(target.payload)
     data[target.offset : target.offset + len(changed)] = changed
     faulty_file = tmp_path / "parsegps.gps"
@@ -541,7 +547,8 @@ def test_a_corrupt_i140_at_a_real_radars_midnight(tmp_path: Path) -> None:
     faulty = track_capture(faulty_file, NOMINAL_SITE_068)
     (run_clean,) = clean_run.values()
     (run_faulty,) = faulty.values()
-    assert np.all(run_clean.plots["use"] == PlotUse.TRACKED)
+    # Its test target and its site monitor (7777) are kept out too, for their own reasons.
+    assert not np.any(run_clean.plots["use"] == PlotUse.TIME_IMPLAUSIBLE)
     rejected = run_faulty.plots["use"] == PlotUse.TIME_IMPLAUSIBLE
     assert int(np.count_nonzero(rejected)) == 1
     kept = run_faulty.plots[~rejected]
