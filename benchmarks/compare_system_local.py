@@ -6,7 +6,8 @@ the state the update produced) and the velocity difference between the system tr
 the local track at the same plot. With one radar and no bias reference, the system track
 should follow its local track (issue 10 finding 5).
 
-    python benchmarks/compare_system_local.py ../shared/data/asterix/reader_network/068test_bds30.gps
+    python benchmarks/compare_system_local.py \
+        ../shared/data/asterix/reader_network/068test_bds30.gps
 """
 
 from __future__ import annotations
