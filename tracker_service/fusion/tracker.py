@@ -456,13 +456,22 @@ class SystemTracker:
 
     def _distance(self, local: IntArray, system: IntArray) -> FloatArray:
         """Chi-square distance (4 dof) of local tracks and system tracks at the local
-        tracks' times (the system tracks predicted there)."""
+        tracks' times (the system tracks predicted there: by their IMM in the "plots"
+        method, which follows a turn the local track's IMM follows; a constant-velocity
+        prediction, with its residual bias no longer widening the gate of a radar's own
+        system track, cut aircraft that turned out of their system tracks)."""
         if local.size == 0:
             return np.zeros(0)
         loc, sys = self._loc, self._sys
         t = loc["t"][local]
         dt = t - sys["t"][system]
-        xs, ps = predict_cv(sys["x"][system], sys["P"][system], dt, self.config.q)
+        if self.config.method == "plots":
+            own = sys[system]
+            pred = consider.predict(own["mx"], own["mP"], own["mM"], own["mu"], dt, self.models)
+            xs, ps, moved = pred.imm.x_comb, pred.imm.P_comb, pred.M_comb
+        else:
+            xs, ps = predict_cv(sys["x"][system], sys["P"][system], dt, self.config.q)
+            moved = np.einsum("kab,klbc->klac", cv_transition(dt), sys["M"][system])
         d = loc["x"][local] - xs
         # The residual biases: the local track carries its radar's whole, the system
         # track its shares of each radar's (M). Before the biases are known, two radars'
@@ -470,7 +479,7 @@ class SystemTracker:
         # track only it feeds share the same bias, which cancels.
         radar = loc["radar"][local]
         rows = np.arange(local.size)
-        m = -np.einsum("kab,klbc->klac", cv_transition(dt), sys["M"][system])
+        m = -moved
         m[rows, radar] += consider.POSITION
         b = sys["B"][system].copy()
         b[rows, radar] = loc["extra"][local]
