@@ -37,6 +37,7 @@ import numpy.typing as npt
 from asterix.codec import Block, decode_blocks
 from asterix.containers import Datagram, read_file
 from asterix.plots import extract_plots
+from tracker_service.bias import BiasConfig
 from tracker_service.chain import (
     NM,
     SERVICE_CATEGORIES,
@@ -45,6 +46,7 @@ from tracker_service.chain import (
     blocks_of,
     source_order,
 )
+from tracker_service.fusion import FusionConfig
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.ingest import DAY_S
 from tracker_service.tracking import CONFIRMED, TrackerConfig
@@ -82,6 +84,9 @@ class CaptureRun:
     plots: npt.NDArray[Any]  # RAW_PLOT_DTYPE, in processing order
     tracker_config: TrackerConfig
     stats: dict[str, int]
+    system: npt.NDArray[Any] | None = None
+    """The system-track rows (``fusion.SYSTEM_UPDATE_DTYPE``) of this radar's batches, when
+    ``track_capture`` was given a ``fusion`` configuration."""
 
 
 def _source(sac: int, sic: int) -> str:
@@ -140,6 +145,8 @@ def track_capture(
     tracker_config: TrackerConfig | None = None,
     *,
     day_posix: float = DEFAULT_DAY_POSIX,
+    fusion: FusionConfig | None = None,
+    bias: BiasConfig | None = None,
 ) -> dict[str, CaptureRun]:
     """Track every radar of a capture; see the module docstring.
 
@@ -147,7 +154,8 @@ def track_capture(
     tracked at an assumed site, with a warning: see ``tracker_service.chain``). ``plane``:
     the system plane, centred on the (first) site by default. ``tracker_config``: the
     tracker's tunables; its ``scan_period_s`` is replaced by the radar's north-marker period
-    when the capture has one."""
+    when the capture has one. ``fusion`` and ``bias``: fuse the local tracks into system
+    tracks (and estimate the biases), as the service does."""
     datagrams = [d for d in read_file(path) if isinstance(d, Datagram)]
     reception = _reception_times(datagrams, day_posix)
     periods = north_marker_periods(datagrams)
@@ -173,13 +181,15 @@ def track_capture(
     }
     overrides = dataclasses.asdict(base)
     del overrides["scan_period_s"]  # each radar's own, from its north markers
-    chain = Chain(infos, plane, overrides)
+    chain = Chain(infos, plane, overrides, fusion=fusion, bias=bias)
     updates: dict[str, list[npt.NDArray[Any]]] = defaultdict(list)
     tables: dict[str, list[npt.NDArray[Any]]] = defaultdict(list)
+    system: dict[str, list[npt.NDArray[Any]]] = defaultdict(list)
     for datagram, received in zip(datagrams, reception, strict=True):
         for output in chain.feed(datagram.payload, received):
             updates[output.source].append(output.local)
             tables[output.source].append(output.plots)
+            system[output.source].append(output.system)
 
     out: dict[str, CaptureRun] = {}
     for source in sorted(chain.radars, key=source_order):
@@ -190,6 +200,7 @@ def track_capture(
             np.concatenate(tables[source]),
             radar.tracker_config,
             dataclasses.asdict(radar.tracker.stats),
+            np.concatenate(system[source]) if fusion is not None else None,
         )
     return out
 
