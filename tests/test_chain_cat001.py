@@ -14,9 +14,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from asterix import encode_block
 from asterix.containers import Datagram, read_file
 from tests.conftest import REPO, shared_file
-from tracker_service.chain import Chain, PlotUse
+from tracker_service.chain import Chain, PlotUse, rejections
 from tracker_service.geodesy import SystemPlane
 from tracker_service.ingest import TimeSource
 from tracker_service.service.config import load_service_config
@@ -100,3 +101,21 @@ def test_replay_of_the_capture_tracks_the_radar(tmp_path: Path) -> None:
     assert radar.decode_errors == 0 and radar.last_plot_time is not None
     stats = service.chain.radars["20/130"].tracker.stats
     assert stats.tracks_confirmed >= 30 and stats.plots_associated > 0.85 * stats.plots
+
+
+def test_track_reports_are_kept_out_of_tracking() -> None:
+    """A CAT001 track record (I020 TYP = 1) is the radar's own smoothed track: counted as
+    such, never fed to our tracker as a measurement."""
+    source = {"SAC": 20, "SIC": 130}
+    plot = {
+        "010": source,
+        "020": {"TYP": 0, "SIM": 0, "SSRPSR": 2, "ANT": 0, "SPI": 0, "RAB": 0},
+        "040": {"RHO": 50.0, "THETA": 10.0},
+        "141": 100.0,
+    }
+    track = {**plot, "020": {**plot["020"], "TYP": 1}, "161": 12}
+    chain = Chain({}, SystemPlane(40.4, -3.7))
+    (output,) = chain.feed(encode_block(1, [plot, track]), DAY + 100.5)
+    assert output.plots["use"].tolist() == [PlotUse.TRACKED, PlotUse.RADAR_TRACK]
+    assert rejections(output.plots["use"]) == {"radar_track": 1}
+    assert chain.radars["20/130"].tracker.stats.plots == 1
