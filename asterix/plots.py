@@ -409,10 +409,11 @@ _ABSENT = {
     for cat, fields in _FIELDS.items()
 }
 """The number columns a category never fills (NaN or -1 in all its rows)."""
-SMALL_BATCH = 6
+SMALL_BATCH = 24
 """Up to this many records of a category, a datagram's plots are read record by record in
-Python: numpy's per-call cost (about 20 calls per column) outweighs its per-row gain. Many
-CAT001 radars send one plot a datagram."""
+Python: numpy's per-call cost (a few calls per column, for some 25 columns) outweighs its
+per-row gain. Measured crossover: 30-50 records (CAT048 and CAT001). Many CAT001 radars
+send one plot a datagram."""
 _ROW_FIELDS = {
     cat: tuple(
         (

@@ -206,3 +206,19 @@ def test_cat002_north_markers_time_plots_without_any_time() -> None:
     times, sources = clock.times(plots, MIDNIGHT + 1003.0)
     assert sources.tolist() == [TimeSource.AZIMUTH]
     assert abs(times[0] - (MIDNIGHT + 1000.0 + plots["theta"][0] / 360.0 * 4.0)) < 1e-9
+
+
+def test_antenna_period_from_north_markers_without_i041() -> None:
+    clock = PlotClock()
+    assert clock.antenna_period(20, 130) is None
+    for tod in (1000.0, 1004.0):
+        clock.service_message(_cat002(1, tod), MIDNIGHT + tod + 0.1)
+    assert clock.antenna_period(20, 130) == 4.0
+    # A lost north marker: one turn looks 8 s long and is not taken.
+    clock.service_message(_cat002(1, 1012.0), MIDNIGHT + 1012.1)
+    assert clock.antenna_period(20, 130) == 4.0
+    clock.service_message(_cat002(1, 1016.0), MIDNIGHT + 1016.1)
+    assert clock.antenna_period(20, 130) == 4.0
+    # Sector messages say nothing of the period.
+    clock.service_message(_cat002(2, 1017.0), MIDNIGHT + 1017.1)
+    assert clock.antenna_period(20, 130) == 4.0

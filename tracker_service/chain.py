@@ -1,7 +1,7 @@
 """The processing chain: datagrams of radars in, plots, local tracks and system tracks out.
 
 One ``Chain`` holds every stage after the codec: the plot clock (``ingest.PlotClock``, fed
-with the CAT034 service messages), the conversion to the system plane (``geodesy``), one
+with the CAT034 and CAT002 service messages), the conversion to the system plane (``geodesy``), one
 ``LocalTracker`` per radar, and, once configured, the bias estimator and the fuser. The
 evaluation, the replay and the daemon all feed it datagrams in the order they have them;
 it keeps nothing of theirs. Each radar is identified by the SAC/SIC its plots carry, not
@@ -178,7 +178,7 @@ def source_order(source: str) -> tuple[int, ...]:
 
 def blocks_of(payload: bytes, category: int) -> Iterator[bytes]:
     """The data blocks of one category in a datagram, by their headers alone (cheap: the
-    plot path needs CAT034 decoded, not every block)."""
+    plot path needs the service messages decoded, not every block)."""
     pos = 0
     while pos + 3 <= len(payload):
         length = int.from_bytes(payload[pos + 1 : pos + 3])

@@ -75,8 +75,8 @@ class TimeSource(IntEnum):
     AZIMUTH = 1
     """No I140: the last north marker plus the beam's travel to the plot's azimuth."""
     RECEPTION = 2
-    """No I140 and no CAT034 yet: the datagram's reception time (late by the sector's
-    buffering and the network)."""
+    """No time item and no north marker (CAT034 or CAT002) yet: the datagram's reception
+    time (late by the sector's buffering and the network)."""
     I141_SERVICE = 3
     """CAT001 I141 (the time of day modulo 512 s) unrolled on the radar's own time: its
     last north marker or sector message (CAT002 I030), advanced by the reception time
