@@ -166,9 +166,9 @@ class TrackSet:
     """A set of tracks: one radar's local tracks or the system tracks. ``rows``: every
     update (``track_update_dtype`` or ``SYSTEM_UPDATE_DTYPE``) in processing order;
     ``number``: the field that numbers the tracks, unique per track (a number used again
-    after its track ended is offset, see ``track_instances``); ``q_of``: each row's white-acceleration
-    intensity for the prediction that follows it (m^2/s^3); ``deletion_gap_s``: the
-    longest plot gap a confirmed track survives."""
+    after its track ended is offset, see ``track_instances``); ``q_of``: each row's
+    white-acceleration intensity for the prediction that follows it (m^2/s^3);
+    ``deletion_gap_s``: the longest plot gap a confirmed track survives."""
 
     name: str
     rows: npt.NDArray[Any]
