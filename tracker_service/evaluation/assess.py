@@ -104,6 +104,7 @@ __all__ = [
     "run",
     "run_recording",
     "stretch_changes",
+    "suspect_tracks",
     "track_instances",
 ]
 
@@ -300,7 +301,7 @@ def run_recording(
         fuse = len(sources) == 1
         if not sources:
             blocks = ", ".join(f"CAT{c:03d} x{n}" for c, n in categories.items())
-            notes.append(f"no plot this chain reads; data blocks: {blocks or 'none'}")
+            notes.append(f"no plot found; data blocks: {blocks or 'none'}")
         elif fuse:
             notes.append(f"no configuration: radar {sources[0]} at an assumed site, fused alone")
         else:
@@ -672,14 +673,15 @@ def _identity_text(identity: int, label: str) -> str:
     return f"{identity:06X}" if label == "address" else f"{identity:04o}"
 
 
-def _suspect_tracks(
+def suspect_tracks(
     ts: TrackSet, plots: npt.NDArray[Any], extra: npt.NDArray[Any], index: Mapping[int, int]
 ) -> list[dict[str, Any]]:
     """Published tracks that took a test or fixed target's plot, or stay in one place."""
     rows = ts.rows[np.isin(ts.rows["status"], PUBLISHED)]
+    rows = rows[np.argsort(rows[ts.number], kind="stable")]
+    numbers, starts = np.unique(rows[ts.number], return_index=True)
     out: list[dict[str, Any]] = []
-    for number in np.unique(rows[ts.number]).tolist():
-        track = rows[rows[ts.number] == number]
+    for number, track in zip(numbers.tolist(), np.split(rows, starts[1:]), strict=True):
         ks = [index[int(p)] for p in track["plot_id"] if int(p) in index]
         reasons: set[str] = set()
         if ks:
@@ -748,7 +750,7 @@ def _track_measures(
     }
     doc |= _kinematics(ts)
     doc["nis"] = _consistency(ts, run.tracked)
-    doc["suspect_tracks"] = _suspect_tracks(ts, plots, run.extra, index)
+    doc["suspect_tracks"] = suspect_tracks(ts, plots, run.extra, index)
     errors = run.adsb_errors.get(ts.name)
     doc["adsb"] = _adsb_measures(errors) if errors else None
     return doc
@@ -773,7 +775,14 @@ def _targets_seen(table: npt.NDArray[Any], extra: npt.NDArray[Any]) -> list[dict
     """Plots that are not traffic, or say they are not: grouped by what marks them
     (kept-out use, TST, SIM, RAB, code 7777) and their identity, with where they were."""
     groups: dict[tuple[str, int, int], list[int]] = defaultdict(list)
-    for k in range(len(table)):
+    marked_rows = (
+        (table["use"] != PlotUse.TRACKED)
+        | extra["tst"]
+        | extra["sim"]
+        | table["rab"]
+        | (table["mode3a"] == TEST_CODE)
+    )
+    for k in np.flatnonzero(marked_rows).tolist():
         marks: list[str] = []
         if table["use"][k] != PlotUse.TRACKED:
             marks.append(PlotUse(int(table["use"][k])).name.lower())
@@ -785,8 +794,7 @@ def _targets_seen(table: npt.NDArray[Any], extra: npt.NDArray[Any]) -> list[dict
             marks.append("rab")
         if table["mode3a"][k] == TEST_CODE:
             marks.append("code_7777")
-        if marks:
-            groups[("+".join(marks), int(table["address"][k]), int(table["mode3a"][k]))].append(k)
+        groups[("+".join(marks), int(table["address"][k]), int(table["mode3a"][k]))].append(k)
     out = []
     for (marked, address, code), ks in sorted(groups.items()):
         out.append(
