@@ -61,6 +61,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from asterix.codec import Block, decode_blocks
 from asterix.containers import Datagram, read_file
 from asterix.plots import extract_plots
 from tracker_service.adsb import AdsbReference
@@ -115,6 +116,8 @@ the shared real recordings come from; any site serves a single radar's tracks)."
 ASSUMED_SIGMA_RANGE_M = 50.0
 ASSUMED_SIGMA_AZIMUTH_DEG = 0.07
 DEFAULT_PERIOD_S = 5.0
+SERVICE_CATEGORIES = (34, 2)
+"""Radar service messages: CAT034 (CAT048 radars), CAT002 (CAT001 radars)."""
 
 NON_DISCRETE = frozenset({0o7500, 0o7600, 0o7700, 0o7777})
 """Mode 3/A codes that name no aircraft besides every code ending in 00 (2000, 7000,
@@ -125,8 +128,8 @@ GATE_99_2DOF = 9.21
 """The 99 % point of chi-square with 2 degrees of freedom."""
 MIN_ACCELERATION_DT_S = 1.0
 STATIONARY_M = 500.0
-STATIONARY_SPAN_S = 20.0
-STATIONARY_UPDATES = 5
+STATIONARY_SPAN_S = 120.0
+STATIONARY_UPDATES = 10
 ADSB_OTHER_AIRCRAFT_M = 5 * 1852.0
 MAX_SPEED_KT = 650.0
 MAX_JUMP_M = NM
@@ -221,7 +224,31 @@ def _capture_radars(path: Path) -> tuple[list[str], dict[str, float], dict[int, 
             categories[payload[pos]] += 1
             pos += max(3, int.from_bytes(payload[pos + 1 : pos + 3]))
     present = dict(sorted(categories.items()))
-    return sorted(sources, key=source_order), north_marker_periods(datagrams), present
+    periods = _north_marker_intervals(datagrams) | north_marker_periods(datagrams)
+    return sorted(sources, key=source_order), periods, present
+
+
+def _north_marker_intervals(datagrams: list[Datagram]) -> dict[str, float]:
+    """Each radar's median interval between the receptions of its north markers (CAT034
+    or CAT002 message type 1): its antenna period where the markers carry none (I041)."""
+    times: dict[str, list[float]] = defaultdict(list)
+    for datagram in datagrams:
+        if datagram.time is None:
+            continue
+        for category in SERVICE_CATEGORIES:
+            for block in blocks_of(datagram.payload, category):
+                for event in decode_blocks(block):
+                    if not isinstance(event, Block):
+                        continue
+                    for items in event.records:
+                        source = items.get("010")
+                        if items.get("000") == 1 and isinstance(source, dict):
+                            times[f"{source['SAC']}/{source['SIC']}"].append(datagram.time)
+    return {
+        source: float(np.median(np.diff(t)))
+        for source, t in times.items()
+        if len(t) > 2 and float(np.median(np.diff(t))) > 0
+    }
 
 
 def _assumed_config(sources: list[str], periods: Mapping[str, float]) -> ServiceConfig:
