@@ -32,6 +32,8 @@ from tracker_service.evaluation.assess import (
     format_summary,
     is_discrete,
     run_recording,
+    stretch_changes,
+    track_instances,
 )
 
 NOT_RECORDINGS = {"oracle", "oracle-full", "expected"}
@@ -114,9 +116,11 @@ def test_every_recording(assessed: Callable[[Path], Assessed], path: Path) -> No
 
 def test_068_two_aircraft_for_79_minutes(assessed: Callable[[Path], Assessed]) -> None:
     """068test_bds30.gps: 343085 never lost (one track), 3430D8 with two gaps beyond the
-    deletion threshold (three stretches). The local tracks hold each stretch with one
-    track; the system track of 3430D8 bridges its 55 s gap and jumps 10.8 NM there
-    (issue 10's jump criterion fails today: at most that one jump is allowed)."""
+    deletion threshold (three stretches): one local and one system track per stretch.
+    The system track number 2 ends with 3430D8's first stretch and is given again 424 s
+    later to its third: counted as two tracks, not as one that jumps 10.8 NM. The system
+    tracks are smoother and slower than the local ones (median 176 kt against 193 kt)
+    with a NIS far below 2: issue 10 finding 5 (the bias prior added to every plot)."""
     _, doc = _with_plots(assessed, _recording("reader_network/068test_bds30.gps"))
     radar = doc["radars"]["20/4"]
     assert radar["plots"] == 1830
@@ -148,15 +152,14 @@ def test_068_two_aircraft_for_79_minutes(assessed: Callable[[Path], Assessed]) -
     assert system["radars"] == ["20/4"]
     s_address = system["per_address"]
     assert s_address["breaks"] == s_address["overlaps"] == 0
-    assert s_address["tracks"] <= 3
+    assert s_address["tracks"] <= 4
     assert system["speed_kt"]["max"] < 300
-    assert system["jump_m"]["over_1_nm"] <= 1
-    assert system["jump_m"]["p95"] < 400  # 336 m measured: worse than the local 218 m
+    assert system["jump_m"]["over_1_nm"] == 0
+    assert system["jump_m"]["max"] < 800  # 561 m measured
+    assert system["jump_m"]["p95"] < 400  # 335 m measured: worse than the local 218 m
     assert system["nis"]["share_over_99"] <= 0.01
-    verdicts = {c["name"]: c["passed"] for c in doc["checks"]}
-    assert verdicts["one_system_track_per_address"] is True
-    assert verdicts["max_speed_650_kt"] is True
-    assert verdicts["no_test_or_fixed_target_published"] is True
+    assert doc["passed"] is True
+    assert all(c["passed"] for c in doc["checks"])
 
 
 def test_parsegps_test_transponder_and_test_target(
@@ -223,6 +226,29 @@ def test_066_filter_fixture(assessed: Callable[[Path], Assessed]) -> None:
 def test_discrete_codes() -> None:
     codes = np.array([0o2000, 0o7000, 0o1200, 0o7777, 0o7700, 0o0000, 0o5050, 0o1234, -1])
     assert is_discrete(codes).tolist() == [False] * 6 + [True, True, False]
+
+
+def test_breaks_and_overlaps_within_a_stretch() -> None:
+    """A stretch of plots 0-100 s: track 1 until 40 s, track 2 from 50 s is a break; track
+    3 from 60 s while 2 still updates is an overlap; a track outside the stretch is not
+    counted in it."""
+    tracks = {
+        1: np.array([0.0, 20.0, 40.0]),
+        2: np.array([50.0, 70.0, 100.0]),
+        3: np.array([60.0, 80.0]),
+        4: np.array([300.0, 305.0]),
+    }
+    assert stretch_changes(tracks, 0.0, 100.0) == (1, 1, True)
+    assert stretch_changes(tracks, 200.0, 250.0) == (0, 0, False)
+
+
+def test_a_number_given_again_is_a_new_track() -> None:
+    rows = np.zeros(5, dtype=[("track_number", np.int64), ("status", np.int8)])
+    rows["track_number"] = [7, 7, 8, 7, 7]
+    rows["status"] = [1, 3, 1, 1, 1]  # 7 ends (DELETED = 3), then is given again
+    keys = track_instances(rows, "track_number", 3)["track_number"].tolist()
+    assert keys == [7, 7, 8, 1_000_007, 1_000_007]
+    assert rows["track_number"].tolist() == [7, 7, 8, 7, 7]  # the input is kept
 
 
 @pytest.fixture(scope="module")

@@ -61,6 +61,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from asterix.codec import Block, decode_blocks
 from asterix.containers import Datagram, read_file
 from asterix.plots import extract_plots
 from tracker_service.adsb import AdsbReference
@@ -76,7 +77,7 @@ from tracker_service.chain import (
 )
 from tracker_service.evaluation.real_data import DEFAULT_DAY_POSIX, north_marker_periods
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE
-from tracker_service.fusion.messages import COASTING, CONFIRMED
+from tracker_service.fusion.messages import COASTING, CONFIRMED, ENDED
 from tracker_service.geodesy import RadarSite
 from tracker_service.ingest import TimeSource
 from tracker_service.service.config import ServiceConfig, load_service_config
@@ -84,7 +85,7 @@ from tracker_service.service.config import parse_service_config as parse_config
 from tracker_service.service.core import build_chain
 from tracker_service.service.replay import open_replay, parse_date
 from tracker_service.simulator.recording import is_mcap
-from tracker_service.tracking import LocalTracker, TrackerConfig
+from tracker_service.tracking import DELETED, LocalTracker, TrackerConfig
 from tracker_service.tracking.plots import PlotArrays, as_plot_arrays
 from tracker_service.validation import dataclass_kwargs
 
@@ -103,6 +104,9 @@ __all__ = [
     "published_kinematics",
     "run",
     "run_recording",
+    "stretch_changes",
+    "suspect_tracks",
+    "track_instances",
 ]
 
 SCHEMA = "tracker-service/assess/1"
@@ -112,6 +116,8 @@ the shared real recordings come from; any site serves a single radar's tracks)."
 ASSUMED_SIGMA_RANGE_M = 50.0
 ASSUMED_SIGMA_AZIMUTH_DEG = 0.07
 DEFAULT_PERIOD_S = 5.0
+SERVICE_CATEGORIES = (34, 2)
+"""Radar service messages: CAT034 (CAT048 radars), CAT002 (CAT001 radars)."""
 
 NON_DISCRETE = frozenset({0o7500, 0o7600, 0o7700, 0o7777})
 """Mode 3/A codes that name no aircraft besides every code ending in 00 (2000, 7000,
@@ -122,13 +128,14 @@ GATE_99_2DOF = 9.21
 """The 99 % point of chi-square with 2 degrees of freedom."""
 MIN_ACCELERATION_DT_S = 1.0
 STATIONARY_M = 500.0
-STATIONARY_SPAN_S = 20.0
-STATIONARY_UPDATES = 5
+STATIONARY_SPAN_S = 120.0
+STATIONARY_UPDATES = 10
 ADSB_OTHER_AIRCRAFT_M = 5 * 1852.0
 MAX_SPEED_KT = 650.0
 MAX_JUMP_M = NM
 KT = NM / 3600.0
 PUBLISHED = (CONFIRMED, COASTING)
+REUSE_OFFSET = 1_000_000
 PERCENTILES = (50, 95, 99)
 CHECKS = (
     "one_system_track_per_address",
@@ -162,9 +169,10 @@ time, its I020 TST and SIM bits and its radar."""
 class TrackSet:
     """A set of tracks: one radar's local tracks or the system tracks. ``rows``: every
     update (``track_update_dtype`` or ``SYSTEM_UPDATE_DTYPE``) in processing order;
-    ``number``: the field that numbers the tracks; ``q_of``: each row's white-acceleration
-    intensity for the prediction that follows it (m^2/s^3); ``deletion_gap_s``: the
-    longest plot gap a confirmed track survives."""
+    ``number``: the field that numbers the tracks, unique per track (a number used again
+    after its track ended is offset, see ``track_instances``); ``q_of``: each row's
+    white-acceleration intensity for the prediction that follows it (m^2/s^3);
+    ``deletion_gap_s``: the longest plot gap a confirmed track survives."""
 
     name: str
     rows: npt.NDArray[Any]
@@ -216,7 +224,31 @@ def _capture_radars(path: Path) -> tuple[list[str], dict[str, float], dict[int, 
             categories[payload[pos]] += 1
             pos += max(3, int.from_bytes(payload[pos + 1 : pos + 3]))
     present = dict(sorted(categories.items()))
-    return sorted(sources, key=source_order), north_marker_periods(datagrams), present
+    periods = _north_marker_intervals(datagrams) | north_marker_periods(datagrams)
+    return sorted(sources, key=source_order), periods, present
+
+
+def _north_marker_intervals(datagrams: list[Datagram]) -> dict[str, float]:
+    """Each radar's median interval between the receptions of its north markers (CAT034
+    or CAT002 message type 1): its antenna period where the markers carry none (I041)."""
+    times: dict[str, list[float]] = defaultdict(list)
+    for datagram in datagrams:
+        if datagram.time is None:
+            continue
+        for category in SERVICE_CATEGORIES:
+            for block in blocks_of(datagram.payload, category):
+                for event in decode_blocks(block):
+                    if not isinstance(event, Block):
+                        continue
+                    for items in event.records:
+                        source = items.get("010")
+                        if items.get("000") == 1 and isinstance(source, dict):
+                            times[f"{source['SAC']}/{source['SIC']}"].append(datagram.time)
+    return {
+        source: float(np.median(np.diff(t)))
+        for source, t in times.items()
+        if len(t) > 2 and float(np.median(np.diff(t))) > 0
+    }
 
 
 def _assumed_config(sources: list[str], periods: Mapping[str, float]) -> ServiceConfig:
@@ -296,7 +328,7 @@ def run_recording(
         fuse = len(sources) == 1
         if not sources:
             blocks = ", ".join(f"CAT{c:03d} x{n}" for c, n in categories.items())
-            notes.append(f"no plot this chain reads; data blocks: {blocks or 'none'}")
+            notes.append(f"no plot found; data blocks: {blocks or 'none'}")
         elif fuse:
             notes.append(f"no configuration: radar {sources[0]} at an assumed site, fused alone")
         else:
@@ -350,7 +382,7 @@ def run_recording(
         cfg = state.tracker_config
         track_sets[source] = TrackSet(
             source,
-            rows,
+            track_instances(rows, "track_number", DELETED),
             "track_number",
             _imm_intensity(rows, cfg.q_cv, cfg.q_ct),
             (cfg.delete_misses + cfg.miss_tolerance) * cfg.scan_period_s,
@@ -360,10 +392,12 @@ def run_recording(
     system_set = None
     if chain.fuser is not None and any(s.index is not None for s in chain.radars.values()):
         rows = np.concatenate(system) if system else np.zeros(0, SYSTEM_UPDATE_DTYPE)
-        fused = tuple(s for s, state in chain.radars.items() if state.index is not None)
+        fused = tuple(
+            sorted((s for s, st in chain.radars.items() if st.index is not None), key=source_order)
+        )
         system_set = TrackSet(
             "system",
-            rows,
+            track_instances(rows, "system_number", ENDED),
             "system_number",
             np.full(len(rows), chain.fuser.config.q),
             max(track_sets[s].deletion_gap_s for s in fused),
@@ -385,6 +419,21 @@ def run_recording(
         seconds=time.perf_counter() - started,
         notes=notes,
     )
+
+
+def track_instances(rows: npt.NDArray[Any], number: str, ended: int) -> npt.NDArray[Any]:
+    """The rows with each track's number made unique per track: a number used again
+    after its track ended (status ``ended``) becomes number + ``REUSE_OFFSET`` x reuse."""
+    out = rows.copy()
+    reuses: dict[int, int] = defaultdict(int)
+    keys = out[number]
+    for k, (value, status) in enumerate(
+        zip(rows[number].tolist(), rows["status"].tolist(), strict=True)
+    ):
+        keys[k] = value + REUSE_OFFSET * reuses[value]
+        if status == ended:
+            reuses[value] += 1
+    return out
 
 
 def _imm_intensity(rows: npt.NDArray[Any], q_cv: float, q_ct: float) -> FloatArray:
@@ -580,7 +629,7 @@ def _stretches(times: FloatArray, gap: float) -> list[tuple[float, float]]:
     return [(float(times[a]), float(times[b])) for a, b in zip(starts, ends, strict=True)]
 
 
-def _stretch_changes(
+def stretch_changes(
     tracks: Mapping[int, FloatArray], first: float, last: float
 ) -> tuple[int, int, bool]:
     """Within one plot stretch of an identity: the breaks (a track that starts after the
@@ -614,7 +663,7 @@ def _identity_measures(per_identity: Mapping[int, Mapping[str, Any]], label: str
         counts.append(len(tracks))
         own_breaks = own_overlaps = 0
         for first, last in entry["stretches"]:
-            b, o, held = _stretch_changes(tracks, first, last)
+            b, o, held = stretch_changes(tracks, first, last)
             own_breaks += b
             own_overlaps += o
             untracked += not held
@@ -651,14 +700,15 @@ def _identity_text(identity: int, label: str) -> str:
     return f"{identity:06X}" if label == "address" else f"{identity:04o}"
 
 
-def _suspect_tracks(
+def suspect_tracks(
     ts: TrackSet, plots: npt.NDArray[Any], extra: npt.NDArray[Any], index: Mapping[int, int]
 ) -> list[dict[str, Any]]:
     """Published tracks that took a test or fixed target's plot, or stay in one place."""
     rows = ts.rows[np.isin(ts.rows["status"], PUBLISHED)]
+    rows = rows[np.argsort(rows[ts.number], kind="stable")]
+    numbers, starts = np.unique(rows[ts.number], return_index=True)
     out: list[dict[str, Any]] = []
-    for number in np.unique(rows[ts.number]).tolist():
-        track = rows[rows[ts.number] == number]
+    for number, track in zip(numbers.tolist(), np.split(rows, starts[1:]), strict=True):
         ks = [index[int(p)] for p in track["plot_id"] if int(p) in index]
         reasons: set[str] = set()
         if ks:
@@ -727,7 +777,7 @@ def _track_measures(
     }
     doc |= _kinematics(ts)
     doc["nis"] = _consistency(ts, run.tracked)
-    doc["suspect_tracks"] = _suspect_tracks(ts, plots, run.extra, index)
+    doc["suspect_tracks"] = suspect_tracks(ts, plots, run.extra, index)
     errors = run.adsb_errors.get(ts.name)
     doc["adsb"] = _adsb_measures(errors) if errors else None
     return doc
@@ -752,7 +802,14 @@ def _targets_seen(table: npt.NDArray[Any], extra: npt.NDArray[Any]) -> list[dict
     """Plots that are not traffic, or say they are not: grouped by what marks them
     (kept-out use, TST, SIM, RAB, code 7777) and their identity, with where they were."""
     groups: dict[tuple[str, int, int], list[int]] = defaultdict(list)
-    for k in range(len(table)):
+    marked_rows = (
+        (table["use"] != PlotUse.TRACKED)
+        | extra["tst"]
+        | extra["sim"]
+        | table["rab"]
+        | (table["mode3a"] == TEST_CODE)
+    )
+    for k in np.flatnonzero(marked_rows).tolist():
         marks: list[str] = []
         if table["use"][k] != PlotUse.TRACKED:
             marks.append(PlotUse(int(table["use"][k])).name.lower())
@@ -764,8 +821,7 @@ def _targets_seen(table: npt.NDArray[Any], extra: npt.NDArray[Any]) -> list[dict
             marks.append("rab")
         if table["mode3a"][k] == TEST_CODE:
             marks.append("code_7777")
-        if marks:
-            groups[("+".join(marks), int(table["address"][k]), int(table["mode3a"][k]))].append(k)
+        groups[("+".join(marks), int(table["address"][k]), int(table["mode3a"][k]))].append(k)
     out = []
     for (marked, address, code), ks in sorted(groups.items()):
         out.append(
@@ -873,7 +929,7 @@ def _checks(doc: Mapping[str, Any]) -> list[dict[str, Any]]:
     out.append(
         _check(
             CHECKS[3],
-            not suspects if sets else None,
+            not suspects if any(v["published_tracks"] for v in sets.values()) else None,
             "; ".join(suspects[:8]) + (f" and {len(suspects) - 8} more" * (len(suspects) > 8))
             if suspects
             else "no published track took a test or fixed target's plot or stood still",
