@@ -43,6 +43,9 @@ class Pki:
     """subscriber.json5 beside certificates of another CA (one named tracker-service)."""
     no_certificate: Path
     """TLS with the right CA but no certificate of its own."""
+    unlisted: Path
+    """subscriber.json5 beside a certificate of the right CA, with a common name the
+    service's access control does not list."""
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +57,9 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
     for ext in ("crt", "key"):
         shutil.copy(rogue / "certs" / f"service.{ext}", rogue / "certs" / f"subscriber.{ext}")
     shutil.copy(base / "subscriber.json5", rogue / "subscriber.json5")
+    unlisted = base / "unlisted"
+    make_certs(unlisted, ca=base / "certs", subscriber="ops-unlisted")
+    shutil.copy(base / "subscriber.json5", unlisted / "subscriber.json5")
     no_certificate = base / "no-certificate.json5"
     no_certificate.write_text(
         json.dumps(
@@ -70,6 +76,7 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
         base / "subscriber.json5",
         rogue / "subscriber.json5",
         no_certificate,
+        unlisted / "subscriber.json5",
     )
 
 
@@ -170,6 +177,8 @@ def test_forged_picture_does_not_reach_an_authenticated_subscriber(
     pki: Pki, parties: list[Party]
 ) -> None:
     endpoint, service, subscriber = linked_service(parties, pki.service, pki)
+    unlisted = Party("subscriber", endpoint, str(pki.unlisted))
+    parties.append(unlisted)
     service.send(json.dumps({"track": 7, "lat": 48.5}))
     plaintext = endpoint.replace("tls/", "tcp/")
     forgers = {
@@ -179,8 +188,8 @@ def test_forged_picture_does_not_reach_an_authenticated_subscriber(
         "subscriber's certificate": Party("forger", endpoint, str(pki.subscriber), "off"),
     }
     parties.extend(forgers.values())
-    for forger in forgers.values():
-        forger.ready()
+    for party in (unlisted, *forgers.values()):
+        party.ready()
     linked = {name: forger.read()["linked"] for name, forger in forgers.items()}
     # Only the subscriber's own certificate opens a link; what it sends is dropped there.
     assert linked == {
@@ -204,6 +213,11 @@ def test_forged_picture_does_not_reach_an_authenticated_subscriber(
     while "replies" not in (doc := subscriber.read()):
         replies.append(json.loads(doc["payload"]))
     assert replies == [{"number": 7, "lat": 48.6, "status": "confirmed", "origin": "service"}]
+    # A certificate of the right CA whose name the access control does not list: a
+    # link, and nothing on it.
+    unlisted.send("query")
+    assert unlisted.read() == {"replies": 0}
+    assert unlisted.poll(0.2) is None
 
 
 def test_without_access_control_a_subscriber_could_forge(pki: Pki, parties: list[Party]) -> None:
