@@ -174,6 +174,20 @@ def _refuse_plaintext(file: Path, listen: Sequence[str], connect: Sequence[str])
             raise PlaintextEndpointError("connect", endpoint, file)
 
 
+def _require_listen_certificate(config: zenoh.Config, listen: Iterable[str]) -> None:
+    # Zenoh would say so when the listener opens, in the output process.
+    if _get(config, f"{_TLS}/listen_certificate") and _get(config, f"{_TLS}/listen_private_key"):
+        return
+    for endpoint in listen:
+        # An endpoint may carry its own TLS settings after '#'.
+        if endpoint_protocol(endpoint) in TLS_PROTOCOLS and "#" not in endpoint:
+            raise ZenohConfigError(
+                f"listen endpoint {endpoint} is TLS but no certificate is configured: give "
+                f"a Zenoh configuration file with {_TLS}/listen_certificate and "
+                "listen_private_key (config/zenoh/service.json5, docs/security.md)"
+            )
+
+
 def _merged(first: Iterable[str], then: Iterable[str]) -> list[str]:
     return list(dict.fromkeys([*first, *then]))
 
@@ -209,6 +223,7 @@ def zenoh_config(
         own_connect = _endpoints(config, "connect/endpoints", mode)
         if not allow_plaintext and _configures_tls(config, own_listen + own_connect):
             _refuse_plaintext(file, listen, connect)
+    _require_listen_certificate(config, [*own_listen, *listen])
     try:
         _set(config, "mode", mode)
         _set(config, "listen/endpoints", _merged(own_listen, listen))
