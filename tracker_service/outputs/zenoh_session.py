@@ -33,6 +33,7 @@ __all__ = [
     "ZenohConfigError",
     "endpoint_protocol",
     "zenoh_config",
+    "zenoh_error",
 ]
 
 Mode = Literal["peer", "client", "router"]
@@ -97,7 +98,8 @@ def endpoint_protocol(endpoint: str) -> str:
     return endpoint.partition("/")[0]
 
 
-def _zenoh_error(exc: Exception) -> str:
+def zenoh_error(exc: Exception) -> str:
+    """A Zenoh error's message without the Rust source locations."""
     text = str(exc)
     inner = _JSON5_MESSAGE.search(text)
     return _RUST_LOCATION.sub("", inner.group(1) if inner else text).strip()
@@ -138,7 +140,7 @@ def _load(file: Path) -> zenoh.Config:
         config = zenoh.Config.from_file(str(file))
     except zenoh.ZError as exc:
         raise ZenohConfigError(
-            f"{file}: not a usable Zenoh configuration: {_zenoh_error(exc)}"
+            f"{file}: not a usable Zenoh configuration: {zenoh_error(exc)}"
         ) from None
     for key in _FILE_FIELDS:
         name = _get(config, key)
@@ -166,12 +168,14 @@ def _file_mode(config: zenoh.Config) -> Mode:
 
 
 def _refuse_plaintext(file: Path, listen: Sequence[str], connect: Sequence[str]) -> None:
-    for endpoint in listen:
-        if endpoint_protocol(endpoint) not in TLS_PROTOCOLS:
-            raise PlaintextEndpointError("listen", endpoint, file)
-    for endpoint in connect:
-        if endpoint_protocol(endpoint) not in TLS_PROTOCOLS:
-            raise PlaintextEndpointError("connect", endpoint, file)
+    added: tuple[tuple[Literal["listen", "connect"], Sequence[str]], ...] = (
+        ("listen", listen),
+        ("connect", connect),
+    )
+    for direction, endpoints in added:
+        for endpoint in endpoints:
+            if endpoint_protocol(endpoint) not in TLS_PROTOCOLS:
+                raise PlaintextEndpointError(direction, endpoint, file)
 
 
 def _require_listen_certificate(config: zenoh.Config, listen: Iterable[str]) -> None:
@@ -232,5 +236,5 @@ def zenoh_config(
             if scouting or _get(config, key) is None:
                 _set(config, key, scouting)
     except zenoh.ZError as exc:
-        raise ZenohConfigError(_zenoh_error(exc)) from None
+        raise ZenohConfigError(zenoh_error(exc)) from None
     return config
