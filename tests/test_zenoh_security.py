@@ -241,3 +241,47 @@ def test_without_access_control_a_subscriber_could_forge(pki: Pki, parties: list
         doc for doc in got if doc["deleted"] or json.loads(doc["payload"])["origin"] == "forged"
     ]
     assert {doc["key"] for doc in forged} == {"tracker/system_tracks/7", "tracker/status"}
+
+
+def test_replay_publishes_over_mutual_tls_to_an_authenticated_subscriber(
+    pki: Pki, parties: list[Party]
+) -> None:
+    """The whole service (``tracker-service replay`` of the bundled recording) on the
+    shipped example: its system tracks reach a subscriber holding a subscriber's
+    certificate."""
+    port = free_port()
+    endpoint = f"tls/127.0.0.1:{port}"
+    service = subprocess.Popen(
+        [
+            *(sys.executable, "-m", "tracker_service.cli", "replay"),
+            *("recordings/three_sites.mcap", "--speed", "20"),
+            *("--zenoh-config", str(pki.service), "--zenoh-listen", endpoint),
+        ],
+        cwd=REPO,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert service.stderr is not None
+        hint = service.stderr.readline()
+        assert "--zenoh-config SUBSCRIBER.json5 --connect " + endpoint in hint
+        # A client's session needs the service's listener up.
+        deadline = time.monotonic() + TIMEOUT_S
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "the replay never listened"
+                time.sleep(0.05)
+        subscriber = Party("subscriber", endpoint, str(pki.subscriber))
+        parties.append(subscriber.ready())
+        while "system_tracks" not in (sample := subscriber.read())["key"]:
+            pass
+        track = json.loads(sample["payload"])
+        assert sample["key"] == f"tracker/system_tracks/{track['number']}"
+        assert {"lat", "lon", "status"} <= track.keys()
+    finally:
+        service.terminate()
+        service.wait(timeout=TIMEOUT_S)
