@@ -39,6 +39,7 @@ class Pki:
     service: Path
     """The shipped service.json5, beside certs/ made by the shipped make-certs.sh."""
     subscriber: Path
+    """The shipped subscriber.json5, beside its certificate of the same CA."""
     rogue: Path
     """subscriber.json5 beside certificates of another CA (one named tracker-service)."""
     no_certificate: Path
@@ -240,7 +241,11 @@ def test_without_access_control_a_subscriber_could_forge(pki: Pki, parties: list
     forged = [
         doc for doc in got if doc["deleted"] or json.loads(doc["payload"])["origin"] == "forged"
     ]
-    assert {doc["key"] for doc in forged} == {"tracker/system_tracks/7", "tracker/status"}
+    assert {doc["key"] for doc in forged} == {
+        "tracker/system_tracks/7",
+        "tracker/status",
+        "tracker/cat062",
+    }
 
 
 def test_replay_publishes_over_mutual_tls_to_an_authenticated_subscriber(
