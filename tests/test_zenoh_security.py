@@ -39,10 +39,14 @@ class Pki:
     service: Path
     """The shipped service.json5, beside certs/ made by the shipped make-certs.sh."""
     subscriber: Path
+    """The shipped subscriber.json5, beside its certificate of the same CA."""
     rogue: Path
     """subscriber.json5 beside certificates of another CA (one named tracker-service)."""
     no_certificate: Path
     """TLS with the right CA but no certificate of its own."""
+    unlisted: Path
+    """subscriber.json5 beside a certificate of the right CA, with a common name the
+    service's access control does not list."""
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +58,9 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
     for ext in ("crt", "key"):
         shutil.copy(rogue / "certs" / f"service.{ext}", rogue / "certs" / f"subscriber.{ext}")
     shutil.copy(base / "subscriber.json5", rogue / "subscriber.json5")
+    unlisted = base / "unlisted"
+    make_certs(unlisted, ca=base / "certs", subscriber="ops-unlisted")
+    shutil.copy(base / "subscriber.json5", unlisted / "subscriber.json5")
     no_certificate = base / "no-certificate.json5"
     no_certificate.write_text(
         json.dumps(
@@ -70,6 +77,7 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
         base / "subscriber.json5",
         rogue / "subscriber.json5",
         no_certificate,
+        unlisted / "subscriber.json5",
     )
 
 
@@ -170,6 +178,8 @@ def test_forged_picture_does_not_reach_an_authenticated_subscriber(
     pki: Pki, parties: list[Party]
 ) -> None:
     endpoint, service, subscriber = linked_service(parties, pki.service, pki)
+    unlisted = Party("subscriber", endpoint, str(pki.unlisted))
+    parties.append(unlisted)
     service.send(json.dumps({"track": 7, "lat": 48.5}))
     plaintext = endpoint.replace("tls/", "tcp/")
     forgers = {
@@ -179,8 +189,8 @@ def test_forged_picture_does_not_reach_an_authenticated_subscriber(
         "subscriber's certificate": Party("forger", endpoint, str(pki.subscriber), "off"),
     }
     parties.extend(forgers.values())
-    for forger in forgers.values():
-        forger.ready()
+    for party in (unlisted, *forgers.values()):
+        party.ready()
     linked = {name: forger.read()["linked"] for name, forger in forgers.items()}
     # Only the subscriber's own certificate opens a link; what it sends is dropped there.
     assert linked == {
@@ -204,6 +214,11 @@ def test_forged_picture_does_not_reach_an_authenticated_subscriber(
     while "replies" not in (doc := subscriber.read()):
         replies.append(json.loads(doc["payload"]))
     assert replies == [{"number": 7, "lat": 48.6, "status": "confirmed", "origin": "service"}]
+    # A certificate of the right CA whose name the access control does not list: a
+    # link, and nothing on it.
+    unlisted.send("query")
+    assert unlisted.read() == {"replies": 0}
+    assert unlisted.poll(0.2) is None
 
 
 def test_without_access_control_a_subscriber_could_forge(pki: Pki, parties: list[Party]) -> None:
@@ -226,4 +241,52 @@ def test_without_access_control_a_subscriber_could_forge(pki: Pki, parties: list
     forged = [
         doc for doc in got if doc["deleted"] or json.loads(doc["payload"])["origin"] == "forged"
     ]
-    assert {doc["key"] for doc in forged} == {"tracker/system_tracks/7", "tracker/status"}
+    assert {doc["key"] for doc in forged} == {
+        "tracker/system_tracks/7",
+        "tracker/status",
+        "tracker/cat062",
+    }
+
+
+def test_replay_publishes_over_mutual_tls_to_an_authenticated_subscriber(
+    pki: Pki, parties: list[Party]
+) -> None:
+    """The whole service (``tracker-service replay`` of the bundled recording) on the
+    shipped example: its system tracks reach a subscriber holding a subscriber's
+    certificate."""
+    port = free_port()
+    endpoint = f"tls/127.0.0.1:{port}"
+    service = subprocess.Popen(
+        [
+            *(sys.executable, "-m", "tracker_service.cli", "replay"),
+            *("recordings/three_sites.mcap", "--speed", "20"),
+            *("--zenoh-config", str(pki.service), "--zenoh-listen", endpoint),
+        ],
+        cwd=REPO,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert service.stderr is not None
+        hint = service.stderr.readline()
+        assert "--zenoh-config SUBSCRIBER.json5 --connect " + endpoint in hint
+        # A client's session needs the service's listener up.
+        deadline = time.monotonic() + TIMEOUT_S
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "the replay never listened"
+                time.sleep(0.05)
+        subscriber = Party("subscriber", endpoint, str(pki.subscriber))
+        parties.append(subscriber.ready())
+        while "system_tracks" not in (sample := subscriber.read())["key"]:
+            pass
+        track = json.loads(sample["payload"])
+        assert sample["key"] == f"tracker/system_tracks/{track['number']}"
+        assert {"lat", "lon", "status"} <= track.keys()
+    finally:
+        service.terminate()
+        service.wait(timeout=TIMEOUT_S)

@@ -24,7 +24,7 @@ from tracker_service.outputs.zenoh_session import (
     zenoh_config,
 )
 from tracker_service.service.command import _with_cli
-from tracker_service.service.config import load_service_config
+from tracker_service.service.config import ConfigError, load_service_config
 
 
 @pytest.fixture(scope="module")
@@ -103,7 +103,7 @@ def test_mode_is_the_files_unless_given(example: Path) -> None:
     [
         {"transport": {"link": {"tls": {"root_ca_certificate": "certs/ca.crt"}}}},
         {"transport": {"link": {"protocols": ["tls", "quic"]}}},
-        {"listen": {"endpoints": ["tls/0.0.0.0:7447"]}},
+        {"connect": {"endpoints": ["tls/192.0.2.1:7447"]}},
     ],
     ids=["certificates", "protocols", "endpoints"],
 )
@@ -120,7 +120,7 @@ def test_plaintext_added_to_tls_is_refused(example: Path, tls: dict[str, object]
     allowed = zenoh_config(listen=["tcp/0.0.0.0:7447"], config_file=file, allow_plaintext=True)
     assert "tcp/0.0.0.0:7447" in str(get(allowed, "listen/endpoints"))
     # TLS on TLS, and plaintext without any TLS, are what was asked.
-    zenoh_config(listen=["tls/0.0.0.0:7447", "quic/0.0.0.0:7447"], config_file=file)
+    zenoh_config(connect=["tls/192.0.2.2:7447", "quic/192.0.2.2:7447"], config_file=file)
     zenoh_config(listen=["tcp/0.0.0.0:7447"])
 
 
@@ -161,6 +161,46 @@ def test_missing_or_unreadable_certificate_is_one_line(example: Path, tmp_path: 
     assert str(raised.value) == (
         f"{file}: transport/link/tls/listen_certificate {tmp_path / 'x.crt'}: no such file "
         "(certificates and keys: config/zenoh/make-certs.sh, docs/security.md)"
+    )
+
+
+def test_tls_listener_without_certificate_is_one_line() -> None:
+    with pytest.raises(ZenohConfigError) as raised:
+        zenoh_config(listen=["tls/0.0.0.0:7447"])
+    assert str(raised.value).startswith(
+        "listen endpoint tls/0.0.0.0:7447 is TLS but no certificate is configured: give a "
+        "Zenoh configuration file with transport/link/tls/listen_certificate"
+    )
+
+
+def test_toml_and_cli_endpoints_add_and_a_tomls_plaintext_is_named(
+    example: Path, tmp_path: Path
+) -> None:
+    text = (REPO / "config" / "example.toml").read_text()
+    assert "listen = []" in text
+    toml = tmp_path / "tracker.toml"
+    toml.write_text(text.replace("listen = []", 'listen = ["tls/127.0.0.1:7001"]', 1))
+    parser = build_parser()
+    args = parser.parse_args(
+        [
+            *("run", "--config", str(toml), "--zenoh-listen", "tls/127.0.0.1:7002"),
+            *("--zenoh-config", str(example / "service.json5"), "--zenoh-scouting"),
+        ]
+    )
+    settings = _with_cli(load_service_config(toml), args).zenoh
+    assert settings.listen == ["tls/127.0.0.1:7001", "tls/127.0.0.1:7002"]
+    assert settings.scouting
+    toml.write_text(text.replace("listen = []", 'listen = ["tcp/127.0.0.1:7001"]', 1))
+    args = parser.parse_args(
+        ["run", "--config", str(toml), "--zenoh-config", str(example / "service.json5")]
+    )
+    with pytest.raises(ConfigError) as raised:
+        _with_cli(load_service_config(toml), args)
+    assert str(raised.value).startswith(
+        "[zenoh] listen tcp/127.0.0.1:7001 is plaintext but "
+    ) and str(raised.value).endswith(
+        "use [zenoh] listen tls/127.0.0.1:7001, or set [zenoh] allow_plaintext = true "
+        "to add it anyway"
     )
 
 

@@ -3,6 +3,7 @@ beside certificates made by the shipped make-certs.sh (none is committed)."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -14,14 +15,21 @@ from tests.conftest import REPO
 EXAMPLE = REPO / "config" / "zenoh"
 
 
-def make_certs(directory: Path) -> None:
-    """``directory/certs``: a CA, the service's and a subscriber's certificates."""
+def make_certs(directory: Path, ca: Path | None = None, subscriber: str | None = None) -> None:
+    """``directory/certs``: a CA (or ``ca``'s), the service's and a subscriber's
+    certificates (the subscriber's common name ``subscriber`` when given)."""
     if shutil.which("openssl") is None:
         pytest.skip("the openssl command line is absent: no certificates to test with")
+    environment = dict(os.environ)
+    if ca is not None:
+        environment["CA"] = str(ca)
+    if subscriber is not None:
+        environment["SUBSCRIBER"] = subscriber
     subprocess.run(
         ["sh", str(EXAMPLE / "make-certs.sh"), str(directory / "certs")],
         check=True,
         capture_output=True,
+        env=environment,
     )
 
 

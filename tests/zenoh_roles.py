@@ -9,8 +9,9 @@
   a JSON line; on a line ``query`` from stdin, asks ``tracker/system_tracks/**`` and
   prints the replies then ``{"replies": n}``;
 - ``forger``: a session that tries to publish a forged picture through ENDPOINT (a track
-  moved 50 km, the track ended and deleted, a forged status) and to answer queries with
-  it, for a second, then prints ``{"linked": bool}`` (whether any link came up).
+  moved 50 km, the track ended and deleted, a forged status and CAT062) and to answer
+  queries with it, for a second, then prints ``{"linked": bool}`` (whether any link
+  came up).
 
 Each prints ``{"ready": true}`` once its session is open, and ends when stdin closes.
 CONFIG ``-`` is no file at all (an unauthenticated peer); ``ACL off`` disables the
@@ -111,6 +112,9 @@ def forger(session: zenoh.Session) -> None:
         session.put("tracker/system_tracks/7", ended.model_dump_json())
         session.delete("tracker/system_tracks/7")
         session.put("tracker/status", status.model_dump_json())
+        # What the bytes of a forged CAT062 block are does not matter here: JSON, so
+        # that the test reads every sample alike.
+        session.put("tracker/cat062", status.model_dump_json())
         time.sleep(0.02)
     info = session.info
     say({"linked": bool(info.peers_zid() or info.routers_zid())})

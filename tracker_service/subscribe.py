@@ -24,6 +24,7 @@ from tracker_service.outputs.zenoh_session import (
     PlaintextEndpointError,
     ZenohConfigError,
     zenoh_config,
+    zenoh_error,
 )
 
 __all__ = ["add_arguments", "run", "subscribe"]
@@ -196,6 +197,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         return subscribe(config, key, args.json)
+    except zenoh.ZError as exc:
+        # Typically no link: the service is down, or refused this subscriber's TLS.
+        print(f"tracker-service subscribe: {zenoh_error(exc)}", file=sys.stderr)
+        return 1
     except BrokenPipeError:
         # `subscribe --json | head` closes the pipe early; that is not an error.
         sys.stderr.close()

@@ -10,6 +10,11 @@
 # subscribers check (default: localhost 127.0.0.1). The CA key stays in DIR/ca.key: keep
 # it offline once the certificates are made. Existing files are never overwritten:
 # rotation is a new DIR (docs/security.md).
+#
+# Environment: CA=DIR issues from the CA of an earlier run (DIR/ca.crt, DIR/ca.key)
+# instead of making a new one (renewing certificates under the same CA);
+# SUBSCRIBER=NAME gives the subscriber certificate that common name (one name per
+# subscriber lets the service's access control drop one of them); CERT_DAYS (365).
 set -eu
 
 if [ $# -lt 1 ]; then
@@ -20,6 +25,7 @@ dir=$1
 shift
 [ $# -gt 0 ] || set -- localhost 127.0.0.1
 days=${CERT_DAYS:-365}
+subscriber=${SUBSCRIBER:-tracker-subscriber}
 
 for name in ca service subscriber; do
     for ext in crt key; do
@@ -45,11 +51,18 @@ key() {
     openssl genpkey -algorithm EC -pkeyopt ec_paramgen_curve:P-256 -out "$1" 2>/dev/null
 }
 
-key "$dir/ca.key"
-openssl req -x509 -new -key "$dir/ca.key" -sha256 -days "$days" -subj "/CN=tracker-ca" \
-    -addext "basicConstraints=critical,CA:TRUE" \
-    -addext "keyUsage=critical,keyCertSign,cRLSign" \
-    -out "$dir/ca.crt"
+ca_key=$dir/ca.key
+if [ -n "${CA:-}" ]; then
+    # The CA's key stays where it is (no second copy); its certificate comes along.
+    ca_key=$CA/ca.key
+    cp "$CA/ca.crt" "$dir/"
+else
+    key "$dir/ca.key"
+    openssl req -x509 -new -key "$dir/ca.key" -sha256 -days "$days" -subj "/CN=tracker-ca" \
+        -addext "basicConstraints=critical,CA:TRUE" \
+        -addext "keyUsage=critical,keyCertSign,cRLSign" \
+        -out "$dir/ca.crt"
+fi
 
 # issue NAME CN EXTENSIONS
 issue() {
@@ -57,8 +70,8 @@ issue() {
     openssl req -new -key "$dir/$1.key" -subj "/CN=$2" -out "$dir/$1.csr"
     printf '%s\n' "basicConstraints=critical,CA:FALSE" \
         "keyUsage=critical,digitalSignature" "$3" >"$dir/$1.ext"
-    openssl x509 -req -in "$dir/$1.csr" -CA "$dir/ca.crt" -CAkey "$dir/ca.key" \
-        -CAcreateserial -sha256 -days "$days" -extfile "$dir/$1.ext" \
+    openssl x509 -req -in "$dir/$1.csr" -CA "$dir/ca.crt" -CAkey "$ca_key" \
+        -CAcreateserial -CAserial "$dir/ca.srl" -sha256 -days "$days" -extfile "$dir/$1.ext" \
         -out "$dir/$1.crt" 2>/dev/null
     rm -f "$dir/$1.csr" "$dir/$1.ext"
 }
@@ -66,8 +79,8 @@ issue() {
 # The service listens (server) and may connect to routers (client); a subscriber connects.
 issue service tracker-service "extendedKeyUsage=serverAuth,clientAuth
 subjectAltName=$san"
-issue subscriber tracker-subscriber "extendedKeyUsage=clientAuth
-subjectAltName=DNS:tracker-subscriber"
+issue subscriber "$subscriber" "extendedKeyUsage=clientAuth
+subjectAltName=DNS:$subscriber"
 rm -f "$dir/ca.srl"
 chmod 644 "$dir/ca.crt" "$dir/service.crt" "$dir/subscriber.crt"
-echo "$dir: ca.crt, service.crt/.key ($san), subscriber.crt/.key; keep ca.key offline"
+echo "$dir: ca.crt, service.crt/.key ($san), subscriber.crt/.key ($subscriber); keep $ca_key offline"

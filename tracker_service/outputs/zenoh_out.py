@@ -23,7 +23,7 @@ from pydantic import BaseModel
 from tracker_service.closing import Closing
 from tracker_service.outputs.zenoh_session import Mode, zenoh_config
 
-__all__ = ["ZenohPublisher"]
+__all__ = ["ZenohPublisher", "zenoh_config"]
 
 DEFAULT_PREFIX = "tracker"
 

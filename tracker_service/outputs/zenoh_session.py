@@ -33,6 +33,7 @@ __all__ = [
     "ZenohConfigError",
     "endpoint_protocol",
     "zenoh_config",
+    "zenoh_error",
 ]
 
 Mode = Literal["peer", "client", "router"]
@@ -97,7 +98,8 @@ def endpoint_protocol(endpoint: str) -> str:
     return endpoint.partition("/")[0]
 
 
-def _zenoh_error(exc: Exception) -> str:
+def zenoh_error(exc: Exception) -> str:
+    """A Zenoh error's message without the Rust source locations."""
     text = str(exc)
     inner = _JSON5_MESSAGE.search(text)
     return _RUST_LOCATION.sub("", inner.group(1) if inner else text).strip()
@@ -138,7 +140,7 @@ def _load(file: Path) -> zenoh.Config:
         config = zenoh.Config.from_file(str(file))
     except zenoh.ZError as exc:
         raise ZenohConfigError(
-            f"{file}: not a usable Zenoh configuration: {_zenoh_error(exc)}"
+            f"{file}: not a usable Zenoh configuration: {zenoh_error(exc)}"
         ) from None
     for key in _FILE_FIELDS:
         name = _get(config, key)
@@ -166,12 +168,28 @@ def _file_mode(config: zenoh.Config) -> Mode:
 
 
 def _refuse_plaintext(file: Path, listen: Sequence[str], connect: Sequence[str]) -> None:
+    added: tuple[tuple[Literal["listen", "connect"], Sequence[str]], ...] = (
+        ("listen", listen),
+        ("connect", connect),
+    )
+    for direction, endpoints in added:
+        for endpoint in endpoints:
+            if endpoint_protocol(endpoint) not in TLS_PROTOCOLS:
+                raise PlaintextEndpointError(direction, endpoint, file)
+
+
+def _require_listen_certificate(config: zenoh.Config, listen: Iterable[str]) -> None:
+    # Zenoh would say so when the listener opens, in the output process.
+    if _get(config, f"{_TLS}/listen_certificate") and _get(config, f"{_TLS}/listen_private_key"):
+        return
     for endpoint in listen:
-        if endpoint_protocol(endpoint) not in TLS_PROTOCOLS:
-            raise PlaintextEndpointError("listen", endpoint, file)
-    for endpoint in connect:
-        if endpoint_protocol(endpoint) not in TLS_PROTOCOLS:
-            raise PlaintextEndpointError("connect", endpoint, file)
+        # An endpoint may carry its own TLS settings after '#'.
+        if endpoint_protocol(endpoint) in TLS_PROTOCOLS and "#" not in endpoint:
+            raise ZenohConfigError(
+                f"listen endpoint {endpoint} is TLS but no certificate is configured: give "
+                f"a Zenoh configuration file with {_TLS}/listen_certificate and "
+                "listen_private_key (config/zenoh/service.json5, docs/security.md)"
+            )
 
 
 def _merged(first: Iterable[str], then: Iterable[str]) -> list[str]:
@@ -209,6 +227,7 @@ def zenoh_config(
         own_connect = _endpoints(config, "connect/endpoints", mode)
         if not allow_plaintext and _configures_tls(config, own_listen + own_connect):
             _refuse_plaintext(file, listen, connect)
+    _require_listen_certificate(config, [*own_listen, *listen])
     try:
         _set(config, "mode", mode)
         _set(config, "listen/endpoints", _merged(own_listen, listen))
@@ -217,5 +236,5 @@ def zenoh_config(
             if scouting or _get(config, key) is None:
                 _set(config, key, scouting)
     except zenoh.ZError as exc:
-        raise ZenohConfigError(_zenoh_error(exc)) from None
+        raise ZenohConfigError(zenoh_error(exc)) from None
     return config
