@@ -30,6 +30,7 @@ from tracker_service.chain import (
     BatchOutput,
     Chain,
     FieldMonitor,
+    PlotUse,
     RadarInfo,
     rejections,
     source_order,
@@ -323,7 +324,10 @@ class Outputs:
         self.counts.plots += len(plots)
         counters.plots += len(plots)
         if len(plots):
-            counters.last_plot_time = float(plots["time"].max())
+            # A plot whose time is implausible says nothing of when the radar was heard.
+            timed = plots["time"][plots["use"] != PlotUse.TIME_IMPLAUSIBLE]
+            if len(timed):
+                counters.last_plot_time = float(timed.max())
             counters.rejected.update(rejections(plots["use"]))
         if output.time is not None:
             counters.time = output.time
