@@ -345,6 +345,8 @@ def test_a_radar_restarting_with_a_wrong_clock(
     assert final.health == "degraded"
     assert any(KEY in line and "kept out of fusion" in line for line in final.reasons)
     assert any(KEY in line and "tracker followed" in line for line in final.reasons)
+    counted = final.radars[2].rejected
+    assert counted["time_implausible"] > 0 and counted["out_of_line"] > 0
     assert not any("25/11" in line or "25/12" in line for line in final.reasons)
 
 

@@ -485,7 +485,7 @@ class Chain:
         (a warning, and a reason in status)."""
         stats = state.tracker.stats
         source = state.info.source
-        report = self.time_sanity.report(source)
+        report = replace(self.time_sanity.report(source), out_of_line_plots=stats.out_of_line_plots)
         offset = report.offset_s
         if state.settled_offset is None:
             state.settled_offset = offset

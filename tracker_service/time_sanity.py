@@ -114,6 +114,8 @@ class TimeReport:
     last_clock_jump_s: float = 0.0
     last_clock_jump_at: float = -math.inf
     """The tracker's clock just after that jump."""
+    out_of_line_plots: int = 0
+    """Plots its local tracker's clock refused (too far ahead of it or behind), since start."""
 
 
 CONSENSUS_INTERVAL_S = 1.0

@@ -331,6 +331,9 @@ class Outputs:
             counters.rejected.update(rejections(plots["use"]))
         if output.time is not None:
             counters.time = output.time
+            if output.time.out_of_line_plots:
+                # A running count already: the tracker's, not this batch's.
+                counters.rejected["out_of_line"] = output.time.out_of_line_plots
         named = plots[(plots["address"] >= 0) & (plots["callsign"] != "")]
         for address, callsign in zip(
             named["address"].tolist(), named["callsign"].tolist(), strict=True
