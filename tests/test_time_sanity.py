@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import signal
+import threading
+import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -22,6 +25,9 @@ from asterix.codec import Block, decode_blocks, encode_block
 from asterix.containers import Datagram, read_file
 from asterix.plots import extract_plots
 from tests.conftest import shared_file
+from tests.test_service_replay import endpoint, logged
+from tests.test_service_replay import simulate as simulate_recording
+from tests.test_service_run import DaemonProcess, Feeds
 from tracker_service.chain import BatchOutput, PlotUse
 from tracker_service.cli import main
 from tracker_service.evaluation.real_data import NOMINAL_SITE_068, track_capture
@@ -556,3 +562,32 @@ def test_a_corrupt_i140_at_a_real_radars_midnight(tmp_path: Path) -> None:
     kept = run_faulty.plots[~rejected]
     assert np.all(np.abs(np.diff(np.sort(kept["time"]))) < 5.0)
     assert len(run_faulty.updates) >= len(run_clean.updates) - 1
+
+
+def test_the_daemon_says_why_a_capture_sent_hours_late_is_degraded(tmp_path: Path) -> None:
+    """``simulate`` without ``--start now`` sent to ``run`` over UDP on 127.0.0.1: the last
+    status the daemon logs (built in its output process from plain rows) names each radar,
+    its offset and the fix."""
+    recording = simulate_recording(tmp_path / "old.mcap", 12.0, start="2026-06-01T10:00:00Z")
+    feeds = Feeds(tmp_path)
+    daemon = DaemonProcess(feeds, endpoint(), tmp_path / "health")
+    try:
+        feeds.send(recording, threading.Event())
+        time.sleep(0.5)
+        assert daemon.stop(signal.SIGTERM) == 0, "\n".join(daemon.lines)
+    finally:
+        if daemon.process.poll() is None:
+            daemon.process.kill()
+            daemon.process.wait()
+    status = [m.data for m in logged(feeds.log_dir) if m.topic == "/status"][-1]
+    assert status["health"] == "degraded"
+    for key in ("25/11", "25/12", "25/13"):
+        assert any(
+            line.startswith(f"radar {key}: data time")
+            and "behind its reception" in line
+            and 'time_base = "reception"' in line
+            for line in status["reasons"]
+        ), status["reasons"]
+    offsets = {r["radar"]: r["time_offset_s"] for r in status["radars"]}
+    assert offsets["25/13"] is not None and offsets["25/13"] < -3600.0
+    assert any("data time" in line and "behind its reception" in line for line in daemon.lines)
