@@ -166,6 +166,7 @@ def clean(recording: Path) -> Run:
 def test_the_clean_run_is_sane(clean: Run) -> None:
     final = clean.statuses[-1]
     assert final.health == "ok" and final.reasons == []
+    assert not any(s.reasons for s in clean.statuses)
     offsets = [r.time_offset_s for r in final.radars if r.radar != "25/50"]
     assert all(o is not None and -2.0 < o < 0.0 for o in offsets)
     # The simulator's SSR reflections are stamped with their aircraft's time at a
@@ -353,6 +354,11 @@ def test_a_radar_restarting_with_a_wrong_clock(
     assert any(KEY in line and "tracker followed" in line for line in final.reasons)
     counted = final.radars[2].rejected
     assert counted["time_implausible"] > 0 and counted["out_of_line"] > 0
+    # While its plots did not fit its timeline, that was a reason too.
+    assert any(
+        any(line.startswith(f"radar {KEY}: ") and "implausible times" in line for line in s.reasons)
+        for s in faulty.statuses
+    )
     assert not any("25/11" in line or "25/12" in line for line in final.reasons)
 
 

@@ -47,6 +47,7 @@ __all__ = [
     "TimeReport",
     "TimeSanity",
     "TimeSanityConfig",
+    "implausible_reasons",
     "status_reasons",
 ]
 
@@ -149,6 +150,26 @@ def status_reasons(report: TimeReport, data_time: float | None) -> list[str]:
             f"tracker followed ({report.clock_resyncs} time(s) since start)"
         )
     return reasons
+
+
+IMPLAUSIBLE_SHARE = 0.05
+"""A radar more of whose plots than this had implausible times since the last status is a
+reason for "degraded": a stray corrupt stamp is counted, a stream of them is a fault."""
+
+
+IMPLAUSIBLE_MIN = 3
+
+
+def implausible_reasons(source: str, implausible: int, plots: int) -> list[str]:
+    """The line status gives for a radar ``implausible`` of whose ``plots`` since the
+    last status had implausible times, when they are more than ``IMPLAUSIBLE_SHARE`` of
+    them and at least ``IMPLAUSIBLE_MIN``."""
+    if implausible < IMPLAUSIBLE_MIN or implausible <= IMPLAUSIBLE_SHARE * plots:
+        return []
+    return [
+        f"radar {source}: {implausible} of its {plots} plots since the last status had "
+        "implausible times (kept out of tracking)"
+    ]
 
 
 @dataclass

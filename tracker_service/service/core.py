@@ -53,7 +53,12 @@ from tracker_service.outputs.messages import (
 )
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.service.config import ServiceConfig, parse_service_config
-from tracker_service.time_sanity import TimeReport, TimeSanityConfig, status_reasons
+from tracker_service.time_sanity import (
+    TimeReport,
+    TimeSanityConfig,
+    implausible_reasons,
+    status_reasons,
+)
 from tracker_service.tracking import TrackerConfig
 from tracker_service.validation import dataclass_kwargs
 
@@ -225,6 +230,7 @@ class _RadarCounters:
     last_plot_time: float | None = None
     plots: int = 0
     plots_at_last_status: int = 0
+    implausible_at_last_status: int = 0
     decode_errors: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
     time: TimeReport | None = None
@@ -575,6 +581,11 @@ class Outputs:
                 degraded |= self._now + offset - counters.last_plot_time > SILENT_PERIODS * period
             if counters.time is not None:
                 reasons += status_reasons(counters.time, counters.last_plot_time)
+                reasons += implausible_reasons(
+                    key,
+                    counters.rejected["time_implausible"] - counters.implausible_at_last_status,
+                    counters.plots - counters.plots_at_last_status,
+                )
             radars.append(
                 RadarStatus(
                     radar=key,
@@ -599,6 +610,7 @@ class Outputs:
         message = self.status()
         for counters in self._radars.values():
             counters.plots_at_last_status = counters.plots
+            counters.implausible_at_last_status = counters.rejected["time_implausible"]
         if self.publisher is not None:
             self.publisher.put_status(message)
         if self.log is not None:
