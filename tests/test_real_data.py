@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tracker_service.chain import PlotUse
 from tracker_service.evaluation.real_data import (
     NOMINAL_SITE_068,
     CaptureRun,
@@ -56,6 +57,12 @@ def test_plots_as_described(run: CaptureRun) -> None:
     assert summary["3430D8"].largest_gap_s == pytest.approx(54.9, abs=0.1)
     span = float(run.plots["time"].max() - run.plots["time"].min())
     assert span / 60 == pytest.approx(79, abs=0.5)
+
+
+def test_every_plot_time_is_plausible(run: CaptureRun) -> None:
+    """79 minutes of a real radar: time sanity keeps every plot (none is implausible
+    against its north markers, its azimuth or its reception)."""
+    assert np.all(run.plots["use"] == PlotUse.TRACKED)
 
 
 def test_one_confirmed_track_per_continuous_stretch(run: CaptureRun) -> None:

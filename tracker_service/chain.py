@@ -330,14 +330,6 @@ class RadarState:
     """The radar's number in fusion and bias estimation; None when kept out of them."""
     fixed: FixedTargets
     sequence: int = 0
-    clock_resyncs: int = 0
-    """Re-synchronisations of its tracker's clock already seen."""
-    clock_jumps: int = 0
-    """Those of them that followed a jump of the radar's clock (not an outage)."""
-    last_clock_jump: tuple[float, float] = (0.0, -math.inf)
-    """(jump, the tracker's clock after it) of the latest."""
-    settled_offset: float | None = None
-    """Its offset from reception at its tracker's latest re-synchronisation (or start)."""
     monitor_xy: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
     """Per plot of the latest batch, the surveyed position of the field monitor or fixed
     transponder it is (NaN for the others): the bias estimator's monitor observations."""
@@ -522,48 +514,16 @@ class Chain:
         if not tracked.all():
             batch = batch[tracked]
         local = state.tracker.process(batch)
-        report = self._time_report(state)
+        report = self.time_sanity.report(source, state.tracker)
         # A radar out of step with the others would be fused at the wrong time.
-        if self.fuser is None or index is None or not len(local) or report.out_of_step_s:
+        out_of_step = report.out_of_step_s is not None
+        if self.fuser is None or index is None or not len(local) or out_of_step:
             return BatchOutput(source, table, local, _NO_SYSTEM_ROWS, report)
         extra = None
         if bias is not None and bias_cov is not None and c is not None:
             extra = self._estimate_biases(state, table, batch, local, c, bias, bias_cov)
         system = self.fuser.process(index, local, batch, extra)
         return BatchOutput(source, table, local, system, report)
-
-    def _time_report(self, state: RadarState) -> TimeReport:
-        """The radar's time sanity and its tracker's clock, for status. When the tracker's
-        clock has just followed a jump, the radar's offset from reception says what it
-        was: data again after an outage (the offset has not moved), or the radar's clock
-        (a warning, and a reason in status)."""
-        stats = state.tracker.stats
-        source = state.info.source
-        report = self.time_sanity.report(source)
-        offset = report.offset_s
-        if state.settled_offset is None:
-            state.settled_offset = offset
-        if stats.clock_resyncs > state.clock_resyncs:
-            state.clock_resyncs = stats.clock_resyncs
-            jump = stats.last_clock_jump_s
-            settled, state.settled_offset = state.settled_offset, offset
-            tolerance = max(2.0 * state.tracker_config.scan_period_s, 10.0)
-            if offset is not None and settled is not None and abs(offset - settled) <= tolerance:
-                log.info("radar %s: data again, %+.1f s on", source, jump)
-            else:
-                state.clock_jumps += 1
-                state.last_clock_jump = (jump, float(state.tracker.clock.now))
-                log.warning(
-                    "radar %s: its time jumped by %+.1f s for good: its tracker follows",
-                    source,
-                    jump,
-                )
-        if not state.clock_jumps:
-            return report
-        jump, at = state.last_clock_jump
-        return replace(
-            report, clock_resyncs=state.clock_jumps, last_clock_jump_s=jump, last_clock_jump_at=at
-        )
 
     def _fixed_transponders(
         self, state: RadarState, table: npt.NDArray[Any], batch: npt.NDArray[Any]

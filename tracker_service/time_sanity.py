@@ -40,6 +40,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.ingest import DAY_S, TimeSource, posix_from_time_of_day
+from tracker_service.tracking import LocalTracker
 
 __all__ = [
     "TIME_BASES",
@@ -47,6 +48,7 @@ __all__ = [
     "TimeReport",
     "TimeSanity",
     "TimeSanityConfig",
+    "implausible_reasons",
     "status_reasons",
 ]
 
@@ -114,6 +116,8 @@ class TimeReport:
     last_clock_jump_s: float = 0.0
     last_clock_jump_at: float = -math.inf
     """The tracker's clock just after that jump."""
+    out_of_line_plots: int = 0
+    """Plots its local tracker's clock refused (too far ahead of it or behind), since start."""
 
 
 CONSENSUS_INTERVAL_S = 1.0
@@ -149,6 +153,26 @@ def status_reasons(report: TimeReport, data_time: float | None) -> list[str]:
     return reasons
 
 
+IMPLAUSIBLE_SHARE = 0.05
+"""A radar more of whose plots than this had implausible times since the last status is a
+reason for "degraded": a stray corrupt stamp is counted, a stream of them is a fault."""
+
+
+IMPLAUSIBLE_MIN = 3
+
+
+def implausible_reasons(source: str, implausible: int, plots: int) -> list[str]:
+    """The line status gives for a radar ``implausible`` of whose ``plots`` since the
+    last status had implausible times, when they are more than ``IMPLAUSIBLE_SHARE`` of
+    them and at least ``IMPLAUSIBLE_MIN``."""
+    if implausible < IMPLAUSIBLE_MIN or implausible <= IMPLAUSIBLE_SHARE * plots:
+        return []
+    return [
+        f"radar {source}: {implausible} of its {plots} plots since the last status had "
+        "implausible times (kept out of tracking)"
+    ]
+
+
 @dataclass
 class _Timeline:
     """What is known of one radar's time."""
@@ -165,6 +189,14 @@ class _Timeline:
     reported_offset: float | None = None
     logged_at: float = -math.inf
     unlogged: int = 0
+    tracker_resyncs: int = 0
+    """Re-synchronisations of its tracker's clock already seen."""
+    clock_jumps: int = 0
+    """Those that followed a jump of the radar's clock (not data again after an outage)."""
+    last_jump: tuple[float, float] = (0.0, -math.inf)
+    """(jump, the tracker's clock after it) of the latest."""
+    settled_offset: float | None = None
+    """Its offset from reception at its tracker's latest re-synchronisation (or start)."""
 
     def offset(self) -> float | None:
         return _median(self.offsets) if self.offsets else None
@@ -390,16 +422,49 @@ class TimeSanity:
         step = own - consensus
         return step if abs(step) > self.config.max_offset_s else None
 
-    def report(self, source: str) -> TimeReport:
+    def report(self, source: str, tracker: LocalTracker | None = None) -> TimeReport:
+        """The radar's time for status, with what its local ``tracker``'s clock did."""
         timeline = self._timeline(source)
         enough = len(timeline.offsets) >= self.config.min_evidence
+        offset = timeline.offset() if enough else None
+        if tracker is not None:
+            self._follow(timeline, tracker, offset)
+        jump, at = timeline.last_jump
         return TimeReport(
             source=source,
             time_base=timeline.time_base,
-            offset_s=timeline.offset() if enough else None,
+            offset_s=offset,
             offset_reported=self._reportable(timeline) is not None,
             out_of_step_s=self.out_of_step(source),
             implausible=timeline.implausible,
+            clock_resyncs=timeline.clock_jumps,
+            last_clock_jump_s=jump,
+            last_clock_jump_at=at,
+            out_of_line_plots=0 if tracker is None else tracker.stats.out_of_line_plots,
+        )
+
+    def _follow(self, timeline: _Timeline, tracker: LocalTracker, offset: float | None) -> None:
+        """When the tracker's clock has just followed a jump, the radar's offset from
+        reception says what it was: data again after an outage (the offset has not
+        moved), or the radar's clock (a warning, and a reason in status)."""
+        stats = tracker.stats
+        if timeline.settled_offset is None:
+            timeline.settled_offset = offset
+        if stats.clock_resyncs <= timeline.tracker_resyncs:
+            return
+        timeline.tracker_resyncs = stats.clock_resyncs
+        jump = stats.last_clock_jump_s
+        settled, timeline.settled_offset = timeline.settled_offset, offset
+        tolerance = max(2.0 * tracker.config.scan_period_s, self.config.max_offset_s)
+        if offset is not None and settled is not None and abs(offset - settled) <= tolerance:
+            log.info("radar %s: data again, %+.1f s on", timeline.source, jump)
+            return
+        timeline.clock_jumps += 1
+        timeline.last_jump = (jump, tracker.clock.now)
+        log.warning(
+            "radar %s: its time jumped by %+.1f s for good: its tracker follows",
+            timeline.source,
+            jump,
         )
 
 

@@ -236,7 +236,8 @@ class RadarStatus(_Message):
     drops: Annotated[int, Field(ge=0)]
     """Plots or datagrams dropped under overload (counted, also in the MCAP log)."""
     rejected: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
-    """Plots since start kept out of traffic tracking, by reason (field_monitor, ...)."""
+    """Plots since start kept out of traffic tracking, by reason (field_monitor,
+    time_implausible, out_of_line: refused by its tracker's clock, ...)."""
     time_offset_s: float | None = None
     """Its data time minus its reception time (median of recent datagrams and north
     markers); None until measured. Beyond a few seconds: a replayed capture or a wrong

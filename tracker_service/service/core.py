@@ -30,6 +30,7 @@ from tracker_service.chain import (
     BatchOutput,
     Chain,
     FieldMonitor,
+    PlotUse,
     RadarInfo,
     rejections,
     source_order,
@@ -55,7 +56,12 @@ from tracker_service.outputs.messages import (
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.service.config import ServiceConfig, parse_service_config
 from tracker_service.test_targets import SeenTestTargets
-from tracker_service.time_sanity import TimeReport, TimeSanityConfig, status_reasons
+from tracker_service.time_sanity import (
+    TimeReport,
+    TimeSanityConfig,
+    implausible_reasons,
+    status_reasons,
+)
 from tracker_service.tracking import LocalTracker, TrackerConfig
 from tracker_service.validation import dataclass_kwargs
 
@@ -251,6 +257,7 @@ class _RadarCounters:
     last_plot_time: float | None = None
     plots: int = 0
     plots_at_last_status: int = 0
+    implausible_at_last_status: int = 0
     decode_errors: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
     time: TimeReport | None = None
@@ -350,11 +357,17 @@ class Outputs:
         self.counts.plots += len(plots)
         counters.plots += len(plots)
         if len(plots):
-            counters.last_plot_time = float(plots["time"].max())
+            # A plot whose time is implausible says nothing of when the radar was heard.
+            timed = plots["time"][plots["use"] != PlotUse.TIME_IMPLAUSIBLE]
+            if len(timed):
+                counters.last_plot_time = float(timed.max())
             counters.rejected.update(rejections(plots["use"]))
             counters.test_targets.update(plots)
         if output.time is not None:
             counters.time = output.time
+            if output.time.out_of_line_plots:
+                # A running count already: the tracker's, not this batch's.
+                counters.rejected["out_of_line"] = output.time.out_of_line_plots
         named = plots[(plots["address"] >= 0) & (plots["callsign"] != "")]
         for address, callsign in zip(
             named["address"].tolist(), named["callsign"].tolist(), strict=True
@@ -598,6 +611,11 @@ class Outputs:
                 degraded |= self._now + offset - counters.last_plot_time > SILENT_PERIODS * period
             if counters.time is not None:
                 reasons += status_reasons(counters.time, counters.last_plot_time)
+                reasons += implausible_reasons(
+                    key,
+                    counters.rejected["time_implausible"] - counters.implausible_at_last_status,
+                    counters.plots - counters.plots_at_last_status,
+                )
             radars.append(
                 RadarStatus(
                     radar=key,
@@ -623,6 +641,7 @@ class Outputs:
         message = self.status()
         for counters in self._radars.values():
             counters.plots_at_last_status = counters.plots
+            counters.implausible_at_last_status = counters.rejected["time_implausible"]
         if self.publisher is not None:
             self.publisher.put_status(message)
         if self.log is not None:
