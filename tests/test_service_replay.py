@@ -180,7 +180,13 @@ def test_replay_publishes_system_tracks_over_zenoh(published: Published) -> None
         assert samples[-2].json()["status"] == "ended", key
         assert all(s.json()["status"] != "ended" for s in samples[:-2]), key
     assert any(s.key.startswith("tracker/local_tracks/25_13/") for s in published.samples)
-    assert any(s.key.startswith("tracker/bias/25_11") for s in published.samples)
+    bias = [s.json() for s in published.samples if s.key.startswith("tracker/bias/25_11")]
+    assert bias
+    # Mosnik has a field monitor and shares traffic with the other radars: its range
+    # offset is observable, and the message says from what.
+    offset = bias[-1]["range_offset_m"]
+    assert offset["observable"]
+    assert {"field_monitor", "other_radars"} & set(offset["observed_from"])
     status = [s.json() for s in published.samples if s.key == "tracker/status"]
     assert status and {r["radar"] for r in status[-1]["radars"]} >= {"25/11", "25/12", "25/13"}
     # LAN B's copies of Mosnik (25/11) were recognised as duplicates.

@@ -60,23 +60,26 @@ def predict(
     models: ModelSet,
 ) -> ConsiderPrediction:
     """IMM mixing and prediction over dt (k,), sensitivities included."""
-    pred = imm.predict(x, P, mu, dt, models)
-    _, w = imm.mixing(mu, dt, models)
-    f, _ = models.transitions(dt)
-    mixed = np.einsum("kij,kilab->kjlab", w, M)
-    moved = np.einsum("kmab,kmlbc->kmlac", f, mixed)
-    return ConsiderPrediction(imm=pred, M=moved, M_comb=combine(moved, pred.c))
+    c, w = imm.mixing(mu, dt, models)
+    f, q = models.transitions(dt)
+    pred = imm.mix_and_move(x, P, c, w, f, q)
+    k, n, radars = M.shape[:3]
+    # As matrix products (einsum loops over every index of such small stacks).
+    mixed = (np.swapaxes(w, 1, 2) @ M.reshape(k, n, radars * 8)).reshape(M.shape)
+    moved = f[:, :, None] @ mixed
+    return ConsiderPrediction(imm=pred, M=moved, M_comb=combine(moved, c))
 
 
 def combine(M: FloatArray, w: FloatArray) -> FloatArray:
     """The sensitivities (k, radars, 4, 2) of the mixture of models with weights w (k, M)."""
-    return np.asarray(np.einsum("km,kmlab->klab", w, M))
+    k, n = w.shape
+    return np.asarray((w[:, None, :] @ M.reshape(k, n, -1)).reshape(k, *M.shape[2:]))
 
 
 def bias_share(M: FloatArray, B: FloatArray) -> FloatArray:
     """sum_l M_l B_l M_l^T (..., 4, 4): the residual biases' part of the state covariance,
     for sensitivities M (..., radars, 4, 2) and bias covariances B (..., radars, 2, 2)."""
-    return np.asarray(np.einsum("...lab,...lbc,...ldc->...ad", M, B, M))
+    return np.asarray((M @ B @ np.swapaxes(M, -1, -2)).sum(axis=-3))
 
 
 def update(
@@ -88,12 +91,13 @@ def update(
     xp, pp, mp = pred.imm.x, pred.imm.P, pred.M
     g = mp[..., :2, :].copy()
     g[:, :, radar] -= np.eye(2)
-    s = pp[..., :2, :2] + R[:, None] + np.einsum("kmlab,klbc,kmldc->kmad", g, B, g)
-    cross = pp[..., :, :2] + np.einsum("kmlab,klbc,kmldc->kmad", mp, B, g)
+    bg = B[:, None] @ np.swapaxes(g, -1, -2)
+    s = pp[..., :2, :2] + R[:, None] + (g @ bg).sum(axis=2)
+    cross = pp[..., :, :2] + (mp @ bg).sum(axis=2)
     s_inv, det = imm.inv2(s)
     k_gain = cross @ s_inv
     y = z[:, None, :] - xp[..., :2]
     x_new = xp + np.einsum("kmab,kmb->kma", k_gain, y)
     p_new = imm.joseph(pp, k_gain, R[:, None])
-    m_new = mp - np.einsum("kmab,kmlbc->kmlac", k_gain, g)
+    m_new = mp - k_gain[:, :, None] @ g
     return x_new, p_new, m_new, imm.model_probabilities(pred.imm.c, y, s_inv, det)

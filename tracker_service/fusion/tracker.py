@@ -498,8 +498,7 @@ class SystemTracker:
         t = loc["t"][local]
         dt = t - sys["t"][system]
         if self.config.method == "plots":
-            own = sys[system]
-            pred = consider.predict(own["mx"], own["mP"], own["mM"], own["mu"], dt, self.models)
+            pred = self._predict(system, dt)
             xs, ps, moved = pred.imm.x_comb, pred.imm.P_comb, pred.M_comb
         else:
             xs, ps = predict_cv(sys["x"][system], sys["P"][system], dt, self.config.q)
@@ -620,6 +619,19 @@ class SystemTracker:
         sys["x"][n] = np.column_stack([v["x"], v["y"], v["vx"], v["vy"]])
         sys["P"][n] = v["P"].reshape(-1, 4, 4)
 
+    def _predict(self, numbers: IntArray, dt: FloatArray) -> consider.ConsiderPrediction:
+        """The system tracks' IMMs predicted over dt (field by field: a whole row of the
+        table holds every radar's sensitivities)."""
+        sys = self._sys
+        return consider.predict(
+            sys["mx"][numbers],
+            sys["mP"][numbers],
+            sys["mM"][numbers],
+            sys["mu"][numbers],
+            dt,
+            self.models,
+        )
+
     def _filter_round(
         self, radar: int, numbers: IntArray, p: PlotArrays, extra: FloatArray
     ) -> None:
@@ -633,10 +645,9 @@ class SystemTracker:
         if numbers.size == 0:
             return
         sys["B"][numbers, radar] = extra
-        s = sys[numbers]
-        pred = consider.predict(s["mx"], s["mP"], s["mM"], s["mu"], dt, self.models)
+        pred = self._predict(numbers, dt)
         z = np.column_stack([p.x, p.y])
-        x, pm, mm, mu = consider.update(pred, z, p.R, radar, s["B"])
+        x, pm, mm, mu = consider.update(pred, z, p.R, radar, sys["B"][numbers])
         xc, pc = imm.combine(x, pm, mu)
         sys["mx"][numbers], sys["mP"][numbers], sys["mM"][numbers] = x, pm, mm
         sys["mu"][numbers] = mu
@@ -665,14 +676,13 @@ class SystemTracker:
             x, p = self._fuse(slots, t)
             sys["x"][numbers], sys["P"][numbers], sys["t"][numbers] = x, p, t
         else:
-            s = sys[numbers]
-            pred = consider.predict(s["mx"], s["mP"], s["mM"], s["mu"], t - s["t"], self.models)
+            pred = self._predict(numbers, t - sys["t"][numbers])
             x, p = pred.imm.x_comb.copy(), pred.imm.P_comb.copy()
-            solo = s["solo"]  # its founder's update (``_follow_founder``)
+            solo = sys["solo"][numbers]  # its founder's update (``_follow_founder``)
             v = u[last][solo]
             x[solo] = np.column_stack([v["x"], v["y"], v["vx"], v["vy"]])
             p[solo] = v["P"].reshape(-1, 4, 4)
-            p += consider.bias_share(pred.M_comb, s["B"])
+            p += consider.bias_share(pred.M_comb, sys["B"][numbers])
         status = np.where(fresh, CONFIRMED, COASTING).astype(np.int8)
         out = self._rows(numbers, t, x, p, status, slots)
         out["fresh"] = fresh

@@ -71,12 +71,19 @@ def predict(
 ) -> ImmPrediction:
     """IMM mixing, then each model's prediction over its own step dt (k,)."""
     c, w = mixing(mu, dt, models)
+    f, q = models.transitions(dt)
+    return mix_and_move(x, P, c, w, f, q)
+
+
+def mix_and_move(
+    x: FloatArray, P: FloatArray, c: FloatArray, w: FloatArray, f: FloatArray, q: FloatArray
+) -> ImmPrediction:
+    """``predict`` given the mixing (``mixing``) and the models' F and Q (k, M, 4, 4)."""
     x0 = np.einsum("kij,kia->kja", w, x)
     d = x[:, :, None, :] - x0[:, None, :, :]
     p0 = np.einsum("kij,kiab->kjab", w, P) + np.einsum("kija,kijb->kjab", w[..., None] * d, d)
     # All models in one stacked product: a loop over models cost more in call overhead
     # than in arithmetic on the few pairs of a sector.
-    f, q = models.transitions(dt)
     xp = np.einsum("kmab,kmb->kma", f, x0)
     pp = f @ p0 @ np.swapaxes(f, -1, -2) + q
     xc, pc = combine(xp, pp, c)
