@@ -705,6 +705,8 @@ def suspect_tracks(
 ) -> list[dict[str, Any]]:
     """Published tracks that took a test or fixed target's plot, or stay in one place."""
     rows = ts.rows[np.isin(ts.rows["status"], PUBLISHED)]
+    if not len(rows):
+        return []
     rows = rows[np.argsort(rows[ts.number], kind="stable")]
     numbers, starts = np.unique(rows[ts.number], return_index=True)
     out: list[dict[str, Any]] = []
