@@ -220,6 +220,34 @@ def test_066_filter_fixture(assessed: Callable[[Path], Assessed]) -> None:
     assert radar["local"]["published_tracks"] == 0
 
 
+def test_canal_a_cat001_radar(assessed: Callable[[Path], Assessed]) -> None:
+    """canalA.gps: 48 minutes of a CAT001 radar (SAC 20/SIC 130, Mode A/C only, north
+    markers every 4.01 s without I041), measured on this branch merged with the CAT001
+    work: 30,651 plots, 134 discrete codes. Two fixed transponders on 7777 at 90.85 NM,
+    150.35 deg (RAB 0; 3 more plots with RAB at 99.77 NM) get published stationary tracks
+    today (issue 10 finding 4: bounded to them, not asserted); code 5001, flying FL 120-180
+    with no plot gap over 12 s for 22 minutes, gets 13 local tracks (23 breaks in all)."""
+    _, doc = _with_plots(assessed, _recording("reader_network/canalA.gps"))
+    radar = doc["radars"]["20/130"]
+    assert radar["plots"] == pytest.approx(30651, abs=50)
+    assert radar["period_s"] == pytest.approx(4.01, abs=0.02)
+    assert radar["flags"]["code_7777"] == pytest.approx(1432, abs=5)
+    fixed = next(t for t in radar["targets_seen"] if t["marks"] == "code_7777")
+    assert fixed["range_nm"] == pytest.approx(90.85, abs=0.1)
+    assert fixed["azimuth_deg"] == pytest.approx(150.35, abs=0.1)
+    assert radar["time"]["far_from_reception"] == radar["time"]["older_than_latest"] == 0
+    for name, m in _track_sets(doc).items():
+        codes = m["per_mode3a"]
+        assert codes["identities"] == 134, name
+        assert codes["tracks_per_identity"] < 1.8, name  # 1.72 local, 1.66 system
+        assert codes["breaks"] <= 23, name  # 23 local, 16 system
+        assert m["speed_kt"]["max"] < 650, name  # 603 kt
+        assert m["jump_m"]["over_1_nm"] == 0, name  # largest 0.81 NM
+        assert m["nis"]["share_over_99"] < 0.01, name
+        for track in m["suspect_tracks"]:
+            assert track["mode3a"] == "7777", (name, track)
+
+
 # --- the measures themselves --------------------------------------------------------------
 
 
