@@ -23,16 +23,20 @@ import numpy as np
 import pytest
 
 from tests.conftest import REPO, SHARED_DATA
+from tracker_service.chain import RAW_PLOT_DTYPE
 from tracker_service.cli import main
 from tracker_service.evaluation.assess import (
     CHECKS,
+    PLOT_EXTRA_DTYPE,
     SCHEMA,
     AssessRun,
+    TrackSet,
     assess,
     format_summary,
     is_discrete,
     run_recording,
     stretch_changes,
+    suspect_tracks,
     track_instances,
 )
 
@@ -277,6 +281,28 @@ def test_a_number_given_again_is_a_new_track() -> None:
     keys = track_instances(rows, "track_number", 3)["track_number"].tolist()
     assert keys == [7, 7, 8, 1_000_007, 1_000_007]
     assert rows["track_number"].tolist() == [7, 7, 8, 7, 7]  # the input is kept
+
+
+def test_a_track_that_stays_put_is_suspect() -> None:
+    """A published track within 500 m of one place for 10 updates over 2 minutes is a
+    fixed transponder; one that moves 100 kt, or stays put for a minute only, is not."""
+    fields = [("system_number", np.int64), ("status", np.int8), ("time", np.float64)]
+    fields += [("x", np.float64), ("y", np.float64), ("plot_id", np.int64)]
+    fields += [("address", np.int64), ("mode3a", np.int64)]
+    t = np.arange(0.0, 150.0, 5.0)
+    tracks = {1: (t, 20.0 * np.sin(t)), 2: (t, 51.4 * t), 3: (t[:12], 20.0 * np.sin(t[:12]))}
+    rows = np.zeros(sum(len(times) for times, _ in tracks.values()), dtype=fields)
+    k = 0
+    for number, (times, x) in tracks.items():
+        n = len(times)
+        rows[k : k + n]["system_number"] = number
+        rows[k : k + n]["time"], rows[k : k + n]["x"] = times, x
+        k += n
+    rows["status"], rows["plot_id"], rows["address"], rows["mode3a"] = 1, -1, -1, 0o1234
+    ts = TrackSet("system", rows, "system_number", np.ones(len(rows)), 16.0, ("1/1",))
+    plots = np.zeros(0, RAW_PLOT_DTYPE)
+    found = suspect_tracks(ts, plots, np.zeros(0, PLOT_EXTRA_DTYPE), {})
+    assert [(t["track"], t["reasons"], t["mode3a"]) for t in found] == [(1, ["stationary"], "1234")]
 
 
 @pytest.fixture(scope="module")

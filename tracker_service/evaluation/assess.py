@@ -80,7 +80,7 @@ from tracker_service.fusion import SYSTEM_UPDATE_DTYPE
 from tracker_service.fusion.messages import COASTING, CONFIRMED, ENDED
 from tracker_service.geodesy import RadarSite
 from tracker_service.ingest import TimeSource
-from tracker_service.service.config import ServiceConfig, load_service_config
+from tracker_service.service.config import ConfigError, ServiceConfig, load_service_config
 from tracker_service.service.config import parse_service_config as parse_config
 from tracker_service.service.core import build_chain
 from tracker_service.service.replay import open_replay, parse_date
@@ -93,8 +93,10 @@ __all__ = [
     "ASSUMED_SITE",
     "CHECKS",
     "NON_DISCRETE",
+    "PLOT_EXTRA_DTYPE",
     "SCHEMA",
     "AssessRun",
+    "TrackSet",
     "add_arguments",
     "assess",
     "format_summary",
@@ -1091,8 +1093,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """The command: 0 when every applicable check passes, 1 when one fails, 2 on bad input."""
-    from tracker_service.service.config import ConfigError
-
     try:
         result = run_recording(args.recording, args.config, args.date)
     except (ConfigError, ValueError, OSError) as exc:
