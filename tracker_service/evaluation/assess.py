@@ -886,7 +886,16 @@ def _checks(doc: Mapping[str, Any]) -> list[dict[str, Any]]:
     if system is None:
         out.append(_check(CHECKS[0], None, "no system tracks (radars not fused)"))
     elif system["per_address"]["tracked"] == 0:
-        out.append(_check(CHECKS[0], None, "no Mode S address has a system track"))
+        c = system["per_mode3a"]
+        out.append(
+            _check(
+                CHECKS[0],
+                None,
+                "no Mode S address has a system track (per discrete Mode 3/A code: "
+                f"{c['tracks']} tracks for {c['identities']} codes, {c['breaks']} breaks, "
+                f"{c['overlaps']} overlaps)",
+            )
+        )
     else:
         a = system["per_address"]
         out.append(
