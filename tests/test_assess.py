@@ -23,16 +23,20 @@ import numpy as np
 import pytest
 
 from tests.conftest import REPO, SHARED_DATA
+from tracker_service.chain import RAW_PLOT_DTYPE
 from tracker_service.cli import main
 from tracker_service.evaluation.assess import (
     CHECKS,
+    PLOT_EXTRA_DTYPE,
     SCHEMA,
     AssessRun,
+    TrackSet,
     assess,
     format_summary,
     is_discrete,
     run_recording,
     stretch_changes,
+    suspect_tracks,
     track_instances,
 )
 
@@ -220,6 +224,34 @@ def test_066_filter_fixture(assessed: Callable[[Path], Assessed]) -> None:
     assert radar["local"]["published_tracks"] == 0
 
 
+def test_canal_a_cat001_radar(assessed: Callable[[Path], Assessed]) -> None:
+    """canalA.gps: 48 minutes of a CAT001 radar (SAC 20/SIC 130, Mode A/C only, north
+    markers every 4.01 s without I041), measured on this branch merged with the CAT001
+    work: 30,651 plots, 134 discrete codes. Two fixed transponders on 7777 at 90.85 NM,
+    150.35 deg (RAB 0; 3 more plots with RAB at 99.77 NM) get published stationary tracks
+    today (issue 10 finding 4: bounded to them, not asserted); code 5001, flying FL 120-180
+    with no plot gap over 12 s for 22 minutes, gets 13 local tracks (23 breaks in all)."""
+    _, doc = _with_plots(assessed, _recording("reader_network/canalA.gps"))
+    radar = doc["radars"]["20/130"]
+    assert radar["plots"] == pytest.approx(30651, abs=50)
+    assert radar["period_s"] == pytest.approx(4.01, abs=0.02)
+    assert radar["flags"]["code_7777"] == pytest.approx(1432, abs=5)
+    fixed = next(t for t in radar["targets_seen"] if t["marks"] == "code_7777")
+    assert fixed["range_nm"] == pytest.approx(90.85, abs=0.1)
+    assert fixed["azimuth_deg"] == pytest.approx(150.35, abs=0.1)
+    assert radar["time"]["far_from_reception"] == radar["time"]["older_than_latest"] == 0
+    for name, m in _track_sets(doc).items():
+        codes = m["per_mode3a"]
+        assert codes["identities"] == 134, name
+        assert codes["tracks_per_identity"] < 1.8, name  # 1.72 local, 1.66 system
+        assert codes["breaks"] <= 23, name  # 23 local, 16 system
+        assert m["speed_kt"]["max"] < 650, name  # 603 kt
+        assert m["jump_m"]["over_1_nm"] == 0, name  # largest 0.81 NM
+        assert m["nis"]["share_over_99"] < 0.01, name
+        for track in m["suspect_tracks"]:
+            assert track["mode3a"] == "7777", (name, track)
+
+
 # --- the measures themselves --------------------------------------------------------------
 
 
@@ -249,6 +281,28 @@ def test_a_number_given_again_is_a_new_track() -> None:
     keys = track_instances(rows, "track_number", 3)["track_number"].tolist()
     assert keys == [7, 7, 8, 1_000_007, 1_000_007]
     assert rows["track_number"].tolist() == [7, 7, 8, 7, 7]  # the input is kept
+
+
+def test_a_track_that_stays_put_is_suspect() -> None:
+    """A published track within 500 m of one place for 10 updates over 2 minutes is a
+    fixed transponder; one that moves 100 kt, or stays put for a minute only, is not."""
+    fields = [("system_number", np.int64), ("status", np.int8), ("time", np.float64)]
+    fields += [("x", np.float64), ("y", np.float64), ("plot_id", np.int64)]
+    fields += [("address", np.int64), ("mode3a", np.int64)]
+    t = np.arange(0.0, 150.0, 5.0)
+    tracks = {1: (t, 20.0 * np.sin(t)), 2: (t, 51.4 * t), 3: (t[:12], 20.0 * np.sin(t[:12]))}
+    rows = np.zeros(sum(len(times) for times, _ in tracks.values()), dtype=fields)
+    k = 0
+    for number, (times, x) in tracks.items():
+        n = len(times)
+        rows[k : k + n]["system_number"] = number
+        rows[k : k + n]["time"], rows[k : k + n]["x"] = times, x
+        k += n
+    rows["status"], rows["plot_id"], rows["address"], rows["mode3a"] = 1, -1, -1, 0o1234
+    ts = TrackSet("system", rows, "system_number", np.ones(len(rows)), 16.0, ("1/1",))
+    plots = np.zeros(0, RAW_PLOT_DTYPE)
+    found = suspect_tracks(ts, plots, np.zeros(0, PLOT_EXTRA_DTYPE), {})
+    assert [(t["track"], t["reasons"], t["mode3a"]) for t in found] == [(1, ["stationary"], "1234")]
 
 
 @pytest.fixture(scope="module")

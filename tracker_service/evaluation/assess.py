@@ -80,7 +80,7 @@ from tracker_service.fusion import SYSTEM_UPDATE_DTYPE
 from tracker_service.fusion.messages import COASTING, CONFIRMED, ENDED
 from tracker_service.geodesy import RadarSite
 from tracker_service.ingest import TimeSource
-from tracker_service.service.config import ServiceConfig, load_service_config
+from tracker_service.service.config import ConfigError, ServiceConfig, load_service_config
 from tracker_service.service.config import parse_service_config as parse_config
 from tracker_service.service.core import build_chain
 from tracker_service.service.replay import open_replay, parse_date
@@ -93,8 +93,10 @@ __all__ = [
     "ASSUMED_SITE",
     "CHECKS",
     "NON_DISCRETE",
+    "PLOT_EXTRA_DTYPE",
     "SCHEMA",
     "AssessRun",
+    "TrackSet",
     "add_arguments",
     "assess",
     "format_summary",
@@ -705,6 +707,8 @@ def suspect_tracks(
 ) -> list[dict[str, Any]]:
     """Published tracks that took a test or fixed target's plot, or stay in one place."""
     rows = ts.rows[np.isin(ts.rows["status"], PUBLISHED)]
+    if not len(rows):
+        return []
     rows = rows[np.argsort(rows[ts.number], kind="stable")]
     numbers, starts = np.unique(rows[ts.number], return_index=True)
     out: list[dict[str, Any]] = []
@@ -882,7 +886,16 @@ def _checks(doc: Mapping[str, Any]) -> list[dict[str, Any]]:
     if system is None:
         out.append(_check(CHECKS[0], None, "no system tracks (radars not fused)"))
     elif system["per_address"]["tracked"] == 0:
-        out.append(_check(CHECKS[0], None, "no Mode S address has a system track"))
+        c = system["per_mode3a"]
+        out.append(
+            _check(
+                CHECKS[0],
+                None,
+                "no Mode S address has a system track (per discrete Mode 3/A code: "
+                f"{c['tracks']} tracks for {c['identities']} codes, {c['breaks']} breaks, "
+                f"{c['overlaps']} overlaps)",
+            )
+        )
     else:
         a = system["per_address"]
         out.append(
@@ -1089,8 +1102,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """The command: 0 when every applicable check passes, 1 when one fails, 2 on bad input."""
-    from tracker_service.service.config import ConfigError
-
     try:
         result = run_recording(args.recording, args.config, args.date)
     except (ConfigError, ValueError, OSError) as exc:
