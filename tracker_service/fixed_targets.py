@@ -16,8 +16,9 @@ keeps their plots out of traffic tracking, in two ways:
   monitors often send a test level such as FL719).
 - detected (``FixedTargetConfig``): per identity (Mode S address, else a validated Mode
   3/A code that is neither shared by many aircraft nor an emergency code; primary plots
-  have none and are never taken), a candidate gathers the plots that fall within a small
-  area (``gate_sigmas`` plot sigmas, at least ``min_radius_m``) around its running mean.
+  have none and are never taken; a site-monitor code counts even garbled), a candidate
+  gathers the plots that fall within a small area (``gate_sigmas`` plot sigmas, at
+  least ``min_radius_m``) around its running mean.
   It is stationary when it has enough plots over a long enough time and its velocity,
   fitted by least squares over all of them, is below ``max_speed_kt`` even when
   ``speed_sigmas`` standard errors (from the plots' own covariances) are added. Codes
@@ -338,11 +339,13 @@ class FixedTargets:
         surveyed = (candidates | table["rab"]) & (which >= 0)
         reference[surveyed] = self._xy[which[surveyed]]
         if self.config.detect:
-            keys = identity_keys(address, mode3a, mode3a_valid)
+            # A site monitor's code counts even garbled or not validated: replies that
+            # overlap its own are often flagged so (canalA.gps: 89 of one monitor's 716).
+            monitor = (mode3a >= 0) & np.isin(mode3a, self._monitor_codes)
+            keys = identity_keys(address, mode3a, mode3a_valid | monitor)
             rows = np.flatnonzero(candidates & ~configured & (keys != NO_KEY))
             if rows.size:
-                monitor = mode3a_valid[rows] & np.isin(mode3a[rows], self._monitor_codes)
-                fixed[rows] = self._detect(table[rows], keys[rows], monitor)
+                fixed[rows] = self._detect(table[rows], keys[rows], monitor[rows])
         return Classification(fixed, reference)
 
     def _detect(self, plots: npt.NDArray[Any], keys: IntArray, monitor: BoolArray) -> BoolArray:
