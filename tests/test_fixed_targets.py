@@ -413,6 +413,8 @@ def test_configuration_errors_name_the_field(entry: dict[str, Any], message: str
 def test_detection_settings_are_checked() -> None:
     with pytest.raises(ConfigError, match=r"fixed_targets.*site_monitor_codes"):
         parse_service_config({**BASE, "fixed_targets": {"site_monitor_codes": ["7778"]}})
+    with pytest.raises(ConfigError, match=r"fixed_targets.*min_plots must be a number"):
+        parse_service_config({**BASE, "fixed_targets": {"min_plots": "20"}})
     with pytest.raises(ConfigError, match=r"fixed_targets.*speed"):
         parse_service_config({**BASE, "fixed_targets": {"speed": 3}})
     config = parse_service_config({**BASE, "fixed_targets": {"detect": False}})

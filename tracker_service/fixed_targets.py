@@ -36,6 +36,7 @@ Everything is per radar, on the radar's plot table (``chain.RAW_PLOT_DTYPE``), i
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -120,6 +121,14 @@ class FixedTargetConfig:
     """A stationary target is remembered this long without a plot (missed scans)."""
 
     def __post_init__(self) -> None:
+        if not isinstance(self.detect, bool):
+            raise ValueError(f"detect must be true or false, not {self.detect!r}")
+        for f in dataclasses.fields(self)[2:]:
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"{f.name} must be a number, not {value!r}")
+        if not isinstance(self.site_monitor_codes, tuple):
+            raise ValueError("site_monitor_codes must be a list of codes, e.g. ['7777']")
         for code in self.site_monitor_codes:
             if len(code) != 4 or set(code) - set("01234567"):
                 raise ValueError(f"site_monitor_codes: {code!r} is not a 4-digit octal code")
