@@ -273,9 +273,12 @@ def _table(
     return table
 
 
-def _classify(stage: FixedTargets, table: npt.NDArray[Any]) -> npt.NDArray[np.bool_]:
-    """One plot per call, as scans come."""
-    valid = table["mode3a"] >= 0
+def _classify(
+    stage: FixedTargets, table: npt.NDArray[Any], valid: npt.NDArray[np.bool_] | None = None
+) -> npt.NDArray[np.bool_]:
+    """One plot per call, as scans come; ``valid``: the codes validated and not garbled
+    (all by default)."""
+    valid = table["mode3a"] >= 0 if valid is None else valid
     return np.array(
         [
             stage.classify(table[k : k + 1], np.ones(1, bool), valid[k : k + 1]).fixed[0]
@@ -347,6 +350,18 @@ def test_a_site_monitors_ghosts_and_missed_scans() -> None:
     assert other[t > 360.0].sum() > 40 and not other[ghost].any()
 
 
+def test_a_site_monitors_garbled_replies() -> None:
+    # canalA.gps: 89 of one monitor's 716 plots have their code flagged garbled.
+    t, x, y = _track(0.0, 5.0, 30.0)
+    garbled = np.arange(len(t)) % 5 == 0
+    fixed = _classify(_stage(), _table(t, x, y, code=0o7777), ~garbled)
+    assert fixed[t > 20.0].all()
+    # Any other garbled code is no identity.
+    t, x, y = _track(0.0, 10.0, 30.0)
+    table = _table(t, x, y, code=0o4321)
+    assert not _classify(_stage(), table, np.zeros(len(t), bool)).any()
+
+
 def test_a_configured_transponder_is_taken_only_near_its_survey() -> None:
     site = RadarSite(SITE[0], SITE[1], 0.0)
     entry = FixedTransponder(mode3a=0o7777, lat_deg=48.0, lon_deg=18.3162, alt_m=300.0)
@@ -398,6 +413,8 @@ def test_configuration_errors_name_the_field(entry: dict[str, Any], message: str
 def test_detection_settings_are_checked() -> None:
     with pytest.raises(ConfigError, match=r"fixed_targets.*site_monitor_codes"):
         parse_service_config({**BASE, "fixed_targets": {"site_monitor_codes": ["7778"]}})
+    with pytest.raises(ConfigError, match=r"fixed_targets.*min_plots must be a number"):
+        parse_service_config({**BASE, "fixed_targets": {"min_plots": "20"}})
     with pytest.raises(ConfigError, match=r"fixed_targets.*speed"):
         parse_service_config({**BASE, "fixed_targets": {"speed": 3}})
     config = parse_service_config({**BASE, "fixed_targets": {"detect": False}})

@@ -16,8 +16,9 @@ keeps their plots out of traffic tracking, in two ways:
   monitors often send a test level such as FL719).
 - detected (``FixedTargetConfig``): per identity (Mode S address, else a validated Mode
   3/A code that is neither shared by many aircraft nor an emergency code; primary plots
-  have none and are never taken), a candidate gathers the plots that fall within a small
-  area (``gate_sigmas`` plot sigmas, at least ``min_radius_m``) around its running mean.
+  have none and are never taken; a site-monitor code counts even garbled), a candidate
+  gathers the plots that fall within a small area (``gate_sigmas`` plot sigmas, at
+  least ``min_radius_m``) around its running mean.
   It is stationary when it has enough plots over a long enough time and its velocity,
   fitted by least squares over all of them, is below ``max_speed_kt`` even when
   ``speed_sigmas`` standard errors (from the plots' own covariances) are added. Codes
@@ -35,6 +36,7 @@ Everything is per radar, on the radar's plot table (``chain.RAW_PLOT_DTYPE``), i
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -119,6 +121,14 @@ class FixedTargetConfig:
     """A stationary target is remembered this long without a plot (missed scans)."""
 
     def __post_init__(self) -> None:
+        if not isinstance(self.detect, bool):
+            raise ValueError(f"detect must be true or false, not {self.detect!r}")
+        for f in dataclasses.fields(self)[2:]:
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"{f.name} must be a number, not {value!r}")
+        if not isinstance(self.site_monitor_codes, tuple):
+            raise ValueError("site_monitor_codes must be a list of codes, e.g. ['7777']")
         for code in self.site_monitor_codes:
             if len(code) != 4 or set(code) - set("01234567"):
                 raise ValueError(f"site_monitor_codes: {code!r} is not a 4-digit octal code")
@@ -338,11 +348,13 @@ class FixedTargets:
         surveyed = (candidates | table["rab"]) & (which >= 0)
         reference[surveyed] = self._xy[which[surveyed]]
         if self.config.detect:
-            keys = identity_keys(address, mode3a, mode3a_valid)
+            # A site monitor's code counts even garbled or not validated: replies that
+            # overlap its own are often flagged so (canalA.gps: 89 of one monitor's 716).
+            monitor = (mode3a >= 0) & np.isin(mode3a, self._monitor_codes)
+            keys = identity_keys(address, mode3a, mode3a_valid | monitor)
             rows = np.flatnonzero(candidates & ~configured & (keys != NO_KEY))
             if rows.size:
-                monitor = mode3a_valid[rows] & np.isin(mode3a[rows], self._monitor_codes)
-                fixed[rows] = self._detect(table[rows], keys[rows], monitor)
+                fixed[rows] = self._detect(table[rows], keys[rows], monitor[rows])
         return Classification(fixed, reference)
 
     def _detect(self, plots: npt.NDArray[Any], keys: IntArray, monitor: BoolArray) -> BoolArray:
