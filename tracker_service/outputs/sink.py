@@ -1,0 +1,219 @@
+"""The service's outputs behind one protocol, each isolated from the others.
+
+A ``Sink`` carries messages already made (``mapping.py``) to one place: Zenoh
+(``zenoh_sink.py``), the MCAP log (``mcap_sink.py``). ``IsolatedSink`` wraps one so that
+its failure (a full disk, a closed session, a bug) stops only that output: the failing
+call is counted as a dropped message, the output is marked failing with the reason and
+the data time it began, its calls are dropped (and counted) until a retry falls due, and
+the retries back off from 1 s to 30 s of wall clock. The first call after the backoff is
+the retry: it either goes through (the output has recovered) or fails again. Each output's
+``OutputState`` is plain data for the status message and the health.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+from asterix.containers import Datagram
+from tracker_service.outputs.messages import (
+    BiasMessage,
+    LocalTrackMessage,
+    StatusMessage,
+    SystemTrackMessage,
+    iso_time,
+)
+from tracker_service.ratelog import RateLimitedLog
+
+__all__ = ["Backoff", "IsolatedSink", "OutputState", "Sink", "describe_failure"]
+
+log = logging.getLogger(__name__)
+
+
+class Sink(Protocol):
+    """One output. ``time`` is the data time of the call (the log time in a file)."""
+
+    name: str
+
+    def datagram(self, input_name: str, datagram: Datagram) -> None:
+        """A datagram as an input received it (only a log keeps these)."""
+
+    def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
+        """A system-track update; ``payload`` is ``message`` as JSON, serialised once for
+        every output. The last message of a track has status "ended"."""
+
+    def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None: ...
+
+    def asterix(self, data: bytes, time: float) -> None:
+        """A CAT062/CAT065 batch (ASTERIX data blocks)."""
+
+    def bias(self, message: BiasMessage, time: float) -> None: ...
+
+    def status(self, message: StatusMessage, time: float) -> None: ...
+
+    def close(self) -> None: ...
+
+
+_REASONS = {
+    errno.ENOSPC: "disk full",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EROFS: "read-only file system",
+    errno.EIO: "I/O error",
+}
+
+
+def describe_failure(exc: BaseException) -> str:
+    """What an operator reads in the status: "disk full", or the error in one line."""
+    if isinstance(exc, OSError) and exc.errno is not None:
+        return _REASONS.get(exc.errno) or exc.strerror or str(exc)
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+
+
+@dataclass
+class Backoff:
+    """Seconds between retries of a failing output: ``first``, doubled at each failed
+    retry, at most ``longest``."""
+
+    first: float = 1.0
+    longest: float = 30.0
+
+    def delay(self, failures: int) -> float:
+        return min(self.first * 2.0 ** max(failures - 1, 0), self.longest)
+
+
+@dataclass
+class OutputState:
+    """One output's state, as plain data."""
+
+    name: str
+    delivered: int = 0
+    """Calls that went through since start."""
+    dropped: int = 0
+    """Messages not delivered since start: the failing calls and those skipped while the
+    output was failing."""
+    outages: int = 0
+    failing_since: float | None = None
+    """Data time of the first failure of the current outage; None while it works."""
+    reason: str = ""
+    """Why it fails ("disk full", ...); the last reason once it works again."""
+    failures: int = 0
+    """Failed attempts in the current outage (the first call and the retries)."""
+    dropped_in_outage: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return self.failing_since is None
+
+    def reason_line(self) -> str | None:
+        """The status line of a failing output (``StatusMessage.reasons``), else None."""
+        if self.failing_since is None:
+            return None
+        return (
+            f"output {self.name}: {self.reason} since {iso_time(self.failing_since)}"
+            f" ({self.dropped_in_outage} messages dropped, {self.failures} attempts)"
+        )
+
+
+class IsolatedSink:
+    """A ``Sink`` whose failures stay inside it; see the module docstring."""
+
+    def __init__(
+        self,
+        sink: Sink,
+        backoff: Backoff | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        limited_log: RateLimitedLog | None = None,
+    ) -> None:
+        self.sink = sink
+        self.name = sink.name
+        self.state = OutputState(sink.name)
+        self.backoff = backoff or Backoff()
+        self._clock = clock
+        self._retry_at = 0.0
+        self._log = limited_log or RateLimitedLog(log, 60.0, clock)
+
+    def datagram(self, input_name: str, datagram: Datagram) -> None:
+        assert datagram.time is not None
+        self._run(datagram.time, self.sink.datagram, input_name, datagram)
+
+    def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
+        self._run(time, self.sink.system, message, payload, time)
+
+    def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
+        self._run(time, self.sink.local, message, payload, time)
+
+    def asterix(self, data: bytes, time: float) -> None:
+        self._run(time, self.sink.asterix, data, time)
+
+    def bias(self, message: BiasMessage, time: float) -> None:
+        self._run(time, self.sink.bias, message, time)
+
+    def status(self, message: StatusMessage, time: float) -> None:
+        self._run(time, self.sink.status, message, time)
+
+    def close(self) -> None:
+        try:
+            self.sink.close()
+        except Exception as exc:
+            log.error("output %s: closing failed: %s", self.name, describe_failure(exc))
+
+    def _run(self, time: float, call: Callable[..., None], *args: object) -> None:
+        state = self.state
+        if state.failing_since is not None and self._clock() < self._retry_at:
+            state.dropped += 1
+            state.dropped_in_outage += 1
+            return
+        try:
+            call(*args)
+        except Exception as exc:
+            self._failed(time, exc)
+            return
+        if state.failing_since is not None:
+            log.warning(
+                "output %s: working again after %s; %d messages dropped",
+                self.name,
+                state.reason,
+                state.dropped_in_outage,
+            )
+            state.failing_since = None
+            state.failures = 0
+            state.dropped_in_outage = 0
+        state.delivered += 1
+
+    def _failed(self, time: float, exc: Exception) -> None:
+        state = self.state
+        state.dropped += 1
+        state.dropped_in_outage += 1
+        state.failures += 1
+        state.reason = describe_failure(exc)
+        delay = self.backoff.delay(state.failures)
+        self._retry_at = self._clock() + delay
+        expected = isinstance(exc, OSError)
+        if state.failing_since is None:
+            state.failing_since = time
+            state.outages += 1
+            # The first failure of an outage: its traceback too when it is not the
+            # environment's doing (a full disk) but possibly a bug.
+            log.error(
+                "output %s: %s; its messages are dropped, the other outputs go on; retry in %.0f s",
+                self.name,
+                state.reason,
+                delay,
+                exc_info=None if expected else exc,
+            )
+            return
+        self._log.log(
+            self.name,
+            logging.WARNING,
+            "output %s: still failing (%s) after %d attempts, %d messages dropped; retry in %.0f s",
+            self.name,
+            state.reason,
+            state.failures,
+            state.dropped_in_outage,
+            delay,
+        )
