@@ -200,7 +200,7 @@ class IsolatedSink:
             # The first failure of an outage: its traceback too when it is not the
             # environment's doing (a full disk) but possibly a bug.
             log.error(
-                "output %s: %s; its messages are dropped, the other outputs go on; retry in %.0f s",
+                "output %s: %s; its messages are dropped, the other outputs go on; retry in %.1f s",
                 self.name,
                 state.reason,
                 delay,
@@ -210,7 +210,7 @@ class IsolatedSink:
         self._log.log(
             self.name,
             logging.WARNING,
-            "output %s: still failing (%s) after %d attempts, %d messages dropped; retry in %.0f s",
+            "output %s: still failing (%s) after %d attempts, %d messages dropped; retry in %.1f s",
             self.name,
             state.reason,
             state.failures,
