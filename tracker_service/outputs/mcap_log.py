@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 import os
 import time as clock
@@ -53,6 +54,8 @@ __all__ = [
     "read_log_messages",
     "read_log_metadata",
 ]
+
+log = logging.getLogger(__name__)
 
 MCAP_LIBRARY = "tracker-service log 1"
 _JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
@@ -520,6 +523,16 @@ def read_log_messages(path: str | Path) -> Iterator[LoggedMessage]:
             except (StopIteration, EndOfFile):
                 # EndOfFile: the file stops inside a record, where the writer was killed.
                 return
+            except Exception as exc:
+                # Damage (a CRC, a corrupt chunk): what came before is what can be had.
+                log.warning(
+                    "%s: unreadable from byte %d on (%s: %s); the messages before it are read",
+                    path,
+                    stream.tell(),
+                    type(exc).__name__,
+                    exc,
+                )
+                return
             if isinstance(record, Schema):
                 schemas[record.id] = record
             elif isinstance(record, Channel):
@@ -546,6 +559,7 @@ def read_log_metadata(path: str | Path) -> dict[str, dict[str, str]]:
                 elif isinstance(record, Message):
                     # McapLog writes its metadata before any message.
                     break
-        except EndOfFile:
+        except Exception:
+            # Cut short or damaged: the metadata found before counts.
             pass
     return found
