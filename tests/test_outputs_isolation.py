@@ -190,3 +190,34 @@ def test_a_full_disk_stops_the_log_only(
     lines = [r for r in caplog.records if r.name == "tracker_service.outputs.sink"]
     assert 1 <= len(lines) <= 12, [r.getMessage() for r in lines]
     assert all(r.exc_info is None for r in lines)
+
+
+def test_a_failed_zenoh_session_stops_zenoh_only(recording: Path, tmp_path: Path) -> None:
+    replay = open_replay(recording)
+    items = list(replay.datagrams)
+    down_at = len(items) // 2
+    with (
+        ZenohPublisher(listen=[f"tcp/127.0.0.1:{free_port()}"], multicast_scouting=False) as zenoh,
+        McapLog(tmp_path / "log") as mcap,
+    ):
+        outputs = Outputs(replay.config, zenoh, mcap, backoff=Backoff(0.02, 0.1))
+        service = TrackerService(replay.config, outputs=outputs)
+        for k, (name, datagram) in enumerate(items):
+            if k == down_at:
+                # The session goes (as when Zenoh fails under the service): every put raises.
+                zenoh.close()
+                down_from = datagram.time
+            service.process(name, datagram)
+        status = service.status()
+        service.close()
+        states = {s.name: s for s in outputs.output_states()}
+    assert status.health == "degraded"
+    assert any(r.startswith("output zenoh: ZError: session closed since") for r in status.reasons)
+    assert states["zenoh"].dropped > 100 and not states["zenoh"].ok
+    assert states["mcap"].ok and states["mcap"].dropped == 0
+    # The log has every system track, those after Zenoh went too.
+    tracks = [
+        m for path in mcap.files for m in read_log_messages(path) if m.topic == "/system_tracks"
+    ]
+    assert len(tracks) == service.counts.system_updates
+    assert sum(m.time > down_from + 5.0 for m in tracks) > 100
