@@ -36,6 +36,7 @@ class McapSink:
     """Logs into ``log``, which its owner closes."""
 
     name = "mcap"
+    resends_tracks = False
 
     def __init__(self, log: McapLog) -> None:
         self.log = log

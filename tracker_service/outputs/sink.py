@@ -8,6 +8,11 @@ the data time it began, its calls are dropped (and counted) until a retry falls 
 the retries back off from 1 s to 30 s of wall clock. The first call after the backoff is
 the retry: it either goes through (the output has recovered) or fails again. Each output's
 ``OutputState`` is plain data for the status message and the health.
+
+An output that holds a picture (Zenoh: subscribers and the queryable show each track's
+latest state) gets, once it works again, the latest message of every system track whose
+updates it missed, the "ended" ones included, so that no track it missed the end of stays
+on a display. A log records what happened instead, gap included.
 """
 
 from __future__ import annotations
@@ -38,6 +43,8 @@ class Sink(Protocol):
     """One output. ``time`` is the data time of the call (the log time in a file)."""
 
     name: str
+    resends_tracks: bool
+    """After an outage, it is sent the latest message of each system track it missed."""
 
     def datagram(self, input_name: str, datagram: Datagram) -> None:
         """A datagram as an input received it (only a log keeps these)."""
@@ -136,25 +143,36 @@ class IsolatedSink:
         self._clock = clock
         self._retry_at = 0.0
         self._log = limited_log or RateLimitedLog(log, 60.0, clock)
+        self._missed: dict[int, tuple[SystemTrackMessage, bytes, float]] = {}
+        """Per system track whose updates were dropped, the latest (for resends_tracks);
+        at most one per track number."""
 
     def datagram(self, input_name: str, datagram: Datagram) -> None:
         assert datagram.time is not None
         self._run(datagram.time, self.sink.datagram, input_name, datagram)
 
     def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
-        self._run(time, self.sink.system, message, payload, time)
+        if self._run(time, self.sink.system, message, payload, time):
+            self._missed.pop(message.number, None)
+        elif self.sink.resends_tracks:
+            self._missed[message.number] = (message, payload, time)
+        self._resend()
 
     def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
         self._run(time, self.sink.local, message, payload, time)
+        self._resend()
 
     def asterix(self, data: bytes, time: float) -> None:
         self._run(time, self.sink.asterix, data, time)
+        self._resend()
 
     def bias(self, message: BiasMessage, time: float) -> None:
         self._run(time, self.sink.bias, message, time)
+        self._resend()
 
     def status(self, message: StatusMessage, time: float) -> None:
         self._run(time, self.sink.status, message, time)
+        self._resend()
 
     def close(self) -> None:
         try:
@@ -162,17 +180,29 @@ class IsolatedSink:
         except Exception as exc:
             log.error("output %s: closing failed: %s", self.name, describe_failure(exc))
 
-    def _run(self, time: float, call: Callable[..., None], *args: object) -> None:
+    def _resend(self) -> None:
+        """Once the output works again, what it missed of each track, in number order."""
+        while self._missed and self.state.failing_since is None:
+            number = min(self._missed)
+            message, payload, time = self._missed.pop(number)
+            try:
+                self.sink.system(message, payload, time)
+            except Exception as exc:
+                self._missed[number] = (message, payload, time)
+                self._failed(time, exc)
+
+    def _run(self, time: float, call: Callable[..., None], *args: object) -> bool:
+        """Whether the call went through."""
         state = self.state
         if state.failing_since is not None and self._clock() < self._retry_at:
             state.dropped += 1
             state.dropped_in_outage += 1
-            return
+            return False
         try:
             call(*args)
         except Exception as exc:
             self._failed(time, exc)
-            return
+            return False
         if state.failing_since is not None:
             log.warning(
                 "output %s: working again after %s; %d messages dropped",
@@ -184,6 +214,7 @@ class IsolatedSink:
             state.failures = 0
             state.dropped_in_outage = 0
         state.delivered += 1
+        return True
 
     def _failed(self, time: float, exc: Exception) -> None:
         state = self.state

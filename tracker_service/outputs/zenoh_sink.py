@@ -23,6 +23,7 @@ class ZenohSink:
     """Publishes on ``publisher``, which its owner closes."""
 
     name = "zenoh"
+    resends_tracks = True
 
     def __init__(self, publisher: ZenohPublisher) -> None:
         self.publisher = publisher

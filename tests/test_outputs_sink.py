@@ -1,0 +1,129 @@
+"""The isolation of one output (``IsolatedSink``): its state, the backoff of its retries,
+the status line, and what an output that holds a picture is sent once it works again. The
+destination here is a list that can be made to fail; the real outputs failing for real (a
+full tmpfs, a closed Zenoh session) are in test_outputs_isolation.py."""
+
+from __future__ import annotations
+
+import errno
+import logging
+
+import pytest
+
+from asterix.containers import Datagram
+from tracker_service.outputs.messages import (
+    BiasMessage,
+    LocalTrackMessage,
+    StatusMessage,
+    SystemTrackMessage,
+)
+from tracker_service.outputs.sink import Backoff, IsolatedSink, describe_failure
+
+
+class Destination:
+    """Keeps the system tracks it is sent, in order; raises while ``down``."""
+
+    name = "picture"
+
+    def __init__(self, resends_tracks: bool) -> None:
+        self.resends_tracks = resends_tracks
+        self.down = False
+        self.received: list[tuple[int, str, float]] = []
+
+    def _check(self) -> None:
+        if self.down:
+            raise OSError(errno.ENETUNREACH, "Network is unreachable")
+
+    def datagram(self, input_name: str, datagram: Datagram) -> None:
+        self._check()
+
+    def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
+        self._check()
+        self.received.append((message.number, message.status, message.time))
+
+    def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
+        self._check()
+
+    def asterix(self, data: bytes, time: float) -> None:
+        self._check()
+
+    def bias(self, message: BiasMessage, time: float) -> None:
+        self._check()
+
+    def status(self, message: StatusMessage, time: float) -> None:
+        self._check()
+
+    def close(self) -> None:
+        pass
+
+
+def track(number: int, time: float, status: str = "confirmed") -> SystemTrackMessage:
+    return SystemTrackMessage.from_state(
+        time=time,
+        x_m=0.0,
+        y_m=0.0,
+        vx_mps=100.0,
+        vy_mps=0.0,
+        covariance=[[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]],
+        number=number,
+        lat=45.0,
+        lon=16.0,
+        sources=[],
+        status=status,
+    )
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_backoff_doubles_to_its_longest() -> None:
+    backoff = Backoff(1.0, 30.0)
+    assert [backoff.delay(n) for n in range(1, 8)] == [1, 2, 4, 8, 16, 30, 30]
+
+
+def test_failure_reasons_read_as_an_operator_would() -> None:
+    assert describe_failure(OSError(errno.ENOSPC, "No space left on device")) == "disk full"
+    assert describe_failure(RuntimeError("session closed\nmore")) == "RuntimeError: session closed"
+
+
+@pytest.mark.parametrize("resends", [True, False])
+def test_an_outage_is_reported_retried_and_what_was_missed_resent(
+    resends: bool, caplog: pytest.LogCaptureFixture
+) -> None:
+    clock = Clock()
+    destination = Destination(resends)
+    sink = IsolatedSink(destination, Backoff(1.0, 4.0), clock)
+    sink.system(track(1, 10.0), b"", 10.0)
+    sink.system(track(2, 10.0), b"", 10.0)
+    destination.down = True
+    caplog.set_level(logging.INFO, logger="tracker_service.outputs.sink")
+    for k in range(100):
+        clock.now += 0.1
+        sink.system(track(1, 11.0 + k), b"", 11.0 + k)
+    sink.system(track(2, 111.0, "ended"), b"", 111.0)
+    state = sink.state
+    assert not state.ok and state.failing_since == 11.0
+    assert state.reason == "Network is unreachable"
+    assert state.dropped == 101 and state.outages == 1
+    # The first call at 0.1 s, then retries 1, 2 and 4 s later: 10 s of calls, 4 attempts.
+    assert state.failures == 4
+    line = state.reason_line()
+    assert line is not None and line.startswith("output picture: Network is unreachable since ")
+    # One line at the start, then one per rate-limit interval at most: not one per call.
+    assert len(caplog.records) <= 3
+    destination.down = False
+    clock.now += 5.0
+    sink.system(track(3, 112.0), b"", 112.0)
+    assert state.ok and state.reason_line() is None
+    after = destination.received[2:]
+    if resends:
+        # The new track, then what was missed: the latest of track 1, the end of track 2.
+        assert after == [(3, "confirmed", 112.0), (1, "confirmed", 110.0), (2, "ended", 111.0)]
+    else:
+        assert after == [(3, "confirmed", 112.0)]
+    assert caplog.records[-1].getMessage().startswith("output picture: working again")
