@@ -7,10 +7,14 @@ from __future__ import annotations
 
 import errno
 import logging
+import math
+from pathlib import Path
 
 import pytest
 
 from asterix.containers import Datagram
+from tracker_service.outputs.mcap_log import McapLog, read_log_messages
+from tracker_service.outputs.mcap_sink import McapSink
 from tracker_service.outputs.messages import (
     BiasMessage,
     LocalTrackMessage,
@@ -127,3 +131,20 @@ def test_an_outage_is_reported_retried_and_what_was_missed_resent(
     else:
         assert after == [(3, "confirmed", 112.0)]
     assert caplog.records[-1].getMessage().startswith("output picture: working again")
+
+
+def test_a_message_the_output_refuses_is_not_an_outage(tmp_path: Path) -> None:
+    # A real log: a location that is not finite is refused by the log, alone.
+    with McapLog(tmp_path) as log:
+        sink = IsolatedSink(McapSink(log))
+        bad = track(1, 10.0).model_copy(update={"lat": math.nan})
+        sink.system(bad, bad.model_dump_json().encode(), 10.0)
+        good = track(2, 11.0)
+        sink.system(good, good.model_dump_json().encode(), 11.0)
+    state = sink.state
+    assert state.ok and state.refused == 1 and state.dropped == 1 and state.outages == 0
+    logged = [
+        m.data["number"] for m in read_log_messages(log.files[0]) if m.topic == "/system_tracks"
+    ]
+    # The bad one's JSON went in before its map position was refused; the next is whole.
+    assert logged == [1, 2]

@@ -103,6 +103,8 @@ class OutputState:
     dropped: int = 0
     """Messages not delivered since start: the failing calls and those skipped while the
     output was failing."""
+    refused: int = 0
+    """Messages the output refused (a value it cannot write), each alone: no outage."""
     outages: int = 0
     failing_since: float | None = None
     """Data time of the first failure of the current outage; None while it works."""
@@ -200,6 +202,20 @@ class IsolatedSink:
             return False
         try:
             call(*args)
+        except (ValueError, TypeError) as exc:
+            # The message, not the output: this one is refused, the next goes through.
+            state.dropped += 1
+            state.refused += 1
+            self._log.log(
+                f"{self.name} refused",
+                logging.ERROR,
+                "output %s: a %s message refused (%s); %d refused since start",
+                self.name,
+                getattr(call, "__name__", "?"),
+                describe_failure(exc),
+                state.refused,
+            )
+            return False
         except Exception as exc:
             self._failed(time, exc)
             return False
