@@ -32,7 +32,7 @@ from tracker_service.outputs.messages import (
     SystemTrackMessage,
     iso_time,
 )
-from tracker_service.ratelog import RateLimitedLog
+from tracker_service.ratelimit import RateLimitedLog
 
 __all__ = ["Backoff", "IsolatedSink", "OutputState", "Sink", "describe_failure"]
 
@@ -206,9 +206,8 @@ class IsolatedSink:
             # The message, not the output: this one is refused, the next goes through.
             state.dropped += 1
             state.refused += 1
-            self._log.log(
+            self._log.error(
                 f"{self.name} refused",
-                logging.ERROR,
                 "output %s: a %s message refused (%s); %d refused since start",
                 self.name,
                 getattr(call, "__name__", "?"),
@@ -254,9 +253,8 @@ class IsolatedSink:
                 exc_info=None if expected else exc,
             )
             return
-        self._log.log(
+        self._log.warning(
             self.name,
-            logging.WARNING,
             "output %s: still failing (%s) after %d attempts, %d messages dropped; retry in %.1f s",
             self.name,
             state.reason,
