@@ -230,3 +230,20 @@ def test_a_failed_zenoh_session_stops_zenoh_only(recording: Path, tmp_path: Path
     ]
     assert len(tracks) == service.counts.system_updates
     assert sum(m.time > down_from + 5.0 for m in tracks) > 100
+
+
+def test_closing_the_log_on_a_full_disk(small_disk: Path) -> None:
+    log = McapLog(small_disk / "log", chunk_size=64 * 1024)
+    status = StatusMessage(time=1.78e9, uptime_s=0.0, health="ok", radars=[])
+    for k in range(200):
+        log.log("/status", status, 1.78e9 + k)
+    log.flush()
+    for k in range(200, 300):
+        log.log("/status", status, 1.78e9 + k)
+    fill(small_disk)
+    # The summary cannot be written: closed all the same, without raising.
+    log.close()
+    (path,) = log.files
+    times = readable(path)
+    assert len(times) == 200 and log.lost == 100
+    assert not (small_disk / "log" / ".tracker.reserve").exists()

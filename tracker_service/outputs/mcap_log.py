@@ -489,11 +489,21 @@ class McapLog(Closing):
 
     def close(self) -> None:
         """Finishes the current file (summary, footer) and gives the reserve back; later
-        calls do nothing."""
+        calls do nothing. On a full disk the file is closed without its summary, and
+        the error logged rather than raised."""
         if not self._closed:
             self._closed = True
             try:
                 self._finish()
+            except OSError as exc:
+                # A full disk at the end: the file is closed all the same (without its
+                # summary, with what reached it); nothing is left to retry.
+                log.error(
+                    "%s: closed without its summary (%s); %d messages lost with the last write",
+                    self.files[-1] if self.files else self.directory,
+                    exc.strerror or exc,
+                    self.lost,
+                )
             finally:
                 self._reserve.release()
 
