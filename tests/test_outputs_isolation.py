@@ -155,6 +155,7 @@ def test_a_full_disk_stops_the_log_only(
                     full_from = datagram.time
                     updates_before = service.counts.system_updates
                 if k == free_at:
+                    outputs.drain()
                     statuses.append(service.status())
                     filler.unlink()
                     full_to = datagram.time
@@ -214,9 +215,11 @@ def test_a_failed_zenoh_session_stops_zenoh_only(recording: Path, tmp_path: Path
         for k, (name, datagram) in enumerate(items):
             if k == down_at:
                 # The session goes (as when Zenoh fails under the service): every put raises.
+                outputs.drain()
                 zenoh.close()
                 down_from = datagram.time
             service.process(name, datagram)
+        outputs.drain()
         status = service.status()
         service.close()
         states = {s.name: s for s in outputs.output_states()}

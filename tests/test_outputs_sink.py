@@ -8,6 +8,7 @@ from __future__ import annotations
 import errno
 import logging
 import math
+import threading
 from pathlib import Path
 
 import pytest
@@ -21,7 +22,7 @@ from tracker_service.outputs.messages import (
     StatusMessage,
     SystemTrackMessage,
 )
-from tracker_service.outputs.sink import Backoff, IsolatedSink, describe_failure
+from tracker_service.outputs.sink import Backoff, IsolatedSink, QueuedSink, describe_failure
 
 
 class Destination:
@@ -148,3 +149,48 @@ def test_a_message_the_output_refuses_is_not_an_outage(tmp_path: Path) -> None:
     ]
     # The bad one's JSON went in before its map position was refused; the next is whole.
     assert logged == [1, 2]
+
+
+class Hung(Destination):
+    """A destination whose calls hang until ``release`` is set (a stalled disk)."""
+
+    def __init__(self) -> None:
+        super().__init__(resends_tracks=False)
+        self.entered = threading.Event()
+        self.release = threading.Event()
+
+    def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
+        self.entered.set()
+        self.release.wait(30.0)
+        super().system(message, payload, time)
+
+
+def test_a_hung_output_holds_up_none_of_the_others(tmp_path: Path) -> None:
+    hung = Hung()
+    slow = QueuedSink(IsolatedSink(hung), capacity=10)
+    with McapLog(tmp_path) as log:
+        logged = QueuedSink(IsolatedSink(McapSink(log)), capacity=10)
+        for k in range(100):
+            message = track(k, 10.0 + k)
+            payload = message.model_dump_json().encode()
+            for sink in (slow, logged):
+                sink.system(message, payload, 10.0 + k)
+            if k == 0:
+                assert hung.entered.wait(10.0)
+            # The log keeps up (its thread writes while this one queues).
+            assert logged.drain()
+        logged.close()
+    numbers = [
+        m.data["number"] for m in read_log_messages(log.files[0]) if m.topic == "/system_tracks"
+    ]
+    assert numbers == list(range(100))
+    assert logged.state.ok and logged.state.dropped == 0
+    # The hung one: one call in progress, 10 queued, the rest dropped and counted.
+    state = slow.state
+    assert not state.ok and state.overflowed == 89 and state.full_since == 21.0
+    line = state.reason_line()
+    assert line is not None and line.startswith("output picture: too slow since ")
+    hung.release.set()
+    assert slow.drain()
+    slow.close()
+    assert len(hung.received) == 11

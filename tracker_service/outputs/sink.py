@@ -9,6 +9,11 @@ the retries back off from 1 s to 30 s of wall clock. The first call after the ba
 the retry: it either goes through (the output has recovered) or fails again. Each output's
 ``OutputState`` is plain data for the status message and the health.
 
+Each output also runs on a thread of its own (``QueuedSink``) behind a bounded queue, so
+that one that is slow or hangs (a stalled disk, a Zenoh put blocked by congestion) holds
+up none of the others: what does not fit in its queue is dropped and counted, and the
+status says so while the queue is full.
+
 An output that holds a picture (Zenoh: subscribers and the queryable show each track's
 latest state) gets, once it works again, the latest message of every system track whose
 updates it missed, the "ended" ones included, so that no track it missed the end of stays
@@ -17,8 +22,11 @@ on a display. A log records what happened instead, gap included.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
+import queue
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -34,7 +42,7 @@ from tracker_service.outputs.messages import (
 )
 from tracker_service.ratelimit import RateLimitedLog
 
-__all__ = ["Backoff", "IsolatedSink", "OutputState", "Sink", "describe_failure"]
+__all__ = ["Backoff", "IsolatedSink", "OutputState", "QueuedSink", "Sink", "describe_failure"]
 
 log = logging.getLogger(__name__)
 
@@ -113,19 +121,30 @@ class OutputState:
     failures: int = 0
     """Failed attempts in the current outage (the first call and the retries)."""
     dropped_in_outage: int = 0
+    queued: int = 0
+    """Messages waiting in its queue (``QueuedSink``), at the last one queued."""
+    overflowed: int = 0
+    """Messages dropped since start because its queue was full (the output too slow)."""
+    full_since: float | None = None
+    """Data time since which its queue has been full; None while there is room."""
 
     @property
     def ok(self) -> bool:
-        return self.failing_since is None
+        return self.failing_since is None and self.full_since is None
 
     def reason_line(self) -> str | None:
         """The status line of a failing output (``StatusMessage.reasons``), else None."""
-        if self.failing_since is None:
-            return None
-        return (
-            f"output {self.name}: {self.reason} since {iso_time(self.failing_since)}"
-            f" ({self.dropped_in_outage} messages dropped, {self.failures} attempts)"
-        )
+        if self.failing_since is not None:
+            return (
+                f"output {self.name}: {self.reason} since {iso_time(self.failing_since)}"
+                f" ({self.dropped_in_outage} messages dropped, {self.failures} attempts)"
+            )
+        if self.full_since is not None:
+            return (
+                f"output {self.name}: too slow since {iso_time(self.full_since)}, its queue "
+                f"full ({self.overflowed} messages dropped since start)"
+            )
+        return None
 
 
 class IsolatedSink:
@@ -262,3 +281,105 @@ class IsolatedSink:
             state.dropped_in_outage,
             delay,
         )
+
+
+_Call = tuple[Callable[..., None], tuple[object, ...]]
+
+
+class QueuedSink:
+    """An ``IsolatedSink`` on a thread of its own behind a queue of ``capacity`` calls;
+    see the module docstring. ``drain`` waits until the queue is empty; ``close`` makes
+    the calls queued, then stops the thread (the sink's own ``close`` after them)."""
+
+    def __init__(self, sink: IsolatedSink, capacity: int = 10_000) -> None:
+        if capacity < 1:
+            raise ValueError(f"capacity {capacity} must be at least 1")
+        self.sink = sink
+        self.name = sink.name
+        self.state = sink.state
+        self.capacity = capacity
+        self._queue: queue.Queue[_Call | None] = queue.Queue(capacity)
+        self._log = RateLimitedLog(log, 60.0)
+        self._closed = False
+        self._thread = threading.Thread(target=self._work, name=f"output-{self.name}", daemon=True)
+        self._thread.start()
+
+    def datagram(self, input_name: str, datagram: Datagram) -> None:
+        assert datagram.time is not None
+        self._put(datagram.time, self.sink.datagram, (input_name, datagram))
+
+    def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
+        self._put(time, self.sink.system, (message, payload, time))
+
+    def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
+        self._put(time, self.sink.local, (message, payload, time))
+
+    def asterix(self, data: bytes, time: float) -> None:
+        self._put(time, self.sink.asterix, (data, time))
+
+    def bias(self, message: BiasMessage, time: float) -> None:
+        self._put(time, self.sink.bias, (message, time))
+
+    def status(self, message: StatusMessage, time: float) -> None:
+        self._put(time, self.sink.status, (message, time))
+
+    def drain(self, timeout: float = 10.0) -> bool:
+        """Waits until every queued call is made (at most ``timeout`` s); whether it was."""
+        deadline = time.monotonic() + timeout
+        while self._queue.unfinished_tasks:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.001)
+        return True
+
+    def close(self, timeout: float = 10.0) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(queue.Full):
+            self._queue.put(None, timeout=timeout)
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            log.error(
+                "output %s: still busy after %.0f s; %d calls not made",
+                self.name,
+                timeout,
+                self._queue.qsize(),
+            )
+            return
+        self.sink.close()
+
+    def _put(self, time: float, call: Callable[..., None], args: tuple[object, ...]) -> None:
+        state = self.state
+        if self._closed:
+            raise ValueError(f"output {self.name} is closed")
+        try:
+            self._queue.put_nowait((call, args))
+        except queue.Full:
+            state.overflowed += 1
+            state.dropped += 1
+            if state.full_since is None:
+                state.full_since = time
+            self._log.warning(
+                self.name,
+                "output %s: too slow, its queue of %d is full; %d messages dropped since start",
+                self.name,
+                self.capacity,
+                state.overflowed,
+            )
+            return
+        state.queued = self._queue.qsize()
+        if state.full_since is not None and state.queued <= self.capacity // 2:
+            state.full_since = None
+
+    def _work(self) -> None:
+        while True:
+            item = self._queue.get()
+            try:
+                if item is None:
+                    return
+                call, args = item
+                # IsolatedSink's calls raise nothing (they count and report instead).
+                call(*args)
+            finally:
+                self._queue.task_done()

@@ -42,7 +42,7 @@ from tracker_service.outputs.mapping import MessageMapper
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.mcap_sink import CAT062_TOPIC, SYSTEM_TRACKS_TOPIC, McapSink
 from tracker_service.outputs.messages import RadarStatus, StatusMessage, SystemTrackMessage
-from tracker_service.outputs.sink import Backoff, IsolatedSink, OutputState, Sink
+from tracker_service.outputs.sink import Backoff, IsolatedSink, OutputState, QueuedSink, Sink
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_sink import ZenohSink
 from tracker_service.service.config import ServiceConfig, parse_service_config
@@ -227,7 +227,7 @@ class Outputs:
             adapters.append(ZenohSink(publisher))
         if log_file is not None:
             adapters.append(McapSink(log_file))
-        self.sinks = [IsolatedSink(sink, backoff) for sink in adapters]
+        self.sinks = [QueuedSink(IsolatedSink(sink, backoff)) for sink in adapters]
         self.timings = timings or ServiceTimings()
         self.counts = ServiceCounts()
         self.input_counters: dict[str, InputCounters] = {}
@@ -252,6 +252,11 @@ class Outputs:
     def output_states(self) -> list[OutputState]:
         """Each output's state (delivered, dropped, failing since when and why)."""
         return [sink.state for sink in self.sinks]
+
+    def drain(self) -> None:
+        """Waits until every output has made the calls queued to it (tests, the end)."""
+        for sink in self.sinks:
+            sink.drain()
 
     def output_reasons(self) -> list[str]:
         """A status line for each failing output, e.g. "output mcap: disk full since ..."."""
@@ -369,20 +374,29 @@ class Outputs:
 
     def close(self) -> None:
         """Ends every live track (an "ended" message each, and its key deleted), sends the
-        last CAT062 batch and a status."""
-        if self._start is None:
-            return
-        for ended in self.mapper.end_all():
-            self._emit_system(ended)
-        self.publish_cat062()
-        self.publish_status()
-        log.info(
-            "%d datagrams, %d system tracks (%d updates), %d errors",
-            self.counts.datagrams,
-            len(self.counts.system_tracks),
-            self.counts.system_updates,
-            self.counts.errors,
-        )
+        last CAT062 batch and a status, then ``stop``."""
+        try:
+            if self._start is None:
+                return
+            for ended in self.mapper.end_all():
+                self._emit_system(ended)
+            self.publish_cat062()
+            self.publish_status()
+            log.info(
+                "%d datagrams, %d system tracks (%d updates), %d errors",
+                self.counts.datagrams,
+                len(self.counts.system_tracks),
+                self.counts.system_updates,
+                self.counts.errors,
+            )
+        finally:
+            self.stop()
+
+    def stop(self) -> None:
+        """Each output makes the calls queued to it, and its thread ends: after this, the
+        owner may close the publisher and the log. Later calls do nothing."""
+        for sink in self.sinks:
+            sink.close()
 
 
 class OutputSink(Protocol):
