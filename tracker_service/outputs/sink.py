@@ -175,7 +175,8 @@ class IsolatedSink:
     def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
         if self._run(time, self.sink.system, message, payload, time):
             self._missed.pop(message.number, None)
-        elif self.sink.resends_tracks:
+        elif self.sink.resends_tracks and self.state.failing_since is not None:
+            # Dropped by the outage (a message refused for itself is not sent again).
             self._missed[message.number] = (message, payload, time)
         self._resend()
 
@@ -203,14 +204,15 @@ class IsolatedSink:
 
     def _resend(self) -> None:
         """Once the output works again, what it missed of each track, in number order."""
-        while self._missed and self.state.failing_since is None:
-            number = min(self._missed)
+        if not self._missed or self.state.failing_since is not None:
+            return
+        for number in sorted(self._missed):
             message, payload, time = self._missed.pop(number)
-            try:
-                self.sink.system(message, payload, time)
-            except Exception as exc:
+            delivered = self._run(time, self.sink.system, message, payload, time)
+            if not delivered and self.state.failing_since is not None:
+                # Down again: this one and the rest wait for the next recovery.
                 self._missed[number] = (message, payload, time)
-                self._failed(time, exc)
+                return
 
     def _run(self, time: float, call: Callable[..., None], *args: object) -> bool:
         """Whether the call went through."""
