@@ -8,20 +8,26 @@ are used for several of these formats.
 
 Readers never raise on malformed input: every unit that cannot be unwrapped
 becomes a :class:`ContainerError` and reading resumes at the next unit where the
-format allows it. Payloads are slices of the input, so memory stays
-proportional to the input size.
+format allows it. Payloads are copies of their slice of the input, made one at a
+time as the reader advances.
+
+:func:`read_file` streams: the file is memory-mapped, the format is judged from its
+first MiB, and the pages behind the reader are handed back to the kernel as it goes,
+so that a capture of any size is read in a bounded amount of memory (the largest unit
+of the file, a hex line for instance, and a window of pages).
 """
 
 from __future__ import annotations
 
 import ipaddress
+import mmap
 import os
 import re
 import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, cast
 
 __all__ = [
     "FORMATS",
@@ -311,15 +317,21 @@ def _looks_like_final(data: bytes) -> bool:
 
 # Tokens are hex runs, optionally 0x-prefixed, separated by blanks, commas or
 # semicolons. A colon is deliberately not a separator: "0000: 30 00 ..." is an
-# offset-prefixed dump and must not silently turn its offset into data.
-_HEX_LINE = re.compile(rb"(?:0[xX])?[0-9A-Fa-f]+(?:[ \t,;]+(?:0[xX])?[0-9A-Fa-f]+)*[ \t,;]*")
-_HEX_TOKEN = re.compile(rb"(0[xX])?([0-9A-Fa-f]+)")
+# offset-prefixed dump and must not silently turn its offset into data. The line is
+# walked token by token: a regex over the whole line (a repeated group) would hold
+# backtracking state for every character, about 110 bytes each.
+_HEX_TOKEN = re.compile(rb"(0[xX])?([0-9A-Fa-f]+)(?:[ \t,;]+|$)")
 _TEXT_CONTROL = re.compile(rb"[\x00-\x08\x0e-\x1f\x7f]")
 _HEX_SAMPLE_LINES = 1000
 
 
+_HEX_BLANKS = b" \t\r\n\v\f"
+_HEX_PLAIN = b"0123456789abcdefABCDEF \t"
+
+
 def _hex_lines(data: bytes) -> Iterator[tuple[int, int, bytes]]:
-    """(line number, line offset, content) of each line that carries data."""
+    """(line number, line offset, content) of each line that carries data; the content
+    (up to a ``#`` comment, without surrounding blanks) is the only copy made."""
     end = len(data)
     pos = 0
     number = 0
@@ -327,25 +339,55 @@ def _hex_lines(data: bytes) -> Iterator[tuple[int, int, bytes]]:
         number += 1
         newline = data.find(b"\n", pos)
         line_end = end if newline < 0 else newline
-        content = data[pos:line_end].split(b"#", 1)[0].strip()
-        if content:
-            yield number, pos, content
+        comment = data.find(b"#", pos, line_end)
+        stop = line_end if comment < 0 else comment
+        first = pos
+        while first < stop and data[first] in _HEX_BLANKS:
+            first += 1
+        while stop > first and data[stop - 1] in _HEX_BLANKS:
+            stop -= 1
+        if stop > first:
+            yield number, pos, bytes(data[first:stop])
         pos = line_end + 1
 
 
+def _is_hex_text(content: bytes) -> bool:
+    """Whether a line is hex tokens and separators (runs of odd length included: the
+    reader then says which line is not hex bytes)."""
+    if not content.translate(None, _HEX_PLAIN):
+        return True
+    pos, end = 0, len(content)
+    while pos < end:
+        match = _HEX_TOKEN.match(content, pos)
+        if match is None:
+            return False
+        pos = match.end()
+    return True
+
+
 def _parse_hex_line(content: bytes) -> bytes | None:
-    if _HEX_LINE.fullmatch(content) is None:
-        return None
-    parts: list[str] = []
-    for match in _HEX_TOKEN.finditer(content):
-        digits = match.group(2).decode("ascii")
+    # The common dump, digits and blanks only: bytes.fromhex reads it at C speed and, as
+    # the token rules below, refuses a run of odd length.
+    if not content.translate(None, _HEX_PLAIN):
+        try:
+            return bytes.fromhex(content.decode("ascii"))
+        except ValueError:
+            return None
+    out = bytearray()
+    pos, end = 0, len(content)
+    while pos < end:
+        match = _HEX_TOKEN.match(content, pos)
+        if match is None:
+            return None
+        digits = match.group(2)
         if len(digits) % 2:
             # "0x5" is unambiguous; a bare odd run is not (which nibble is missing?).
             if match.group(1) is None:
                 return None
-            digits = "0" + digits
-        parts.append(digits)
-    return bytes.fromhex("".join(parts))
+            digits = b"0" + digits
+        out += bytes.fromhex(digits.decode("ascii"))
+        pos = match.end()
+    return bytes(out)
 
 
 def _read_hex(data: bytes) -> Iterator[_Item]:
@@ -363,7 +405,7 @@ def _looks_like_hex(data: bytes) -> bool:
     good = total = 0
     for _number, _offset, content in _hex_lines(data):
         total += 1
-        good += _HEX_LINE.fullmatch(content) is not None
+        good += _is_hex_text(content)
         if total >= _HEX_SAMPLE_LINES:
             break
     return good > 0 and 2 * good > total
@@ -738,7 +780,46 @@ def read_file(
     """Like :func:`read_datagrams` on the content of the file at ``path``."""
     if fmt is not None and fmt not in _READERS:
         raise ValueError(f"unknown container format {fmt!r}; expected one of {FORMATS}")
-    return read_datagrams(Path(path).read_bytes(), fmt)
+    return _read_mapped(Path(path), fmt)
+
+
+_DETECT_BYTES = 1 << 20
+"""The start of a file that its format is judged from."""
+_RELEASE_BYTES = 4 << 20
+"""Pages this far behind the reader go back to the kernel."""
+
+
+def _head(mapped: mmap.mmap) -> bytes:
+    """The start of a file to judge its format from, ending where a hex dump's line (or,
+    in one long line, a token) ends, so that a cut token does not look like bad text."""
+    head = mapped[:_DETECT_BYTES]
+    if len(mapped) <= len(head):
+        return head
+    cut = head.rfind(b"\n")
+    if cut < 0:
+        cut = max(head.rfind(b" "), head.rfind(b"\t"), head.rfind(b","), head.rfind(b";"))
+    return head[: cut + 1] if cut >= 0 else head
+
+
+def _read_mapped(path: Path, fmt: str | None) -> Iterator[Datagram | ContainerError]:
+    with open(path, "rb") as stream:
+        if os.fstat(stream.fileno()).st_size == 0:
+            yield from read_datagrams(b"", fmt)
+            return
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as mapped:
+            reader = _READERS[fmt or detect_format(_head(mapped))]
+            # A mapped file does for the readers what bytes do: indexing, slices (copied
+            # out as bytes), find, struct.unpack_from.
+            released = 0
+            for item in reader(cast(bytes, mapped)):
+                yield item
+                # The readers only move forward (a resynchronisation looks a few bytes
+                # back at most), and a page given back is read again if touched.
+                behind = item.offset - _RELEASE_BYTES
+                if behind - released >= _RELEASE_BYTES:
+                    behind -= behind % mmap.PAGESIZE
+                    mapped.madvise(mmap.MADV_DONTNEED, released, behind - released)
+                    released = behind
 
 
 # ---------------------------------------------------------------------------

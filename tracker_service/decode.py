@@ -15,7 +15,7 @@ from asterix.bds import decode_mb, infer_register
 from asterix.codec import decode_blocks
 from asterix.containers import ContainerError, Datagram, read_file
 from tracker_service.ingest import DuplicateFilter
-from tracker_service.simulator.recording import is_mcap, read_recording
+from tracker_service.simulator.recording import is_mcap, stream_datagrams
 
 # The item holding each category's time of day, for the summary's time span (CAT001's
 # I141 is truncated to 512 s: its CAT002 I030 gives the span).
@@ -97,10 +97,10 @@ def _error_json(event: DecodeError | ContainerError) -> str:
 
 
 def read_datagrams(path: Path) -> Iterator[Datagram | ContainerError]:
-    """Datagrams of a capture, or of an MCAP recording (where offsets count datagrams)."""
+    """Datagrams of a capture, or of an MCAP recording or service log (where offsets count
+    datagrams; one cut short gives what it holds, then an error)."""
     if is_mcap(path):
-        for index, recorded in enumerate(read_recording(path).datagrams()):
-            yield Datagram(recorded.payload, index, recorded.time, recorded.src, recorded.dst)
+        yield from stream_datagrams(path)
     else:
         yield from read_file(path)
 

@@ -10,23 +10,35 @@ Files rotate by size or by the span of their log times, named
 the operating system as soon as it is complete, so a process killed with SIGKILL leaves
 a file whose complete chunks :func:`read_log_messages` reads; ``close`` writes the
 summary and footer that indexed readers need.
+
+A write that fails (a full disk: ENOSPC) is cut off the file again, so that the file ends
+with whole records, and the file is closed at once with a data-end record and a footer
+(no summary: readers then read it from the start, ``mcap.reader.make_reader`` included).
+The room for that ending is kept aside in a small reserve file beside the logs, released
+at the failure. The error is raised to the caller (the service's ``IsolatedSink``, which
+reports it and retries); the next write starts a new file once the reserve can be taken
+again, i.e. once the disk has room.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import math
+import os
 import time as clock
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any, NamedTuple
+from typing import Any, NamedTuple
 
+from mcap.data_stream import RecordBuilder
 from mcap.exceptions import EndOfFile
-from mcap.records import Channel, Message, Metadata, Schema
+from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
-from mcap.writer import Writer
+from mcap.writer import MCAP0_MAGIC, Writer
 from pydantic import BaseModel, ConfigDict, Field
 
 from asterix.containers import Datagram
@@ -42,6 +54,8 @@ __all__ = [
     "read_log_messages",
     "read_log_metadata",
 ]
+
+log = logging.getLogger(__name__)
 
 MCAP_LIBRARY = "tracker-service log 1"
 _JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
@@ -119,16 +133,105 @@ def _endpoint(endpoint: tuple[str, int] | None) -> str | None:
     return None if endpoint is None else f"{endpoint[0]}:{endpoint[1]}"
 
 
+class _Spool:
+    """The file under an MCAP writer: what the writer writes waits here, and reaches the
+    file at ``flush``, which the log calls between the writer's calls, when the writer has
+    written whole records only. A write that fails is cut off the file again, so the file
+    always ends with whole records."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.committed = 0
+        """Bytes in the file, all of them whole records."""
+        self._pending = bytearray()
+
+    def write(self, data: bytes) -> int:
+        self._pending += data
+        return len(data)
+
+    def tell(self) -> int:
+        return self.committed + len(self._pending)
+
+    def flush(self) -> bool:
+        """Writes what is pending; whether there was something to write. On an error the
+        pending bytes are lost, the file is as before, and the error is raised."""
+        if not self._pending:
+            return False
+        view = memoryview(self._pending)
+        written = 0
+        try:
+            while written < len(view):
+                written += os.write(self.fd, view[written:])
+        except OSError:
+            view.release()
+            self._pending.clear()
+            self.cut()
+            raise
+        view.release()
+        self.committed += written
+        self._pending.clear()
+        return True
+
+    def cut(self) -> None:
+        """Back to the last whole record (what a partial write added goes)."""
+        with contextlib.suppress(OSError):
+            os.ftruncate(self.fd, self.committed)
+            os.lseek(self.fd, self.committed, os.SEEK_SET)
+
+
+def _ending() -> bytes:
+    """Data end, a footer without summary, and the closing magic: a complete MCAP file
+    after whole records."""
+    builder = RecordBuilder()
+    DataEnd(data_section_crc=0).write(builder)
+    Footer(summary_start=0, summary_offset_start=0, summary_crc=0).write(builder)
+    # mcap-python leaves end() unannotated.
+    return bytes(builder.end()) + MCAP0_MAGIC  # type: ignore[no-untyped-call]
+
+
+_ENDING_BYTES = len(_ending())
+
+
+class _Reserve:
+    """Room on the log's file system for closing a file when the disk is full: a file of
+    ``size`` bytes, allocated beside the logs, given back at a failure and taken again
+    before the next log file starts."""
+
+    def __init__(self, path: Path, size: int) -> None:
+        self.path = path
+        self.size = size
+
+    def take(self) -> None:
+        """Raises OSError (ENOSPC) when the file system has not the room."""
+        if self.path.exists() and self.path.stat().st_size >= self.size:
+            return
+        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT, 0o644)
+        try:
+            os.posix_fallocate(fd, 0, self.size)
+        except OSError:
+            os.close(fd)
+            self.release()
+            raise
+        os.close(fd)
+
+    def release(self) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            self.path.unlink()
+
+
 @dataclass
 class _File:
     path: Path
-    stream: IO[bytes]
+    stream: _Spool
     writer: Writer
     start_ns: int
     schemas: dict[str, int] = field(default_factory=dict)
     channels: dict[str, tuple[int, str]] = field(default_factory=dict)
     """topic -> (channel id, schema name)."""
     sequences: dict[int, int] = field(default_factory=dict)
+    messages: int = 0
+    unwritten: int = 0
+    """Messages handed to the writer that are not in the file yet (the chunk in progress)."""
 
 
 class McapLog(Closing):
@@ -137,7 +240,11 @@ class McapLog(Closing):
     A file is closed and the next one started when it reaches ``rotate_size_mb`` or when
     a message's log time is ``rotate_duration_s`` past the file's first. ``chunk_size``
     bounds what a SIGKILL can lose (with the last ``flush_interval_s`` seconds of wall
-    clock time, after which a partial chunk is written out anyway).
+    clock time, after which a partial chunk is written out anyway), and what a full disk
+    can (the chunk whose write failed).
+
+    ``reserve_bytes`` are kept aside in ``.<name>.reserve`` for closing a file on a full
+    disk; ``lost`` counts the messages that a failed write took with it.
     """
 
     def __init__(
@@ -150,12 +257,18 @@ class McapLog(Closing):
         name: str = "tracker",
         flush_interval_s: float = 1.0,
         metadata: Mapping[str, Mapping[str, str]] | None = None,
+        reserve_bytes: int = 64 * 1024,
     ) -> None:
         if rotate_size_mb <= 0 or rotate_duration_s <= 0 or chunk_size <= 0:
             raise ValueError("rotate_size_mb, rotate_duration_s and chunk_size must be positive")
+        if reserve_bytes < _ENDING_BYTES:
+            raise ValueError(f"reserve_bytes must be at least {_ENDING_BYTES}")
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=True)
         self.name = name
+        self._reserve = _Reserve(self.directory / f".{name}.reserve", reserve_bytes)
+        self.lost = 0
+        """Messages lost with writes that failed (a full disk), since start."""
         self._rotate_bytes = int(rotate_size_mb * 1024 * 1024)
         self._rotate_ns = round(rotate_duration_s * _NS_PER_S)
         self._chunk_size = chunk_size
@@ -238,6 +351,21 @@ class McapLog(Closing):
             raise ValueError("the log is closed")
         log_time = time_ns(time)
         file = self._file_for(log_time)
+        try:
+            self._add(file, topic, schema, schema_of, data, log_time)
+        except OSError:
+            self._abandon(file)
+            raise
+
+    def _add(
+        self,
+        file: _File,
+        topic: str,
+        schema: str,
+        schema_of: Callable[[], dict[str, Any]],
+        data: bytes,
+        log_time: int,
+    ) -> None:
         known = file.channels.get(topic)
         if known is None:
             schema_id = file.schemas.get(schema)
@@ -259,11 +387,17 @@ class McapLog(Closing):
             publish_time=log_time,
             sequence=sequence % _MAX_SEQUENCE,
         )
+        file.messages += 1
+        file.unwritten += 1
         if clock.monotonic() - self._last_flush >= self._flush_interval_s:
-            self.flush()
-        # Cheap when nothing is buffered; when the writer has just completed a chunk, this
+            # mcap-python leaves flush() unannotated.
+            file.writer.flush()  # type: ignore[no-untyped-call]
+            self._last_flush = clock.monotonic()
+        # Cheap when nothing is pending; when the writer has just completed a chunk, this
         # hands it to the operating system, where it survives the process.
-        file.stream.flush()
+        if file.stream.flush():
+            # The writer writes a chunk out whole: nothing is left behind in it.
+            file.unwritten = 0
 
     def _file_for(self, log_time: int) -> _File:
         file = self._file
@@ -285,41 +419,93 @@ class McapLog(Closing):
             # A replay of the same data into the same directory starts at the same time.
             sequence += 1
             path = self.directory / f"{self.name}_{stamp}_{sequence:04d}.mcap"
-        stream = open(path, "xb")  # noqa: SIM115 - closed by _finish()
+        # Room to close the file with, before there is a file: on a disk still full, the
+        # attempt leaves nothing behind.
+        self._reserve.take()
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        stream = _Spool(fd)
         try:
-            writer = start_mcap(stream, self._chunk_size)
+            writer = start_mcap(stream, self._chunk_size)  # type: ignore[arg-type]
             # Each file carries the metadata, right after its header: a file alone, even
             # one cut short by a kill, says what produced it.
             for metadata_name, values in self._metadata.items():
                 writer.add_metadata(metadata_name, values)
             stream.flush()
         except BaseException:
-            stream.close()
+            os.close(fd)
+            path.unlink()
             raise
         self.files.append(path)
         return _File(path, stream, writer, log_time)
 
     def flush(self) -> None:
         """Writes the chunk in progress out now (a quiet feed would otherwise hold it)."""
-        if self._file is not None:
-            # mcap-python leaves flush() unannotated.
-            self._file.writer.flush()  # type: ignore[no-untyped-call]
+        file = self._file
+        if file is not None:
+            try:
+                # mcap-python leaves flush() unannotated.
+                file.writer.flush()  # type: ignore[no-untyped-call]
+                file.stream.flush()
+            except OSError:
+                self._abandon(file)
+                raise
+            file.unwritten = 0
             self._last_flush = clock.monotonic()
 
     def _finish(self) -> None:
         file, self._file = self._file, None
-        if file is not None:
-            try:
-                # mcap-python leaves finish() unannotated.
-                file.writer.finish()  # type: ignore[no-untyped-call]
-            finally:
-                file.stream.close()
+        if file is None:
+            return
+        try:
+            # mcap-python leaves finish() unannotated.
+            file.writer.finish()  # type: ignore[no-untyped-call]
+            file.stream.flush()
+        except OSError:
+            self._file = file
+            self._abandon(file)
+            raise
+        os.close(file.stream.fd)
+
+    def _abandon(self, file: _File) -> None:
+        """After a failed write: the file, which ends with whole records, gets the ending
+        that makes it a complete MCAP file, in the room of the reserve, and is closed; the
+        next write starts a new one. A file that holds no message yet goes."""
+        self._file = None
+        self.lost += file.unwritten
+        stream = file.stream
+        stream.cut()
+        self._reserve.release()
+        try:
+            os.write(stream.fd, _ending())
+        except OSError:
+            # No room even so: the file ends with whole records, which every streaming
+            # reader (read_log_messages) reads up to the failure.
+            stream.cut()
+        os.close(stream.fd)
+        if file.messages == 0:
+            with contextlib.suppress(OSError):
+                file.path.unlink()
+                self.files.remove(file.path)
 
     def close(self) -> None:
-        """Finishes the current file (summary, footer); later calls do nothing."""
+        """Finishes the current file (summary, footer) and gives the reserve back; later
+        calls do nothing. On a full disk the file is closed without its summary, and
+        the error logged rather than raised."""
         if not self._closed:
             self._closed = True
-            self._finish()
+            try:
+                self._finish()
+            except OSError as exc:
+                # A full disk at the end: the file is closed all the same (without its
+                # summary, with what reached it); nothing is left to retry.
+                log.error(
+                    "%s: closed without its summary (%s); %d messages lost with the last write",
+                    self.files[-1] if self.files else self.directory,
+                    exc.strerror or exc,
+                    self.lost,
+                )
+            finally:
+                self._reserve.release()
 
 
 class LoggedMessage(NamedTuple):
@@ -347,6 +533,16 @@ def read_log_messages(path: str | Path) -> Iterator[LoggedMessage]:
             except (StopIteration, EndOfFile):
                 # EndOfFile: the file stops inside a record, where the writer was killed.
                 return
+            except Exception as exc:
+                # Damage (a CRC, a corrupt chunk): what came before is what can be had.
+                log.warning(
+                    "%s: unreadable from byte %d on (%s: %s); the messages before it are read",
+                    path,
+                    stream.tell(),
+                    type(exc).__name__,
+                    exc,
+                )
+                return
             if isinstance(record, Schema):
                 schemas[record.id] = record
             elif isinstance(record, Channel):
@@ -373,6 +569,7 @@ def read_log_metadata(path: str | Path) -> dict[str, dict[str, str]]:
                 elif isinstance(record, Message):
                     # McapLog writes its metadata before any message.
                     break
-        except EndOfFile:
+        except Exception:
+            # Cut short or damaged: the metadata found before counts.
             pass
     return found

@@ -361,28 +361,37 @@ def _serve_outputs(
         with open_outputs(config, mcap_dir, zenoh=zenoh) as (publisher, mcap):
             outputs = Outputs(config, publisher, mcap)
             replies.put(None)
-            while True:
-                if not calls.poll(1.0):
-                    if os.getppid() != parent:
-                        log.error("the core's process is gone: stopping")
-                        return
-                    continue
-                try:
-                    item = calls.recv_bytes()
-                except EOFError:
-                    log.error("the core's process is gone: stopping")
-                    return
-                if not item:
-                    return
-                method, args = pickle.loads(item)
-                try:
-                    getattr(outputs, method)(*args)
-                except Exception:
-                    # As in one process: a failed output is logged, the others go on.
-                    log.exception("output %s failed", method)
+            try:
+                _make_calls(outputs, parent, calls)
+            finally:
+                # The outputs' threads finish before the session and the log close.
+                outputs.stop()
     except Exception as exc:
         replies.put(f"{type(exc).__name__}: {exc}")
         raise
+
+
+def _make_calls(outputs: Outputs, parent: int, calls: Connection) -> None:
+    """The calls that arrive, until told to stop or until the parent is gone."""
+    while True:
+        if not calls.poll(1.0):
+            if os.getppid() != parent:
+                log.error("the core's process is gone: stopping")
+                return
+            continue
+        try:
+            item = calls.recv_bytes()
+        except EOFError:
+            log.error("the core's process is gone: stopping")
+            return
+        if not item:
+            return
+        method, args = pickle.loads(item)
+        try:
+            getattr(outputs, method)(*args)
+        except Exception:
+            # As in one process: a failed output is logged, the others go on.
+            log.exception("output %s failed", method)
 
 
 @contextmanager

@@ -19,7 +19,7 @@ import math
 from collections import Counter, defaultdict
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal, Protocol, cast
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -36,24 +36,17 @@ from tracker_service.chain import (
     source_order,
 )
 from tracker_service.fixed_targets import FixedTransponder
-from tracker_service.fusion import COASTING, ENDED, FusionConfig
+from tracker_service.fusion import FusionConfig
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
 from tracker_service.outputs.cat062 import encode_cat065, encode_system_tracks
-from tracker_service.outputs.mcap_log import LoggedDatagram, McapLog
-from tracker_service.outputs.messages import (
-    BiasMessage,
-    BiasSource,
-    Estimate,
-    LastPlot,
-    LocalTrackMessage,
-    RadarStatus,
-    SensorAges,
-    StatusMessage,
-    SystemTrackMessage,
-    TrackSource,
-)
+from tracker_service.outputs.mapping import MessageMapper
+from tracker_service.outputs.mcap_log import McapLog
+from tracker_service.outputs.mcap_sink import CAT062_TOPIC, SYSTEM_TRACKS_TOPIC, McapSink
+from tracker_service.outputs.messages import RadarStatus, StatusMessage, SystemTrackMessage
+from tracker_service.outputs.sink import Backoff, IsolatedSink, OutputState, QueuedSink, Sink
 from tracker_service.outputs.zenoh_out import ZenohPublisher
+from tracker_service.outputs.zenoh_sink import ZenohSink
 from tracker_service.service.config import ServiceConfig, parse_service_config
 from tracker_service.test_targets import SeenTestTargets
 from tracker_service.time_sanity import (
@@ -81,16 +74,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-SYSTEM_TRACKS_TOPIC = "/system_tracks"
-LOCATION_TOPIC = "/map/system_tracks"
-CAT062_TOPIC = "/cat062"
-STATUS_TOPIC = "/status"
-LocalStatus = Literal["tentative", "confirmed", "coasting", "deleted"]
-LOCAL_STATUS: tuple[LocalStatus, ...] = ("tentative", "confirmed", "coasting", "deleted")
-# I048/020 TYP: which sensor types a plot of each type is (PSR, SSR, Mode S).
-_PSR_TYPES = frozenset((1, 3, 6, 7))
-_SSR_TYPES = frozenset((2, 3))
-_MODE_S_TYPES = frozenset((4, 5, 6, 7))
 SILENT_PERIODS = 3.0
 """A radar whose last plot is this many antenna periods old makes the health "degraded"."""
 
@@ -231,27 +214,6 @@ def config_from_recording(metadata: Mapping[str, Any]) -> ServiceConfig:
     return parse_service_config(doc, "the recording's metadata")
 
 
-def _none_if_nan(value: float) -> float | None:
-    return value if math.isfinite(value) else None
-
-
-def _hex_address(value: int) -> str | None:
-    return f"{value:06X}" if value >= 0 else None
-
-
-def _octal_code(value: int) -> str | None:
-    return f"{value:04o}" if value >= 0 else None
-
-
-@dataclass
-class _SystemTrack:
-    """What the core remembers of a live system track between its updates."""
-
-    last: SystemTrackMessage
-    last_plot: LastPlot | None = None
-    sensor_times: dict[str, float] = field(default_factory=dict)
-
-
 @dataclass
 class _RadarCounters:
     last_plot_time: float | None = None
@@ -276,13 +238,15 @@ class ServiceCounts:
 
 
 class Outputs:
-    """Everything after the chain: the messages, Zenoh, CAT062, MCAP and the counters.
+    """Everything after the chain: the messages (``outputs.mapping``), the sinks (Zenoh,
+    MCAP, each isolated: ``outputs.sink``), CAT062 and the counters.
 
     Its state follows only from the calls it receives, in their order, and every call
     carries plain data (datagrams, the chain's numpy rows, bias arrays), so that it runs
     in the core's process or in a process of its own (``command.OutputProcess``) with the
     same messages. ``publisher`` and ``log`` are optional (a test or a benchmark may run
-    without either); it closes neither."""
+    without either); it closes neither. A sink that fails is reported in the status and
+    retried; the others go on."""
 
     def __init__(
         self,
@@ -290,13 +254,22 @@ class Outputs:
         publisher: ZenohPublisher | None = None,
         log_file: McapLog | None = None,
         timings: ServiceTimings | None = None,
+        *,
+        backoff: Backoff | None = None,
     ) -> None:
         self.config = config
         self.plane = SystemPlane(
             config.system.centre_lat, config.system.centre_lon, config.system.projection
         )
+        self.mapper = MessageMapper(self.plane)
         self.publisher = publisher
         self.log = log_file
+        adapters: list[Sink] = []
+        if publisher is not None:
+            adapters.append(ZenohSink(publisher))
+        if log_file is not None:
+            adapters.append(McapSink(log_file))
+        self.sinks = [QueuedSink(IsolatedSink(sink, backoff)) for sink in adapters]
         self.timings = timings or ServiceTimings()
         self.counts = ServiceCounts()
         self.input_counters: dict[str, InputCounters] = {}
@@ -305,13 +278,6 @@ class Outputs:
         self._periods = {radar.key: radar.antenna_period_s for radar in config.radars}
         self._feeds = [r.key for r in config.radars] + [a.key for a in config.adsb]
         self._radars: dict[str, _RadarCounters] = defaultdict(_RadarCounters)
-        self._tracks: dict[int, _SystemTrack] = {}
-        self._callsigns: dict[int, str] = {}
-        """The latest callsign (I048/240) each Mode S address sent."""
-        self._by_address: dict[str, set[int]] = defaultdict(set)
-        """Live system tracks per Mode S address: the duplicate-address flag without a
-        scan of every track at each update."""
-        self._local_times: dict[tuple[str, int], float] = {}
         self._pending_cat062: dict[int, SystemTrackMessage] = {}
         self._cat062_batches = 0
         self._start: float | None = None
@@ -319,11 +285,24 @@ class Outputs:
 
     @property
     def live_tracks(self) -> list[int]:
-        return sorted(self._tracks)
+        return self.mapper.live_tracks
 
     def picture(self) -> dict[int, SystemTrackMessage]:
         """The latest message of every live system track."""
-        return {number: self._tracks[number].last for number in sorted(self._tracks)}
+        return self.mapper.picture()
+
+    def output_states(self) -> list[OutputState]:
+        """Each output's state (delivered, dropped, failing since when and why)."""
+        return [sink.state for sink in self.sinks]
+
+    def drain(self) -> None:
+        """Waits until every output has made the calls queued to it (tests, the end)."""
+        for sink in self.sinks:
+            sink.drain()
+
+    def output_reasons(self) -> list[str]:
+        """A status line for each failing output, e.g. "output mcap: disk full since ..."."""
+        return [line for sink in self.sinks if (line := sink.state.reason_line()) is not None]
 
     def advance(self, time: float) -> None:
         """Data time moves on to ``time`` (a reception time, or the daemon's quiet clock)."""
@@ -339,8 +318,8 @@ class Outputs:
         assert datagram.time is not None
         self.advance(datagram.time)
         self.counts.datagrams += 1
-        if self.log is not None:
-            self.log.log_datagram(datagram, name)
+        for sink in self.sinks:
+            sink.datagram(name, datagram)
 
     def error(self, name: str, what: str) -> None:
         self.counts.errors += 1
@@ -368,176 +347,22 @@ class Outputs:
             if output.time.out_of_line_plots:
                 # A running count already: the tracker's, not this batch's.
                 counters.rejected["out_of_line"] = output.time.out_of_line_plots
-        named = plots[(plots["address"] >= 0) & (plots["callsign"] != "")]
-        for address, callsign in zip(
-            named["address"].tolist(), named["callsign"].tolist(), strict=True
-        ):
-            self._callsigns[address] = callsign
-        self._publish_local(output.source, output.local)
+        self.mapper.note_callsigns(plots)
+        for local in self.mapper.local(output.source, output.local):
+            payload = local.model_dump_json().encode()
+            for sink in self.sinks:
+                sink.local(local, payload, self._now)
         if len(output.system):
-            self._publish_system(output.system, plots, sources)
-
-    def _publish_local(self, source: str, rows: npt.NDArray[Any]) -> None:
-        sac, sic = (int(part) for part in source.split("/"))
-        topic = f"/local_tracks/{input_name(source)}"
-        for row in rows:
-            number, time = int(row["track_number"]), float(row["time"])
-            self._local_times[(source, number)] = time
-            # Built from the chain's own rows, whose types and ranges hold by construction:
-            # no validation on the path every track update takes.
-            message = LocalTrackMessage.model_construct(
-                radar=source,
-                number=number,
-                time=time,
-                x_m=float(row["x"]),
-                y_m=float(row["y"]),
-                vx_mps=float(row["vx"]),
-                vy_mps=float(row["vy"]),
-                covariance=row["P"].reshape(4, 4).tolist(),
-                flight_level=_none_if_nan(float(row["flight_level"])),
-                climb_rate_fpm=_none_if_nan(float(row["climb_rate_fl_per_s"]) * 6000.0),
-                status=LOCAL_STATUS[int(row["status"])],
-                plot_id=int(row["plot_id"]) if row["plot_id"] >= 0 else None,
-                mode3a=_octal_code(int(row["mode3a"])),
-                address=_hex_address(int(row["address"])),
-                model_probabilities=row["model_probabilities"].tolist(),
-            )
-            payload = message.model_dump_json().encode()
-            if self.publisher is not None:
-                self.publisher.put_local_track((sac, sic), number, payload)
-            if self.log is not None:
-                self.log.log_json(topic, LocalTrackMessage, payload, self._now)
-            if message.status == "deleted":
-                self._local_times.pop((source, number), None)
-
-    def _publish_system(
-        self, rows: npt.NDArray[Any], plots: npt.NDArray[Any], sources: Sequence[str]
-    ) -> None:
-        lat, lon = self.plane.to_geodetic(rows["x"], rows["y"])
-        plot_index = {int(p): i for i, p in enumerate(plots["plot_id"].tolist())}
-        plot_lat, plot_lon = self.plane.to_geodetic(plots["x"], plots["y"])
-        for k, row in enumerate(rows):
-            plot = plot_index.get(int(row["plot_id"]))
-            if plot is not None and bool(row["fresh"]):
-                plot_position = (float(plot_lat[plot]), float(plot_lon[plot]))
-                message = self._system_message(
-                    row, float(lat[k]), float(lon[k]), plots[plot], plot_position, sources
-                )
-            else:
-                message = self._system_message(
-                    row, float(lat[k]), float(lon[k]), None, None, sources
-                )
-            self._emit_system(message)
-
-    def _system_message(
-        self,
-        row: Any,
-        lat: float,
-        lon: float,
-        plot: Any,
-        plot_position: tuple[float, float] | None,
-        chain_sources: Sequence[str],
-    ) -> SystemTrackMessage:
-        number, time = int(row["system_number"]), float(row["time"])
-        previous = self._tracks.get(number)
-        sensor_times = {} if previous is None else previous.sensor_times
-        last_plot = None if previous is None else previous.last_plot
-        if plot is not None and plot_position is not None:
-            radar = chain_sources[int(row["radar"])]
-            typ = int(plot["typ"])
-            for sensor, types in (
-                ("psr", _PSR_TYPES),
-                ("ssr", _SSR_TYPES),
-                ("mode_s", _MODE_S_TYPES),
-            ):
-                if typ in types:
-                    sensor_times[sensor] = float(plot["time"])
-            last_plot = LastPlot.model_construct(
-                radar=radar,
-                time=float(plot["time"]),
-                lat=plot_position[0],
-                lon=plot_position[1],
-                range_m=float(plot["rho_m"]),
-                azimuth_deg=float(plot["theta_deg"]) % 360.0,
-            )
-        sources = []
-        for slot in range(int(row["n_sources"])):
-            radar = chain_sources[int(row["local_radars"][slot])]
-            local = int(row["local_numbers"][slot])
-            local_time = self._local_times.get((radar, local), time)
-            plot_id = int(row["local_plot_ids"][slot])
-            sources.append(
-                TrackSource.model_construct(
-                    radar=radar,
-                    local_track=local,
-                    age_s=max(time - local_time, 0.0),
-                    plot_id=plot_id if plot_id >= 0 else None,
-                )
-            )
-        address = _hex_address(int(row["address"]))
-        mode3a = _octal_code(int(row["mode3a"]))
-        status = int(row["status"])
-        if previous is not None and previous.last.address is not None:
-            self._by_address[previous.last.address].discard(number)
-        message = SystemTrackMessage.from_state(
-            time=time,
-            x_m=float(row["x"]),
-            y_m=float(row["y"]),
-            vx_mps=float(row["vx"]),
-            vy_mps=float(row["vy"]),
-            covariance=row["P"].reshape(4, 4).tolist(),
-            climb_rate_fl_per_s=_none_if_nan(float(row["climb_rate_fl_per_s"])),
-            validate=False,
-            number=number,
-            lat=lat,
-            lon=(lon + 180.0) % 360.0 - 180.0,
-            flight_level=_none_if_nan(float(row["flight_level"])),
-            address=address,
-            callsign=self._callsigns.get(int(row["address"])),
-            mode3a=mode3a,
-            mode3a_changed=previous is not None and previous.last.mode3a not in (None, mode3a),
-            first=previous is None,
-            sources=sources,
-            status="ended"
-            if status == ENDED
-            else "coasting"
-            if status == COASTING
-            else "confirmed",
-            last_plot=last_plot,
-            ages=SensorAges.model_construct(
-                None, **{k: max(time - t, 0.0) for k, t in sensor_times.items()}
-            ),
-            duplicate_address=address is not None and bool(self._by_address.get(address)),
-        )
-        if status == ENDED:
-            self._tracks.pop(number, None)
-        else:
-            self._tracks[number] = _SystemTrack(message, last_plot, sensor_times)
-            if address is not None:
-                self._by_address[address].add(number)
-        return message
+            for message in self.mapper.system(output.system, plots, sources):
+                self._emit_system(message)
 
     def _emit_system(self, message: SystemTrackMessage) -> None:
         self.counts.system_updates += 1
         self.counts.system_tracks.add(message.number)
         self._pending_cat062[message.number] = message
         payload = message.model_dump_json().encode()
-        if self.publisher is not None:
-            if message.status == "ended":
-                self.publisher.end_system_track(message.number, payload)
-            else:
-                self.publisher.put_system_track(message.number, payload)
-        if self.log is not None:
-            self.log.log_json(SYSTEM_TRACKS_TOPIC, SystemTrackMessage, payload, self._now)
-            if message.status != "ended":
-                p = message.covariance
-                # ENU position covariance: the plane's axes are east and north near the
-                # centre; the vertical is unknown, so left large rather than zero.
-                covariance = [p[0][0], p[0][1], 0.0, p[1][0], p[1][1], 0.0, 0.0, 0.0, 1e6]
-                altitude = 0.0 if message.flight_level is None else message.flight_level * 30.48
-                self.log.log_location(
-                    LOCATION_TOPIC, message.time, message.lat, message.lon, altitude, covariance
-                )
+        for sink in self.sinks:
+            sink.system(message, payload, self._now)
 
     # --- periodic outputs (the core says when) -----------------------------------------
 
@@ -549,45 +374,17 @@ class Outputs:
             "end_of_batch", self._now, self._cat062_batches, system
         )
         self._cat062_batches += 1
-        if self.publisher is not None:
-            self.publisher.put_cat062(data)
-        if self.log is not None:
-            record = LoggedDatagram(
-                input="cat062", time=self._now, src=None, dst=None, payload=data.hex()
-            )
-            self.log.log(CAT062_TOPIC, record, self._now)
+        for sink in self.sinks:
+            sink.asterix(data, self._now)
 
     def publish_bias(
         self,
         estimates: dict[str, tuple[npt.NDArray[Any], npt.NDArray[Any]]],
         observed_from: dict[str, ObservedFrom],
     ) -> None:
-        for source, (bias, covariance) in estimates.items():
-            sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-            sources = observed_from.get(source, ((),) * 4)
-            scale = (1.0, 1.0, math.degrees(1.0), 1.0)
-            values = [
-                Estimate(
-                    estimate=float(bias[i]) * scale[i],
-                    sigma=float(sigma[i]) * scale[i],
-                    observable=bool(sources[i]),
-                    observed_from=[cast(BiasSource, name) for name in sources[i]],
-                )
-                for i in range(4)
-            ]
-            message = BiasMessage(
-                radar=source,
-                time=self._now,
-                range_offset_m=values[0],
-                range_gain=values[1],
-                azimuth_deg=values[2],
-                time_s=values[3],
-            )
-            sac, sic = (int(part) for part in source.split("/"))
-            if self.publisher is not None:
-                self.publisher.put_bias((sac, sic), message)
-            if self.log is not None:
-                self.log.log(f"/bias/{input_name(source)}", message, self._now)
+        for message in self.mapper.bias(estimates, observed_from, self._now):
+            for sink in self.sinks:
+                sink.bias(message, self._now)
 
     def status(self) -> StatusMessage:
         """The current status: per feed, last plot time, plot rate since the last published status,
@@ -629,6 +426,7 @@ class Outputs:
                     test_targets=counters.test_targets.checks(),
                 )
             )
+        reasons = self.output_reasons()
         return StatusMessage(
             time=self._now,
             uptime_s=max(self._now - start, 0.0),
@@ -642,30 +440,34 @@ class Outputs:
         for counters in self._radars.values():
             counters.plots_at_last_status = counters.plots
             counters.implausible_at_last_status = counters.rejected["time_implausible"]
-        if self.publisher is not None:
-            self.publisher.put_status(message)
-        if self.log is not None:
-            self.log.log(STATUS_TOPIC, message, self._now)
+        for sink in self.sinks:
+            sink.status(message, self._now)
 
     def close(self) -> None:
         """Ends every live track (an "ended" message each, and its key deleted), sends the
-        last CAT062 batch and a status."""
-        if self._start is None:
-            return
-        for number in sorted(self._tracks):
-            track = self._tracks.pop(number)
-            ended = track.last.model_copy(update={"status": "ended", "first": False})
-            self._emit_system(ended)
-        self._by_address.clear()
-        self.publish_cat062()
-        self.publish_status()
-        log.info(
-            "%d datagrams, %d system tracks (%d updates), %d errors",
-            self.counts.datagrams,
-            len(self.counts.system_tracks),
-            self.counts.system_updates,
-            self.counts.errors,
-        )
+        last CAT062 batch and a status, then ``stop``."""
+        try:
+            if self._start is None:
+                return
+            for ended in self.mapper.end_all():
+                self._emit_system(ended)
+            self.publish_cat062()
+            self.publish_status()
+            log.info(
+                "%d datagrams, %d system tracks (%d updates), %d errors",
+                self.counts.datagrams,
+                len(self.counts.system_tracks),
+                self.counts.system_updates,
+                self.counts.errors,
+            )
+        finally:
+            self.stop()
+
+    def stop(self) -> None:
+        """Each output makes the calls queued to it, and its thread ends: after this, the
+        owner may close the publisher and the log. Later calls do nothing."""
+        for sink in self.sinks:
+            sink.close()
 
 
 class OutputSink(Protocol):

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import itertools
 import json
 import math
 import sys
@@ -233,11 +234,27 @@ def _own_time_of_day(payload: bytes) -> float | None:
     return None
 
 
+_PEEK_UNITS = 10_000
+"""Units of a capture read ahead for a reception time that says whether its times are
+POSIX or times of day; a capture with none in that many has none (raw, hex)."""
+
+
 def _capture(path: Path, config: ServiceConfig, day_posix: float | None) -> Replay:
-    items = list(read_file(path))
+    # Streamed: only the units before the first one with a time are held, at most
+    # _PEEK_UNITS of them.
+    units = read_file(path)
+    head: list[Datagram | ContainerError] = []
+    first_time: float | None = None
+    for unit in units:
+        head.append(unit)
+        if isinstance(unit, Datagram) and unit.time is not None:
+            first_time = unit.time
+            break
+        if len(head) >= _PEEK_UNITS:
+            break
+    items = itertools.chain(head, units)
     replay = Replay(config, iter(()), "capture")
-    times = [d.time for d in items if isinstance(d, Datagram) and d.time is not None]
-    posix = bool(times) and min(times) > DAY_S
+    posix = first_time is not None and first_time > DAY_S
     if not posix and day_posix is None:
         raise ValueError(
             f"{path}: its times are times of day (or it has none); give the day with "

@@ -24,13 +24,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Annotated, Any, Literal, NamedTuple
 
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import make_reader
+from mcap.records import Channel, Message
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, IndexType, Writer
 from pydantic import BaseModel, ConfigDict, Field
 from pydantic_core import to_jsonable_python
 
-from asterix.containers import detect_format, write_pcap
+from asterix.containers import ContainerError, Datagram, detect_format, write_pcap
 from tracker_service.closing import Closing
 
 __all__ = [
@@ -772,3 +774,77 @@ def read_recording(path: str | Path) -> Recording:
     metadata = json.loads(records["scenario"]["json"])
     topics = tuple(summary.channels[i].topic for i in sorted(summary.channels))
     return Recording(metadata=metadata, path=file, topics=topics)
+
+
+_LOG_DATAGRAM_PREFIX = "/datagrams/"
+
+
+def _endpoint_or_none(text: object) -> tuple[str, int] | None:
+    return _parse_endpoint(text) if isinstance(text, str) else None
+
+
+def stream_datagrams(path: str | Path) -> Iterator[Datagram | ContainerError]:
+    """The datagrams of an MCAP file, a simulator recording (``/asterix/*``) or a log of the
+    service (``/datagrams/*``), read from its start in file order (which is their
+    reception order) with one chunk in memory at a time.
+
+    Nothing raises for what the file holds: a file cut short (a writer killed, a disk
+    full), cut inside its header or damaged gives the datagrams before the damage and
+    then a ``ContainerError`` saying where and why reading stopped; a message that is not
+    a datagram record is a ``ContainerError`` too, and reading goes on. ``offset`` counts
+    the datagrams; an error's offset is the byte where reading stopped."""
+    number = 0
+    with open(path, "rb") as stream:
+        channels: dict[int, Channel] = {}
+        records = StreamReader(stream, validate_crcs=True).records
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                return
+            except EndOfFile:
+                yield ContainerError(
+                    stream.tell(),
+                    "MCAP file ends inside a record (cut short: was its writer killed?); "
+                    f"{number} datagrams read before",
+                )
+                return
+            # McapError: bad magic, CRC, record; the others: whatever a damaged length or
+            # compressed chunk makes the reader or its decompressor raise.
+            except Exception as exc:
+                yield ContainerError(
+                    stream.tell(),
+                    f"MCAP unreadable from here ({type(exc).__name__}: {exc}); "
+                    f"{number} datagrams read before",
+                )
+                return
+            if isinstance(record, Channel):
+                channels[record.id] = record
+                continue
+            if not isinstance(record, Message):
+                continue
+            channel = channels.get(record.channel_id)
+            if channel is None or not channel.topic.startswith(
+                (_ASTERIX_PREFIX, _LOG_DATAGRAM_PREFIX)
+            ):
+                continue
+            try:
+                doc = json.loads(record.data)
+                payload = bytes.fromhex(doc["payload"])
+                # A log's reception time is its "time" exactly; a recording's is the log
+                # time (int / int is correctly rounded).
+                received = float(doc["time"]) if "time" in doc else record.log_time / _NS_PER_S
+                datagram = Datagram(
+                    payload,
+                    number,
+                    received,
+                    _endpoint_or_none(doc.get("src")),
+                    _endpoint_or_none(doc.get("dst")),
+                )
+            except (ValueError, KeyError, TypeError) as exc:
+                yield ContainerError(
+                    number, f"message on {channel.topic} is not a datagram record ({exc})"
+                )
+                continue
+            number += 1
+            yield datagram

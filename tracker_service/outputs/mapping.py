@@ -1,0 +1,299 @@
+"""The chain's rows as the service's messages, in one place for every output.
+
+``MessageMapper`` turns local-track rows, system-track rows (with the plots that made
+them) and bias estimates into the pydantic messages of ``messages.py``, and remembers
+what a system track's next message needs from its previous ones (last plot, sensor ages,
+callsign, duplicate addresses). The sinks (``sink.py``) only carry the messages: Zenoh and
+the MCAP log publish the same ones.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal, cast
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.bias import ObservedFrom
+from tracker_service.fusion import COASTING, ENDED
+from tracker_service.geodesy import SystemPlane
+from tracker_service.outputs.messages import (
+    BiasMessage,
+    BiasSource,
+    Estimate,
+    LastPlot,
+    LocalTrackMessage,
+    SensorAges,
+    SystemTrackMessage,
+    TrackSource,
+)
+
+__all__ = ["LOCAL_STATUS", "LocationFix", "MessageMapper", "location_fix"]
+
+LocalStatus = Literal["tentative", "confirmed", "coasting", "deleted"]
+LOCAL_STATUS: tuple[LocalStatus, ...] = ("tentative", "confirmed", "coasting", "deleted")
+# I048/020 TYP: which sensor types a plot of each type is (PSR, SSR, Mode S).
+_PSR_TYPES = frozenset((1, 3, 6, 7))
+_SSR_TYPES = frozenset((2, 3))
+_MODE_S_TYPES = frozenset((4, 5, 6, 7))
+_METRES_PER_FL = 30.48
+
+
+def _none_if_nan(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+def _hex_address(value: int) -> str | None:
+    return f"{value:06X}" if value >= 0 else None
+
+
+def _octal_code(value: int) -> str | None:
+    return f"{value:04o}" if value >= 0 else None
+
+
+@dataclass
+class _SystemTrack:
+    """What the mapper remembers of a live system track between its updates."""
+
+    last: SystemTrackMessage
+    last_plot: LastPlot | None = None
+    sensor_times: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class LocationFix:
+    """A system track's position as a map shows it (``foxglove.LocationFix``)."""
+
+    time: float
+    lat: float
+    lon: float
+    altitude_m: float
+    covariance: tuple[float, ...]
+    """3x3 ENU position covariance (m², row-major)."""
+
+
+def location_fix(message: SystemTrackMessage) -> LocationFix:
+    p = message.covariance
+    # ENU position covariance: the plane's axes are east and north near the centre; the
+    # vertical is unknown, so left large rather than zero.
+    covariance = (p[0][0], p[0][1], 0.0, p[1][0], p[1][1], 0.0, 0.0, 0.0, 1e6)
+    altitude = 0.0 if message.flight_level is None else message.flight_level * _METRES_PER_FL
+    return LocationFix(message.time, message.lat, message.lon, altitude, covariance)
+
+
+class MessageMapper:
+    """Rows to messages; its state follows only from the rows it is given, in order."""
+
+    def __init__(self, plane: SystemPlane) -> None:
+        self.plane = plane
+        self._tracks: dict[int, _SystemTrack] = {}
+        self._callsigns: dict[int, str] = {}
+        """The latest callsign (I048/240) each Mode S address sent."""
+        self._by_address: dict[str, set[int]] = defaultdict(set)
+        """Live system tracks per Mode S address: the duplicate-address flag without a
+        scan of every track at each update."""
+        self._local_times: dict[tuple[str, int], float] = {}
+
+    @property
+    def live_tracks(self) -> list[int]:
+        return sorted(self._tracks)
+
+    def picture(self) -> dict[int, SystemTrackMessage]:
+        """The latest message of every live system track."""
+        return {number: self._tracks[number].last for number in sorted(self._tracks)}
+
+    def note_callsigns(self, plots: npt.NDArray[Any]) -> None:
+        named = plots[(plots["address"] >= 0) & (plots["callsign"] != "")]
+        for address, callsign in zip(
+            named["address"].tolist(), named["callsign"].tolist(), strict=True
+        ):
+            self._callsigns[address] = callsign
+
+    def local(self, source: str, rows: npt.NDArray[Any]) -> list[LocalTrackMessage]:
+        messages = []
+        for row in rows:
+            number, time = int(row["track_number"]), float(row["time"])
+            # Built from the chain's own rows, whose types and ranges hold by construction:
+            # no validation on the path every track update takes.
+            message = LocalTrackMessage.model_construct(
+                radar=source,
+                number=number,
+                time=time,
+                x_m=float(row["x"]),
+                y_m=float(row["y"]),
+                vx_mps=float(row["vx"]),
+                vy_mps=float(row["vy"]),
+                covariance=row["P"].reshape(4, 4).tolist(),
+                flight_level=_none_if_nan(float(row["flight_level"])),
+                climb_rate_fpm=_none_if_nan(float(row["climb_rate_fl_per_s"]) * 6000.0),
+                status=LOCAL_STATUS[int(row["status"])],
+                plot_id=int(row["plot_id"]) if row["plot_id"] >= 0 else None,
+                mode3a=_octal_code(int(row["mode3a"])),
+                address=_hex_address(int(row["address"])),
+                model_probabilities=row["model_probabilities"].tolist(),
+            )
+            if message.status == "deleted":
+                self._local_times.pop((source, number), None)
+            else:
+                self._local_times[(source, number)] = time
+            messages.append(message)
+        return messages
+
+    def system(
+        self, rows: npt.NDArray[Any], plots: npt.NDArray[Any], sources: Sequence[str]
+    ) -> list[SystemTrackMessage]:
+        """The messages of a batch's system rows; ``plots`` is the batch's plot table,
+        ``sources`` names the chain's radars by index."""
+        lat, lon = self.plane.to_geodetic(rows["x"], rows["y"])
+        plot_index = {int(p): i for i, p in enumerate(plots["plot_id"].tolist())}
+        plot_lat, plot_lon = self.plane.to_geodetic(plots["x"], plots["y"])
+        messages = []
+        for k, row in enumerate(rows):
+            plot = plot_index.get(int(row["plot_id"]))
+            if plot is not None and bool(row["fresh"]):
+                plot_position = (float(plot_lat[plot]), float(plot_lon[plot]))
+                message = self._system_message(
+                    row, float(lat[k]), float(lon[k]), plots[plot], plot_position, sources
+                )
+            else:
+                message = self._system_message(
+                    row, float(lat[k]), float(lon[k]), None, None, sources
+                )
+            messages.append(message)
+        return messages
+
+    def end_all(self) -> list[SystemTrackMessage]:
+        """An "ended" message for every live track, which are then forgotten."""
+        ended = []
+        for number in sorted(self._tracks):
+            track = self._tracks.pop(number)
+            ended.append(track.last.model_copy(update={"status": "ended", "first": False}))
+        self._by_address.clear()
+        return ended
+
+    def bias(
+        self,
+        estimates: Mapping[str, tuple[npt.NDArray[Any], npt.NDArray[Any]]],
+        observed_from: Mapping[str, ObservedFrom],
+        time: float,
+    ) -> list[BiasMessage]:
+        """Each radar's estimate; a component is observable when something observes it
+        (``observed_from``: other radars' traffic, a reference radar, a field monitor,
+        ADS-B), whatever its sigma says."""
+        messages = []
+        for source, (bias, covariance) in estimates.items():
+            sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+            sources = observed_from.get(source, ((),) * 4)
+            scale = (1.0, 1.0, math.degrees(1.0), 1.0)
+            values = [
+                Estimate(
+                    estimate=float(bias[i]) * scale[i],
+                    sigma=float(sigma[i]) * scale[i],
+                    observable=bool(sources[i]),
+                    observed_from=[cast(BiasSource, name) for name in sources[i]],
+                )
+                for i in range(4)
+            ]
+            messages.append(
+                BiasMessage(
+                    radar=source,
+                    time=time,
+                    range_offset_m=values[0],
+                    range_gain=values[1],
+                    azimuth_deg=values[2],
+                    time_s=values[3],
+                )
+            )
+        return messages
+
+    def _system_message(
+        self,
+        row: Any,
+        lat: float,
+        lon: float,
+        plot: Any,
+        plot_position: tuple[float, float] | None,
+        chain_sources: Sequence[str],
+    ) -> SystemTrackMessage:
+        number, time = int(row["system_number"]), float(row["time"])
+        previous = self._tracks.get(number)
+        sensor_times = {} if previous is None else previous.sensor_times
+        last_plot = None if previous is None else previous.last_plot
+        if plot is not None and plot_position is not None:
+            radar = chain_sources[int(row["radar"])]
+            typ = int(plot["typ"])
+            for sensor, types in (
+                ("psr", _PSR_TYPES),
+                ("ssr", _SSR_TYPES),
+                ("mode_s", _MODE_S_TYPES),
+            ):
+                if typ in types:
+                    sensor_times[sensor] = float(plot["time"])
+            last_plot = LastPlot.model_construct(
+                radar=radar,
+                time=float(plot["time"]),
+                lat=plot_position[0],
+                lon=plot_position[1],
+                range_m=float(plot["rho_m"]),
+                azimuth_deg=float(plot["theta_deg"]) % 360.0,
+            )
+        sources = []
+        for slot in range(int(row["n_sources"])):
+            radar = chain_sources[int(row["local_radars"][slot])]
+            local = int(row["local_numbers"][slot])
+            local_time = self._local_times.get((radar, local), time)
+            plot_id = int(row["local_plot_ids"][slot])
+            sources.append(
+                TrackSource.model_construct(
+                    radar=radar,
+                    local_track=local,
+                    age_s=max(time - local_time, 0.0),
+                    plot_id=plot_id if plot_id >= 0 else None,
+                )
+            )
+        address = _hex_address(int(row["address"]))
+        mode3a = _octal_code(int(row["mode3a"]))
+        status = int(row["status"])
+        if previous is not None and previous.last.address is not None:
+            self._by_address[previous.last.address].discard(number)
+        message = SystemTrackMessage.from_state(
+            time=time,
+            x_m=float(row["x"]),
+            y_m=float(row["y"]),
+            vx_mps=float(row["vx"]),
+            vy_mps=float(row["vy"]),
+            covariance=row["P"].reshape(4, 4).tolist(),
+            climb_rate_fl_per_s=_none_if_nan(float(row["climb_rate_fl_per_s"])),
+            validate=False,
+            number=number,
+            lat=lat,
+            lon=(lon + 180.0) % 360.0 - 180.0,
+            flight_level=_none_if_nan(float(row["flight_level"])),
+            address=address,
+            callsign=self._callsigns.get(int(row["address"])),
+            mode3a=mode3a,
+            mode3a_changed=previous is not None and previous.last.mode3a not in (None, mode3a),
+            first=previous is None,
+            sources=sources,
+            status="ended"
+            if status == ENDED
+            else "coasting"
+            if status == COASTING
+            else "confirmed",
+            last_plot=last_plot,
+            ages=SensorAges.model_construct(
+                None, **{k: max(time - t, 0.0) for k, t in sensor_times.items()}
+            ),
+            duplicate_address=address is not None and bool(self._by_address.get(address)),
+        )
+        if status == ENDED:
+            self._tracks.pop(number, None)
+        else:
+            self._tracks[number] = _SystemTrack(message, last_plot, sensor_times)
+            if address is not None:
+                self._by_address[address].add(number)
+        return message
