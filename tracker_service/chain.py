@@ -41,6 +41,7 @@ from tracker_service.bias import (
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, References, SystemTracker
 from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
 from tracker_service.ingest import PlotClock
+from tracker_service.sources import DEFAULT_MAX_UNKNOWN, SourceAdmission
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 
 __all__ = [
@@ -298,13 +299,16 @@ class ChainStats:
     plots: int = 0
     field_monitor_plots: int = 0
     unknown_radars: list[str] = field(default_factory=list)
+    decode_errors: int = 0
+    """Records (CAT034, CAT048) the codec could not decode inside a valid block chain."""
 
 
 class Chain:
     """See the module docstring. ``tracker``: ``TrackerConfig`` fields for every radar
     (``scan_period_s`` comes from each radar's period unless given); ``fusion``: the
     fuser's configuration (None: local tracks only); ``make_tracker(source, config)``
-    builds each radar's tracker (a benchmark passes one that times it)."""
+    builds each radar's tracker (a benchmark passes one that times it);
+    ``max_unknown_sources``: radars not in ``radars`` tracked at most (``sources``)."""
 
     def __init__(
         self,
@@ -314,8 +318,10 @@ class Chain:
         make_tracker: Callable[[str, TrackerConfig], LocalTracker] | None = None,
         fusion: FusionConfig | None = None,
         bias: BiasConfig | None = None,
+        max_unknown_sources: int = DEFAULT_MAX_UNKNOWN,
     ) -> None:
         self.infos = dict(radars)
+        self.admission = SourceAdmission(self.infos, max_unknown_sources)
         self.plane = plane
         # Fusion numbers the configured radars in SAC/SIC order, so that the same
         # configuration numbers them the same way in every run.
@@ -359,12 +365,16 @@ class Chain:
                 if isinstance(event, Block):
                     for items in event.records:
                         self._clock.service_message(items, received)
+                else:
+                    self.stats.decode_errors += 1
         if self.adsb is not None:
             for block in blocks_of(payload, CAT021):
                 self.adsb.feed(block, received)
         if next(blocks_of(payload, CAT048), None) is None:
             return []  # service messages or ADS-B only: no plot to extract
-        raw = extract_plots(payload).plots
+        extracted = extract_plots(payload)
+        self.stats.decode_errors += len(extracted.errors)
+        raw = self.admission.admit(extracted.plots)
         if len(raw) == 0:
             return []
         sac, sic = np.asarray(raw["sac"], np.int64), np.asarray(raw["sic"], np.int64)
