@@ -976,10 +976,8 @@ class TrackerService:
                 self.outputs.count(name, kind, n)
 
     def advance(self, now: float) -> None:
-        """Data time moves on without data (the daemon, while every feed is quiet): the
-        periodic outputs that fall due go out."""
-        if self._start is None:
-            return
+        """Data time moves on without data (the daemon: at its start, and while every feed
+        is quiet): the periodic outputs that fall due go out."""
         self._advance_to(now)
         self.outputs.advance(now)
         self._periodic()
@@ -989,7 +987,8 @@ class TrackerService:
             self._start = time
             self._next = {
                 "cat062": time + self.timings.cat062_s,
-                "status": time + self.timings.status_s,
+                # The first status at once: `health` has one from the start.
+                "status": time,
                 "bias": time + self.timings.bias_s,
             }
         self._now = max(self._now, time)

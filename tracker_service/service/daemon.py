@@ -40,6 +40,10 @@ POLL_S = 0.001
 """Sleep of the merge loop when no input has anything: the latency it may add."""
 COUNTERS_S = 0.5
 """How often the inputs' counters are copied for the status messages (wall clock)."""
+STOP_DRAIN_S = 2.0
+"""At a stop, the datagrams the holding window holds are processed for at most this long;
+the rest (a backlog of an overloaded core) are dropped and counted, so that a stop is
+prompt whatever the load."""
 QUIET_S = 1.0
 """After this long without a datagram, data time follows the wall clock (status goes on)."""
 
@@ -143,8 +147,8 @@ class Daemon:
         self._lag = 0.0
 
     def run(self, stop: Stop) -> int:
-        """Until ``stop`` is set; then what the merger holds is processed, every live track
-        ended and the log closed."""
+        """Until ``stop`` is set; then what the merger holds is processed (for at most
+        ``STOP_DRAIN_S``), every live track ended and the log closed."""
         config = self.config
         inputs = open_inputs(config)
         if not inputs:
@@ -161,6 +165,8 @@ class Daemon:
             with open_service(
                 config, config.mcap.directory, output_process=True, health_file=self.health_file
             ) as service:
+                # Data time starts now, and with it the status (and the health file).
+                service.advance(time.time() - system.holding_window_s)
                 log.info("running: publishing under %s/", config.zenoh.prefix)
                 last_datagram = time.time()
                 next_counters = 0.0
@@ -169,7 +175,13 @@ class Daemon:
                     now = time.time()
                     if received:
                         last_datagram = now
-                    for name, datagram in merger.release(now):
+                    released = merger.release(now)
+                    for k, (name, datagram) in enumerate(released):
+                        if stop.is_set():
+                            # Back into the window, for the bounded drain below.
+                            for later in released[k:]:
+                                merger.push(*later)
+                            break
                         self._process(service, name, datagram)
                     if now >= next_counters:
                         self._update_counters(service, inputs, merger)
@@ -181,8 +193,13 @@ class Daemon:
                 for udp in inputs:
                     udp.close()
                 self._collect(inputs, merger)
+                # What the window holds goes through, for as long as a stop may take.
+                deadline = time.monotonic() + STOP_DRAIN_S
                 for name, datagram in merger.release(float("inf")):
-                    self._process(service, name, datagram)
+                    if time.monotonic() < deadline:
+                        self._process(service, name, datagram)
+                    else:
+                        merger.dropped[name] += 1
                 self._update_counters(service, inputs, merger)
                 log.info(
                     "stopping: %d datagrams through the chain, %d failures; ending every "

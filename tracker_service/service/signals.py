@@ -89,14 +89,20 @@ class StopSignal:
 @contextmanager
 def stop_on_signals() -> Iterator[StopSignal]:
     """A ``StopSignal`` set by SIGTERM or SIGINT, from the main thread (where Python runs
-    signal handlers); the previous handlers and wake-up fd come back afterwards."""
+    signal handlers); the previous handlers and wake-up fd come back afterwards, unless
+    a signal did stop: then the process is on its way out, and a repeated SIGTERM (an
+    impatient operator, a service manager) must not kill it with the default action
+    between here and its exit (the interpreter's finalisation resets Python handlers to
+    the default), so both signals are ignored from here on. While the orderly stop runs
+    (tracks ended, log closed), a repeated signal only sets the flag again: SIGKILL is
+    what interrupts it."""
     stop = StopSignal()
     previous_fd = signal.set_wakeup_fd(stop.wakeup_fd, warn_on_full_buffer=False)
     previous = {s: signal.signal(s, stop.handler) for s in SIGNALS}
     try:
         yield stop
     finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
         signal.set_wakeup_fd(previous_fd)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if stop.signal is None else signal.SIG_IGN)
         stop.close()
