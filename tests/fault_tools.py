@@ -39,15 +39,19 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
         return port
 
 
-def plot_block(sac: int, sic: int, time_of_day: float, rho_nm: float = 40.0) -> bytes:
-    """A CAT048 data block of one well-formed SSR plot of source SAC/SIC."""
-    record = {
+def plot_record(sac: int, sic: int, time_of_day: float, rho_nm: float = 40.0) -> dict[str, Any]:
+    """The items of one well-formed SSR plot of source SAC/SIC."""
+    return {
         "010": {"SAC": sac, "SIC": sic},
         "140": time_of_day % 86400.0,
         "020": {"TYP": 2, "SIM": 0, "RDP": 0, "SPI": 0, "RAB": 0},
         "040": {"RHO": rho_nm, "THETA": 123.0},
     }
-    return encode_block(48, [record])
+
+
+def plot_block(sac: int, sic: int, time_of_day: float, rho_nm: float = 40.0) -> bytes:
+    """A CAT048 data block of one well-formed SSR plot of source SAC/SIC."""
+    return encode_block(48, [plot_record(sac, sic, time_of_day, rho_nm)])
 
 
 def _no_configured_plot(payload: bytes) -> bool:
