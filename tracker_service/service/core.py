@@ -795,8 +795,9 @@ class Outputs:
         if self._core.sources.unknown_sources_dropped:
             unattributed["unknown_sources_dropped"] = self._core.sources.unknown_sources_dropped
         return StatusMessage(
-            time=self._now,
-            uptime_s=max(self._now - start, 0.0),
+            # Before any data (a status asked for at once): time 0, up for 0 s.
+            time=self._now if self._start is not None else 0.0,
+            uptime_s=max(self._now - start, 0.0) if self._start is not None else 0.0,
             health="degraded" if reasons else "ok",
             reasons=reasons,
             radars=radars,
