@@ -209,17 +209,16 @@ def open_service(
 
 
 class OutputProcessFailed(RuntimeError):
-    """The output process died more often than ``MAX_RESTARTS`` within
+    """The output process died more often than ``[system] max_output_restarts`` within
     ``RESTART_WINDOW_S``: the daemon gives up, with a non-zero exit status."""
 
 
-MAX_RESTARTS = 5
 RESTART_WINDOW_S = 600.0
 """A daemon restarts a dead output process itself (the chain keeps its tracks, the outputs
-resume within seconds), but not without end: more than ``MAX_RESTARTS`` deaths within
-``RESTART_WINDOW_S`` is a fault a restart does not cure, so the daemon exits with status 1
-and a one-line error, and the service manager (systemd ``Restart=on-failure``, Docker
-``restart: on-failure``) takes over."""
+resume within seconds), but not without end: more than ``[system] max_output_restarts``
+deaths within this window is a fault a restart does not cure, so the daemon exits with
+status 1 and a one-line error, and the service manager (systemd ``Restart=on-failure``,
+Docker ``restart: on-failure``) takes over."""
 
 
 class OutputProcess:
@@ -231,7 +230,7 @@ class OutputProcess:
     there; leaving the context waits for the process to drain the pipe and exit.
 
     Supervised: when the process dies (killed, out of memory), the next call finds it
-    gone, logs it, and starts a new one (see ``MAX_RESTARTS``); the calls in the pipe at
+    gone, logs it, and starts a new one (see ``RESTART_WINDOW_S``); the calls in the pipe at
     that moment are lost, and the new process starts without the old one's picture (every
     live track's next update is a "first" again). The status reports each restart."""
 
@@ -247,7 +246,8 @@ class OutputProcess:
         self.restarts = 0
         self.last_restart: str | None = None
         self._deaths: list[float] = []
-        self._failed = False
+        self._failed: str | None = None
+        """Why the process is given up on, once it is."""
         self._start()
 
     def _start(self) -> None:
@@ -289,12 +289,12 @@ class OutputProcess:
         self._calls.close()
         now = time.monotonic()
         self._deaths = [t for t in self._deaths if now - t <= RESTART_WINDOW_S] + [now]
-        if len(self._deaths) > MAX_RESTARTS:
-            self._failed = True
-            raise OutputProcessFailed(
+        if len(self._deaths) > self._args[0].system.max_output_restarts:
+            self._failed = (
                 f"the output process died {len(self._deaths)} times within "
                 f"{RESTART_WINDOW_S:g} s (last exit code {code}): giving up"
             )
+            raise OutputProcessFailed(self._failed)
         log.error("the output process died (exit code %s): restarting it", code)
         self._start()
         self.restarts += 1
@@ -302,7 +302,7 @@ class OutputProcess:
 
     def _call(self, method: str, *args: object) -> None:
         if self._failed:
-            raise OutputProcessFailed("the output process is gone")
+            raise OutputProcessFailed(self._failed)
         # Whether the process still runs costs a system call: asked once a second of
         # wall clock, not at each of the thousands of calls a second.
         now = time.monotonic()

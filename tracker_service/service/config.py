@@ -114,6 +114,10 @@ class SystemConfig(_Strict):
     holding_window_max_mb: Annotated[float, Field(gt=0.0, le=4096.0)] = 32.0
     """What the holding window may hold at most: a burst beyond is dropped and counted
     (``drops`` in status), not buffered in full."""
+    max_output_restarts: Annotated[int, Field(ge=0, le=1000)] = 5
+    """The daemon restarts its output process when it dies, up to this many times within
+    10 minutes; one more death and it exits with status 1 (for systemd or Docker to
+    restart it)."""
     max_unknown_sources: Annotated[int, Field(ge=0, le=256)] = 8
     """SAC/SICs not in the configuration that are still tracked (at an assumed site, out
     of fusion); plots of further unknown sources are dropped and counted."""
