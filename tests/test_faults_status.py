@@ -14,7 +14,7 @@ import numpy as np
 from asterix.codec import encode_block
 from asterix.containers import Datagram, write_pcap
 from tests.fault_tools import EXAMPLE, NO_I010, hostile_datagrams, plot_block, plot_record
-from tests.test_service_replay import logged
+from tests.test_service_replay import endpoint, logged
 from tracker_service.cli import main
 from tracker_service.outputs.messages import StatusMessage
 from tracker_service.service.config import load_service_config
@@ -82,9 +82,8 @@ def test_a_replay_with_hostile_datagrams_runs_to_its_end(tmp_path: Path) -> None
     capture = tmp_path / "hostile.pcap"
     write_pcap(capture, datagrams)
     out = tmp_path / "log"
-    code = main(
-        ["replay", str(capture), "--config", str(EXAMPLE), "--speed", "max", "--mcap-dir", str(out)]
-    )
+    args = ["replay", str(capture), "--config", str(EXAMPLE), "--speed", "max"]
+    code = main([*args, "--mcap-dir", str(out), "--zenoh-listen", endpoint()])
     assert code == 0
     statuses = [m.data for m in logged(out) if m.topic == "/status"]
     # A status every 5 s of the 30 s, the first at the start, the last at the end.
