@@ -93,15 +93,26 @@ def write_config(
     log: bool = True,
     system: dict[str, Any] | None = None,
     periods_s: float | None = None,
+    second_lan: bool = False,
 ) -> tuple[Path, dict[str, int]]:
-    """config/example.toml with single-LAN unicast inputs on free loopback ports (the
-    port of each feed by its key), ``system`` settings added to [system], and, with
-    ``periods_s``, every antenna period replaced (short silences in short tests)."""
+    """config/example.toml with unicast inputs on free loopback ports (the port of each
+    feed by its key; with ``second_lan``, 25/11 has a LAN B too, its port under
+    "25/11 B"), ``system`` settings added to [system], and, with ``periods_s``, every
+    antenna period replaced (short silences in short tests)."""
     tmp.mkdir(parents=True, exist_ok=True)
     keys = ["25/11", "25/12", "25/13", "25/50"]
     ports = {key: free_port() for key in keys}
+    if second_lan:
+        ports["25/11 B"] = free_port()
+
+    def table(key: str) -> str:
+        extra = ""
+        if key + " B" in ports:
+            extra = f', second_lan = {{ address = "127.0.0.1", port = {ports[key + " B"]} }}'
+        return f'input = {{ address = "127.0.0.1", port = {ports[key]}{extra} }}'
+
     text = EXAMPLE.read_text(encoding="utf-8")
-    inputs = iter(f'input = {{ address = "127.0.0.1", port = {ports[key]} }}' for key in keys)
+    inputs = iter(table(key) for key in keys)
     text = re.sub(r"(?m)^input = .*$", lambda _: next(inputs), text)
     text = re.sub(r"(?m)^holding_window_s = .*$", f"holding_window_s = {holding_window_s}", text)
     extra = "".join(f"{name} = {value}\n" for name, value in (system or {}).items())

@@ -761,7 +761,10 @@ class Outputs:
             counters = self._radars[key]
             inputs = self.input_counters.get(input_name(key), InputCounters())
             rate = (counters.plots - counters.plots_at_last_status) / interval
-            receiving, tracking, time_sane = self._radar_health(key, counters, reasons)
+            # An unknown source (not configured) is no part of the expected picture: its
+            # states are shown, but its silence or its clock degrade nothing.
+            expected = reasons if key in self._feeds else []
+            receiving, tracking, time_sane = self._radar_health(key, counters, expected)
             causes = {
                 "queue": inputs.dropped,
                 "holding_window": inputs.held_dropped,
