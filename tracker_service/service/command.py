@@ -252,6 +252,7 @@ class OutputProcess:
         self.restarts = 0
         self.last_restart: str | None = None
         self._deaths: list[float] = []
+        self._data_time: float | None = None
         self._failed: str | None = None
         """Why the process is given up on, once it is."""
         self._start()
@@ -305,6 +306,9 @@ class OutputProcess:
         self._start()
         self.restarts += 1
         self.last_restart = f"exit code {code}"
+        # The new one starts at the data time the old one had reached.
+        if self._data_time is not None:
+            self._calls.send_bytes(pickle.dumps(("advance", (self._data_time,))))
 
     def _call(self, method: str, *args: object) -> None:
         if self._failed:
@@ -324,6 +328,7 @@ class OutputProcess:
             self._calls.send_bytes(data)
 
     def advance(self, time: float) -> None:
+        self._data_time = time
         self._call("advance", time)
 
     def set_input_counters(self, counters: dict[str, InputCounters]) -> None:
@@ -337,6 +342,7 @@ class OutputProcess:
         )
 
     def received(self, name: str, datagram: Datagram) -> None:
+        self._data_time = datagram.time
         self._call("received", name, datagram)
 
     def error(self, name: str, kind: str, detail: str = "") -> None:

@@ -817,7 +817,11 @@ class Outputs:
             sink.failures_at_last_status = sink.failures
         # The health file first: whatever the sinks do, `health` learns the state.
         if self.health_file is not None:
-            write_health(self.health_file, message)
+            try:
+                write_health(self.health_file, message)
+            except OSError as exc:
+                self.sink_failed("health_file", f"{type(exc).__name__}: {exc}")
+                self._warn.error("health_file", "cannot write %s: %s", self.health_file, exc)
         if self.publisher is not None:
             self.publisher.put_status(message)
         if self.log is not None:
