@@ -115,8 +115,11 @@ def write_config(
     inputs = iter(table(key) for key in keys)
     text = re.sub(r"(?m)^input = .*$", lambda _: next(inputs), text)
     text = re.sub(r"(?m)^holding_window_s = .*$", f"holding_window_s = {holding_window_s}", text)
-    extra = "".join(f"{name} = {value}\n" for name, value in (system or {}).items())
-    text = text.replace("[system]\n", f"[system]\n{extra}", 1)
+    for name, value in (system or {}).items():
+        line = f"{name} = {value}"
+        text, found = re.subn(rf"(?m)^{name} = .*$", line, text)
+        if not found:
+            text = text.replace("[system]\n", f"[system]\n{line}\n", 1)
     if periods_s is not None:
         text = re.sub(r"(?m)^antenna_period_s = .*$", f"antenna_period_s = {periods_s}", text)
     directory = f'directory = "{tmp / "logs"}"' if log else ""
