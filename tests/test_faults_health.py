@@ -147,13 +147,15 @@ def health(file: Path, max_age: float = 30.0) -> tuple[int, str]:
 
 
 def test_health_exit_codes_and_a_supervised_output_process(tmp_path: Path) -> None:
-    config, _ = write_config(tmp_path, log=False, periods_s=1.0, system={"max_output_restarts": 1})
+    # 2 s antenna periods: the statuses at 0 and 5 s are "ok" (a radar is silent after
+    # 6 s), time enough for `health` to start on a loaded machine.
+    config, _ = write_config(tmp_path, log=False, periods_s=2.0, system={"max_output_restarts": 1})
     daemon = DaemonProcess(config, tmp_path / "health")
     try:
         # Its first status comes at once: nothing expected yet.
         code, text = health(daemon.health)
         assert code == 0, text
-        # Nothing arrives for three 1 s antenna periods: degraded, each radar named.
+        # Nothing arrives for three antenna periods (ADS-B: 10 s): degraded, each named.
         daemon.wait_status(lambda s: len(s["reasons"]) == 4)
         code, text = health(daemon.health)
         assert code == 2, text
