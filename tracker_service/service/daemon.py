@@ -5,12 +5,14 @@ a bounded queue whose overflow is counted). One thread, this one, merges the inp
 datagram waits until ``system.holding_window_s`` has passed since its reception, so that
 the datagrams of every radar reach the core in reception-time order (ties by input name)
 even when a thread ran late; the core logs them in that order, and the replay of the
-log feeds them the same way. An exception in the processing of one datagram is logged
-and counted; the daemon goes on.
+log feeds them the same way. The window holds at most a configured number of datagrams
+and bytes: a burst beyond is dropped and counted. An exception in the processing of one
+datagram is logged (at a bounded rate) and counted; the daemon goes on.
 
 The chain runs here; the outputs (messages, Zenoh, CAT062, MCAP) in a second process
-(``command.OutputProcess``), fed the chain's rows in order, so that the chain has a core
-of its own and the messages are those of a single process.
+(``command.OutputProcess``, restarted when it dies), fed the chain's rows in order, so
+that the chain has a core of its own and the messages are those of a single process.
+The daemon measures how far the chain is behind the wall clock (``lag_s`` in status).
 """
 
 from __future__ import annotations
