@@ -14,6 +14,7 @@ from __future__ import annotations
 import errno
 import ipaddress
 import logging
+import os
 import queue
 import socket
 import struct
@@ -181,6 +182,26 @@ def _open_socket(endpoint: UdpEndpoint) -> socket.socket:
     return sock
 
 
+PROC_NET_UDP = "/proc/net/udp"
+
+
+def _proc_drops(inodes: list[int]) -> list[int] | None:
+    """Each socket's kernel drop count (the same counter SO_RXQ_OVFL reports) from
+    /proc/net/udp, by inode; None where that file is not (not Linux). Unlike the
+    ancillary data, it is known without waiting for the next datagram."""
+    try:
+        with open(PROC_NET_UDP, encoding="ascii") as table:
+            lines = table.readlines()[1:]
+    except OSError:
+        return None
+    by_inode = {}
+    for line in lines:
+        fields = line.split()
+        if len(fields) >= 13:
+            by_inode[int(fields[9])] = int(fields[-1])
+    return [by_inode.get(inode, 0) for inode in inodes]
+
+
 def _kernel_drops(ancillary: list[tuple[int, int, bytes]]) -> int | None:
     """The socket's drop count carried by one datagram (SO_RXQ_OVFL), if any."""
     for level, kind, data in ancillary:
@@ -240,6 +261,7 @@ class UdpInput(Closing):
             for endpoint, sock in zip(endpoints, self._sockets, strict=True)
         ]
         self._socket_drops = [0] * len(self._sockets)
+        self._inodes = [os.fstat(sock.fileno()).st_ino for sock in self._sockets]
         self._threads = [
             threading.Thread(
                 target=self._receive,
@@ -263,7 +285,13 @@ class UdpInput(Closing):
     @property
     def counters(self) -> InputCounters:
         """A consistent snapshot of the counters."""
+        drops = _proc_drops(self._inodes)
         with self._lock:
+            if drops is not None:
+                self._socket_drops = [
+                    max(a, b) for a, b in zip(self._socket_drops, drops, strict=True)
+                ]
+                self._counters.kernel_drops = sum(self._socket_drops)
             return replace(self._counters)
 
     def get(self, timeout: float | None = None) -> Datagram | None:
