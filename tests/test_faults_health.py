@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from asterix.containers import Datagram
-from tests.fault_tools import EXAMPLE, DaemonProcess, pids_alive, write_config
+from tests.fault_tools import EXAMPLE, NO_I010, DaemonProcess, pids_alive, write_config
 from tests.fault_tools import plot_block as block
 from tracker_service.chain import Chain
 from tracker_service.service.config import load_service_config
@@ -39,6 +39,7 @@ def scans(
     *,
     silent: dict[str, float] | None = None,
     clock_offset: dict[str, float] | None = None,
+    start: float = T0,
 ) -> None:
     """One plot per antenna turn of each radar (an aircraft moving outbound) up to
     ``until`` s; a radar in ``silent`` sends nothing after that many seconds."""
@@ -53,9 +54,9 @@ def scans(
         if t > silent.get(name, np.inf):
             continue
         sac, sic = (int(part) for part in name.split("_"))
-        tod = (T0 + t + offsets.get(name, 0.0)) % 86400
+        tod = (start + t + offsets.get(name, 0.0)) % 86400
         payload = block(sac, sic, tod, 30.0 + t * 0.05)
-        service.process(name, Datagram(payload, number, T0 + t + 0.3, None, None))
+        service.process(name, Datagram(payload, number, start + t + 0.3, None, None))
 
 
 def reasons(service: TrackerService) -> list[str]:
@@ -190,3 +191,31 @@ def test_health_exit_codes_and_a_supervised_output_process(tmp_path: Path) -> No
         if daemon.process.poll() is None:
             daemon.process.send_signal(signal.SIGKILL)
         daemon.close()
+
+
+def test_reason_lines_of_the_checks_with_the_chain_reach_the_status() -> None:
+    """``TrackerService.core_reasons``: where checks that run with the chain (time
+    sanity, test targets) say why a radar is degraded."""
+
+    class Checked(TrackerService):
+        def core_reasons(self) -> tuple[str, ...]:
+            return ("radar 25/11: a check with the chain failed",)
+
+    config = load_service_config(EXAMPLE)
+    service = Checked(config.model_copy(update={"adsb": []}), timings=ServiceTimings(status_s=1.0))
+    scans(service, 30.0)
+    assert reasons(service) == ["radar 25/11: a check with the chain failed"]
+    assert service.status().health == "degraded"
+
+
+def test_datagrams_before_the_first_plots_are_no_tracker_stall() -> None:
+    """Tracks need a few scans to form from the first tracked plots, whatever arrived on
+    the input before (hostile datagrams, service messages)."""
+    config = load_service_config(EXAMPLE)
+    service = TrackerService(
+        config.model_copy(update={"adsb": []}), timings=ServiceTimings(status_s=1.0)
+    )
+    for k in range(60):
+        service.process("25_11", Datagram(NO_I010, k, T0 + k, None, None))
+    scans(service, 5.0, start=T0 + 60.0)
+    assert reasons(service) == []

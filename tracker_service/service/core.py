@@ -259,8 +259,8 @@ class _RadarCounters:
     last_plot_time: float | None = None
     last_reception: float | None = None
     plot_delay: float | None = None
-    receiving_since: float | None = None
-    """Data time from which the radar has been receiving without a silence."""
+    tracked_since: float | None = None
+    """Data time from which the radar's tracked plots have come without a silence."""
     last_tracked_plot: float | None = None
     last_local_update: float | None = None
     plots: int = 0
@@ -280,6 +280,8 @@ class CoreState:
     """Times the output process was restarted."""
     last_restart: str | None = None
     """Why the output process was last restarted (its exit code)."""
+    reasons: tuple[str, ...] = ()
+    """Reason lines of the checks that run with the chain (``TrackerService.core_reasons``)."""
 
 
 @dataclass
@@ -388,15 +390,9 @@ class Outputs:
         key = radar_key(name)
         entry = self._entry(key)
         if entry is not None:
-            self._receiving(key, entry, datagram.time)
+            entry.last_reception = datagram.time
         if self.log is not None:
             self.log.log_datagram(datagram, name)
-
-    def _receiving(self, key: str, entry: _RadarCounters, time: float) -> None:
-        last = entry.last_reception
-        if last is None or time - last > self._silence_s(key):
-            entry.receiving_since = time
-        entry.last_reception = time
 
     def error(self, name: str, kind: str, detail: str = "") -> None:
         """One datagram (or part) of input ``name`` dropped; ``kind``: one of
@@ -428,7 +424,7 @@ class Outputs:
         chain's radars by index (``Chain.sources``)."""
         plots = output.plots
         counters = self._radars[output.source]
-        self._receiving(output.source, counters, self._now)
+        counters.last_reception = self._now
         self.counts.plots += len(plots)
         counters.plots += len(plots)
         if len(plots):
@@ -437,6 +433,9 @@ class Outputs:
             counters.plot_delay = self._now - latest
             counters.rejected.update(rejections(plots["use"]))
             if (plots["use"] == PlotUse.TRACKED).any():
+                last = counters.last_tracked_plot
+                if last is None or self._now - last > self._silence_s(output.source):
+                    counters.tracked_since = self._now  # tracks need some scans to form
                 counters.last_tracked_plot = self._now
         if len(output.local):
             counters.last_local_update = self._now
@@ -685,8 +684,8 @@ class Outputs:
             and key in self._periods
             and c.last_tracked_plot is not None
             and now - c.last_tracked_plot <= silence
-            and c.receiving_since is not None
-            and now - max(c.last_local_update or -math.inf, c.receiving_since) > silence
+            and c.tracked_since is not None
+            and now - max(c.last_local_update or -math.inf, c.tracked_since) > silence
         ):
             tracking = False
             reasons.append(
@@ -790,6 +789,7 @@ class Outputs:
                     time_sane=time_sane,
                 )
             )
+        reasons.extend(self._core.reasons)
         outputs = self._output_health(reasons)
         lag = self._core.lag_s
         if lag is not None and lag > LAG_LIMIT_S:
@@ -1018,7 +1018,14 @@ class TrackerService:
 
     def core_state(self) -> CoreState:
         """What the status needs of the core; the daemon adds the lag and the restarts."""
-        return replace(self.core, sources=self.chain.admission.counts)
+        return replace(self.core, sources=self.chain.admission.counts, reasons=self.core_reasons())
+
+    def core_reasons(self) -> tuple[str, ...]:
+        """Why health is degraded, as the checks that run with the chain see it (a
+        radar's time sanity, its test targets): each check adds its reason lines here,
+        one per radar concerned, naming it ("radar 25/11: ..."); the status shows them
+        beside its own and is "degraded" while there is any."""
+        return ()
 
     def _guarded(self, what: str, call: Callable[[], None]) -> None:
         try:
