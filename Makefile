@@ -1,11 +1,13 @@
 # One command for each job; each sets up its own virtual environment first.
 #   make demo   replay the bundled recording through the service (Zenoh on 127.0.0.1:7447)
 #   make test   lint, type-check and run the whole test suite (what CI runs)
+#   make faults the fault-injection tests alone (tests/test_faults_*.py, a few minutes)
+#   make soak   the 30-minute soak of the daemon under faults (benchmarks/soak.py)
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint setup clean
+.PHONY: demo test lint setup clean faults soak
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,6 +32,13 @@ lint: setup
 
 test: lint
 	$(BIN)/python -m pytest
+
+faults: setup
+	$(BIN)/python -m pytest -q tests/test_faults_*.py
+
+SOAK_MINUTES ?= 30
+soak: setup
+	$(BIN)/python benchmarks/soak.py --minutes $(SOAK_MINUTES)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache .hypothesis

@@ -46,6 +46,7 @@ from tracker_service.fixed_targets import FixedTargetConfig, FixedTargets, Fixed
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, References, SystemTracker
 from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
 from tracker_service.ingest import PlotClock
+from tracker_service.sources import DEFAULT_MAX_UNKNOWN, SourceAdmission
 from tracker_service.time_sanity import TimeBase, TimeReport, TimeSanity, TimeSanityConfig
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 
@@ -341,13 +342,16 @@ class ChainStats:
     plots: int = 0
     field_monitor_plots: int = 0
     unknown_radars: list[str] = field(default_factory=list)
+    decode_errors: int = 0
+    """Records (CAT034, CAT048) the codec could not decode inside a valid block chain."""
 
 
 class Chain:
     """See the module docstring. ``tracker``: ``TrackerConfig`` fields for every radar
     (``scan_period_s`` comes from each radar's period unless given); ``fusion``: the
     fuser's configuration (None: local tracks only); ``make_tracker(source, config)``
-    builds each radar's tracker (a benchmark passes one that times it)."""
+    builds each radar's tracker (a benchmark passes one that times it);
+    ``max_unknown_sources``: radars not in ``radars`` tracked at most (``sources``)."""
 
     def __init__(
         self,
@@ -359,9 +363,11 @@ class Chain:
         bias: BiasConfig | None = None,
         time_sanity: TimeSanityConfig | None = None,
         fixed_targets: FixedTargetConfig | None = None,
+        max_unknown_sources: int = DEFAULT_MAX_UNKNOWN,
     ) -> None:
         self.infos = dict(radars)
         self.fixed_targets = fixed_targets or FixedTargetConfig()
+        self.admission = SourceAdmission(self.infos, max_unknown_sources)
         self.plane = plane
         # Fusion numbers the configured radars in SAC/SIC order, so that the same
         # configuration numbers them the same way in every run.
@@ -412,12 +418,16 @@ class Chain:
                         for items in event.records:
                             self._clock.service_message(items, received)
                             self.time_sanity.service_message(items, received)
+                    else:
+                        self.stats.decode_errors += 1
         if self.adsb is not None:
             for block in blocks_of(payload, CAT021):
                 self.adsb.feed(block, received)
         if not any(next(blocks_of(payload, c), None) for c in PLOT_CATEGORIES):
             return []  # service messages or ADS-B only: no plot to extract
-        raw = extract_plots(payload).plots
+        extracted = extract_plots(payload)
+        self.stats.decode_errors += len(extracted.errors)
+        raw = self.admission.admit(extracted.plots)
         if len(raw) == 0:
             return []
         sac, sic = np.asarray(raw["sac"], np.int64), np.asarray(raw["sic"], np.int64)

@@ -18,7 +18,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-_MAX_REMEMBERED = 100_000
+_MAX_REMEMBERED = 16_384
+"""Payloads remembered at most per filter, whatever the window says (a clock that stands
+still, a flood of distinct datagrams): about 2 MB. A feed sends tens to hundreds of
+datagrams per second, so a one-second window never comes near it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -27,36 +30,53 @@ class DuplicateWindow:
     datagrams: int = 64
 
 
+class Repetition(IntEnum):
+    """What a payload is to a :class:`DuplicateFilter`."""
+
+    NEW = 0
+    COPY = 1
+    """Seen within the window on another LAN only: the redundant LAN's copy."""
+    REPEAT = 2
+    """Seen within the window on the same LAN: the network or the radar sent it twice."""
+
+
 class DuplicateFilter:
-    """Says whether a payload repeats one seen within the window."""
+    """Says whether a payload repeats one seen within the window (by content: a 128-bit
+    hash, so memory per payload is fixed), and on which LAN it was seen."""
 
     def __init__(self, window: DuplicateWindow | None = None) -> None:
         self.window = window or DuplicateWindow()
-        self._seen: OrderedDict[bytes, tuple[int, float | None]] = OrderedDict()
+        self._seen: OrderedDict[bytes, tuple[int, float | None, int]] = OrderedDict()
         self._count = 0
         self.duplicates = 0
 
     def is_duplicate(self, payload: bytes, time: float | None) -> bool:
+        return self.classify(payload, time) is not Repetition.NEW
+
+    def classify(self, payload: bytes, time: float | None, lan: int = 0) -> Repetition:
+        """NEW, COPY (seen on another LAN only) or REPEAT (seen on ``lan`` already)."""
         self._count += 1
         key = hashlib.blake2b(payload, digest_size=16).digest()
         self._expire(time)
         previous = self._seen.get(key)
-        if previous is not None:
-            self.duplicates += 1
-            return True
-        self._seen[key] = (self._count, time)
-        return False
+        bit = 1 << lan
+        if previous is None:
+            self._seen[key] = (self._count, time, bit)
+            return Repetition.NEW
+        self.duplicates += 1
+        count, seen_at, lans = previous
+        self._seen[key] = (count, seen_at, lans | bit)
+        return Repetition.REPEAT if lans & bit else Repetition.COPY
 
     def _expire(self, time: float | None) -> None:
         while self._seen:
-            count, seen_at = next(iter(self._seen.values()))
+            count, seen_at, _ = next(iter(self._seen.values()))
             if time is not None and seen_at is not None:
                 # Either way: a copy may be stamped a little before the original, and a
                 # jump back (midnight, a new capture) must end the window too.
                 expired = abs(time - seen_at) > self.window.seconds
             else:
                 expired = self._count - count >= self.window.datagrams
-            # A bound on memory whatever the times say (a clock that stands still).
             if not expired and len(self._seen) < _MAX_REMEMBERED:
                 return
             self._seen.popitem(last=False)

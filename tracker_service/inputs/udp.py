@@ -11,8 +11,10 @@ nothing while the feed is quiet.
 
 from __future__ import annotations
 
+import errno
 import ipaddress
 import logging
+import os
 import queue
 import socket
 import struct
@@ -22,9 +24,16 @@ from dataclasses import dataclass, replace
 
 from asterix.containers import Datagram
 from tracker_service.closing import Closing
-from tracker_service.ingest import DuplicateFilter, DuplicateWindow
+from tracker_service.ingest import DuplicateFilter, DuplicateWindow, Repetition
+from tracker_service.ratelimit import RateLimitedLog
 
-__all__ = ["InputCounters", "UdpEndpoint", "UdpInput", "block_chain_error"]
+__all__ = [
+    "EndpointError",
+    "InputCounters",
+    "UdpEndpoint",
+    "UdpInput",
+    "block_chain_error",
+]
 
 _log = logging.getLogger(__name__)
 
@@ -33,6 +42,32 @@ _MAX_DATAGRAM = 65535
 # promptly without having to shut the socket down from another thread.
 _POLL_S = 0.2
 _RECEIVE_BUFFER = 4 * 1024 * 1024
+QUEUE_BYTES = 16 * 1024 * 1024
+"""Default bound of an input's queue in bytes (beside its bound in datagrams): 1,024
+datagrams of 64 KiB would otherwise be 64 MB per input."""
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+"""Linux: each datagram carries, as ancillary data, how many datagrams the kernel has
+dropped on this socket so far (receive buffer full)."""
+_ANCILLARY = socket.CMSG_SPACE(4)
+
+
+class EndpointError(OSError):
+    """A socket that cannot be opened as configured (the port in use, an address not of
+    this host); ``endpoint`` says which, ``reason`` what to do, in words."""
+
+    def __init__(self, endpoint: UdpEndpoint, error: OSError) -> None:
+        self.endpoint = endpoint
+        where = f"{endpoint.address}:{endpoint.port}"
+        if error.errno == errno.EADDRINUSE:
+            self.reason = (
+                f"{where} is already bound by another process (a second tracker-service?); "
+                f"stop it (`ss -ulpn 'sport = :{endpoint.port}'` names it) or choose a free port"
+            )
+        elif error.errno == errno.EADDRNOTAVAIL:
+            self.reason = f"{where}: {endpoint.address} is not an address of this host"
+        else:
+            self.reason = f"{where}: {error.strerror or error}"
+        super().__init__(error.errno, self.reason)
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,11 +98,20 @@ class InputCounters:
     delivered: int = 0
     """Put on the queue."""
     duplicates: int = 0
-    """Copies of a datagram already received (the redundant LAN), dropped."""
+    """Copies of a datagram already received on the other LAN (the redundant LAN), dropped."""
+    repeats: int = 0
+    """Datagrams received twice on the same LAN within the duplicate window (a network or
+    radar fault: processing them twice would count every plot twice), dropped."""
     malformed: int = 0
     """Not a chain of ASTERIX data blocks, dropped."""
     dropped: int = 0
-    """Valid, but the queue was full: the consumer is behind."""
+    """Valid, but the queue was full (in datagrams or bytes): the consumer is behind."""
+    held_dropped: int = 0
+    """Dropped later, by the daemon's holding window when it was full (a burst): not
+    part of the sum above, which ends at the queue."""
+    kernel_drops: int = 0
+    """Dropped by the kernel before this input could read them (receive buffer full),
+    from SO_RXQ_OVFL: never seen, so not part of ``received`` either."""
     bytes: int = 0
     last_reception: float | None = None
     """POSIX time of the last datagram received, valid or not."""
@@ -97,24 +141,40 @@ def block_chain_error(payload: bytes) -> str | None:
 
 
 def _open_socket(endpoint: UdpEndpoint) -> socket.socket:
+    """A socket bound to ``endpoint``; EndpointError when it cannot be.
+
+    Unicast sockets are bound exclusively (no SO_REUSEADDR): with it, any process of any
+    user could bind the same port and take the feed, the kernel handing each datagram to
+    one socket only, and a second instance of the service would start silently. UDP has
+    no TIME_WAIT, so a restarted service loses nothing without it. Multicast sockets keep
+    it: every receiver of a group on a host binds the group's port (the two LANs' groups
+    on one port, another application watching the same radar), and each gets its own
+    copy of every datagram, so sharing steals nothing."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
     try:
-        # Both LANs may carry the same group and port on two interfaces; a restarted
-        # service must not wait for the old socket.
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _RECEIVE_BUFFER)
         if endpoint.multicast:
-            # Bound to the group (Linux): datagrams of other groups on the same port, which
-            # another radar may use, stay out.
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _RECEIVE_BUFFER)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+        except OSError:
+            _log.info("no SO_RXQ_OVFL here: kernel receive drops are not counted per input")
+        try:
+            # Multicast: bound to the group (Linux), so that datagrams of other groups on
+            # the same port, which another radar may use, stay out.
             sock.bind((endpoint.address, endpoint.port))
+        except OSError as exc:
+            raise EndpointError(endpoint, exc) from None
+        if endpoint.multicast:
             membership = struct.pack(
                 "4s4s",
                 socket.inet_aton(endpoint.address),
                 socket.inet_aton(endpoint.interface),
             )
-            sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, membership)
-        else:
-            sock.bind((endpoint.address, endpoint.port))
+            try:
+                sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, membership)
+            except OSError as exc:
+                raise EndpointError(endpoint, exc) from None
         sock.settimeout(_POLL_S)
     except BaseException:
         sock.close()
@@ -122,10 +182,41 @@ def _open_socket(endpoint: UdpEndpoint) -> socket.socket:
     return sock
 
 
+PROC_NET_UDP = "/proc/net/udp"
+
+
+def _proc_drops(inodes: list[int]) -> list[int] | None:
+    """Each socket's kernel drop count (the same counter SO_RXQ_OVFL reports) from
+    /proc/net/udp, by inode; None where that file is not (not Linux). Unlike the
+    ancillary data, it is known without waiting for the next datagram."""
+    try:
+        with open(PROC_NET_UDP, encoding="ascii") as table:
+            lines = table.readlines()[1:]
+    except OSError:
+        return None
+    by_inode = {}
+    for line in lines:
+        fields = line.split()
+        if len(fields) >= 13:
+            by_inode[int(fields[9])] = int(fields[-1])
+    return [by_inode.get(inode, 0) for inode in inodes]
+
+
+def _kernel_drops(ancillary: list[tuple[int, int, bytes]]) -> int | None:
+    """The socket's drop count carried by one datagram (SO_RXQ_OVFL), if any."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(data) >= 4:
+            drops: int = struct.unpack("=I", data[:4])[0]
+            return drops
+    return None
+
+
 class UdpInput(Closing):
     """One radar's feed: LAN A, optionally LAN B whose copies of A's datagrams are
-    dropped, into a bounded queue of :class:`Datagram` (reception time from
-    ``time.time()``, sender address as source, the endpoint as destination).
+    dropped, into a queue of :class:`Datagram` bounded in datagrams and in bytes
+    (reception time from ``time.time()``, sender address as source, the endpoint as
+    destination). A datagram repeated on the same LAN within the duplicate window is
+    dropped too, and counted apart (``repeats``).
 
     ``Datagram.offset`` is the datagram's number in this input (from 0, both LANs), the
     nearest thing a live feed has to an offset in its input.
@@ -138,16 +229,21 @@ class UdpInput(Closing):
         lan_b: UdpEndpoint | None = None,
         *,
         queue_size: int = 1024,
+        queue_bytes: int = QUEUE_BYTES,
         duplicate_window: DuplicateWindow | None = None,
     ) -> None:
         if queue_size < 1:
             raise ValueError(f"queue_size must be at least 1, not {queue_size}")
         self.name = name
         self._queue: queue.Queue[Datagram] = queue.Queue(maxsize=queue_size)
-        # Only a second LAN makes copies expected; on a single LAN two equal datagrams
-        # are the radar's own business.
-        self._duplicates = None if lan_b is None else DuplicateFilter(duplicate_window)
+        self._queue_bytes = queue_bytes
+        self._queued_bytes = 0
+        # On one LAN too: a datagram received twice within the window (a switch loop, a
+        # radar that resends) would have every plot processed twice.
+        self._duplicates = DuplicateFilter(duplicate_window)
         self._counters = InputCounters()
+        self._socket_drops: list[int] = []
+        self._rate_limited = RateLimitedLog(_log)
         # One lock for the filter, the counters and the datagram numbers: the two LAN
         # threads share them.
         self._lock = threading.Lock()
@@ -164,14 +260,18 @@ class UdpInput(Closing):
             (endpoint.address, sock.getsockname()[1])
             for endpoint, sock in zip(endpoints, self._sockets, strict=True)
         ]
+        self._socket_drops = [0] * len(self._sockets)
+        self._inodes = [os.fstat(sock.fileno()).st_ino for sock in self._sockets]
         self._threads = [
             threading.Thread(
                 target=self._receive,
-                args=(sock, destination),
-                name=f"udp-{name}-{lan}",
+                args=(sock, destination, lan),
+                name=f"udp-{name}-{'AB'[lan]}",
                 daemon=True,
             )
-            for sock, destination, lan in zip(self._sockets, self._endpoints, "AB", strict=False)
+            for lan, (sock, destination) in enumerate(
+                zip(self._sockets, self._endpoints, strict=True)
+            )
         ]
         for thread in self._threads:
             thread.start()
@@ -185,30 +285,42 @@ class UdpInput(Closing):
     @property
     def counters(self) -> InputCounters:
         """A consistent snapshot of the counters."""
+        drops = _proc_drops(self._inodes)
         with self._lock:
+            if drops is not None:
+                self._socket_drops = [
+                    max(a, b) for a, b in zip(self._socket_drops, drops, strict=True)
+                ]
+                self._counters.kernel_drops = sum(self._socket_drops)
             return replace(self._counters)
 
     def get(self, timeout: float | None = None) -> Datagram | None:
         """The next datagram, or None when none came within ``timeout`` seconds."""
         try:
-            return self._queue.get(timeout=timeout)
+            datagram = self._queue.get(timeout=timeout)
         except queue.Empty:
             return None
+        with self._lock:
+            self._queued_bytes -= len(datagram.payload)
+        return datagram
 
-    def _receive(self, sock: socket.socket, destination: tuple[str, int]) -> None:
+    def _receive(self, sock: socket.socket, destination: tuple[str, int], lan: int) -> None:
         while not self._stop.is_set():
             try:
-                payload, sender = sock.recvfrom(_MAX_DATAGRAM)
+                payload, ancillary, _, sender = sock.recvmsg(_MAX_DATAGRAM, _ANCILLARY)
             except TimeoutError:
                 continue
             except OSError:
                 if self._stop.is_set():
                     return
                 # A transient error (ICMP feedback, buffer pressure) must not end the feed.
-                _log.exception("%s: receive error on %s:%d", self.name, *destination)
+                self._rate_limited.exception(
+                    "receive", "%s: receive error on %s:%d", self.name, *destination
+                )
                 continue
             received_at = time.time()
-            self._accept(payload, received_at, (sender[0], sender[1]), destination)
+            drops = _kernel_drops(ancillary)
+            self._accept(payload, received_at, (sender[0], sender[1]), destination, lan, drops)
 
     def _accept(
         self,
@@ -216,9 +328,22 @@ class UdpInput(Closing):
         received_at: float,
         source: tuple[str, int],
         destination: tuple[str, int],
+        lan: int = 0,
+        socket_drops: int | None = None,
     ) -> None:
         with self._lock:
             counters = self._counters
+            if socket_drops is not None and socket_drops != self._socket_drops[lan]:
+                self._socket_drops[lan] = socket_drops
+                counters.kernel_drops = sum(self._socket_drops)
+                self._rate_limited.warning(
+                    "kernel",
+                    "%s: the kernel dropped datagrams on %s:%d (receive buffer full): "
+                    "%d so far on this input",
+                    self.name,
+                    *destination,
+                    counters.kernel_drops,
+                )
             number = counters.received
             counters.received += 1
             counters.bytes += len(payload)
@@ -226,7 +351,8 @@ class UdpInput(Closing):
             reason = block_chain_error(payload)
             if reason is not None:
                 counters.malformed += 1
-                _log.warning(
+                self._rate_limited.warning(
+                    "malformed",
                     "%s: not ASTERIX from %s:%d (%d bytes): %s",
                     self.name,
                     *source,
@@ -234,14 +360,35 @@ class UdpInput(Closing):
                     reason,
                 )
                 return
-            if self._duplicates is not None and self._duplicates.is_duplicate(payload, received_at):
+            repetition = self._duplicates.classify(payload, received_at, lan)
+            if repetition is Repetition.COPY:
                 counters.duplicates += 1
                 return
-            try:
-                self._queue.put_nowait(Datagram(payload, number, received_at, source, destination))
-            except queue.Full:
-                counters.dropped += 1
+            if repetition is Repetition.REPEAT:
+                counters.repeats += 1
+                self._rate_limited.warning(
+                    "repeat",
+                    "%s: a datagram repeated on LAN %s within %g s, dropped",
+                    self.name,
+                    "AB"[lan],
+                    self._duplicates.window.seconds,
+                )
                 return
+            full = self._queued_bytes + len(payload) > self._queue_bytes
+            if not full:
+                try:
+                    self._queue.put_nowait(
+                        Datagram(payload, number, received_at, source, destination)
+                    )
+                except queue.Full:
+                    full = True
+            if full:
+                counters.dropped += 1
+                self._rate_limited.warning(
+                    "queue", "%s: queue full (the core is behind): datagram dropped", self.name
+                )
+                return
+            self._queued_bytes += len(payload)
             counters.delivered += 1
 
     def close(self) -> None:

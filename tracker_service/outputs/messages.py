@@ -244,6 +244,37 @@ class RadarStatus(_Message):
     clock (see ``reasons``)."""
     test_targets: list[RadarTestTarget] = Field(default_factory=list)
     """The radar's test targets, one per kind and code."""
+    errors: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
+    """What ``decode_errors`` counts, by kind: not_asterix (framing), decode_error (a
+    record inside valid framing), unknown_category, no_source (plots without I010),
+    unknown_source (plots of unknown SAC/SICs beyond the limit), processing_failed."""
+    repeats: Annotated[int, Field(ge=0)] = 0
+    """Datagrams received twice on the same LAN within the duplicate window, dropped."""
+    drop_causes: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
+    """What ``drops`` counts, by cause: queue (the core behind), holding_window (a burst
+    beyond its bound), kernel (the socket's receive buffer full, SO_RXQ_OVFL)."""
+    last_reception_time: float | None = None
+    """Data time of the last datagram from this radar (reception, not plot time)."""
+    plot_delay_s: float | None = None
+    """Reception time minus the time of measurement of the radar's latest plot."""
+    receiving: bool = True
+    """Data arrived within the last few antenna periods (or nothing was expected yet)."""
+    tracking: bool = True
+    """Its tracked plots update local tracks (no tracker stall)."""
+    time_sane: bool = True
+    """Its plots' times of measurement lie within bounds of their reception times."""
+
+
+class OutputStatus(_Message):
+    """One output of the service (Zenoh publishing, MCAP logging, the output process)."""
+
+    name: str
+    ok: bool
+    failures: Annotated[int, Field(ge=0)] = 0
+    """Failed calls since start."""
+    last_error: str | None = None
+    restarts: Annotated[int, Field(ge=0)] = 0
+    """For the output process: times it was restarted after it died."""
 
 
 class StatusMessage(_Message):
@@ -253,6 +284,13 @@ class StatusMessage(_Message):
     reasons: list[str] = Field(default_factory=list)
     """Why health is not "ok", one line each, naming the radar or output concerned."""
     radars: list[RadarStatus]
+    outputs: list[OutputStatus] = Field(default_factory=list)
+    lag_s: float | None = None
+    """How far the chain is behind the wall clock beyond the holding window (the daemon)."""
+    unattributed: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
+    """Counts that belong to no radar of the list: errors of inputs the configuration does
+    not name (a replayed capture), unknown_sources_dropped (distinct SAC/SICs whose plots
+    were dropped beyond [system] max_unknown_sources)."""
 
 
 MODELS: tuple[type[BaseModel], ...] = (

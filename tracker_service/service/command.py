@@ -13,13 +13,12 @@ import pickle
 import queue
 import signal
 import sys
-import threading
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import replace
 from multiprocessing.connection import Connection
 from pathlib import Path
-from types import FrameType
 from typing import Any, Self
 
 import numpy.typing as npt
@@ -29,6 +28,7 @@ from tracker_service.bias import ObservedFrom
 from tracker_service.chain import BatchOutput
 from tracker_service.inputs.udp import InputCounters
 from tracker_service.outputs.mcap_log import McapLog
+from tracker_service.outputs.messages import StatusMessage
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_session import (
     TLS_PROTOCOLS,
@@ -37,8 +37,9 @@ from tracker_service.outputs.zenoh_session import (
     endpoint_protocol,
     zenoh_config,
 )
+from tracker_service.ratelimit import RateLimitedLog
 from tracker_service.service.config import ConfigError, ServiceConfig, load_service_config
-from tracker_service.service.core import Outputs, TrackerService
+from tracker_service.service.core import CoreState, Outputs, TrackerService
 from tracker_service.service.replay import (
     CONFIG_METADATA,
     Progress,
@@ -46,9 +47,11 @@ from tracker_service.service.replay import (
     parse_date,
     parse_speed,
 )
+from tracker_service.service.signals import stop_on_signals
 
 __all__ = [
     "OutputProcess",
+    "OutputProcessFailed",
     "add_health_arguments",
     "add_replay_arguments",
     "add_run_arguments",
@@ -134,8 +137,8 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, help="service configuration (TOML)")
     parser.add_argument(
         "--health-file",
-        help="a file the daemon touches at each status message (for a container's "
-        "health check: `tracker-service health --file FILE`)",
+        help="a file the daemon writes each status message into, as JSON (for a "
+        "container's health check: `tracker-service health --file FILE`)",
     )
     _add_zenoh_arguments(parser)
 
@@ -147,6 +150,12 @@ def add_health_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=30.0,
         help="seconds since the last status beyond which the daemon is unhealthy",
+    )
+    parser.add_argument(
+        "--live",
+        action="store_true",
+        help="only whether the daemon runs (a fresh status), whatever its health: for a "
+        "liveness probe that restarts the container, which a silent radar must not do",
     )
 
 
@@ -230,12 +239,14 @@ def open_service(
     *,
     zenoh: bool = True,
     output_process: bool = False,
+    health_file: Path | None = None,
 ) -> Iterator[TrackerService]:
     """The core with its Zenoh session and MCAP log, in this process or, with
-    ``output_process``, in a process of their own; on the way out every live track is
-    ended, then the session and the log are closed, whatever happened."""
+    ``output_process``, in a process of their own (which writes each status into
+    ``health_file``); on the way out every live track is ended, then the session and the
+    log are closed, whatever happened."""
     if output_process:
-        with OutputProcess(config, mcap_dir, zenoh=zenoh) as outputs:
+        with OutputProcess(config, mcap_dir, zenoh=zenoh, health_file=health_file) as outputs:
             service = TrackerService(config, outputs=outputs)
             try:
                 yield service
@@ -250,15 +261,50 @@ def open_service(
             service.close()
 
 
+class OutputProcessFailed(RuntimeError):
+    """The output process died more often than ``[system] max_output_restarts`` within
+    ``RESTART_WINDOW_S``: the daemon gives up, with a non-zero exit status."""
+
+
+RESTART_WINDOW_S = 600.0
+"""A daemon restarts a dead output process itself (the chain keeps its tracks, the outputs
+resume within seconds), but not without end: more than ``[system] max_output_restarts``
+deaths within this window is a fault a restart does not cure, so the daemon exits with
+status 1 and a one-line error, and the service manager (systemd ``Restart=on-failure``,
+Docker ``restart: on-failure``) takes over."""
+
+
 class OutputProcess:
     """``Outputs`` (messages, Zenoh, CAT062, MCAP) in a process of its own, so that the
     chain keeps a core to itself: each call of the core goes, pickled at once (the chain
     reuses nothing it hands over, but a later pickle would race with it), through a pipe
     to the process, which makes the same calls in the same order, so the messages are the
     ones ``Outputs`` makes in the core's process. ``close`` (the core's) ends the tracks
-    there; leaving the context waits for the process to drain the pipe and exit."""
+    there; leaving the context waits for the process to drain the pipe and exit.
 
-    def __init__(self, config: ServiceConfig, mcap_dir: Path | None, *, zenoh: bool = True) -> None:
+    Supervised: when the process dies (killed, out of memory), the next call finds it
+    gone, logs it, and starts a new one (see ``RESTART_WINDOW_S``); the calls in the pipe at
+    that moment are lost, and the new process starts without the old one's picture (every
+    live track's next update is a "first" again). The status reports each restart."""
+
+    def __init__(
+        self,
+        config: ServiceConfig,
+        mcap_dir: Path | None,
+        *,
+        zenoh: bool = True,
+        health_file: Path | None = None,
+    ) -> None:
+        self._args = (config, mcap_dir, zenoh, health_file)
+        self.restarts = 0
+        self.last_restart: str | None = None
+        self._deaths: list[float] = []
+        self._data_time: float | None = None
+        self._failed: str | None = None
+        """Why the process is given up on, once it is."""
+        self._start()
+
+    def _start(self) -> None:
         # Spawned, not forked: the parent may hold threads (inputs, Zenoh) by now.
         context = multiprocessing.get_context("spawn")
         # A pipe written by the core's own thread: a multiprocessing queue's feeder thread
@@ -271,7 +317,7 @@ class OutputProcess:
         replies: multiprocessing.Queue[str | None] = context.Queue()
         self._process = context.Process(
             target=_serve_outputs,
-            args=(config, mcap_dir, zenoh, os.getpid(), reader, replies),
+            args=(*self._args, os.getpid(), reader, replies),
             name="tracker-outputs",
         )
         self._process.start()
@@ -291,27 +337,66 @@ class OutputProcess:
             self._process.join()
             raise RuntimeError(f"the output process did not start: {failure}")
 
+    def _restart(self) -> None:
+        self._process.join(timeout=5.0)
+        code = self._process.exitcode
+        self._calls.close()
+        now = time.monotonic()
+        self._deaths = [t for t in self._deaths if now - t <= RESTART_WINDOW_S] + [now]
+        if len(self._deaths) > self._args[0].system.max_output_restarts:
+            self._failed = (
+                f"the output process died {len(self._deaths)} times within "
+                f"{RESTART_WINDOW_S:g} s (last exit code {code}): giving up"
+            )
+            raise OutputProcessFailed(self._failed)
+        log.error("the output process died (exit code %s): restarting it", code)
+        self._start()
+        self.restarts += 1
+        self.last_restart = f"exit code {code}"
+        # The new one starts at the data time the old one had reached.
+        if self._data_time is not None:
+            self._calls.send_bytes(pickle.dumps(("advance", (self._data_time,))))
+
     def _call(self, method: str, *args: object) -> None:
+        if self._failed:
+            raise OutputProcessFailed(self._failed)
         # Whether the process still runs costs a system call: asked once a second of
         # wall clock, not at each of the thousands of calls a second.
         now = time.monotonic()
         if now >= self._next_check:
             self._next_check = now + 1.0
             if not self._process.is_alive():
-                raise RuntimeError(f"the output process has ended ({self._process.exitcode})")
-        self._calls.send_bytes(pickle.dumps((method, args), protocol=pickle.HIGHEST_PROTOCOL))
+                self._restart()
+        data = pickle.dumps((method, args), protocol=pickle.HIGHEST_PROTOCOL)
+        try:
+            self._calls.send_bytes(data)
+        except OSError:  # BrokenPipeError: it died since the last check
+            self._restart()
+            self._calls.send_bytes(data)
 
     def advance(self, time: float) -> None:
+        self._data_time = time
         self._call("advance", time)
 
     def set_input_counters(self, counters: dict[str, InputCounters]) -> None:
         self._call("set_input_counters", counters)
 
+    def set_core_state(self, state: CoreState) -> None:
+        # The restarts are this proxy's to know; the core tells the rest.
+        self._call(
+            "set_core_state",
+            replace(state, restarts=self.restarts, last_restart=self.last_restart),
+        )
+
     def received(self, name: str, datagram: Datagram) -> None:
+        self._data_time = datagram.time
         self._call("received", name, datagram)
 
-    def error(self, name: str, what: str) -> None:
-        self._call("error", name, what)
+    def error(self, name: str, kind: str, detail: str = "") -> None:
+        self._call("error", name, kind, detail)
+
+    def count(self, name: str, kind: str, n: int) -> None:
+        self._call("count", name, kind, n)
 
     def batch(self, output: BatchOutput, sources: Sequence[str]) -> None:
         self._call("batch", output, sources)
@@ -332,12 +417,19 @@ class OutputProcess:
     def close(self) -> None:
         self._call("close")
 
+    @property
+    def pid(self) -> int | None:
+        return self._process.pid
+
     def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
+        if self._failed:
+            return
         if self._process.is_alive():
-            self._calls.send_bytes(b"")
+            with contextlib.suppress(OSError):
+                self._calls.send_bytes(b"")
         self._process.join()
         self._calls.close()
 
@@ -346,6 +438,7 @@ def _serve_outputs(
     config: ServiceConfig,
     mcap_dir: Path | None,
     zenoh: bool,
+    health_file: Path | None,
     parent: int,
     calls: Connection,
     replies: multiprocessing.Queue[str | None],
@@ -357,12 +450,14 @@ def _serve_outputs(
     # tracks when the parent says so, after the calls queued before.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    failed = RateLimitedLog(log)
     try:
         with open_outputs(config, mcap_dir, zenoh=zenoh) as (publisher, mcap):
             outputs = Outputs(config, publisher, mcap)
+            outputs.health_file = health_file
             replies.put(None)
             try:
-                _make_calls(outputs, parent, calls)
+                _make_calls(outputs, parent, calls, failed)
             finally:
                 # The outputs' threads finish before the session and the log close.
                 outputs.stop()
@@ -371,7 +466,7 @@ def _serve_outputs(
         raise
 
 
-def _make_calls(outputs: Outputs, parent: int, calls: Connection) -> None:
+def _make_calls(outputs: Outputs, parent: int, calls: Connection, failed: RateLimitedLog) -> None:
     """The calls that arrive, until told to stop or until the parent is gone."""
     while True:
         if not calls.poll(1.0):
@@ -389,25 +484,10 @@ def _make_calls(outputs: Outputs, parent: int, calls: Connection) -> None:
         method, args = pickle.loads(item)
         try:
             getattr(outputs, method)(*args)
-        except Exception:
-            # As in one process: a failed output is logged, the others go on.
-            log.exception("output %s failed", method)
-
-
-@contextmanager
-def stop_on_signals() -> Iterator[threading.Event]:
-    """An event set by SIGTERM or SIGINT (the previous handlers come back afterwards)."""
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
-    try:
-        yield stop
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+        except Exception as exc:
+            # As in one process: a failed output is logged, counted, and the others go on.
+            outputs.sink_failed("outputs", f"{method}: {type(exc).__name__}: {exc}")
+            failed.exception(method, "output %s failed", method)
 
 
 def _watch_hint(config: ServiceConfig) -> str:
@@ -465,22 +545,42 @@ def replay(args: argparse.Namespace) -> int:
     return 0
 
 
+HEALTH_STALE = 1
+"""``health`` exit status: no fresh status (the daemon is not running, or stuck)."""
+HEALTH_DEGRADED = 2
+"""``health`` exit status: the daemon runs, but a radar, an output or the chain is not ok
+(each reason printed on a line of its own)."""
+
+
 def health(args: argparse.Namespace) -> int:
-    """0 when the daemon wrote a status within ``--max-age`` seconds, else 1."""
+    """0 when the daemon wrote a status within ``--max-age`` seconds and its health is
+    "ok"; ``HEALTH_STALE`` or ``HEALTH_DEGRADED`` otherwise, saying why."""
+    path = Path(args.file)
     try:
-        age = time.time() - Path(args.file).stat().st_mtime
+        age = time.time() - path.stat().st_mtime
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         print(f"unhealthy: {exc}", file=sys.stderr)
-        return 1
+        return HEALTH_STALE
     if age > args.max_age:
-        print(f"unhealthy: last status {age:.0f} s ago", file=sys.stderr)
-        return 1
-    print(f"healthy: last status {age:.1f} s ago")
+        print(f"unhealthy: last status {age:.0f} s ago (is the daemon running?)", file=sys.stderr)
+        return HEALTH_STALE
+    try:
+        status = StatusMessage.model_validate_json(text)
+    except ValueError as exc:
+        print(f"unhealthy: {path} holds no status ({exc.__class__.__name__})", file=sys.stderr)
+        return HEALTH_STALE
+    if status.health != "ok" and not args.live:
+        print(f"degraded: status of {age:.1f} s ago says:", file=sys.stderr)
+        for reason in status.reasons:
+            print(f"  {reason}", file=sys.stderr)
+        return HEALTH_DEGRADED
+    print(f"{'running' if args.live else 'healthy'}: last status {age:.1f} s ago")
     return 0
 
 
 def run(args: argparse.Namespace) -> int:
-    from tracker_service.service.daemon import Daemon
+    from tracker_service.service.daemon import Daemon, InputError
 
     try:
         config = _with_cli(load_service_config(args.config), args)
@@ -490,4 +590,11 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     health_file = None if args.health_file is None else Path(args.health_file)
     with stop_on_signals() as stop:
-        return Daemon(config, health_file).run(stop)
+        try:
+            return Daemon(config, health_file).run(stop)
+        except InputError as exc:
+            print(f"tracker-service run: {args.config}: {exc}", file=sys.stderr)
+            return 2
+        except OutputProcessFailed as exc:
+            print(f"tracker-service run: {exc}", file=sys.stderr)
+            return 1

@@ -160,6 +160,17 @@ class SystemConfig(_Strict):
     holding_window_s: Annotated[float, Field(ge=0.0, le=30.0)] = 1.0
     """Data is merged across radars in time order once it is this old, so that late data
     up to this delay lands in the same order in every run (same input, same output)."""
+    holding_window_max_datagrams: Annotated[int, Field(ge=100, le=10_000_000)] = 50_000
+    holding_window_max_mb: Annotated[float, Field(gt=0.0, le=4096.0)] = 32.0
+    """What the holding window may hold at most: a burst beyond is dropped and counted
+    (``drops`` in status), not buffered in full."""
+    max_output_restarts: Annotated[int, Field(ge=0, le=1000)] = 5
+    """The daemon restarts its output process when it dies, up to this many times within
+    10 minutes; one more death and it exits with status 1 (for systemd or Docker to
+    restart it)."""
+    max_unknown_sources: Annotated[int, Field(ge=0, le=256)] = 8
+    """SAC/SICs not in the configuration that are still tracked (at an assumed site, out
+    of fusion); plots of further unknown sources are dropped and counted."""
 
 
 class ZenohConfig(_Strict):

@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from collections import Counter, defaultdict
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -27,6 +29,9 @@ import numpy.typing as npt
 from asterix.containers import Datagram
 from tracker_service.bias import BiasConfig, ObservedFrom
 from tracker_service.chain import (
+    CAT021,
+    PLOT_CATEGORIES,
+    SERVICE_CATEGORIES,
     BatchOutput,
     Chain,
     FieldMonitor,
@@ -43,11 +48,18 @@ from tracker_service.outputs.cat062 import encode_cat065, encode_system_tracks
 from tracker_service.outputs.mapping import MessageMapper
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.mcap_sink import CAT062_TOPIC, SYSTEM_TRACKS_TOPIC, McapSink
-from tracker_service.outputs.messages import RadarStatus, StatusMessage, SystemTrackMessage
+from tracker_service.outputs.messages import (
+    OutputStatus,
+    RadarStatus,
+    StatusMessage,
+    SystemTrackMessage,
+)
 from tracker_service.outputs.sink import Backoff, IsolatedSink, OutputState, QueuedSink, Sink
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_sink import ZenohSink
+from tracker_service.ratelimit import RateLimitedLog
 from tracker_service.service.config import ServiceConfig, parse_service_config
+from tracker_service.sources import SourceCounts
 from tracker_service.test_targets import SeenTestTargets
 from tracker_service.time_sanity import (
     TimeReport,
@@ -60,7 +72,9 @@ from tracker_service.validation import dataclass_kwargs
 
 __all__ = [
     "CAT062_TOPIC",
+    "HANDLED_CATEGORIES",
     "SYSTEM_TRACKS_TOPIC",
+    "CoreState",
     "OutputSink",
     "Outputs",
     "ServiceTimings",
@@ -75,7 +89,31 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 SILENT_PERIODS = 3.0
-"""A radar whose last plot is this many antenna periods old makes the health "degraded"."""
+"""A radar whose last datagram is this many antenna periods old is not receiving; one
+whose tracked plots updated no local track for as long is not tracking."""
+ADSB_SILENT_S = 10.0
+"""An ADS-B feed (no antenna) silent this long is not receiving (ground stations report
+each aircraft every 0.5-1 s)."""
+FUTURE_PLOT_S = 2.0
+"""A plot time this far after its reception: the radar's clock is ahead."""
+LATE_PERIODS = 3.0
+"""A plot received this many antenna periods after its time of measurement: the radar's
+clock is behind (a sector is sent within a fraction of a turn)."""
+LAG_LIMIT_S = 5.0
+"""The chain this far behind the wall clock (beyond the holding window): degraded."""
+RESTART_DEGRADED_S = 60.0
+"""Health stays degraded this long (data time) after the output process was restarted."""
+HANDLED_CATEGORIES = frozenset((CAT021, *PLOT_CATEGORIES, *SERVICE_CATEGORIES))
+"""ASTERIX categories the chain reads; blocks of others are counted (unknown_category)."""
+ERROR_KINDS = (
+    "not_asterix",
+    "decode_error",
+    "unknown_category",
+    "no_source",
+    "unknown_source",
+    "processing_failed",
+)
+"""The kinds of ``RadarStatus.errors``: a fixed set, so that status stays bounded."""
 
 
 @dataclass(frozen=True)
@@ -164,6 +202,7 @@ def build_chain(
         bias=bias_config(config),
         time_sanity=time_sanity,
         fixed_targets=config.fixed_target_config(),
+        max_unknown_sources=config.system.max_unknown_sources,
     )
 
 
@@ -217,13 +256,41 @@ def config_from_recording(metadata: Mapping[str, Any]) -> ServiceConfig:
 @dataclass
 class _RadarCounters:
     last_plot_time: float | None = None
+    last_reception: float | None = None
+    plot_delay: float | None = None
+    tracked_since: float | None = None
+    """Data time from which the radar's tracked plots have come without a silence."""
+    last_tracked_plot: float | None = None
+    last_local_update: float | None = None
     plots: int = 0
     plots_at_last_status: int = 0
     implausible_at_last_status: int = 0
-    decode_errors: int = 0
+    errors: Counter[str] = field(default_factory=Counter)
     rejected: Counter[str] = field(default_factory=Counter)
     time: TimeReport | None = None
     test_targets: SeenTestTargets = field(default_factory=SeenTestTargets)
+
+
+@dataclass(frozen=True)
+class CoreState:
+    """What the core (the chain's process) knows that the status needs: sent to
+    ``Outputs`` with each status, wherever it runs."""
+
+    lag_s: float | None = None
+    sources: SourceCounts = field(default_factory=SourceCounts)
+    restarts: int = 0
+    """Times the output process was restarted."""
+    last_restart: str | None = None
+    """Why the output process was last restarted (its exit code)."""
+    reasons: tuple[str, ...] = ()
+    """Reason lines of the checks that run with the chain (``TrackerService.core_reasons``)."""
+
+
+@dataclass
+class _FailedCalls:
+    failures: int = 0
+    failures_at_last_status: int = 0
+    last_error: str | None = None
 
 
 @dataclass
@@ -282,6 +349,13 @@ class Outputs:
         self._cat062_batches = 0
         self._start: float | None = None
         self._now = -math.inf
+        self._unattributed: Counter[str] = Counter()
+        self._core = CoreState()
+        self._restarted_at: float | None = None
+        self._failed_calls: dict[str, _FailedCalls] = {}
+        self._warn = RateLimitedLog(log)
+        self.health_file: Path | None = None
+        """Where each status is also written, as JSON (``tracker-service health``)."""
 
     @property
     def live_tracks(self) -> list[int]:
@@ -313,18 +387,53 @@ class Outputs:
     def set_input_counters(self, counters: dict[str, InputCounters]) -> None:
         self.input_counters = counters
 
+    def set_core_state(self, state: CoreState) -> None:
+        if state.restarts > self._core.restarts:
+            self._restarted_at = self._now
+        self._core = state
+
+    def _entry(self, key: str) -> _RadarCounters | None:
+        """The status entry of a radar: configured, or met in the chain's output (which
+        admits a bounded number of unknown sources); None for any other name, whose
+        counts go to ``unattributed`` so that status stays bounded."""
+        if key in self._radars or key in self._periods or key in self._feeds:
+            return self._radars[key]
+        return None
+
     def received(self, name: str, datagram: Datagram) -> None:
         """A datagram reaches the core: data time moves to its reception, and it is logged."""
         assert datagram.time is not None
         self.advance(datagram.time)
         self.counts.datagrams += 1
+        key = radar_key(name)
+        entry = self._entry(key)
+        if entry is not None:
+            entry.last_reception = datagram.time
         for sink in self.sinks:
             sink.datagram(name, datagram)
 
-    def error(self, name: str, what: str) -> None:
-        self.counts.errors += 1
-        self._radars[radar_key(name)].decode_errors += 1
-        log.warning("%s: datagram at %.3f dropped: %s", name, self._now, what)
+    def error(self, name: str, kind: str, detail: str = "") -> None:
+        """One datagram (or part) of input ``name`` dropped; ``kind``: one of
+        ``ERROR_KINDS``; ``detail`` goes to the (rate-limited) log only."""
+        self.count(name, kind, 1)
+        text = f"{kind}: {detail}" if detail else kind
+        self._warn.warning(kind, "%s: datagram at %.3f dropped (%s)", name, self._now, text)
+
+    def count(self, name: str, kind: str, n: int) -> None:
+        """``n`` more of ``kind`` (``ERROR_KINDS``) on input ``name``, not logged."""
+        self.counts.errors += n
+        entry = self._entry(radar_key(name))
+        if entry is None:
+            self._unattributed[kind] += n
+        else:
+            entry.errors[kind] += n
+
+    def sink_failed(self, sink: str, error: str) -> None:
+        """An output (``"zenoh"``, ``"mcap"``, ...) failed a call: health is degraded
+        until a status interval passes without failure."""
+        state = self._failed_calls.setdefault(sink, _FailedCalls())
+        state.failures += 1
+        state.last_error = error[:200]
 
     # --- per batch ---------------------------------------------------------------------
 
@@ -333,6 +442,7 @@ class Outputs:
         chain's radars by index (``Chain.sources``)."""
         plots = output.plots
         counters = self._radars[output.source]
+        counters.last_reception = self._now
         self.counts.plots += len(plots)
         counters.plots += len(plots)
         if len(plots):
@@ -340,8 +450,16 @@ class Outputs:
             timed = plots["time"][plots["use"] != PlotUse.TIME_IMPLAUSIBLE]
             if len(timed):
                 counters.last_plot_time = float(timed.max())
+                counters.plot_delay = self._now - counters.last_plot_time
             counters.rejected.update(rejections(plots["use"]))
             counters.test_targets.update(plots)
+            if (plots["use"] == PlotUse.TRACKED).any():
+                last = counters.last_tracked_plot
+                if last is None or self._now - last > self._silence_s(output.source):
+                    counters.tracked_since = self._now  # tracks need some scans to form
+                counters.last_tracked_plot = self._now
+        if len(output.local):
+            counters.last_local_update = self._now
         if output.time is not None:
             counters.time = output.time
             if output.time.out_of_line_plots:
@@ -386,53 +504,183 @@ class Outputs:
             for sink in self.sinks:
                 sink.bias(message, self._now)
 
+    def _silence_s(self, key: str) -> float:
+        period = self._periods.get(key)
+        return ADSB_SILENT_S if period is None else SILENT_PERIODS * period
+
+    def _radar_health(self, key: str, c: _RadarCounters, reasons: list[str]) -> tuple[bool, ...]:
+        """(receiving, tracking, time sane) of one radar, a reason line for each that is
+        not."""
+        now = self._now
+        silence = self._silence_s(key)
+        start = self._now if self._start is None else self._start
+        receiving = True
+        if c.last_reception is None:
+            if now - start > silence:
+                receiving = False
+                reasons.append(f"radar {key}: nothing received in {now - start:.0f} s")
+        elif now - c.last_reception > silence:
+            receiving = False
+            reasons.append(
+                f"radar {key}: silent for {now - c.last_reception:.0f} s (more than {silence:g} s)"
+            )
+        tracking = True
+        if (
+            receiving
+            and key in self._periods
+            and c.last_tracked_plot is not None
+            and now - c.last_tracked_plot <= silence
+            and c.tracked_since is not None
+            and now - max(c.last_local_update or -math.inf, c.tracked_since) > silence
+        ):
+            tracking = False
+            reasons.append(
+                f"radar {key}: plots arrive but no local track was updated for "
+                f"{silence:g} s (the tracker is stalled)"
+            )
+        time_sane = True
+        period = self._periods.get(key)
+        if receiving and c.plot_delay is not None and period is not None:
+            if c.plot_delay < -FUTURE_PLOT_S:
+                time_sane = False
+                reasons.append(
+                    f"radar {key}: plot times {-c.plot_delay:.1f} s after their reception "
+                    "(its clock is ahead)"
+                )
+            elif c.plot_delay > LATE_PERIODS * period:
+                time_sane = False
+                reasons.append(
+                    f"radar {key}: plots received {c.plot_delay:.1f} s after their time of "
+                    f"measurement (more than {LATE_PERIODS:g} antenna periods: its clock is "
+                    "behind, or the feed is buffered)"
+                )
+        return receiving, tracking, time_sane
+
+    def _output_health(self, reasons: list[str]) -> list[OutputStatus]:
+        """Each output's state (the sinks: Zenoh, MCAP; failed calls counted by name: the
+        health file, the output process's calls; the output process itself), a reason
+        line for each that is not ok."""
+        outputs = []
+        for state in self.output_states():
+            line = state.reason_line()
+            if line is not None:
+                reasons.append(line)
+            outputs.append(
+                OutputStatus(
+                    name=state.name,
+                    ok=state.ok,
+                    failures=state.outages,
+                    last_error=state.reason or None,
+                )
+            )
+        for name, sink in sorted(self._failed_calls.items()):
+            failing = sink.failures > sink.failures_at_last_status
+            if failing:
+                reasons.append(
+                    f"output {name}: {sink.failures - sink.failures_at_last_status} failed "
+                    f"call(s) since the last status ({sink.last_error})"
+                )
+            outputs.append(
+                OutputStatus(
+                    name=name,
+                    ok=not failing,
+                    failures=sink.failures,
+                    last_error=sink.last_error,
+                )
+            )
+        core = self._core
+        if core.restarts:
+            recent = (
+                self._restarted_at is not None
+                and self._now - self._restarted_at <= RESTART_DEGRADED_S
+            )
+            if recent:
+                reasons.append(
+                    f"output process restarted ({core.last_restart}); {core.restarts} "
+                    "restart(s) since start"
+                )
+            outputs.append(
+                OutputStatus(
+                    name="output_process",
+                    ok=not recent,
+                    restarts=core.restarts,
+                    last_error=core.last_restart,
+                )
+            )
+        return outputs
+
     def status(self) -> StatusMessage:
-        """The current status: per feed, last plot time, plot rate since the last published status,
-        errors, duplicates and drops; health "degraded" when a radar has gone silent."""
+        """The current status: per feed, its counters and whether it is receiving,
+        tracking and its time sane; per output, failures; the chain's lag; health
+        "degraded" with a reason line for each state that is not ok."""
         start = self._now if self._start is None else self._start
         interval = self.timings.status_s
         radars = []
-        degraded = False
         reasons: list[str] = []
         for key in sorted({*self._feeds, *self._radars}, key=source_order):
             counters = self._radars[key]
             inputs = self.input_counters.get(input_name(key), InputCounters())
             rate = (counters.plots - counters.plots_at_last_status) / interval
-            period = self._periods.get(key)
-            # The radar's own time, not the reception's: a feed's offset from it (reported
-            # below) is no silence.
-            offset = 0.0
-            if counters.time is not None and counters.time.time_base == "data":
-                offset = counters.time.offset_s or 0.0
-            if period is not None and counters.last_plot_time is not None:
-                degraded |= self._now + offset - counters.last_plot_time > SILENT_PERIODS * period
+            # An unknown source (not configured) is no part of the expected picture: its
+            # states are shown, but its silence or its clock degrade nothing.
+            expected = reasons if key in self._feeds else []
+            receiving, tracking, time_sane = self._radar_health(key, counters, expected)
+            causes = {
+                "queue": inputs.dropped,
+                "holding_window": inputs.held_dropped,
+                "kernel": inputs.kernel_drops,
+            }
+            errors = {kind: counters.errors[kind] for kind in ERROR_KINDS if counters.errors[kind]}
             if counters.time is not None:
-                reasons += status_reasons(counters.time, counters.last_plot_time)
-                reasons += implausible_reasons(
+                # The radar's own timeline (time_sanity): its offset from reception, its
+                # clock jumps and its plots whose time does not fit.
+                time_reasons = status_reasons(counters.time, counters.last_plot_time)
+                time_reasons += implausible_reasons(
                     key,
                     counters.rejected["time_implausible"] - counters.implausible_at_last_status,
                     counters.plots - counters.plots_at_last_status,
                 )
+                time_sane &= not time_reasons
+                expected += time_reasons
             radars.append(
                 RadarStatus(
                     radar=key,
                     last_plot_time=counters.last_plot_time,
                     plots_per_second=max(rate, 0.0),
-                    decode_errors=counters.decode_errors + inputs.malformed,
+                    decode_errors=sum(errors.values()) + inputs.malformed,
                     duplicates=inputs.duplicates,
-                    drops=inputs.dropped,
+                    drops=sum(causes.values()),
                     rejected=dict(sorted(counters.rejected.items())),
                     time_offset_s=None if counters.time is None else counters.time.offset_s,
                     test_targets=counters.test_targets.checks(),
+                    errors=errors,
+                    repeats=inputs.repeats,
+                    drop_causes={cause: n for cause, n in causes.items() if n},
+                    last_reception_time=counters.last_reception,
+                    plot_delay_s=counters.plot_delay,
+                    receiving=receiving,
+                    tracking=tracking,
+                    time_sane=time_sane,
                 )
             )
-        reasons = self.output_reasons()
+        reasons.extend(self._core.reasons)
+        outputs = self._output_health(reasons)
+        lag = self._core.lag_s
+        if lag is not None and lag > LAG_LIMIT_S:
+            reasons.append(f"the chain is {lag:.1f} s behind the wall clock")
+        unattributed = dict(self._unattributed)
+        if self._core.sources.unknown_sources_dropped:
+            unattributed["unknown_sources_dropped"] = self._core.sources.unknown_sources_dropped
         return StatusMessage(
-            time=self._now,
-            uptime_s=max(self._now - start, 0.0),
-            health="degraded" if degraded or reasons else "ok",
+            # Before any data (a status asked for at once): time 0, up for 0 s.
+            time=self._now if self._start is not None else 0.0,
+            uptime_s=max(self._now - start, 0.0) if self._start is not None else 0.0,
+            health="degraded" if reasons else "ok",
             reasons=reasons,
             radars=radars,
+            outputs=outputs,
+            lag_s=lag,
+            unattributed=dict(sorted(unattributed.items())),
         )
 
     def publish_status(self) -> None:
@@ -440,6 +688,15 @@ class Outputs:
         for counters in self._radars.values():
             counters.plots_at_last_status = counters.plots
             counters.implausible_at_last_status = counters.rejected["time_implausible"]
+        for calls in self._failed_calls.values():
+            calls.failures_at_last_status = calls.failures
+        # The health file first: whatever the sinks do, `health` learns the state.
+        if self.health_file is not None:
+            try:
+                write_health(self.health_file, message)
+            except OSError as exc:
+                self.sink_failed("health_file", f"{type(exc).__name__}: {exc}")
+                self._warn.error("health_file", "cannot write %s: %s", self.health_file, exc)
         for sink in self.sinks:
             sink.status(message, self._now)
 
@@ -470,14 +727,31 @@ class Outputs:
             sink.close()
 
 
+def block_categories(payload: bytes) -> Iterator[int]:
+    """The category of each data block of a datagram whose framing is valid."""
+    pos = 0
+    while pos + 3 <= len(payload):
+        yield payload[pos]
+        pos += max((payload[pos + 1] << 8) | payload[pos + 2], 3)
+
+
+def write_health(path: Path, message: StatusMessage) -> None:
+    """The status as JSON in ``path``, replaced atomically (a reader never sees half)."""
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_text(message.model_dump_json(), encoding="utf-8")
+    os.replace(partial, path)
+
+
 class OutputSink(Protocol):
     """What the core calls on its outputs: ``Outputs`` itself, or a proxy that sends each
     call to ``Outputs`` in another process (``command.OutputProcess``)."""
 
     def advance(self, time: float) -> None: ...
     def set_input_counters(self, counters: dict[str, InputCounters]) -> None: ...
+    def set_core_state(self, state: CoreState) -> None: ...
     def received(self, name: str, datagram: Datagram) -> None: ...
-    def error(self, name: str, what: str) -> None: ...
+    def error(self, name: str, kind: str, detail: str = "") -> None: ...
+    def count(self, name: str, kind: str, n: int) -> None: ...
     def batch(self, output: BatchOutput, sources: Sequence[str]) -> None: ...
     def publish_cat062(self) -> None: ...
     def publish_bias(
@@ -510,6 +784,10 @@ class TrackerService:
         self._now = -math.inf
         self._next: dict[str, float] = {}
         self._closed = False
+        self._warn = RateLimitedLog(log)
+        self.periodic_failures = 0
+        self.core = CoreState()
+        """The daemon's part of the status (lag, restarts of the output process)."""
 
     @property
     def local(self) -> Outputs:
@@ -548,7 +826,8 @@ class TrackerService:
 
     def process(self, name: str, datagram: Datagram) -> None:
         """One datagram that input ``name`` received at ``datagram.time``. Nothing raises
-        out of here for bad data: an error is logged and counted, and the service goes on."""
+        out of here for bad data: what is dropped is counted by kind (``ERROR_KINDS``),
+        logged at a bounded rate, and the service goes on."""
         if datagram.time is None:
             raise ValueError("the service needs each datagram's reception time")
         received = datagram.time
@@ -556,22 +835,38 @@ class TrackerService:
         self.outputs.received(name, datagram)
         reason = block_chain_error(datagram.payload)
         if reason is not None:
-            self.outputs.error(name, f"not ASTERIX ({reason})")
-            return
+            self.outputs.error(name, "not_asterix", reason)
+        else:
+            self._feed(name, datagram.payload, received)
+        self._periodic()
+
+    def _feed(self, name: str, payload: bytes, received: float) -> None:
+        unknown = [c for c in block_categories(payload) if c not in HANDLED_CATEGORIES]
+        if unknown:
+            self.outputs.error(name, "unknown_category", f"CAT{unknown[0]:03d} block(s) skipped")
+        stats, admission = self.chain.stats, self.chain.admission
+        errors, sources = stats.decode_errors, admission.counts
         try:
-            outputs = self.chain.feed(datagram.payload, received)
+            outputs = self.chain.feed(payload, received)
             for output in outputs:
                 self.outputs.batch(output, self.chain.sources)
         except Exception:
-            log.exception("%s: datagram at %.3f could not be processed", name, received)
-            self.outputs.error(name, "processing failed")
-        self._periodic()
+            self._warn.exception(
+                "processing", "%s: datagram at %.3f could not be processed", name, received
+            )
+            self.outputs.count(name, "processing_failed", 1)
+        after = admission.counts
+        for kind, n in (
+            ("decode_error", stats.decode_errors - errors),
+            ("no_source", after.no_source - sources.no_source),
+            ("unknown_source", after.unknown_dropped - sources.unknown_dropped),
+        ):
+            if n:
+                self.outputs.count(name, kind, n)
 
     def advance(self, now: float) -> None:
-        """Data time moves on without data (the daemon, while every feed is quiet): the
-        periodic outputs that fall due go out."""
-        if self._start is None:
-            return
+        """Data time moves on without data (the daemon: at its start, and while every feed
+        is quiet): the periodic outputs that fall due go out."""
         self._advance_to(now)
         self.outputs.advance(now)
         self._periodic()
@@ -581,18 +876,49 @@ class TrackerService:
             self._start = time
             self._next = {
                 "cat062": time + self.timings.cat062_s,
-                "status": time + self.timings.status_s,
+                # The first status at once: `health` has one from the start.
+                "status": time,
                 "bias": time + self.timings.bias_s,
             }
         self._now = max(self._now, time)
 
     def _periodic(self) -> None:
+        # Each in its own guard: a failure of one (a bias estimate that does not convert,
+        # a status that does not validate) is logged and counted, and neither stops the
+        # others nor reaches the caller (it ended the replay, seen).
         if self._due("cat062", self.timings.cat062_s):
-            self.outputs.publish_cat062()
+            self._guarded("cat062", self.outputs.publish_cat062)
         if self._due("bias", self.timings.bias_s):
-            self.outputs.publish_bias(self.chain.bias_estimates(), self.chain.bias_observed_from())
+            self._guarded(
+                "bias",
+                lambda: self.outputs.publish_bias(
+                    self.chain.bias_estimates(), self.chain.bias_observed_from()
+                ),
+            )
         if self._due("status", self.timings.status_s):
-            self.outputs.publish_status()
+            self._guarded("status", self._publish_status)
+
+    def _publish_status(self) -> None:
+        self.outputs.set_core_state(self.core_state())
+        self.outputs.publish_status()
+
+    def core_state(self) -> CoreState:
+        """What the status needs of the core; the daemon adds the lag and the restarts."""
+        return replace(self.core, sources=self.chain.admission.counts, reasons=self.core_reasons())
+
+    def core_reasons(self) -> tuple[str, ...]:
+        """Why health is degraded, as the checks that run with the chain see it (a
+        radar's time sanity, its test targets): each check adds its reason lines here,
+        one per radar concerned, naming it ("radar 25/11: ..."); the status shows them
+        beside its own and is "degraded" while there is any."""
+        return ()
+
+    def _guarded(self, what: str, call: Callable[[], None]) -> None:
+        try:
+            call()
+        except Exception:
+            self.periodic_failures += 1
+            self._warn.exception(what, "the periodic %s output failed", what)
 
     def _due(self, what: str, period: float) -> bool:
         due = self._next[what]
@@ -608,4 +934,5 @@ class TrackerService:
         if self._closed:
             return
         self._closed = True
+        self.outputs.set_core_state(self.core_state())
         self.outputs.close()

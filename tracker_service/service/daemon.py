@@ -5,30 +5,36 @@ a bounded queue whose overflow is counted). One thread, this one, merges the inp
 datagram waits until ``system.holding_window_s`` has passed since its reception, so that
 the datagrams of every radar reach the core in reception-time order (ties by input name)
 even when a thread ran late; the core logs them in that order, and the replay of the
-log feeds them the same way. An exception in the processing of one datagram is logged
-and counted; the daemon goes on.
+log feeds them the same way. The window holds at most a configured number of datagrams
+and bytes: a burst beyond is dropped and counted. An exception in the processing of one
+datagram is logged (at a bounded rate) and counted; the daemon goes on.
 
 The chain runs here; the outputs (messages, Zenoh, CAT062, MCAP) in a second process
-(``command.OutputProcess``), fed the chain's rows in order, so that the chain has a core
-of its own and the messages are those of a single process.
+(``command.OutputProcess``, restarted when it dies), fed the chain's rows in order, so
+that the chain has a core of its own and the messages are those of a single process.
+The daemon measures how far the chain is behind the wall clock (``lag_s`` in status).
 """
 
 from __future__ import annotations
 
+import errno
 import heapq
 import logging
-import threading
 import time
+from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 from asterix.containers import Datagram
 from tracker_service.ingest import DuplicateWindow
-from tracker_service.inputs.udp import UdpEndpoint, UdpInput
-from tracker_service.service.command import open_service
+from tracker_service.inputs.udp import EndpointError, UdpEndpoint, UdpInput
+from tracker_service.ratelimit import RateLimitedLog
+from tracker_service.service.command import OutputProcessFailed, open_service
 from tracker_service.service.config import AdsbFeed, Lan, Radar, ServiceConfig
 from tracker_service.service.core import TrackerService, input_name
+from tracker_service.service.signals import Stop
 
-__all__ = ["Daemon", "Merger", "open_inputs"]
+__all__ = ["Daemon", "InputError", "Merger", "open_inputs"]
 
 log = logging.getLogger(__name__)
 
@@ -36,8 +42,20 @@ POLL_S = 0.001
 """Sleep of the merge loop when no input has anything: the latency it may add."""
 COUNTERS_S = 0.5
 """How often the inputs' counters are copied for the status messages (wall clock)."""
+STOP_DRAIN_S = 2.0
+"""At a stop, the datagrams the holding window holds are processed for at most this long;
+the rest (a backlog of an overloaded core) are dropped and counted, so that a stop is
+prompt whatever the load."""
+ADVANCE_S = 0.1
+"""While every feed is quiet, data time follows the wall clock in steps this long (each
+step is a call to the output process: at the loop's 1 ms it cost 10 % of a core idle)."""
 QUIET_S = 1.0
 """After this long without a datagram, data time follows the wall clock (status goes on)."""
+
+
+class InputError(ValueError):
+    """An input that cannot be opened as configured; the message names the field, the
+    address and port, and the fix, on one line."""
 
 
 def _endpoint(lan: Lan) -> UdpEndpoint:
@@ -45,24 +63,40 @@ def _endpoint(lan: Lan) -> UdpEndpoint:
     return UdpEndpoint(str(lan.address), lan.port, interface)
 
 
+def _feeds(config: ServiceConfig) -> list[tuple[str, Radar | AdsbFeed]]:
+    """Each feed with the name of its table in the configuration (``radars[0]``)."""
+    return [(f"radars[{i}]", r) for i, r in enumerate(config.radars)] + [
+        (f"adsb[{i}]", a) for i, a in enumerate(config.adsb)
+    ]
+
+
 def open_inputs(config: ServiceConfig, queue_size: int = 1024) -> list[UdpInput]:
-    """One input per configured feed (radars and ADS-B) that has an ``input`` table."""
+    """One input per configured feed (radars and ADS-B) that has an ``input`` table;
+    InputError when one cannot be bound."""
     inputs: list[UdpInput] = []
     try:
-        feeds: list[Radar | AdsbFeed] = [*config.radars, *config.adsb]
-        for feed in feeds:
+        for table, feed in _feeds(config):
             if feed.input is None:
                 continue
             second = feed.input.second_lan
-            inputs.append(
-                UdpInput(
-                    input_name(feed.key),
-                    _endpoint(feed.input),
-                    None if second is None else _endpoint(second),
-                    queue_size=queue_size,
-                    duplicate_window=DuplicateWindow(seconds=feed.input.duplicate_window_s),
+            lan_a = _endpoint(feed.input)
+            lan_b = None if second is None else _endpoint(second)
+            try:
+                inputs.append(
+                    UdpInput(
+                        input_name(feed.key),
+                        lan_a,
+                        lan_b,
+                        queue_size=queue_size,
+                        duplicate_window=DuplicateWindow(seconds=feed.input.duplicate_window_s),
+                    )
                 )
-            )
+            except EndpointError as exc:
+                field = f"{table}.input" if exc.endpoint == lan_a else f"{table}.input.second_lan"
+                attribute = "address" if exc.errno == errno.EADDRNOTAVAIL else "port"
+                raise InputError(
+                    f"{field}.{attribute} ({feed.key} {feed.name!r}): {exc.reason}"
+                ) from None
     except BaseException:
         for opened in inputs:
             opened.close()
@@ -72,24 +106,39 @@ def open_inputs(config: ServiceConfig, queue_size: int = 1024) -> list[UdpInput]
 
 class Merger:
     """Datagrams of several inputs, released in (reception time, input name, number)
-    order once ``window`` seconds old."""
+    order once ``window`` seconds old; holding at most ``max_datagrams`` and
+    ``max_bytes``: beyond, a datagram is refused (``push`` says False) and its input's
+    ``dropped`` count grows, so that a burst is dropped and counted, not held in full."""
 
-    def __init__(self, window: float) -> None:
+    def __init__(
+        self, window: float, max_datagrams: int = 50_000, max_bytes: int = 32 * 1024 * 1024
+    ) -> None:
         self.window = window
+        self.max_datagrams = max_datagrams
+        self.max_bytes = max_bytes
+        self.bytes = 0
+        self.dropped: Counter[str] = Counter()
         self._heap: list[tuple[float, str, int, Datagram]] = []
 
     def __len__(self) -> int:
         return len(self._heap)
 
-    def push(self, name: str, datagram: Datagram) -> None:
+    def push(self, name: str, datagram: Datagram) -> bool:
         assert datagram.time is not None
+        size = len(datagram.payload)
+        if len(self._heap) >= self.max_datagrams or self.bytes + size > self.max_bytes:
+            self.dropped[name] += 1
+            return False
         heapq.heappush(self._heap, (datagram.time, name, datagram.offset, datagram))
+        self.bytes += size
+        return True
 
     def release(self, now: float) -> list[tuple[str, Datagram]]:
         """What is at least ``window`` old at ``now`` (everything when ``now`` is inf)."""
         out = []
         while self._heap and self._heap[0][0] <= now - self.window:
             _, name, _, datagram = heapq.heappop(self._heap)
+            self.bytes -= len(datagram.payload)
             out.append((name, datagram))
         return out
 
@@ -99,46 +148,66 @@ class Daemon:
         self.config = config
         self.health_file = health_file
         self.failures = 0
+        self._warn = RateLimitedLog(log)
+        self._lag = 0.0
 
-    def run(self, stop: threading.Event) -> int:
-        """Until ``stop`` is set; then what the merger holds is processed, every live track
-        ended and the log closed."""
+    def run(self, stop: Stop) -> int:
+        """Until ``stop`` is set; then what the merger holds is processed (for at most
+        ``STOP_DRAIN_S``), every live track ended and the log closed."""
         config = self.config
         inputs = open_inputs(config)
         if not inputs:
             log.warning("no radar has an [input]: nothing will arrive")
         for udp in inputs:
             log.info("%s: listening on %s", udp.name, udp.endpoints)
-        merger = Merger(config.system.holding_window_s)
+        system = config.system
+        merger = Merger(
+            system.holding_window_s,
+            system.holding_window_max_datagrams,
+            int(system.holding_window_max_mb * 1024 * 1024),
+        )
         try:
-            with open_service(config, config.mcap.directory, output_process=True) as service:
+            with open_service(
+                config, config.mcap.directory, output_process=True, health_file=self.health_file
+            ) as service:
+                # Data time starts now, and with it the status (and the health file).
+                service.advance(time.time() - system.holding_window_s)
                 log.info("running: publishing under %s/", config.zenoh.prefix)
                 last_datagram = time.time()
                 next_counters = 0.0
-                next_health = 0.0
+                next_advance = 0.0
                 while not stop.is_set():
                     received = self._collect(inputs, merger)
                     now = time.time()
                     if received:
                         last_datagram = now
-                    for name, datagram in merger.release(now):
+                    released = merger.release(now)
+                    for k, (name, datagram) in enumerate(released):
+                        if stop.is_set():
+                            # Back into the window, for the bounded drain below.
+                            for later in released[k:]:
+                                merger.push(*later)
+                            break
                         self._process(service, name, datagram)
                     if now >= next_counters:
-                        service.set_input_counters({udp.name: udp.counters for udp in inputs})
+                        self._update_counters(service, inputs, merger)
                         next_counters = now + COUNTERS_S
-                    if now - last_datagram > QUIET_S and not merger:
+                    if now - last_datagram > QUIET_S and not merger and now >= next_advance:
                         service.advance(now - config.system.holding_window_s)
-                    if self.health_file is not None and now >= next_health:
-                        self.health_file.touch()
-                        next_health = now + service.timings.status_s
+                        next_advance = now + ADVANCE_S
                     if not received:
                         stop.wait(POLL_S)
                 for udp in inputs:
                     udp.close()
                 self._collect(inputs, merger)
+                # What the window holds goes through, for as long as a stop may take.
+                deadline = time.monotonic() + STOP_DRAIN_S
                 for name, datagram in merger.release(float("inf")):
-                    self._process(service, name, datagram)
-                service.set_input_counters({udp.name: udp.counters for udp in inputs})
+                    if time.monotonic() < deadline:
+                        self._process(service, name, datagram)
+                    else:
+                        merger.dropped[name] += 1
+                self._update_counters(service, inputs, merger)
                 log.info(
                     "stopping: %d datagrams through the chain, %d failures; ending every "
                     "live track",
@@ -150,6 +219,18 @@ class Daemon:
                 udp.close()
         return 0
 
+    def _update_counters(
+        self, service: TrackerService, inputs: list[UdpInput], merger: Merger
+    ) -> None:
+        counters = {}
+        for udp in inputs:
+            snapshot = udp.counters
+            snapshot.held_dropped = merger.dropped[udp.name]
+            counters[udp.name] = snapshot
+        service.set_input_counters(counters)
+        service.core = replace(service.core, lag_s=self._lag)
+        self._lag = 0.0
+
     @staticmethod
     def _collect(inputs: list[UdpInput], merger: Merger) -> bool:
         received = False
@@ -160,10 +241,20 @@ class Daemon:
         return received
 
     def _process(self, service: TrackerService, name: str, datagram: Datagram) -> None:
+        assert datagram.time is not None
+        # Behind the wall clock beyond the holding window: the largest since the last
+        # copy of the counters.
+        self._lag = max(
+            self._lag, time.time() - datagram.time - self.config.system.holding_window_s
+        )
         try:
             service.process(name, datagram)
+        except OutputProcessFailed:
+            raise
         except Exception:
             # The core catches what bad data does; this is the rest (a full disk, a
             # closed session): counted, and the daemon goes on.
             self.failures += 1
-            log.exception("%s: datagram %d could not be handled", name, datagram.offset)
+            self._warn.exception(
+                "process", "%s: datagram %d could not be handled", name, datagram.offset
+            )
