@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import REPO, SHARED_DATA
-from tracker_service.chain import RAW_PLOT_DTYPE
+from tracker_service.chain import RAW_PLOT_DTYPE, PlotUse
 from tracker_service.cli import main
 from tracker_service.evaluation.assess import (
     CHECKS,
@@ -267,6 +267,11 @@ def test_canal_a_cat001_radar(assessed: Callable[[Path], Assessed]) -> None:
     assert fixed["azimuth_deg"] == pytest.approx(150.35, abs=0.1)
     assert 90.7 < fixed["range_nm"] < 99.9  # the median of the two
     assert seen.get("code_7777", {"plots": 0})["plots"] <= 10  # 8 tracked before detection
+    plots = result.plots
+    for rho_nm in (90.8, 99.8):  # each transponder kept out for the whole 48 minutes
+        mine = (plots["mode3a"] == 0o7777) & (np.abs(plots["rho_m"] / 1852.0 - rho_nm) < 0.5)
+        assert mine.sum() > 700, rho_nm
+        assert np.mean(plots["use"][mine] == PlotUse.FIXED_TRANSPONDER) > 0.98, rho_nm
     assert radar["time"]["far_from_reception"] == radar["time"]["older_than_latest"] == 0
     for name, m in _track_sets(doc).items():
         codes = m["per_mode3a"]
