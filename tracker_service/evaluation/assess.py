@@ -577,6 +577,7 @@ def nis_samples(ts: TrackSet, tracked: npt.NDArray[Any]) -> tuple[FloatArray, Fl
 
 def _consistency(ts: TrackSet, tracked: npt.NDArray[Any]) -> dict[str, Any]:
     _, nis = nis_samples(ts, tracked)
+    nis = nis[np.isfinite(nis)]
     return {
         "samples": int(nis.size),
         "mean": round(float(nis.mean()), 3) if nis.size else None,
@@ -834,11 +835,18 @@ def _targets_seen(table: npt.NDArray[Any], extra: npt.NDArray[Any]) -> list[dict
                 "address": f"{address:06X}" if address >= 0 else None,
                 "mode3a": f"{code:04o}" if code >= 0 else None,
                 "plots": len(ks),
-                "range_nm": round(float(np.median(table["rho_m"][ks])) / NM, 2),
-                "azimuth_deg": round(float(np.median(table["theta_deg"][ks])), 2),
+                "range_nm": _finite_median(table["rho_m"][ks] / NM, 2),
+                "azimuth_deg": _finite_median(table["theta_deg"][ks], 2),
             }
         )
     return out
+
+
+def _finite_median(values: FloatArray, digits: int) -> float | None:
+    """The median of the finite values; None where there is none (a CAT048 record of TYP 0,
+    no detection, carries no position: JSON has no NaN)."""
+    finite = values[np.isfinite(values)]
+    return round(float(np.median(finite)), digits) if finite.size else None
 
 
 def _radar_measures(run: AssessRun, source: str, index: Mapping[int, int]) -> dict[str, Any]:
@@ -850,7 +858,7 @@ def _radar_measures(run: AssessRun, source: str, index: Mapping[int, int]) -> di
     span = float(table["time"].max()) - first if first is not None else 0.0
     return {
         "configured": run.configured.get(source, False),
-        "period_s": round(run.periods.get(source, math.nan), 3),
+        "period_s": round(run.periods[source], 3) if source in run.periods else None,
         "plots": len(table),
         "span_s": round(span, 1),
         "first_time": _iso(first),
@@ -1060,10 +1068,14 @@ def format_summary(doc: Mapping[str, Any]) -> str:
             f"{t['older_than_latest']} more than a scan older than the latest",
         ]
         for target in r["targets_seen"][:8]:
+            where = (
+                f"at {target['range_nm']} NM, {target['azimuth_deg']} deg"
+                if target["range_nm"] is not None
+                else "without a position"
+            )
             lines.append(
                 f"  seen {target['marks']}: address {target['address'] or '-'}, code "
-                f"{target['mode3a'] or '-'}, {target['plots']} plots at "
-                f"{target['range_nm']} NM, {target['azimuth_deg']} deg"
+                f"{target['mode3a'] or '-'}, {target['plots']} plots {where}"
             )
         lines += _set_lines("local tracks", r["local"])
     if doc["system"] is not None:
