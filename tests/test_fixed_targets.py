@@ -474,14 +474,20 @@ def capture_config(sac: int, sic: int, period_s: float) -> ServiceConfig:
     return parse_service_config({"radars": [radar], "system": system})
 
 
-def test_parsegps_site_monitor_and_test_target() -> None:
+def test_parsegps_site_monitor_test_target_and_blind_record() -> None:
     # SAC 20/SIC 193: a 7777 site monitor (Mode S 344041, "7777XGCN", RAB = 0, FL60,
     # 49.08 NM) and a primary test target (TST) at exactly 15.0 NM, over three scans.
     path = shared_file("croatiacontrol/parsegps.gps")
     run = run_service(path, capture_config(20, 193, 4.0), DEFAULT_DAY_POSIX)
     radar = run.status.radars[0]
     # On 7777, its three plots are kept out from the first: no track at all.
-    assert radar.rejected == {"fixed_transponder": 3, "test_target": 3}
+    # Its TYP 0 record at 8.08 s has no position: counted, never tracked.
+    assert radar.rejected == {"fixed_transponder": 3, "no_position": 1, "test_target": 3}
+    (blind,) = run.tables[run.tables["use"] == PlotUse.NO_POSITION]
+    assert blind["typ"] == 0 and np.isnan(blind["rho_m"])
+    assert blind["time"] - DEFAULT_DAY_POSIX == pytest.approx(8.08, abs=0.01)
+    assert not np.isnan(run.tables["rho_m"][run.tables["use"] == PlotUse.TRACKED]).any()
+    assert len(fed_to_tracker(run, PlotUse.NO_POSITION)) == 0
     (check,) = radar.test_targets
     assert (check.kind, check.seen, check.range_nm) == ("primary", 3, 15.0)
     assert len(fed_to_tracker(run, PlotUse.TEST_TARGET)) == 0
