@@ -834,11 +834,18 @@ def _targets_seen(table: npt.NDArray[Any], extra: npt.NDArray[Any]) -> list[dict
                 "address": f"{address:06X}" if address >= 0 else None,
                 "mode3a": f"{code:04o}" if code >= 0 else None,
                 "plots": len(ks),
-                "range_nm": round(float(np.median(table["rho_m"][ks])) / NM, 2),
-                "azimuth_deg": round(float(np.median(table["theta_deg"][ks])), 2),
+                "range_nm": _finite_median(table["rho_m"][ks] / NM),
+                "azimuth_deg": _finite_median(table["theta_deg"][ks]),
             }
         )
     return out
+
+
+def _finite_median(values: FloatArray) -> float | None:
+    """The median of the finite values, to 0.01; None when there is none (plots without
+    a position, ``PlotUse.NO_POSITION``)."""
+    finite = values[np.isfinite(values)]
+    return round(float(np.median(finite)), 2) if len(finite) else None
 
 
 def _radar_measures(run: AssessRun, source: str, index: Mapping[int, int]) -> dict[str, Any]:
@@ -1063,7 +1070,11 @@ def format_summary(doc: Mapping[str, Any]) -> str:
             lines.append(
                 f"  seen {target['marks']}: address {target['address'] or '-'}, code "
                 f"{target['mode3a'] or '-'}, {target['plots']} plots at "
-                f"{target['range_nm']} NM, {target['azimuth_deg']} deg"
+                + (
+                    "no position"
+                    if target["range_nm"] is None
+                    else f"{target['range_nm']} NM, {target['azimuth_deg']} deg"
+                )
             )
         lines += _set_lines("local tracks", r["local"])
     if doc["system"] is not None:
