@@ -228,15 +228,16 @@ def test_canal_a_cat001_radar(assessed: Callable[[Path], Assessed]) -> None:
     """canalA.gps: 48 minutes of a CAT001 radar (SAC 20/SIC 130, Mode A/C only, north
     markers every 4.01 s without I041), measured on this branch merged with the CAT001
     work: 30,651 plots, 134 discrete codes. Two fixed transponders on 7777 at 90.85 NM,
-    150.35 deg (RAB 0; 3 more plots with RAB at 99.77 NM) get published stationary tracks
-    today (issue 10 finding 4: bounded to them, not asserted); code 5001, flying FL 120-180
+    150.35 deg (RAB 0; 3 more plots with RAB at 99.77 NM) are kept out from their first
+    plot and publish no track (issue 10 finding 4); code 5001, flying FL 120-180
     with no plot gap over 12 s for 22 minutes, gets 13 local tracks (23 breaks in all)."""
     _, doc = _with_plots(assessed, _recording("reader_network/canalA.gps"))
     radar = doc["radars"]["20/130"]
     assert radar["plots"] == pytest.approx(30651, abs=50)
     assert radar["period_s"] == pytest.approx(4.01, abs=0.02)
     assert radar["flags"]["code_7777"] == pytest.approx(1432, abs=5)
-    fixed = next(t for t in radar["targets_seen"] if t["marks"] == "code_7777")
+    fixed = next(t for t in radar["targets_seen"] if t["marks"] == "fixed_transponder+code_7777")
+    assert fixed["plots"] == radar["plot_uses"]["fixed_transponder"] == pytest.approx(1429, abs=5)
     assert fixed["range_nm"] == pytest.approx(90.85, abs=0.1)
     assert fixed["azimuth_deg"] == pytest.approx(150.35, abs=0.1)
     assert radar["time"]["far_from_reception"] == radar["time"]["older_than_latest"] == 0
@@ -248,8 +249,9 @@ def test_canal_a_cat001_radar(assessed: Callable[[Path], Assessed]) -> None:
         assert m["speed_kt"]["max"] < 650, name  # 603 kt
         assert m["jump_m"]["over_1_nm"] == 0, name  # largest 0.81 NM
         assert m["nis"]["share_over_99"] < 0.01, name
-        for track in m["suspect_tracks"]:
-            assert track["mode3a"] == "7777", (name, track)
+        assert m["suspect_tracks"] == [], name
+    checks = {c["name"]: c["passed"] for c in doc["checks"]}
+    assert checks["no_test_or_fixed_target_published"] is True
 
 
 # --- the measures themselves --------------------------------------------------------------
