@@ -39,6 +39,8 @@ FIXED = {"lat": 48.0, "lon": 18.3162, "alt_m": 300.0, "mode3a": "7777", "address
 """98 km east of the radar."""
 FIXED_ADDRESS = 0x00020A
 AIRCRAFT = {"3C0001", "3C0002", "3C0003", "3C0004"}
+ON_7777 = 0x3C0005
+"""An aircraft at 250 kt squawking 7777."""
 
 
 def scenario(bias: bool = False, reported_fl: float | None = None, rab: bool = False) -> Scenario:
@@ -81,6 +83,8 @@ def scenario(bias: bool = False, reported_fl: float | None = None, rab: bool = F
         # A slow helicopter beside the fixed transponder, and one at walking pace.
         flight(3, 48.05, 18.2, 20.0, 20.0, 90.0),
         flight(4, 47.9, 17.3, 15.0, 6.0, 0.0),
+        # An aircraft squawking the site monitors' code.
+        flight(5, 47.8, 17.5, 100.0, 250.0, 45.0) | {"mode3a": "7777"},
     ]
     return Scenario.model_validate(
         {
@@ -201,14 +205,12 @@ def test_test_targets_are_never_tracked_and_are_checked_in_status(detected: Run)
 def test_a_detected_fixed_transponder_is_never_an_aircraft(detected: Run) -> None:
     fixed = detected.tables["address"] == FIXED_ADDRESS
     use = detected.tables["use"][fixed]
-    # The site monitor's code 7777 is enough after three plots standing still; the two
-    # before them may start a tentative local track, never a confirmed or a system one.
-    assert (use == PlotUse.FIXED_TRANSPONDER).sum() >= len(use) - 2
-    fed = detected.local[detected.local["address"] == FIXED_ADDRESS]
-    assert (fed["status"] != CONFIRMED).all()
+    # On the site monitors' code 7777, kept out from its first plot: no track at all.
+    assert len(use) >= 55 and (use == PlotUse.FIXED_TRANSPONDER).all()
+    assert not (detected.local["address"] == FIXED_ADDRESS).any()
     assert not (detected.system["address"] == FIXED_ADDRESS).any()
     assert detected.status.radars[0].rejected["fixed_transponder"] == int(
-        (use == PlotUse.FIXED_TRANSPONDER).sum()
+        (detected.tables["use"] == PlotUse.FIXED_TRANSPONDER).sum()
     )
 
 
@@ -227,7 +229,18 @@ def test_slow_aircraft_and_helicopters_are_kept(which: str, request: pytest.Fixt
     run: Run = request.getfixturevalue(which)
     aircraft = np.isin(run.tables["address"], [int(a, 16) for a in AIRCRAFT])
     assert (run.tables["use"][aircraft] == PlotUse.TRACKED).all()
-    assert set(run.system["address"].tolist()) == {int(a, 16) for a in AIRCRAFT}
+    assert set(run.system["address"].tolist()) == {int(a, 16) for a in AIRCRAFT} | {ON_7777}
+
+
+def test_a_moving_aircraft_on_7777_is_tracked_after_a_few_scans(detected: Run) -> None:
+    mine = detected.tables["address"] == ON_7777
+    use = detected.tables["use"][mine][np.argsort(detected.tables["time"][mine])]
+    held = int(np.argmax(use == PlotUse.TRACKED))
+    assert 1 <= held <= 4 and (use[held:] == PlotUse.TRACKED).all()
+    confirmed = detected.local[
+        (detected.local["address"] == ON_7777) & (detected.local["status"] == CONFIRMED)
+    ]
+    assert len(confirmed) >= len(use) - held - 5
 
 
 # --- a surveyed fixed transponder as a field monitor ----------------------------------
@@ -261,7 +274,9 @@ def test_a_surveyed_fixed_transponder_feeds_bias_estimation(biased: Path) -> Non
     range_error, azimuth, sigma = _bias_at_monitor(monitored)
     assert abs(range_error - 150.0) < 15.0
     assert abs(azimuth - 0.15) < 0.02 and sigma < 0.1 * sigma_alone
-    assert not (monitored.system["mode3a"] == 0o7777).any()
+    assert not (monitored.system["address"] == FIXED_ADDRESS).any()
+    # The aircraft on 7777 elsewhere is still tracked.
+    assert (monitored.system["address"] == ON_7777).any()
 
 
 # --- the detector, plot by plot --------------------------------------------------------
@@ -312,9 +327,10 @@ def _track(speed_mps: float, minutes: float, sigma_m: float = 100.0, seed: int =
 
 
 @pytest.mark.parametrize("seed", range(5))
-def test_a_site_monitor_code_standing_still_is_fixed_within_three_plots(seed: int) -> None:
-    fixed = _classify(_stage(), _table(*_track(0.0, 10.0, 30.0, seed), code=0o7777))
-    assert fixed[2:].all() and not fixed[:2].any()
+def test_a_site_monitor_code_standing_still_is_kept_out_from_its_first_plot(seed: int) -> None:
+    for sigma_m in (30.0, 200.0):
+        track = _track(0.0, 10.0, sigma_m, seed)
+        assert _classify(_stage(), _table(*track, code=0o7777, sigma_m=sigma_m)).all()
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -322,8 +338,19 @@ def test_a_site_monitor_code_standing_still_is_fixed_within_three_plots(seed: in
 def test_moving_targets_are_never_fixed(seed: int, speed_kt: float) -> None:
     track = _track(speed_kt * 1852.0 / 3600.0, 15.0, 100.0, seed)
     assert not _classify(_stage(), _table(*track, address=0x3C0001, code=0o4321)).any()
-    if speed_kt >= 150.0:  # even on the site monitors' code (bound: 60 kt)
-        assert not _classify(_stage(), _table(*track, code=0o7777)).any()
+    if speed_kt > 60.0:  # on the site monitors' code (bound: 60 kt), after a few plots
+        fixed = _classify(_stage(), _table(*track, code=0o7777))
+        held = int(np.argmax(~fixed))
+        assert 1 <= held <= 4 and not fixed[held:].any()
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("speed_kt", [80.0, 100.0])
+def test_a_slower_aircraft_on_7777_is_released_by_the_fit(seed: int, speed_kt: float) -> None:
+    track = _track(speed_kt * 1852.0 / 3600.0, 15.0, 100.0, seed)
+    fixed = _classify(_stage(), _table(*track, code=0o7777))
+    held = int(np.argmax(~fixed))
+    assert 1 <= held <= 8 and not fixed[held:].any()
 
 
 def test_another_code_standing_still_needs_minutes() -> None:
@@ -447,18 +474,24 @@ def capture_config(sac: int, sic: int, period_s: float) -> ServiceConfig:
     return parse_service_config({"radars": [radar], "system": system})
 
 
-def test_parsegps_site_monitor_and_test_target() -> None:
+def test_parsegps_site_monitor_test_target_and_blind_record() -> None:
     # SAC 20/SIC 193: a 7777 site monitor (Mode S 344041, "7777XGCN", RAB = 0, FL60,
     # 49.08 NM) and a primary test target (TST) at exactly 15.0 NM, over three scans.
     path = shared_file("croatiacontrol/parsegps.gps")
     run = run_service(path, capture_config(20, 193, 4.0), DEFAULT_DAY_POSIX)
     radar = run.status.radars[0]
-    assert radar.rejected == {"fixed_transponder": 1, "test_target": 3}
+    # On 7777, its three plots are kept out from the first: no track at all.
+    # Its TYP 0 record at 8.08 s has no position: counted, never tracked.
+    assert radar.rejected == {"fixed_transponder": 3, "no_position": 1, "test_target": 3}
+    (blind,) = run.tables[run.tables["use"] == PlotUse.NO_POSITION]
+    assert blind["typ"] == 0 and np.isnan(blind["rho_m"])
+    assert blind["time"] - DEFAULT_DAY_POSIX == pytest.approx(8.08, abs=0.01)
+    assert not np.isnan(run.tables["rho_m"][run.tables["use"] == PlotUse.TRACKED]).any()
+    assert len(fed_to_tracker(run, PlotUse.NO_POSITION)) == 0
     (check,) = radar.test_targets
     assert (check.kind, check.seen, check.range_nm) == ("primary", 3, 15.0)
     assert len(fed_to_tracker(run, PlotUse.TEST_TARGET)) == 0
-    monitor = run.local[run.local["address"] == 0x344041]
-    assert (monitor["status"] != CONFIRMED).all()
+    assert not (run.local["address"] == 0x344041).any()
     assert set(run.system["address"].tolist()) == {0xE48BA7, 0x4CA9EC}
     # Configured (the address alone), it reaches the tracker not even once.
     config = with_fixed(capture_config(20, 193, 4.0), "20/193", {"address": "344041"})
@@ -482,19 +515,18 @@ def test_canala_site_monitors() -> None:
     # first 10 minutes here (the whole of it goes through assess, tests/test_assess.py).
     path = shared_file("reader_network/canalA.gps")
     run = run_service(path, capture_config(20, 130, 4.0), DEFAULT_DAY_POSIX, duration_s=600.0)
-    start = float(run.tables["time"].min())
-    after_a_minute = run.tables["time"] > start + 60.0
     for rho_nm in (90.8, 99.8):
         mine = (run.tables["mode3a"] == 0o7777) & (
             np.abs(run.tables["rho_m"] / 1852.0 - rho_nm) < 0.5
         )
         assert mine.sum() > 140
-        # Detected at 91-100 NM within a few scans, and from then on never tracked (a few
-        # of its plots set RAB: field-monitor plots).
-        uses = run.tables["use"][mine & after_a_minute]
+        # Kept out from its first plot (a few of its plots set RAB: field-monitor plots).
+        uses = run.tables["use"][mine]
         assert np.isin(uses, [PlotUse.FIXED_TRANSPONDER, PlotUse.FIELD_MONITOR]).all()
         assert (uses == PlotUse.FIXED_TRANSPONDER).mean() > 0.95
-    # A system track on 7777 can only be one of the first minute, before the speed bound
-    # is tight enough.
-    on_7777 = run.system["mode3a"] == 0o7777
-    assert (run.system["time"][on_7777] < start + 60.0).all()
+    # Not one local or system track on 7777 (they were local tracks 32 and 33 and a
+    # system track published for 30 s before the monitors were held from the first plot).
+    fed = run.tables["plot_id"][run.tables["mode3a"] == 0o7777]
+    assert not np.isin(run.local["plot_id"], fed).any()
+    assert not (run.local["mode3a"] == 0o7777).any()
+    assert not (run.system["mode3a"] == 0o7777).any()

@@ -136,6 +136,8 @@ class PlotUse(IntEnum):
     FIXED_TRANSPONDER = 6
     """A stationary transponder, configured or detected (``fixed_targets``); a bias
     reference where its position is surveyed."""
+    NO_POSITION = 7
+    """No measured position (RHO or THETA absent: a CAT048 TYP 0 "no detection" record)."""
 
 
 def rejections(use: npt.NDArray[np.int8]) -> dict[str, int]:
@@ -296,6 +298,7 @@ def convert_batch(
         PlotUse.TRACKED,
     )
     table["use"][raw["track_report"] == 1] = PlotUse.RADAR_TRACK
+    table["use"][~(np.isfinite(raw["rho"]) & np.isfinite(raw["theta"]))] = PlotUse.NO_POSITION
     if bias is not None and c is not None:
         # The table keeps the plots as sent: uncorrected, to first order.
         shift = c[:, :, :3] @ bias[:3]

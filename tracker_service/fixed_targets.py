@@ -31,6 +31,17 @@ keeps their plots out of traffic tracking, in two ways:
   stand still on their own. Candidates without a plot for ``stale_periods`` antenna
   periods are forgotten, stationary ones after ``fixed_memory_s``.
 
+  A plot on a site-monitor code is kept out from its identity's first plot on: it is
+  released to tracking only once its candidate is shown moving, so that a monitor's
+  first scans start no track. Moving is shown either by the fit (enough plots, speed
+  bound above ``site_monitor_max_speed_kt``) or, for a target too fast to stay in one
+  area, by ``site_monitor_moving_steps`` successive plots each outside its identity's
+  areas and reachable from a previous scan's candidate (at most
+  ``site_monitor_reach_kt``, above the monitors' bound). The price: an aircraft that
+  squawks 7777 loses its first few plots (two to four at 150 kt and more, a few more
+  when slower) and is tracked from then on; one slower than the monitors' bound stays
+  kept out.
+
 Everything is per radar, on the radar's plot table (``chain.RAW_PLOT_DTYPE``), in arrays.
 """
 
@@ -119,6 +130,12 @@ class FixedTargetConfig:
     stale_periods: float = 3.5
     fixed_memory_s: float = 120.0
     """A stationary target is remembered this long without a plot (missed scans)."""
+    site_monitor_moving_steps: int = 2
+    """Successive moves between scans that show a target on a site-monitor code moving
+    (two: one ghost or noisy plot beside a monitor's first plots is not enough)."""
+    site_monitor_reach_kt: float = 1000.0
+    """The fastest move between scans taken as one target's (canalA.gps's two monitors,
+    16.7 km apart, are not one target moving)."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.detect, bool):
@@ -134,7 +151,14 @@ class FixedTargetConfig:
                 raise ValueError(f"site_monitor_codes: {code!r} is not a 4-digit octal code")
         if self.site_monitor_min_plots < 2 or self.min_plots < 2:
             raise ValueError("min_plots and site_monitor_min_plots must be at least 2")
-        positive = ("site_monitor_max_speed_kt", "max_speed_kt", "gate_sigmas", "stale_periods")
+        positive = (
+            "site_monitor_max_speed_kt",
+            "max_speed_kt",
+            "gate_sigmas",
+            "stale_periods",
+            "site_monitor_moving_steps",
+            "site_monitor_reach_kt",
+        )
         for name in ("halo_m", "fixed_memory_s"):
             if getattr(self, name) < 0.0:
                 raise ValueError(f"{name} must not be negative, not {getattr(self, name)}")
@@ -174,8 +198,10 @@ class _Candidates:
     that they keep their precision over hours. One array, so that keeping, adding and
     accumulating are one numpy operation each whatever the number of fields."""
 
-    FIELDS = ("n", "t0", "x0", "y0", "last", "st", "sx", "sy", "stt", "stx", "sty", "var")
-    N, T0, X0, Y0, LAST, ST, SX, SY, STT, STX, STY, VAR = range(len(FIELDS))
+    FIELDS = ("n", "t0", "x0", "y0", "last", "st", "sx", "sy", "stt", "stx", "sty", "var", "moves")
+    N, T0, X0, Y0, LAST, ST, SX, SY, STT, STX, STY, VAR, MOVES = range(len(FIELDS))
+    """``moves``: successive moves between scans that led to this candidate (site-monitor
+    codes), or ``site_monitor_moving_steps`` once its fit shows it moving."""
     SUMS = np.array([N, ST, SX, SY, STT, STX, STY, VAR])
 
     def __init__(self) -> None:
@@ -190,6 +216,10 @@ class _Candidates:
     @property
     def last(self) -> FloatArray:
         return self.values[:, self.LAST]
+
+    @property
+    def moves(self) -> FloatArray:
+        return self.values[:, self.MOVES]
 
     def keep(self, rows: IntArray) -> None:
         self.key = self.key[rows]
@@ -375,6 +405,7 @@ class FixedTargets:
             c.keep(live[np.argsort(c.key[live], kind="stable")])
         rows = np.full(len(keys), -1, np.int64)
         halo = np.zeros(len(keys), np.bool_)
+        moves = np.zeros(len(keys))
         first = np.searchsorted(c.key, keys, "left")
         width = np.searchsorted(c.key, keys, "right") - first
         if width.any():
@@ -386,18 +417,46 @@ class FixedTargets:
             near = (mine & c.fixed[slots] & (d2 <= cfg.halo_m**2)).any(axis=1)
             halo = near & monitor
             radius = np.maximum(cfg.min_radius_m, cfg.gate_sigmas * sigma)
-            d2 = np.where(mine & (d2 <= radius[:, None] ** 2), d2, np.inf)
-            nearest = np.argmin(d2, axis=1)
+            in_area = np.where(mine & (d2 <= radius[:, None] ** 2), d2, np.inf)
+            nearest = np.argmin(in_area, axis=1)
             plot = np.arange(len(keys))
-            inside = np.isfinite(d2[plot, nearest])
+            inside = np.isfinite(in_area[plot, nearest])
             rows[inside] = slots[plot, nearest][inside]
+            moves = self._moves(mine & ~c.fixed[slots], slots, t, d2) * (monitor & ~inside)
         new = rows < 0
         if new.any():
             rows[new] = c.add(keys[new], t[new], x[new], y[new])
+            c.moves[rows[new]] = moves[new]
         c.accumulate(rows, t, x, y, sigma**2)
-        stationary = self._stationary(rows, monitor)
+        # A target shown moving on a site-monitor code is no monitor, even when a few of
+        # its plots happen to fit standing still.
+        mover = monitor & (c.moves[rows] >= cfg.site_monitor_moving_steps)
+        stationary = self._stationary(rows, monitor) & ~mover
         c.fixed[rows] = stationary
-        return stationary | halo
+        # The fit shows a site-monitor code moving when even its speed less its margin
+        # exceeds the monitors' bound (a monitor's first noisy plots do not).
+        fitted = monitor & ~stationary & (c.plots(rows) >= cfg.site_monitor_min_plots)
+        fitted &= c.span(rows) >= 0.5 * self.period_s
+        lower = c.speed_bound(rows, np.full(len(rows), -cfg.site_monitor_speed_sigmas))
+        fitted &= lower > cfg.site_monitor_max_speed_kt * KT
+        c.moves[rows[fitted]] = cfg.site_monitor_moving_steps
+        undecided = monitor & (c.moves[rows] < cfg.site_monitor_moving_steps)
+        return stationary | halo | undecided
+
+    def _moves(
+        self, open_: BoolArray, slots: IntArray, t: FloatArray, d2: FloatArray
+    ) -> FloatArray:
+        """Per plot, one more than the most moves of a candidate of its identity it moved
+        from (``open_``: not stationary; ``d2``: squared distance to its mean): seen a
+        previous scan, at a speed between the site monitors' bound and the reach; 0 when
+        none."""
+        cfg, c = self.config, self._candidates
+        dt = t[:, None] - c.last[slots]
+        slowest = (cfg.site_monitor_max_speed_kt * KT * dt) ** 2
+        fastest = (cfg.site_monitor_reach_kt * KT * dt) ** 2
+        moved = open_ & (dt >= 0.5 * self.period_s) & (d2 > slowest) & (d2 <= fastest)
+        steps: FloatArray = np.where(moved, c.moves[slots] + 1.0, 0.0).max(axis=1)
+        return steps
 
     def _stationary(self, rows: IntArray, monitor: BoolArray) -> BoolArray:
         cfg, c = self.config, self._candidates
