@@ -177,20 +177,22 @@ def test_parsegps_test_transponder_and_test_target(
 ) -> None:
     """parsegps.gps (10 s, SAC 20/SIC 193): three I020 TST plots of a primary test target
     at 15.0 NM, kept out as such, and three plots of 344041 squawking 7777 (a transponder
-    in test, RAB 0): the fixed-target stage takes it for one at its third plot (a site
-    monitor code standing still for three scans) and keeps that plot out, so the track
-    its first two plots start is never confirmed: nothing of them is published."""
+    in test, RAB 0): plots on a site-monitor code are held from the first one until shown
+    moving, so none reaches the tracker; one TYP 0 record (a track end, no position) is
+    kept out as such: nothing of them is published."""
     _, doc = _with_plots(assessed, _recording("croatiacontrol/parsegps.gps"))
     radar = doc["radars"]["20/193"]
     assert radar["plots"] == 15
     assert radar["flags"]["tst"] == 3
     assert radar["flags"]["code_7777"] == 3
-    assert radar["plot_uses"] == {"tracked": 11, "test_target": 3, "fixed_transponder": 1}
-    transponder = [t for t in radar["targets_seen"] if t["address"] == "344041"]
-    assert {t["marks"]: t["plots"] for t in transponder} == {
-        "code_7777": 2,
-        "fixed_transponder+code_7777": 1,
+    assert radar["plot_uses"] == {
+        "tracked": 8,
+        "test_target": 3,
+        "fixed_transponder": 3,
+        "no_position": 1,
     }
+    transponder = [t for t in radar["targets_seen"] if t["address"] == "344041"]
+    assert {t["marks"]: t["plots"] for t in transponder} == {"fixed_transponder+code_7777": 3}
     for target in transponder:
         assert target["range_nm"] == pytest.approx(49.09, abs=0.05)
     (test_target,) = (t for t in radar["targets_seen"] if "tst" in t["marks"])
@@ -209,8 +211,8 @@ def test_croatian_pcap_seven_radars_and_one_late_plot(
     """cat_034_048.pcap: 128 CAT048 records, each sent on two LANs: 64 plots once the
     duplicates are dropped, from 7 radars without a configuration (not fused); 2 s is
     too short to confirm a track. The one SIC 13 plot 18 s older than the others is a
-    time fault both ways, kept out by the time sanity stage; it is a TYP 0 record (no
-    detection: a track's status only), so it has no position (``None`` in the JSON)."""
+    time fault both ways; it is a TYP 0 record (no detection: a track's status only), so
+    it has no position (``None`` in the JSON) and is kept out for that first."""
     _, doc = _with_plots(assessed, _recording("croatiacontrol/cat_034_048.pcap"))
     assert doc["plots"] == 64
     assert sorted(doc["radars"]) == [
@@ -226,9 +228,9 @@ def test_croatian_pcap_seven_radars_and_one_late_plot(
     assert {c["name"]: c["passed"] for c in doc["checks"]}["one_system_track_per_address"] is None
     late = doc["radars"]["25/13"]["time"]
     assert late["far_from_reception"] == late["older_than_latest"] == 1
-    assert doc["radars"]["25/13"]["plot_uses"] == {"tracked": 7, "time_implausible": 1}
+    assert doc["radars"]["25/13"]["plot_uses"] == {"tracked": 7, "no_position": 1}
     (kept_out,) = doc["radars"]["25/13"]["targets_seen"]
-    assert (kept_out["marks"], kept_out["address"]) == ("time_implausible", "44D074")
+    assert (kept_out["marks"], kept_out["address"]) == ("no_position", "44D074")
     assert kept_out["range_nm"] is kept_out["azimuth_deg"] is None
     assert sum(r["time"]["far_from_reception"] for r in doc["radars"].values()) == 1
     assert doc["radars"]["25/201"]["flags"]["code_7777"] == 1

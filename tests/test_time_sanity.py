@@ -533,13 +533,13 @@ def test_north_markers_alone_give_the_offset() -> None:
 
 def test_a_real_capture_loses_its_odd_plot_only() -> None:
     """The multi-radar capture (seven radars): no plot kept out but the one SIC 13 record
-    stamped 18 s before its neighbours (both LAN copies). (test_real_data.py checks that
-    the 79 minutes of 068test_bds30.gps keep every plot.)"""
+    stamped 18 s before its neighbours (both LAN copies), a TYP 0 record without a
+    position (kept out for that: ``PlotUse.NO_POSITION`` comes first); 25/201's site
+    monitor on 7777 is kept out for what it is. (test_real_data.py checks that the 79
+    minutes of 068test_bds30.gps keep every plot.)"""
     pcap = track_capture(shared_file("croatiacontrol/cat_034_048.pcap"), NOMINAL_SITE_068)
-    odd = {
-        source: r.plots["time"][r.plots["use"] == PlotUse.TIME_IMPLAUSIBLE]
-        for source, r in pcap.items()
-    }
+    kept = [PlotUse.TRACKED, PlotUse.FIXED_TRANSPONDER]
+    odd = {source: r.plots["time"][~np.isin(r.plots["use"], kept)] for source, r in pcap.items()}
     assert {s for s, t in odd.items() if len(t)} == {"25/13"}
     assert len(odd["25/13"]) == 2
     assert np.all(np.abs(odd["25/13"] % DAY_S - 27336.26) < 0.01)
