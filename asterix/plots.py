@@ -39,56 +39,51 @@ class Column:
     path: tuple[str, ...] = ()
 
 
+# The items CAT048 and CAT001 share, in the same element paths.
+_SOURCE = (Column("sac", "010", ("SAC",)), Column("sic", "010", ("SIC",)))
+_FLAGS = tuple(Column(name, "020", (name.upper(),)) for name in ("sim", "spi", "rab", "tst"))
+_POSITION_AND_CODE = (
+    Column("rho", "040", ("RHO",)),
+    Column("theta", "040", ("THETA",)),
+    Column("mode3a", "070", ("MODE3A",)),
+    Column("mode3a_invalid", "070", ("V",)),
+    Column("mode3a_garbled", "070", ("G",)),
+    Column("mode3a_smoothed", "070", ("L",)),
+)
+_LEVEL_VALIDITY = (
+    Column("flight_level_invalid", "090", ("V",)),
+    Column("flight_level_garbled", "090", ("G",)),
+)
+_VELOCITY = (Column("ground_speed", "200", ("GSP",)), Column("heading", "200", ("HDG",)))
+
 COLUMNS: dict[int, tuple[Column, ...]] = {
     48: (
-        Column("sac", "010", ("SAC",)),
-        Column("sic", "010", ("SIC",)),
+        *_SOURCE,
         Column("time_of_day", "140"),
         Column("typ", "020", ("TYP",)),
-        Column("sim", "020", ("SIM",)),
-        Column("spi", "020", ("SPI",)),
-        Column("rab", "020", ("RAB",)),
-        Column("tst", "020", ("TST",)),
-        Column("rho", "040", ("RHO",)),
-        Column("theta", "040", ("THETA",)),
-        Column("mode3a", "070", ("MODE3A",)),
-        Column("mode3a_invalid", "070", ("V",)),
-        Column("mode3a_garbled", "070", ("G",)),
-        Column("mode3a_smoothed", "070", ("L",)),
+        *_FLAGS,
+        *_POSITION_AND_CODE,
         Column("flight_level", "090", ("FL",)),
-        Column("flight_level_invalid", "090", ("V",)),
-        Column("flight_level_garbled", "090", ("G",)),
+        *_LEVEL_VALIDITY,
         Column("address", "220"),
         Column("track_number", "161", ("TRN",)),
         Column("height_3d", "110", ("3DH",)),
-        Column("ground_speed", "200", ("GSP",)),
-        Column("heading", "200", ("HDG",)),
+        *_VELOCITY,
     ),
     # CAT001 says PSR/SSR/combined in SSRPSR, which has the values of CAT048 TYP 0-3; its
     # TYP says plot or track (a radar's own track: ``track_report``); its I141 is the time
     # of day truncated to 512 s (``ingest.PlotClock`` unrolls it).
     1: (
-        Column("sac", "010", ("SAC",)),
-        Column("sic", "010", ("SIC",)),
+        *_SOURCE,
         Column("truncated_time", "141"),
         Column("typ", "020", ("SSRPSR",)),
         Column("track_report", "020", ("TYP",)),
-        Column("sim", "020", ("SIM",)),
-        Column("spi", "020", ("SPI",)),
-        Column("rab", "020", ("RAB",)),
-        Column("tst", "020", ("TST",)),
-        Column("rho", "040", ("RHO",)),
-        Column("theta", "040", ("THETA",)),
-        Column("mode3a", "070", ("MODE3A",)),
-        Column("mode3a_invalid", "070", ("V",)),
-        Column("mode3a_garbled", "070", ("G",)),
-        Column("mode3a_smoothed", "070", ("L",)),
+        *_FLAGS,
+        *_POSITION_AND_CODE,
         Column("flight_level", "090", ("HGT",)),
-        Column("flight_level_invalid", "090", ("V",)),
-        Column("flight_level_garbled", "090", ("G",)),
+        *_LEVEL_VALIDITY,
         Column("track_number", "161"),
-        Column("ground_speed", "200", ("GSP",)),
-        Column("heading", "200", ("HDG",)),
+        *_VELOCITY,
     ),
 }
 """The columns of each category's plots. Floats (NaN when absent) for quantities, integers
