@@ -527,6 +527,7 @@ SPEC_FILES: dict[int, tuple[str, str | None]] = {
     34: ("cat034_cat-1.29.ast", None),
     48: ("cat048_cat-1.32.ast", "cat048_ref-1.13.ast"),
     62: ("cat062_cat-1.21.ast", "cat062_ref-1.3.ast"),
+    63: ("cat063_cat-1.7.ast", None),
     65: ("cat065_cat-1.6.ast", None),
 }
 

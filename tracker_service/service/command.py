@@ -27,6 +27,7 @@ from asterix.containers import Datagram
 from tracker_service.bias import ObservedFrom
 from tracker_service.chain import BatchOutput
 from tracker_service.inputs.udp import InputCounters
+from tracker_service.outputs.asterix_udp import with_destinations
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.messages import StatusMessage
 from tracker_service.outputs.zenoh_out import ZenohPublisher
@@ -104,6 +105,18 @@ def _add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_asterix_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--asterix-udp",
+        action="append",
+        default=[],
+        metavar="HOST:PORT",
+        help="send CAT062 system tracks on update, CAT065 SDPS status and CAT063 sensor "
+        "status to this multicast group or unicast address (repeatable); added to "
+        "[[asterix_udp]]",
+    )
+
+
 def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "recording",
@@ -131,6 +144,7 @@ def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--mcap-dir", help="write the service's MCAP log into this directory")
     _add_zenoh_arguments(parser)
+    _add_asterix_arguments(parser)
 
 
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -141,6 +155,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
         "container's health check: `tracker-service health --file FILE`)",
     )
     _add_zenoh_arguments(parser)
+    _add_asterix_arguments(parser)
 
 
 def add_health_arguments(parser: argparse.ArgumentParser) -> None:
@@ -193,6 +208,10 @@ def _with_cli(config: ServiceConfig, args: argparse.Namespace) -> ServiceConfig:
         ) from None
     except ZenohConfigError as exc:
         raise ConfigError(f"zenoh: {exc}") from None
+    try:
+        config = with_destinations(config, getattr(args, "asterix_udp", []))
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     return config.model_copy(update={"zenoh": zenoh})
 
 

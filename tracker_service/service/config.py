@@ -3,8 +3,8 @@
 Sections: ``[[radars]]`` (sites, accuracy, UDP inputs), ``[[adsb]]`` (ADS-B feeds),
 ``[system]`` (the system plane and the tracker's own SAC/SIC), ``[tracker]`` (fields of
 ``tracking.TrackerConfig``), ``[fusion]``, ``[bias]`` and ``[time_sanity]`` (free tables),
-``[fixed_targets]`` (fields of ``fixed_targets.FixedTargetConfig``), ``[zenoh]`` and
-``[mcap]``. Units are in the names, as in the scenario files.
+``[fixed_targets]`` (fields of ``fixed_targets.FixedTargetConfig``), ``[zenoh]``,
+``[mcap]`` and ``[[asterix_udp]]``. Units are in the names, as in the scenario files.
 """
 
 from __future__ import annotations
@@ -221,6 +221,49 @@ class McapConfig(_Strict):
     plots, tracks as JSON) is about 0.5-1 MB/s, so 256 KiB is well under a second."""
 
 
+class AsterixUdpOutput(_Strict):
+    """One destination of ASTERIX over UDP (``[[asterix_udp]]``): CAT062 system tracks,
+    CAT065 SDPS status and batch markers, CAT063 sensor status, sent as the SDPS
+    ([system] sac, sic, service_id) to a multicast group or a unicast address."""
+
+    address: IPv4Address
+    port: Port
+    interface: IPv4Address | None = None
+    """Multicast only: the local address whose interface sends (the default route's when
+    unset)."""
+    ttl: Annotated[int, Field(ge=1, le=255)] = 1
+    """Multicast only: how many routers the datagrams may cross (1: this LAN only)."""
+    on_update: bool = True
+    """Each system track as it is updated (CAT062 at the track's own time)."""
+    period_s: Annotated[float, Field(gt=0.0, le=60.0)] | None = None
+    """Every this many seconds of data time, every live system track extrapolated to one
+    common time (a multiple of the period), followed by a CAT065 end of batch; none
+    when unset."""
+    status_period_s: Annotated[float, Field(gt=0.0, le=600.0)] | None = None
+    """CAT065 SDPS status and CAT063 sensor status (per radar: connection, biases as
+    estimated) at each status of the service (every 5 s) when unset, else at most this
+    often."""
+    service_id: Sac | None = None
+    """I015 of this destination's records; [system] service_id when unset."""
+    max_datagram_octets: Annotated[int, Field(ge=256, le=65_000)] = 1400
+    """Data blocks are packed into datagrams of at most this size (one Ethernet frame)."""
+
+    @model_validator(mode="after")
+    def _something(self) -> AsterixUdpOutput:
+        if not self.on_update and self.period_s is None:
+            raise ValueError(
+                "an asterix_udp output sends nothing with on_update = false and no "
+                "period_s: set either"
+            )
+        if self.address == ANY_ADDRESS:
+            raise ValueError("address 0.0.0.0 is no destination: give a group or a host")
+        return self
+
+    @property
+    def destination(self) -> str:
+        return f"{self.address}:{self.port}"
+
+
 class ServiceConfig(_Strict):
     radars: Annotated[list[Radar], Field(min_length=1)]
     adsb: list[AdsbFeed] = []
@@ -233,6 +276,8 @@ class ServiceConfig(_Strict):
     fixed_targets: dict[str, Any] = {}
     zenoh: ZenohConfig = ZenohConfig()
     mcap: McapConfig = McapConfig()
+    asterix_udp: list[AsterixUdpOutput] = []
+    """ASTERIX over UDP destinations (CAT062, CAT063, CAT065): outputs/asterix_udp.py."""
 
     @field_validator("tracker")
     @classmethod

@@ -44,6 +44,7 @@ from tracker_service.fixed_targets import FixedTransponder
 from tracker_service.fusion import FusionConfig
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
+from tracker_service.outputs.asterix_udp import asterix_udp_sinks
 from tracker_service.outputs.cat062 import encode_cat065, encode_system_tracks
 from tracker_service.outputs.mapping import MessageMapper
 from tracker_service.outputs.mcap_log import McapLog
@@ -336,6 +337,7 @@ class Outputs:
             adapters.append(ZenohSink(publisher))
         if log_file is not None:
             adapters.append(McapSink(log_file))
+        adapters.extend(asterix_udp_sinks(config, self.plane))
         self.sinks = [QueuedSink(IsolatedSink(sink, backoff)) for sink in adapters]
         self.timings = timings or ServiceTimings()
         self.counts = ServiceCounts()
