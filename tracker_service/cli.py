@@ -106,6 +106,16 @@ def build_parser() -> argparse.ArgumentParser:
         "tracks published over Zenoh and logged to MCAP. Ends cleanly on SIGTERM or Ctrl-C.",
     )
     add_run_arguments(run)
+    play = commands.add_parser(
+        "play",
+        help="send a capture's datagrams to the configured radar inputs, as the radars do",
+        description="Send each datagram of a capture (any format replay reads) to the UDP "
+        "input (multicast or unicast, every LAN) of the feed its I010 names, paced by its "
+        "reception times; --now re-bases the times, inside the datagrams too, on the present.",
+    )
+    from tracker_service.play import add_arguments as add_play_arguments
+
+    add_play_arguments(play)
     health = commands.add_parser(
         "health",
         help="exit 0 when a running daemon is healthy (for container health checks)",
@@ -185,6 +195,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tracker_service.subscribe import run as subscribe_run
 
         return subscribe_run(args)
+    if args.command == "play":
+        from tracker_service.play import run as play_run
+
+        return play_run(args)
     if args.command in ("replay", "run", "health"):
         from tracker_service.service import command
 
