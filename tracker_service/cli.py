@@ -4,14 +4,25 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import importlib.metadata
 import sys
 from collections.abc import Sequence
+
+from tracker_service.log_level import LOG_LEVELS, configure
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="tracker-service",
         description="ASTERIX-fed multiradar tracker service.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument(
+        "--log-level",
+        type=str.upper,
+        choices=LOG_LEVELS,
+        default=None,
+        help="what the log shows: debug, info (the daemon's default), warning, error",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     decode = commands.add_parser(
@@ -116,6 +127,15 @@ def build_parser() -> argparse.ArgumentParser:
     from tracker_service.play import add_arguments as add_play_arguments
 
     add_play_arguments(play)
+    init = commands.add_parser(
+        "init",
+        help="write the example configuration, the scenarios and the Zenoh examples into DIR",
+        description="Copy the example configuration (as tracker.toml), the simulator's "
+        "scenarios and the Zenoh TLS examples into DIR, to start from.",
+    )
+    from tracker_service.init import add_arguments as add_init_arguments
+
+    add_init_arguments(init)
     health = commands.add_parser(
         "health",
         help="exit 0 when a running daemon is healthy (for container health checks)",
@@ -124,6 +144,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_health_arguments(health)
     return parser
+
+
+def _version() -> str:
+    try:
+        return importlib.metadata.version("tracker-service")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def _start_time(text: str) -> datetime.datetime:
@@ -172,6 +199,8 @@ def _simulate(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.log_level is not None:
+        configure(args.log_level)
     if args.command == "decode":
         from tracker_service.decode import main as decode_main
 
@@ -195,6 +224,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tracker_service.subscribe import run as subscribe_run
 
         return subscribe_run(args)
+    if args.command == "init":
+        from tracker_service.init import run as init_run
+
+        return init_run(args)
     if args.command == "play":
         from tracker_service.play import run as play_run
 

@@ -27,6 +27,7 @@ from asterix.containers import Datagram
 from tracker_service.bias import ObservedFrom
 from tracker_service.chain import BatchOutput
 from tracker_service.inputs.udp import InputCounters
+from tracker_service.log_level import configure
 from tracker_service.outputs.asterix_udp import with_destinations
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.messages import StatusMessage
@@ -41,6 +42,11 @@ from tracker_service.outputs.zenoh_session import (
 from tracker_service.ratelimit import RateLimitedLog
 from tracker_service.service.config import ConfigError, ServiceConfig, load_service_config
 from tracker_service.service.core import CoreState, Outputs, TrackerService
+from tracker_service.service.health import (
+    DEFAULT_BEHIND_S,
+    DEFAULT_SILENT_FOR_S,
+    unhealthy_reasons,
+)
 from tracker_service.service.replay import (
     CONFIG_METADATA,
     Progress,
@@ -67,7 +73,6 @@ log = logging.getLogger(__name__)
 
 PIPE_BYTES = 1024 * 1024
 """Room in the pipe to the output process (Linux caps it at /proc/sys/fs/pipe-max-size)."""
-LOG_FORMAT = "%(asctime)s %(levelname)s %(processName)s %(message)s"
 
 
 def _add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -171,6 +176,29 @@ def add_health_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="only whether the daemon runs (a fresh status), whatever its health: for a "
         "liveness probe that restarts the container, which a silent radar must not do",
+    )
+    parser.add_argument(
+        "--container",
+        action="store_true",
+        help="a container's health check (exit 0 healthy, 1 unhealthy, never 2): unhealthy "
+        "when the status is stale, every radar silent for --silent-for seconds or the chain "
+        "--behind seconds behind; a degraded status is printed but healthy",
+    )
+    parser.add_argument(
+        "--silent-for",
+        type=float,
+        default=DEFAULT_SILENT_FOR_S,
+        metavar="S",
+        help=f"with --container: every radar silent this long is unhealthy (default "
+        f"{DEFAULT_SILENT_FOR_S:g})",
+    )
+    parser.add_argument(
+        "--behind",
+        type=float,
+        default=DEFAULT_BEHIND_S,
+        metavar="S",
+        help=f"with --container: the chain this far behind the wall clock is unhealthy "
+        f"(default {DEFAULT_BEHIND_S:g})",
     )
 
 
@@ -464,7 +492,7 @@ def _serve_outputs(
 ) -> None:
     """The output process: ``Outputs`` making the calls that arrive, until told to stop
     or until its parent is gone."""
-    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
+    configure()
     # A signal to the process group is the parent's to handle: this process ends the
     # tracks when the parent says so, after the calls queued before.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -589,12 +617,28 @@ def health(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"unhealthy: {path} holds no status ({exc.__class__.__name__})", file=sys.stderr)
         return HEALTH_STALE
+    if getattr(args, "container", False):
+        return _container_health(status, age, args.silent_for, args.behind)
     if status.health != "ok" and not args.live:
         print(f"degraded: status of {age:.1f} s ago says:", file=sys.stderr)
         for reason in status.reasons:
             print(f"  {reason}", file=sys.stderr)
         return HEALTH_DEGRADED
     print(f"{'running' if args.live else 'healthy'}: last status {age:.1f} s ago")
+    return 0
+
+
+def _container_health(status: StatusMessage, age: float, silent_for: float, behind: float) -> int:
+    """0 or 1, as a container engine reads a health check (2 is reserved there)."""
+    reasons = unhealthy_reasons(status, silent_for, behind)
+    for reason in reasons:
+        print(f"unhealthy: {reason}", file=sys.stderr)
+    if reasons:
+        return HEALTH_STALE
+    state = "healthy" if status.health == "ok" else "healthy but degraded"
+    print(f"{state}: last status {age:.1f} s ago")
+    for reason in status.reasons:
+        print(f"  {reason}")
     return 0
 
 
@@ -606,7 +650,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"tracker-service run: {exc}", file=sys.stderr)
         return 2
-    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
+    configure()
     health_file = None if args.health_file is None else Path(args.health_file)
     with stop_on_signals() as stop:
         try:
