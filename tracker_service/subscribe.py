@@ -98,6 +98,13 @@ def _cell(column: str, value: Any, now: float) -> str:
     return str(value)
 
 
+def _connected(session: zenoh.Session) -> bool:
+    """Whether the session has a link to a peer or a router (the service, or a router
+    on its way)."""
+    info = session.info
+    return any(True for _ in info.peers_zid()) or any(True for _ in info.routers_zid())
+
+
 def _table(tracks: dict[str, dict[str, Any]], now: float) -> str:
     header = " ".join(f"{name:>{width}}" for name, width, _ in _COLUMNS)
     rows = [
@@ -115,7 +122,13 @@ def _sort_key(key: str) -> tuple[int, int, str]:
     return (0, int(last), key) if last.isdigit() else (1, 0, key)
 
 
-def subscribe(config: zenoh.Config, key: str, as_json: bool, out: TextIO = sys.stdout) -> int:
+def subscribe(
+    config: zenoh.Config,
+    key: str,
+    as_json: bool,
+    out: TextIO = sys.stdout,
+    where: str = "the service",
+) -> int:
     """Follows ``key`` on a session of ``config`` until SIGINT or SIGTERM; returns the
     exit status."""
     stop = threading.Event()
@@ -140,7 +153,20 @@ def subscribe(config: zenoh.Config, key: str, as_json: bool, out: TextIO = sys.s
                 on_sample(reply.ok)
         tracks: dict[str, dict[str, Any]] = {}
         next_draw = 0.0
+        connected: bool | None = None
+        not_connected = f"not connected to {where}: retrying (is the service running?)"
         while not stop.is_set():
+            if as_json and time.monotonic() >= next_draw:
+                # JSON lines stay JSON: the link's state goes to stderr when it changes.
+                now_connected = _connected(session)
+                if now_connected != connected:
+                    print(
+                        f"connected to {where}" if now_connected else not_connected,
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                    connected = now_connected
+                next_draw = time.monotonic() + _REFRESH_S
             try:
                 sample_key, payload = samples.get(timeout=0.1)
             except queue.Empty:
@@ -161,7 +187,10 @@ def subscribe(config: zenoh.Config, key: str, as_json: bool, out: TextIO = sys.s
                 # is not months old.
                 now = max((float(doc.get("time", 0.0)) for doc in tracks.values()), default=0.0)
                 # Clear the screen and home the cursor, then draw.
-                out.write("\x1b[2J\x1b[H" + _table(tracks, now) + "\n")
+                table = _table(tracks, now)
+                if not _connected(session):
+                    table += f"\n{not_connected}"
+                out.write("\x1b[2J\x1b[H" + table + "\n")
                 out.flush()
                 next_draw = time.monotonic() + _REFRESH_S
         subscriber.undeclare()  # type: ignore[no-untyped-call]
@@ -196,7 +225,8 @@ def run(args: argparse.Namespace) -> int:
         )
         return 2
     try:
-        return subscribe(config, key, args.json)
+        where = ", ".join(args.connect) or "the service"
+        return subscribe(config, key, args.json, where=where)
     except zenoh.ZError as exc:
         # Typically no link: the service is down, or refused this subscriber's TLS.
         print(f"tracker-service subscribe: {zenoh_error(exc)}", file=sys.stderr)

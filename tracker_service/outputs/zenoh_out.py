@@ -21,7 +21,7 @@ import zenoh
 from pydantic import BaseModel
 
 from tracker_service.closing import Closing
-from tracker_service.outputs.zenoh_session import Mode, zenoh_config
+from tracker_service.outputs.zenoh_session import Mode, open_session, zenoh_config
 
 __all__ = ["ZenohPublisher", "zenoh_config"]
 
@@ -60,7 +60,7 @@ class ZenohPublisher(Closing):
         if not prefix or prefix.startswith("/") or prefix.endswith("/") or "*" in prefix:
             raise ValueError(f"prefix {prefix!r} must be a key expression without wildcards")
         self.prefix = prefix
-        self._session = zenoh.open(
+        self._session = open_session(
             zenoh_config(
                 mode,
                 listen,

@@ -31,7 +31,9 @@ __all__ = [
     "Mode",
     "PlaintextEndpointError",
     "ZenohConfigError",
+    "ZenohEndpointError",
     "endpoint_protocol",
+    "open_session",
     "zenoh_config",
     "zenoh_error",
 ]
@@ -68,6 +70,39 @@ _JSON5_MESSAGE = re.compile(r'msg: "(.*?)", location')
 
 class ZenohConfigError(ValueError):
     """A Zenoh configuration that cannot be used; the message says why and the fix."""
+
+
+class ZenohEndpointError(ZenohConfigError):
+    """A session that cannot open an endpoint it was told to listen on (the port in use,
+    an address not of this host): the message names the endpoint and the fix."""
+
+
+_LISTENER = re.compile(r"bound to (\S+?): \[")
+
+
+def open_session(config: zenoh.Config) -> zenoh.Session:
+    """``zenoh.open(config)``; an endpoint it cannot listen on is a ``ZenohEndpointError``
+    of one line, naming it."""
+    try:
+        return zenoh.open(config)
+    except zenoh.ZError as exc:
+        text = str(exc)
+        found = _LISTENER.search(text)
+        listen = json.loads(config.get_json("listen/endpoints"))
+        endpoint = found.group(1) if found else ", ".join(map(str, listen)) or "?"
+        port = endpoint.rpartition(":")[2]
+        if "Address already in use" in text:
+            raise ZenohEndpointError(
+                f"zenoh listen endpoint {endpoint}: the port is already in use (a second "
+                f"tracker-service?): stop it (`ss -tlpn 'sport = :{port}'` names it) or "
+                "listen on another port (--zenoh-listen, [zenoh] listen)"
+            ) from None
+        if "Cannot assign requested address" in text:
+            raise ZenohEndpointError(
+                f"zenoh listen endpoint {endpoint}: the address is not one of this host's: "
+                "give one of its addresses, or 0.0.0.0 for all"
+            ) from None
+        raise
 
 
 class PlaintextEndpointError(ZenohConfigError):

@@ -50,6 +50,7 @@ from tracker_service.service.health import (
 from tracker_service.service.replay import (
     CONFIG_METADATA,
     Progress,
+    Replay,
     open_replay,
     parse_date,
     parse_speed,
@@ -308,6 +309,11 @@ def open_service(
             service.close()
 
 
+class OutputStartFailed(RuntimeError):
+    """The output process could not open its session or its log (a Zenoh port in use, a
+    log directory not writable); the message says which, in one line."""
+
+
 class OutputProcessFailed(RuntimeError):
     """The output process died more often than ``[system] max_output_restarts`` within
     ``RESTART_WINDOW_S``: the daemon gives up, with a non-zero exit status."""
@@ -382,7 +388,7 @@ class OutputProcess:
                     break
         if failure is not None:
             self._process.join()
-            raise RuntimeError(f"the output process did not start: {failure}")
+            raise OutputStartFailed(f"the output process did not start: {failure}")
 
     def _restart(self) -> None:
         self._process.join(timeout=5.0)
@@ -508,6 +514,9 @@ def _serve_outputs(
             finally:
                 # The outputs' threads finish before the session and the log close.
                 outputs.stop()
+    except ZenohConfigError as exc:
+        # Said by the parent, in one line (the endpoint and the fix).
+        replies.put(str(exc))
     except Exception as exc:
         replies.put(f"{type(exc).__name__}: {exc}")
         raise
@@ -560,6 +569,21 @@ def replay(args: argparse.Namespace) -> int:
     speed: float = args.speed
     print(f"{args.recording}: {source.kind}; watch with: {_watch_hint(config)}", file=sys.stderr)
     progress = Progress(source.span)
+    try:
+        return _replay(args, source, config, mcap_dir, speed, progress)
+    except (ZenohConfigError, OSError) as exc:
+        print(f"tracker-service replay: {exc}", file=sys.stderr)
+        return 2
+
+
+def _replay(
+    args: argparse.Namespace,
+    source: Replay,
+    config: ServiceConfig,
+    mcap_dir: Path | None,
+    speed: float,
+    progress: Progress,
+) -> int:
     with stop_on_signals() as stop, open_service(config, mcap_dir) as service:
         service.set_input_counters(source.counters)
         first: float | None = None
@@ -661,3 +685,6 @@ def run(args: argparse.Namespace) -> int:
         except OutputProcessFailed as exc:
             print(f"tracker-service run: {exc}", file=sys.stderr)
             return 1
+        except OutputStartFailed as exc:
+            print(f"tracker-service run: {exc}", file=sys.stderr)
+            return 2

@@ -1,0 +1,180 @@
+"""What an operator meets first: a port in use (a radar's UDP input, the Zenoh endpoint)
+as one line naming it, with real occupied ports on 127.0.0.1; Zenoh listening only where
+told; ``subscribe`` saying when it is not connected; ``--version``, ``--log-level``;
+``init`` writing the example configuration and scenarios."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.test_service_replay import free_port, simulate
+from tracker_service.cli import main
+from tracker_service.outputs.zenoh_out import ZenohPublisher
+from tracker_service.outputs.zenoh_session import zenoh_config
+from tracker_service.service.config import load_service_config
+from tracker_service.simulator.scenario import load_scenario
+
+REPO = Path(__file__).resolve().parents[1]
+CLI = [sys.executable, "-m", "tracker_service.cli"]
+
+
+@pytest.fixture
+def occupied_tcp() -> Iterator[int]:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.listen()
+        yield sock.getsockname()[1]
+
+
+def _config(tmp_path: Path, radar_port: int) -> Path:
+    text = (REPO / "config" / "example.toml").read_text(encoding="utf-8")
+    # The first radar's input on the given port; the other feeds' on free ones.
+    ports = iter([radar_port, *(free_port(socket.SOCK_DGRAM) for _ in range(3))])
+    text = re.sub(
+        r"(?m)^input = .*$",
+        lambda _: f'input = {{ address = "127.0.0.1", port = {next(ports)} }}',
+        text,
+    )
+    text = re.sub(r"(?m)^directory = .*$", "", text)
+    path = tmp_path / "tracker.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def _listening_sockets() -> list[str]:
+    """This process's listening TCP and bound UDP sockets, from /proc."""
+    inodes = set()
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            link = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if link.startswith("socket:["):
+            inodes.add(link[8:-1])
+    found = []
+    for table in ("tcp", "tcp6", "udp", "udp6"):
+        path = Path("/proc/net") / table
+        if not path.exists():
+            continue
+        for line in path.read_text().splitlines()[1:]:
+            fields = line.split()
+            if fields[9] in inodes and (fields[3] == "0A" or table.startswith("udp")):
+                found.append(f"{table} {fields[1]}")
+    return found
+
+
+def test_a_radar_port_in_use_is_one_line(tmp_path: Path) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as taken:
+        taken.bind(("127.0.0.1", 0))
+        port = taken.getsockname()[1]
+        config = _config(tmp_path, port)
+        done = subprocess.run(
+            [*CLI, "run", "--config", str(config)], capture_output=True, text=True, timeout=60
+        )
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr
+    assert "radars[0].input.port (25/11" in lines[0] and f"127.0.0.1:{port}" in lines[0]
+    assert "already bound" in lines[0]
+
+
+def test_a_zenoh_port_in_use_is_one_line_for_run(tmp_path: Path, occupied_tcp: int) -> None:
+    config = _config(tmp_path, free_port(socket.SOCK_DGRAM))
+    endpoint = f"tcp/127.0.0.1:{occupied_tcp}"
+    done = subprocess.run(
+        [*CLI, "run", "--config", str(config), "--zenoh-listen", endpoint],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2, done.stderr
+    errors = [line for line in done.stderr.splitlines() if "tracker-service run" in line]
+    assert len(errors) == 1 and "Traceback" not in done.stderr, done.stderr
+    assert f"zenoh listen endpoint {endpoint}: the port is already in use" in errors[0]
+
+
+def test_a_zenoh_port_in_use_is_one_line_for_replay(
+    tmp_path: Path, occupied_tcp: int, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recording = simulate(tmp_path / "short.mcap", 5.0)
+    endpoint = f"tcp/127.0.0.1:{occupied_tcp}"
+    code = main(["replay", str(recording), "--speed", "max", "--zenoh-listen", endpoint])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert f"tracker-service replay: zenoh listen endpoint {endpoint}: the port" in err
+
+
+def test_zenoh_listens_only_where_told() -> None:
+    before = set(_listening_sockets())
+    # --connect only: a peer that listens nowhere (Zenoh's own default is every
+    # interface on a random port).
+    with ZenohPublisher(connect=[f"tcp/127.0.0.1:{free_port()}"]):
+        time.sleep(0.3)
+        assert set(_listening_sockets()) - before == set()
+    port = free_port()
+    with ZenohPublisher(listen=[f"tcp/127.0.0.1:{port}"]):
+        time.sleep(0.3)
+        added = set(_listening_sockets()) - before
+        assert added == {f"tcp 0100007F:{port:04X}"}
+    # subscribe's session: the same rules.
+    assert zenoh_config(connect=["tcp/127.0.0.1:7447"]).get_json("listen/endpoints") == "[]"
+
+
+def test_subscribe_says_when_it_is_not_connected() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen(
+        [*CLI, "subscribe", "--json", "--connect", endpoint],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
+    assert proc.stderr is not None
+    try:
+        line = proc.stderr.readline()
+        assert f"not connected to {endpoint}" in line
+        # The service comes: it says so.
+        with ZenohPublisher(listen=[endpoint]):
+            line = proc.stderr.readline()
+            assert line.strip() == f"connected to {endpoint}"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=30)
+
+
+def test_version_and_log_level(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0
+    assert re.fullmatch(r"tracker-service \d+\.\d+\.\d+\S*\n", capsys.readouterr().out)
+    with pytest.raises(SystemExit):
+        main(["--log-level", "chatty", "health", "--file", "x"])
+    assert "invalid choice: 'CHATTY'" in capsys.readouterr().err
+    assert main(["--log-level", "warning", "health", "--file", "/nonexistent"]) == 1
+
+
+def test_init_writes_the_example_configuration_and_scenarios(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    target = tmp_path / "site"
+    assert main(["init", str(target)]) == 0
+    config = load_service_config(target / "tracker.toml")
+    assert [r.key for r in config.radars] == ["25/11", "25/12", "25/13"]
+    scenarios = sorted(p.name for p in (target / "scenarios").glob("*.toml"))
+    assert "three_sites.toml" in scenarios and len(scenarios) >= 5
+    assert load_scenario(target / "scenarios" / "three_sites.toml").name
+    assert os.access(target / "zenoh" / "make-certs.sh", os.X_OK)
+    assert (target / "zenoh" / "service.json5").is_file()
+    (target / "tracker.toml").write_text("# mine\n", encoding="utf-8")
+    assert main(["init", str(target)]) == 0
+    assert "kept" in capsys.readouterr().out
+    assert (target / "tracker.toml").read_text(encoding="utf-8") == "# mine\n"
