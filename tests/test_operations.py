@@ -5,6 +5,7 @@ told; ``subscribe`` saying when it is not connected; ``--version``, ``--log-leve
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -22,6 +23,8 @@ from tracker_service.cli import main
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_session import zenoh_config
 from tracker_service.service.config import load_service_config
+from tracker_service.service.core import TrackerService
+from tracker_service.service.replay import open_replay
 from tracker_service.simulator.scenario import load_scenario
 
 REPO = Path(__file__).resolve().parents[1]
@@ -178,3 +181,35 @@ def test_init_writes_the_example_configuration_and_scenarios(
     assert main(["init", str(target)]) == 0
     assert "kept" in capsys.readouterr().out
     assert (target / "tracker.toml").read_text(encoding="utf-8") == "# mine\n"
+
+
+def test_the_adsb_feed_is_counted_in_status(tmp_path: Path) -> None:
+    recording = simulate(tmp_path / "adsb.mcap", 12.0)
+    source = open_replay(str(recording), None, None)
+    service = TrackerService(source.config)
+    for name, datagram in source.datagrams:
+        service.process(name, datagram)
+    status = {r.radar: r for r in service.status().radars}
+    adsb = status["25/50"]
+    assert adsb.receiving and adsb.plots_per_second > 1.0, adsb
+    assert adsb.last_plot_time is not None and adsb.plot_delay_s is not None
+    assert 0.0 <= adsb.plot_delay_s < 5.0
+    service.close()
+
+
+def test_decode_and_replay_read_the_service_log(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recording = simulate(tmp_path / "short.mcap", 8.0)
+    logs = tmp_path / "logs"
+    assert main(["replay", str(recording), "--speed", "max", "--mcap-dir", str(logs)]) == 0
+    replayed = re.search(r"replayed (\d+) datagrams", capsys.readouterr().err)
+    assert replayed
+    (log_file,) = logs.glob("*.mcap")
+    for path in (log_file, logs):  # a log file, and the directory the service rotates in
+        assert main(["decode", str(path), "--summary"]) == 0
+        summary = json.loads(capsys.readouterr().out)
+        assert summary["datagrams"] == int(replayed.group(1))
+        assert summary["errors"] == 0 and summary["records"]["048"] > 50
+    assert main(["replay", str(logs), "--speed", "max"]) == 0
+    assert "service log" in capsys.readouterr().err

@@ -98,7 +98,12 @@ def _error_json(event: DecodeError | ContainerError) -> str:
 
 def read_datagrams(path: Path) -> Iterator[Datagram | ContainerError]:
     """Datagrams of a capture, or of an MCAP recording or service log (where offsets count
-    datagrams; one cut short gives what it holds, then an error)."""
+    datagrams; one cut short gives what it holds, then an error); a directory of the
+    service's log files (as it rotates them) file after file, in name (time) order."""
+    if path.is_dir():
+        for file in sorted(path.glob("*.mcap")):
+            yield from stream_datagrams(file)
+        return
     if is_mcap(path):
         yield from stream_datagrams(path)
     else:
@@ -155,7 +160,10 @@ def run_decode(path: Path, summary_only: bool, out: TextIO, err: TextIO, bds: bo
 
 def main(path: str, summary_only: bool, bds: bool = False) -> int:
     file = Path(path)
-    if not file.is_file():
+    if file.is_dir() and not any(file.glob("*.mcap")):
+        print(f"tracker-service decode: {path}: a directory without .mcap logs", file=sys.stderr)
+        return 2
+    if not file.is_file() and not file.is_dir():
         print(f"tracker-service decode: {path}: no such file", file=sys.stderr)
         return 2
     return run_decode(file, summary_only, sys.stdout, sys.stderr, bds)

@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from asterix.containers import Datagram
+from tracker_service.adsb_status import adsb_reports
 from tracker_service.bias import BiasConfig, ObservedFrom
 from tracker_service.chain import (
     CAT021,
@@ -346,6 +347,7 @@ class Outputs:
         the daemon and the replay keep it current."""
         self._periods = {radar.key: radar.antenna_period_s for radar in config.radars}
         self._feeds = [r.key for r in config.radars] + [a.key for a in config.adsb]
+        self._adsb_feeds = frozenset(a.key for a in config.adsb)
         self._radars: dict[str, _RadarCounters] = defaultdict(_RadarCounters)
         self._pending_cat062: dict[int, SystemTrackMessage] = {}
         self._cat062_batches = 0
@@ -411,8 +413,18 @@ class Outputs:
         entry = self._entry(key)
         if entry is not None:
             entry.last_reception = datagram.time
+            if key in self._adsb_feeds:
+                self._count_adsb(entry, datagram.payload, datagram.time)
         for sink in self.sinks:
             sink.datagram(name, datagram)
+
+    def _count_adsb(self, entry: _RadarCounters, payload: bytes, received: float) -> None:
+        """An ADS-B feed's reports, which the chain makes no plots of (``adsb_status``)."""
+        reports, latest = adsb_reports(payload, received)
+        entry.plots += reports
+        if latest is not None:
+            entry.last_plot_time = max(entry.last_plot_time or latest, latest)
+            entry.plot_delay = received - entry.last_plot_time
 
     def error(self, name: str, kind: str, detail: str = "") -> None:
         """One datagram (or part) of input ``name`` dropped; ``kind``: one of
