@@ -113,3 +113,19 @@ def test_invalid_values_are_refused(field: str, value: object) -> None:
 
 def test_iso_time_is_utc() -> None:
     assert iso_time(0.0) == "1970-01-01T00:00:00.000000Z"
+
+
+def test_every_schema_field_says_what_it_is() -> None:
+    """Each published field has a description; the plane's coordinates say their frame."""
+    import json
+
+    for name, text in schemas().items():
+        schema = json.loads(text)
+        models = {schema["title"]: schema, **schema.get("$defs", {})}
+        for model, definition in models.items():
+            for field, spec in definition.get("properties", {}).items():
+                assert spec.get("description"), f"{name}: {model}.{field} has no description"
+    track = json.loads(schemas()["SystemTrackMessage.schema.json"])["properties"]
+    for field in ("x_m", "vx_mps", "vy_mps"):
+        assert "system plane" in track[field]["description"], field
+    assert "not true" in track["vx_mps"]["description"]

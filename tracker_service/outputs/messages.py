@@ -1,7 +1,10 @@
 """What the service publishes, as pydantic models: JSON over Zenoh and MCAP channels.
 
 Times are POSIX seconds (UTC); positions are WGS84 degrees and metres in the system
-plane (x east, y north at the plane's centre); velocities are m/s in the same plane.
+plane (x east, y north at the plane's centre only: away from it the plane's axes turn
+from true north by the meridian convergence, so x_m/y_m/vx_mps/vy_mps are not east/north
+components there, while CAT062 I185 is true north at the target); velocities are m/s in
+the same plane. Each field's schema description gives its unit and frame.
 ``python -m tracker_service.outputs.messages DIR`` writes one JSON schema per model into
 DIR (the repository keeps them in ``docs/schemas``).
 """
@@ -38,7 +41,9 @@ class TrackSource(_Message):
     """A local track that contributes to a system track."""
 
     radar: RadarKey
+    """The radar of the local track."""
     local_track: int
+    """The local track's number in that radar's tracker."""
     age_s: Seconds
     """Time of the system track minus the time of this local track's last update."""
     plot_id: int | None = None
@@ -49,21 +54,30 @@ class LastPlot(_Message):
     """The last measured plot used to update the track."""
 
     radar: RadarKey
+    """The radar that measured it."""
     time: float
+    """Its time of measurement, POSIX s (UTC)."""
     lat: Latitude
+    """Its position, bias-corrected, WGS84 latitude in degrees."""
     lon: Longitude
+    """WGS84 longitude in degrees, east positive."""
     range_m: Annotated[float, Field(ge=0.0)] | None = None
     """Measured (bias-corrected) slant range and azimuth, when the plot was polar."""
     azimuth_deg: Annotated[float, Field(ge=0.0, lt=360.0)] | None = None
+    """Degrees clockwise from the radar's north (true north at the radar)."""
 
 
 class SensorAges(_Message):
     """Seconds since the last detection of each sensor type used; None: never used."""
 
     psr: Seconds | None = None
+    """Primary radar."""
     ssr: Seconds | None = None
+    """Secondary radar, Mode A/C."""
     mode_s: Seconds | None = None
+    """Mode S."""
     adsb: Seconds | None = None
+    """ADS-B."""
 
 
 Covariance = Annotated[
@@ -80,36 +94,59 @@ class SystemTrackMessage(_Message):
     """One update of a fused (system) track; the last one of a track has status "ended"."""
 
     number: Annotated[int, Field(ge=0, le=65535)]
+    """System track number (CAT062 I040), stable over the track's life."""
     time: float
     """Time of the track state (POSIX s)."""
     time_iso: str
+    """``time`` as ISO 8601 UTC."""
     lat: Latitude
+    """WGS84 latitude of the track position, degrees."""
     lon: Longitude
+    """WGS84 longitude, degrees east."""
     altitude_m: float | None = None
     """Barometric altitude above mean sea level (the flight level corrected with QNH)."""
     flight_level: float | None = None
     """Last measured flight level (Mode C, Mode S or ADS-B barometric), in FL (100 ft)."""
     x_m: float
+    """Position, m, in the system plane ([system] centre_lat/centre_lon, stereographic or tangent):
+    x east and y north at the plane's centre only, turned from true north elsewhere by the
+    meridian convergence (up to a few degrees; CAT062 I185 is true north at the target)."""
     y_m: float
+    """Position, m, in the system plane (see x_m)."""
     vx_mps: float
+    """Velocity, m/s, along the system plane's x axis: not true east away from the plane's centre
+    (see x_m)."""
     vy_mps: float
+    """Velocity, m/s, along the system plane's y axis: not true north away from the plane's centre
+    (see x_m)."""
     ground_speed_mps: Annotated[float, Field(ge=0.0)]
+    """Horizontal speed, m/s (the same in any frame)."""
     track_angle_deg: Annotated[float, Field(ge=0.0, lt=360.0)]
     """Clockwise from the system plane's north."""
     climb_rate_fpm: float | None = None
+    """Rate of climb (positive) or descent, ft/min."""
     covariance: Covariance
+    """4x4 covariance of [x_m, y_m, vx_mps, vy_mps] in the system plane (m², m²/s, m²/s²)."""
     position_sigma_m: Annotated[float, Field(ge=0.0)]
     """Major semi-axis of the 1-sigma position error ellipse."""
     address: Address | None = None
+    """Mode S (ICAO 24-bit) aircraft address, 6 hex digits."""
     callsign: Callsign | None = None
+    """Aircraft identification the aircraft downlinked (Mode S BDS 2,0 / I048/240)."""
     mode3a: Mode3A | None = None
+    """Mode 3/A code, 4 octal digits."""
     mode3a_changed: bool = False
+    """The Mode 3/A code differs from the track's previous message."""
     first: bool = False
     """The first message of this track number (CAT062 TSB)."""
     sources: list[TrackSource]
+    """The local tracks fused into it."""
     status: Literal["confirmed", "coasting", "ended"]
+    """coasting: no radar updated it at its last scan; ended: the track's last message."""
     last_plot: LastPlot | None = None
+    """The plot that last updated it."""
     ages: SensorAges = SensorAges()
+    """Seconds since each sensor type last updated it."""
     duplicate_address: bool = False
     """Another live system track carries the same Mode S address."""
 
@@ -164,19 +201,34 @@ class LocalTrackMessage(_Message):
     """One update of a radar's local track (before fusion)."""
 
     radar: RadarKey
+    """The radar whose tracker holds it."""
     number: int
+    """Track number in that radar's tracker."""
     time: float
+    """Time of the track state, POSIX s (UTC)."""
     x_m: float
+    """Position, m, in the system plane (x east and y north at its centre only: see
+    SystemTrackMessage.x_m)."""
     y_m: float
+    """Position, m, in the system plane."""
     vx_mps: float
+    """Velocity, m/s, along the system plane's x axis."""
     vy_mps: float
+    """Velocity, m/s, along the system plane's y axis."""
     covariance: Covariance
+    """4x4 covariance of [x_m, y_m, vx_mps, vy_mps] in the system plane (m², m²/s, m²/s²)."""
     flight_level: float | None = None
+    """Flight level (100 ft, pressure altitude) from Mode C or Mode S."""
     climb_rate_fpm: float | None = None
+    """Rate of climb (positive) or descent, ft/min."""
     status: Literal["tentative", "confirmed", "coasting", "deleted"]
+    """tentative until M of N plots confirm it; deleted: its last message."""
     plot_id: int | None = None
+    """The plot that updated it (None when coasting)."""
     mode3a: Mode3A | None = None
+    """Mode 3/A code, 4 octal digits."""
     address: Address | None = None
+    """Mode S aircraft address, 6 hex digits."""
     model_probabilities: list[float]
     """IMM model probabilities, in the order of the tracker's model set."""
 
@@ -189,7 +241,9 @@ or the configuration (a reference radar's bias is given)."""
 
 class Estimate(_Message):
     estimate: float
+    """The estimate, in the unit its field's name gives (m, dimensionless, deg, s)."""
     sigma: Annotated[float, Field(ge=0.0)]
+    """Its standard deviation, same unit."""
     observable: bool
     """False while no source separates this error from the others: the estimate is then
     the prior's mean, and its sigma the prior's (a radar alone, without ADS-B or a field
@@ -202,12 +256,17 @@ class BiasMessage(_Message):
     """A radar's systematic-error estimate (measured minus true)."""
 
     radar: RadarKey
+    """The radar whose systematic errors these are."""
     time: float
+    """Data time of the estimate, POSIX s (UTC)."""
     range_offset_m: Estimate
+    """Range offset, m: rho_measured = (1 + gain) rho + offset."""
     range_gain: Estimate
     """Dimensionless: rho_measured = (1 + gain) rho + offset."""
     azimuth_deg: Estimate
+    """Azimuth offset, degrees: theta_measured = theta + offset."""
     time_s: Estimate
+    """Time-stamping offset, s: the radar's time of measurement minus the true time."""
 
 
 class RadarTestTarget(_Message):
@@ -217,6 +276,7 @@ class RadarTestTarget(_Message):
     kind: Literal["primary", "secondary"]
     """primary: a PSR-only test target; secondary: an SSR or Mode S test transponder."""
     mode3a: Mode3A | None = None
+    """Its Mode 3/A code (a secondary one)."""
     seen: Annotated[int, Field(ge=1)]
     """Its plots since start."""
     last_time: float
@@ -224,15 +284,23 @@ class RadarTestTarget(_Message):
     range_nm: Annotated[float, Field(ge=0.0)]
     """Its latest plot's slant range (I040 RHO) and azimuth (THETA), as sent."""
     azimuth_deg: Annotated[float, Field(ge=0.0, lt=360.0)]
+    """Degrees clockwise from the radar's north."""
     flight_level: float | None = None
+    """Its Mode C, FL (100 ft)."""
 
 
 class RadarStatus(_Message):
     radar: RadarKey
+    """The feed (radar or ADS-B station)."""
     last_plot_time: float | None = None
+    """Time of measurement of its latest plot (an ADS-B feed: its latest report's time of
+    applicability), POSIX s."""
     plots_per_second: Annotated[float, Field(ge=0.0)]
+    """Plots (an ADS-B feed: reports) per second since the last status."""
     decode_errors: Annotated[int, Field(ge=0)]
+    """Datagrams or records dropped since start as malformed or unusable (by kind: ``errors``)."""
     duplicates: Annotated[int, Field(ge=0)]
+    """Datagrams since start dropped as the second LAN's copies."""
     drops: Annotated[int, Field(ge=0)]
     """Plots or datagrams dropped under overload (counted, also in the MCAP log)."""
     rejected: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
@@ -269,22 +337,30 @@ class OutputStatus(_Message):
     """One output of the service (Zenoh publishing, MCAP logging, the output process)."""
 
     name: str
+    """zenoh, mcap, asterix_udp HOST:PORT, output_process, ..."""
     ok: bool
+    """Working (not failing, its queue not full)."""
     failures: Annotated[int, Field(ge=0)] = 0
     """Failed calls since start."""
     last_error: str | None = None
+    """Why it last failed, in one line."""
     restarts: Annotated[int, Field(ge=0)] = 0
     """For the output process: times it was restarted after it died."""
 
 
 class StatusMessage(_Message):
     time: float
+    """Data time of the status, POSIX s (UTC)."""
     uptime_s: Seconds
+    """Data time since the service's first datagram (or start), s."""
     health: Literal["ok", "degraded"]
+    """degraded while any reason below holds."""
     reasons: list[str] = Field(default_factory=list)
     """Why health is not "ok", one line each, naming the radar or output concerned."""
     radars: list[RadarStatus]
+    """Every configured feed, and the unknown sources tracked."""
     outputs: list[OutputStatus] = Field(default_factory=list)
+    """Each output's state."""
     lag_s: float | None = None
     """How far the chain is behind the wall clock beyond the holding window (the daemon)."""
     unattributed: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
