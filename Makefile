@@ -1,5 +1,6 @@
 # One command for each job; each sets up its own virtual environment first.
-#   make demo   replay the bundled recording through the service (Zenoh on 127.0.0.1:7447)
+#   make demo   replay the bundled recording through the service (Zenoh on DEMO_ZENOH,
+#               default tcp/127.0.0.1:7447)
 #   make test   lint, type-check and run the whole test suite (what CI runs)
 #   make faults the fault-injection tests alone (tests/test_faults_*.py, a few minutes)
 #   make soak   the 30-minute soak of the daemon under faults (benchmarks/soak.py)
@@ -19,11 +20,12 @@ setup: $(BIN)/.installed
 
 DEMO_SPEED ?= 2
 DEMO_LOG ?= out/demo-log
+DEMO_ZENOH ?= tcp/127.0.0.1:7447
 
 # Watch it from another terminal: .venv/bin/tracker-service subscribe --connect tcp/127.0.0.1:7447
 demo: setup
 	$(BIN)/tracker-service replay recordings/three_sites.mcap --speed $(DEMO_SPEED) \
-		--zenoh-listen tcp/127.0.0.1:7447 --mcap-dir $(DEMO_LOG)
+		--zenoh-listen $(DEMO_ZENOH) --mcap-dir $(DEMO_LOG)
 
 lint: setup
 	$(BIN)/ruff check .
