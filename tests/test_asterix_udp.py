@@ -10,6 +10,7 @@ import math
 import socket
 import struct
 import subprocess
+import time
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,7 +21,7 @@ import pytest
 
 from asterix.codec import Block, decode_blocks
 from tests.asterix_oracle import differences
-from tests.test_service_replay import simulate
+from tests.test_service_replay import ZenohChild, endpoint, simulate
 from tracker_service.geodesy import SystemPlane
 from tracker_service.outputs.asterix_udp import (
     blocks_in_datagrams,
@@ -28,6 +29,7 @@ from tracker_service.outputs.asterix_udp import (
     with_destinations,
 )
 from tracker_service.outputs.periodic import PeriodicPicture, extrapolate
+from tracker_service.service.command import open_service
 from tracker_service.service.config import AsterixUdpOutput, ServiceConfig
 from tracker_service.service.core import TrackerService
 from tracker_service.service.replay import open_replay
@@ -347,3 +349,30 @@ def test_blocks_are_packed_whole_into_datagrams() -> None:
     payloads = list(blocks_in_datagrams(data, 1400))
     assert b"".join(payloads) == data
     assert [len(p) for p in payloads] == [1100, 700, 1500, 10]
+
+
+def test_the_periodic_picture_over_zenoh(recording: Path, tmp_path: Path) -> None:
+    """``[zenoh] period_s``: the same pictures on Zenoh, to a subscriber in another
+    process, as JSON lists and as CAT062 + CAT065."""
+    where = endpoint()
+    child = ZenohChild("listen", where, "tracker/**", tmp_path / "z.jsonl")
+    source = open_replay(str(recording), None, None)
+    zenoh = source.config.zenoh.model_copy(update={"connect": [where], "period_s": 4.0})
+    config = source.config.model_copy(update={"zenoh": zenoh})
+    try:
+        with open_service(config, None) as service:
+            time.sleep(1.0)  # the subscriber's interest reaches the publisher
+            for name, datagram in source.datagrams:
+                service.process(name, datagram)
+    finally:
+        samples = child.samples()
+    pictures = [s.json() for s in samples if s.key == "tracker/picture"]
+    blocks = [s.payload for s in samples if s.key == "tracker/cat062/picture"]
+    assert len(pictures) >= 8 and len(blocks) == len(pictures)
+    for picture, data in zip(pictures, blocks, strict=True):
+        times = {m["time"] for m in picture}
+        assert len(times) <= 1 and all(t % 4.0 == 0.0 for t in times)
+        decoded = records([data])
+        assert [r["040"] for c, r in decoded if c == 62] == [m["number"] for m in picture]
+        assert decoded[-1][0] == 65 and decoded[-1][1]["000"] == 2
+    assert max(len(p) for p in pictures) >= 20

@@ -7,6 +7,8 @@ Keys (``tracker`` being the default prefix):
 - ``tracker/local_tracks/<SAC>_<SIC>/<number>``, ``tracker/bias/<SAC>_<SIC>``,
   ``tracker/status``: JSON;
 - ``tracker/cat062``: ASTERIX data blocks;
+- ``tracker/picture`` and ``tracker/cat062/picture``: the periodic picture, when
+  ``[zenoh] period_s`` asks for it (``zenoh_picture.py``);
 - a queryable on ``tracker/system_tracks/**`` answering the latest message of every live
   track, so that a subscriber joining late gets the whole picture at once.
 """
@@ -112,6 +114,19 @@ class ZenohPublisher(Closing):
     def put_cat062(self, data: bytes) -> None:
         self._session.put(
             f"{self.prefix}/cat062", data, encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM
+        )
+
+    def put_picture(self, payload: bytes) -> None:
+        """The periodic picture (``zenoh_picture.py``): a JSON list of system-track
+        messages, every track at one time."""
+        self._put_json(f"{self.prefix}/picture", payload)
+
+    def put_picture_cat062(self, data: bytes) -> None:
+        """The periodic picture as CAT062 blocks and a CAT065 end of batch."""
+        self._session.put(
+            f"{self.prefix}/cat062/picture",
+            data,
+            encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM,
         )
 
     @property

@@ -187,6 +187,11 @@ class ZenohConfig(_Strict):
     allow_plaintext: bool = False
     """Allow plaintext endpoints beside a config_file that configures TLS."""
     prefix: str = "tracker"
+    period_s: Annotated[float, Field(gt=0.0, le=60.0)] | None = None
+    """Every this many seconds of data time, the whole picture (every live system track
+    extrapolated to one common time, a multiple of the period) on ``<prefix>/picture``
+    (JSON list) and ``<prefix>/cat062/picture`` (CAT062 + CAT065 end of batch); none when
+    unset. The updates go on as they are."""
 
     @field_validator("listen", "connect")
     @classmethod

@@ -58,6 +58,7 @@ from tracker_service.outputs.messages import (
 )
 from tracker_service.outputs.sink import Backoff, IsolatedSink, OutputState, QueuedSink, Sink
 from tracker_service.outputs.zenoh_out import ZenohPublisher
+from tracker_service.outputs.zenoh_picture import ZenohPictureSink
 from tracker_service.outputs.zenoh_sink import ZenohSink
 from tracker_service.ratelimit import RateLimitedLog
 from tracker_service.service.config import ServiceConfig, parse_service_config
@@ -336,6 +337,11 @@ class Outputs:
         adapters: list[Sink] = []
         if publisher is not None:
             adapters.append(ZenohSink(publisher))
+            if config.zenoh.period_s is not None:
+                picture = ZenohPictureSink(
+                    publisher, self.plane, config.system, config.zenoh.period_s
+                )
+                adapters.append(picture)
         if log_file is not None:
             adapters.append(McapSink(log_file))
         adapters.extend(asterix_udp_sinks(config, self.plane))
