@@ -86,10 +86,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {path}")
     for path in kept:
         print(f"kept {path} (exists; --force overwrites it)")
+    config = directory / "tracker.toml"
     print(
-        f"next: tracker-service simulate {directory / 'scenarios' / 'three_sites.toml'} "
-        f"-o three_sites.pcap --start now, then tracker-service run --config "
-        f"{directory / 'tracker.toml'}",
+        f"next: tracker-service run --config {config}; in another shell: tracker-service "
+        f"simulate {directory / 'scenarios' / 'three_sites.toml'} -o three_sites.mcap, then "
+        f"tracker-service play three_sites.mcap --config {config} --now",
         file=sys.stderr,
     )
     return 0
