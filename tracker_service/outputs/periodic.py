@@ -19,6 +19,7 @@ next update or its end.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -30,7 +31,7 @@ from tracker_service.outputs.messages import (
     position_sigma_m,
 )
 
-__all__ = ["DEFAULT_ACCELERATION_MPS2", "PeriodicPicture", "extrapolate"]
+__all__ = ["DEFAULT_ACCELERATION_MPS2", "PeriodicPicture", "extrapolate", "extrapolate_all"]
 
 DEFAULT_ACCELERATION_MPS2 = 1.0
 """Standard deviation of the unknown horizontal acceleration over an extrapolation (the
@@ -48,55 +49,75 @@ def extrapolate(
     """``message`` moved to ``time`` (later or earlier) at constant plane velocity; its
     covariance F P F' + Q (discrete white-noise acceleration, ``acceleration_mps2``²),
     lat/lon of the new position, flight level along the climb rate, ages older."""
-    dt = time - message.time
-    x = message.x_m + message.vx_mps * dt
-    y = message.y_m + message.vy_mps * dt
-    lat, lon = plane.to_geodetic(np.array([x]), np.array([y]))
-    f = np.eye(4)
-    f[0, 2] = f[1, 3] = dt
-    q = acceleration_mps2**2 * np.array(
-        [
-            [abs(dt) ** 3 / 3, 0.0, dt**2 / 2, 0.0],
-            [0.0, abs(dt) ** 3 / 3, 0.0, dt**2 / 2],
-            [dt**2 / 2, 0.0, abs(dt), 0.0],
-            [0.0, dt**2 / 2, 0.0, abs(dt)],
-        ]
-    )
-    p = f @ np.asarray(message.covariance) @ f.T + q
-    covariance = p.tolist()
-    flight_level = message.flight_level
-    altitude = message.altitude_m
-    if message.climb_rate_fpm is not None:
-        if flight_level is not None:
-            flight_level += message.climb_rate_fpm * _FL_PER_FPM_S * dt
-        if altitude is not None:
-            altitude += message.climb_rate_fpm * 0.3048 / 60.0 * dt
-    ages = message.ages
-    aged = SensorAges.model_construct(
-        None,
-        **{
-            name: max(age + dt, 0.0)
-            for name in ("psr", "ssr", "mode_s", "adsb")
-            if (age := getattr(ages, name)) is not None
-        },
-    )
-    return message.model_copy(
-        update={
-            "time": time,
-            "time_iso": iso_time(time),
-            "x_m": x,
-            "y_m": y,
-            "lat": float(lat[0]),
-            "lon": (float(lon[0]) + 180.0) % 360.0 - 180.0,
-            "covariance": covariance,
-            "position_sigma_m": position_sigma_m(covariance),
-            "flight_level": flight_level,
-            "altitude_m": altitude,
-            "ages": aged,
-            "first": False,
-            "mode3a_changed": False,
-        }
-    )
+    return extrapolate_all([message], time, plane, acceleration_mps2)[0]
+
+
+def extrapolate_all(
+    messages: Sequence[SystemTrackMessage],
+    time: float,
+    plane: SystemPlane,
+    acceleration_mps2: float = DEFAULT_ACCELERATION_MPS2,
+    first: frozenset[int] = frozenset(),
+) -> list[SystemTrackMessage]:
+    """``extrapolate`` of each message, the states and their conversion to lat/lon on
+    arrays (a picture of thousands of tracks); the tracks numbered in ``first`` say so."""
+    if not messages:
+        return []
+    dt = time - np.array([m.time for m in messages])
+    velocity = np.array([[m.vx_mps, m.vy_mps] for m in messages])
+    xy = np.array([[m.x_m, m.y_m] for m in messages]) + velocity * dt[:, None]
+    lat, lon = plane.to_geodetic(xy[:, 0], xy[:, 1])
+    f = np.tile(np.eye(4), (len(messages), 1, 1))
+    f[:, 0, 2] = f[:, 1, 3] = dt
+    q = np.zeros((len(messages), 4, 4))
+    adt = np.abs(dt)
+    q[:, 0, 0] = q[:, 1, 1] = adt**3 / 3
+    q[:, 0, 2] = q[:, 2, 0] = q[:, 1, 3] = q[:, 3, 1] = dt**2 / 2
+    q[:, 2, 2] = q[:, 3, 3] = adt
+    p = f @ np.array([m.covariance for m in messages]) @ f.transpose(0, 2, 1)
+    p += acceleration_mps2**2 * q
+    covariances = p.tolist()
+    stamp = iso_time(time)
+    moved = []
+    for k, message in enumerate(messages):
+        step = float(dt[k])
+        covariance = covariances[k]
+        flight_level = message.flight_level
+        altitude = message.altitude_m
+        if message.climb_rate_fpm is not None:
+            if flight_level is not None:
+                flight_level += message.climb_rate_fpm * _FL_PER_FPM_S * step
+            if altitude is not None:
+                altitude += message.climb_rate_fpm * 0.3048 / 60.0 * step
+        ages = message.ages
+        aged = SensorAges.model_construct(
+            None,
+            **{
+                name: max(age + step, 0.0)
+                for name in ("psr", "ssr", "mode_s", "adsb")
+                if (age := getattr(ages, name)) is not None
+            },
+        )
+        moved.append(
+            message.model_copy(
+                update={
+                    "time": time,
+                    "time_iso": stamp,
+                    "x_m": float(xy[k, 0]),
+                    "y_m": float(xy[k, 1]),
+                    "lat": float(lat[k]),
+                    "lon": (float(lon[k]) + 180.0) % 360.0 - 180.0,
+                    "covariance": covariance,
+                    "position_sigma_m": position_sigma_m(covariance),
+                    "flight_level": flight_level,
+                    "altitude_m": altitude,
+                    "ages": aged,
+                    "first": message.number in first,
+                    "mode3a_changed": False,
+                }
+            )
+        )
+    return moved
 
 
 class PeriodicPicture:
@@ -148,18 +169,17 @@ class PeriodicPicture:
         return grid
 
     def at(self, time: float) -> list[SystemTrackMessage]:
-        picture = []
+        chosen = []
         for number in sorted(self._tracks):
             message = self._tracks[number]
-            ended = message.status == "ended"
-            if ended:
+            if message.status == "ended":
                 del self._tracks[number]
                 self._given.discard(number)
             elif time - message.time > self.max_age_s:
                 continue
-            moved = extrapolate(message, time, self.plane, self.acceleration_mps2)
-            if not ended and number not in self._given:
-                self._given.add(number)
-                moved = moved.model_copy(update={"first": True})
-            picture.append(moved)
-        return picture
+            chosen.append(message)
+        first = frozenset(
+            m.number for m in chosen if m.status != "ended" and m.number not in self._given
+        )
+        self._given |= first
+        return extrapolate_all(chosen, time, self.plane, self.acceleration_mps2, first)
