@@ -11,10 +11,11 @@ from pathlib import Path
 
 import pytest
 
-from asterix.codec import Block, decode_blocks
+from asterix.codec import Block, decode_blocks, encode_block
 from tests.test_service_replay import endpoint, logged, simulate
 from tests.test_service_run import DaemonProcess, Feeds
 from tracker_service.play import shift_times
+from tracker_service.simulator.cat001 import cat001_plot
 from tracker_service.simulator.recording import read_recording
 
 DAY = 86_400.0
@@ -101,3 +102,23 @@ def test_play_feeds_a_running_daemon(tmp_path: Path) -> None:
         assert abs(radars[key]["time_offset_s"]) < 2.0, radars[key]
         assert radars[key]["time_sane"], radars[key]
     assert radars["25/11"]["duplicates"] > 0  # both LANs of 25/11 were sent
+
+
+def test_shift_wraps_cat001_truncated_time_at_512_s(old_recording: Path) -> None:
+    """CAT001 I141 is the time of day modulo 512 s: shifted, it wraps there."""
+    for recorded in read_recording(old_recording).datagrams():
+        plots = [
+            cat001_plot(r)
+            for e in decode_blocks(recorded.payload)
+            if isinstance(e, Block) and e.cat == 48
+            for r in e.records
+        ]
+        if plots:
+            break
+    payload = encode_block(1, plots)
+    moved = next(e for e in decode_blocks(shift_times(payload, 500)) if isinstance(e, Block))
+    for before, after in zip(plots, moved.records, strict=True):
+        assert after["141"] == pytest.approx((before["141"] + 500) % 512.0)
+        assert {k: v for k, v in after.items() if k != "141"} == {
+            k: v for k, v in before.items() if k != "141"
+        }
