@@ -4,6 +4,7 @@ UDP on 127.0.0.1, its times re-based on the present (``--now``), and tracked."""
 from __future__ import annotations
 
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -57,6 +58,13 @@ def test_play_feeds_a_running_daemon(tmp_path: Path) -> None:
     """In real time (a faster pace would put the data ahead of the wall clock)."""
     old_recording = simulate(tmp_path / "old.mcap", 16.0)
     feeds = Feeds(tmp_path)
+    # The daemon's ASTERIX output too, received here.
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(("127.0.0.1", 0))
+    receiver.setblocking(False)
+    with feeds.config.open("a", encoding="utf-8") as text:
+        port = receiver.getsockname()[1]
+        text.write(f'\n[[asterix_udp]]\naddress = "127.0.0.1"\nport = {port}\n')
     process = DaemonProcess(feeds, endpoint(), tmp_path / "health")
     try:
         started = time.time()
@@ -83,6 +91,22 @@ def test_play_feeds_a_running_daemon(tmp_path: Path) -> None:
         if process.process.poll() is None:
             process.process.kill()
             process.process.wait()
+    sent = []
+    with receiver:
+        while True:
+            try:
+                sent.append(receiver.recv(65535))
+            except BlockingIOError:
+                break
+    categories = [
+        (e.cat, r)
+        for d in sent
+        for e in decode_blocks(d)
+        if isinstance(e, Block)
+        for r in e.records
+    ]
+    assert {cat for cat, _ in categories} == {62, 63, 65}
+    assert all(r["010"] == {"SAC": 25, "SIC": 100} for _, r in categories)
     messages = logged(feeds.log_dir)
     datagrams = [m for m in messages if m.topic.startswith("/datagrams/")]
     assert len(datagrams) > 100
@@ -96,6 +120,7 @@ def test_play_feeds_a_running_daemon(tmp_path: Path) -> None:
                 assert min(lag, DAY - lag) < 10.0
     tracks = {m.data["number"] for m in messages if m.topic == "/system_tracks"}
     assert len(tracks) >= 10
+    assert {r["040"] for cat, r in categories if cat == 62} == tracks
     status = [m.data for m in messages if m.topic == "/status"][-1]
     radars = {r["radar"]: r for r in status["radars"]}
     for key in ("25/11", "25/12", "25/13"):
