@@ -27,6 +27,7 @@ import json
 import logging
 import math
 import os
+import threading
 import time as clock
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -279,6 +280,8 @@ class McapLog(Closing):
         self._closed = False
         self.files: list[Path] = []
         """Every file started, in order."""
+        self._lock = threading.Lock()
+        """Writes come from more than one output thread (the log's, Foxglove's)."""
 
     def log_datagram(self, datagram: Datagram, input_name: str = "udp") -> None:
         """A received datagram, on ``/datagrams/<input_name>``; its time is required."""
@@ -302,6 +305,19 @@ class McapLog(Closing):
         """As :meth:`log`, for a message already serialised (``model_dump_json``), so that
         the service serialises each message once for Zenoh and the log."""
         self._write(topic, schema_name(model_type), lambda: json_schema(model_type), data, time)
+
+    def log_encoded(
+        self,
+        topic: str,
+        schema: str,
+        schema_of: Callable[[], dict[str, Any]],
+        data: bytes,
+        time: float,
+    ) -> None:
+        """A message already encoded as JSON, on ``topic`` with the JSON schema named
+        ``schema`` (``schema_of`` gives it the first time a file needs it): Foxglove's
+        well-known schemas (``foxglove_sink.py``)."""
+        self._write(topic, schema, schema_of, data, time)
 
     def log_location(
         self,
@@ -347,15 +363,16 @@ class McapLog(Closing):
         data: bytes,
         time: float,
     ) -> None:
-        if self._closed:
-            raise ValueError("the log is closed")
-        log_time = time_ns(time)
-        file = self._file_for(log_time)
-        try:
-            self._add(file, topic, schema, schema_of, data, log_time)
-        except OSError:
-            self._abandon(file)
-            raise
+        with self._lock:
+            if self._closed:
+                raise ValueError("the log is closed")
+            log_time = time_ns(time)
+            file = self._file_for(log_time)
+            try:
+                self._add(file, topic, schema, schema_of, data, log_time)
+            except OSError:
+                self._abandon(file)
+                raise
 
     def _add(
         self,
@@ -440,6 +457,10 @@ class McapLog(Closing):
 
     def flush(self) -> None:
         """Writes the chunk in progress out now (a quiet feed would otherwise hold it)."""
+        with self._lock:
+            self._flush()
+
+    def _flush(self) -> None:
         file = self._file
         if file is not None:
             try:
@@ -491,6 +512,10 @@ class McapLog(Closing):
         """Finishes the current file (summary, footer) and gives the reserve back; later
         calls do nothing. On a full disk the file is closed without its summary, and
         the error logged rather than raised."""
+        with self._lock:
+            self._close()
+
+    def _close(self) -> None:
         if not self._closed:
             self._closed = True
             try:

@@ -221,6 +221,19 @@ class McapConfig(_Strict):
     plots, tracks as JSON) is about 0.5-1 MB/s, so 256 KiB is well under a second."""
 
 
+class FoxgloveConfig(_Strict):
+    """The Foxglove channels (the log's, the live view's): ``outputs/foxglove_scene.py``."""
+
+    listen: str | None = None
+    """HOST:PORT of the live view's WebSocket server (the Foxglove SDK); none when unset."""
+    trail_s: Annotated[float, Field(ge=0.0, le=3600.0)] = 180.0
+    """How much of each track's past the map shows as its trail."""
+    range_nm: Annotated[float, Field(gt=0.0, le=500.0)] = 250.0
+    """The range ring drawn around each radar site."""
+    ranges_nm: dict[str, Annotated[float, Field(gt=0.0, le=500.0)]] = {}
+    """Per radar ("SAC/SIC") a range ring of its own instead of ``range_nm``."""
+
+
 class ServiceConfig(_Strict):
     radars: Annotated[list[Radar], Field(min_length=1)]
     adsb: list[AdsbFeed] = []
@@ -233,6 +246,7 @@ class ServiceConfig(_Strict):
     fixed_targets: dict[str, Any] = {}
     zenoh: ZenohConfig = ZenohConfig()
     mcap: McapConfig = McapConfig()
+    foxglove: FoxgloveConfig = FoxgloveConfig()
 
     @field_validator("tracker")
     @classmethod

@@ -45,6 +45,8 @@ from tracker_service.fusion import FusionConfig
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
 from tracker_service.outputs.cat062 import encode_cat065, encode_system_tracks
+from tracker_service.outputs.foxglove_scene import MapRadar
+from tracker_service.outputs.foxglove_sink import foxglove_sinks
 from tracker_service.outputs.mapping import MessageMapper
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.mcap_sink import CAT062_TOPIC, SYSTEM_TRACKS_TOPIC, McapSink
@@ -336,6 +338,14 @@ class Outputs:
             adapters.append(ZenohSink(publisher))
         if log_file is not None:
             adapters.append(McapSink(log_file))
+        adapters.extend(
+            foxglove_sinks(
+                radar_sites(config),
+                log_file,
+                config.foxglove.listen,
+                trail_s=config.foxglove.trail_s,
+            )
+        )
         self.sinks = [QueuedSink(IsolatedSink(sink, backoff)) for sink in adapters]
         self.timings = timings or ServiceTimings()
         self.counts = ServiceCounts()
@@ -725,6 +735,15 @@ class Outputs:
         owner may close the publisher and the log. Later calls do nothing."""
         for sink in self.sinks:
             sink.close()
+
+
+def radar_sites(config: ServiceConfig) -> list[MapRadar]:
+    """The configured radars as the map draws them (``[foxglove]`` range rings)."""
+    rings = config.foxglove.ranges_nm
+    return [
+        MapRadar(r.key, r.name, r.lat, r.lon, rings.get(r.key, config.foxglove.range_nm))
+        for r in config.radars
+    ]
 
 
 def block_categories(payload: bytes) -> Iterator[int]:

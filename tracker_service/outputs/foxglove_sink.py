@@ -1,0 +1,208 @@
+"""Foxglove as ``Sink``s: the map scene (``foxglove_scene.py``) into the MCAP log and,
+live, through the Foxglove SDK's WebSocket server.
+
+Two outputs, each isolated like the others (``IsolatedSink`` on its own thread): the
+"foxglove-mcap" one writes the scene's channels into the service's log (beside the
+log's own channels, whose writes ``McapLog`` serialises), the "foxglove" one serves them
+to the Foxglove app (``--foxglove-listen HOST:PORT``, open ``ws://HOST:PORT`` in the app).
+The SDK (``pip install 'tracker-service[foxglove]'``) is needed by the live view only:
+it is a 19 MB compiled extension, so an optional extra rather than a dependency; the log's
+channels are written without it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import socket
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+from asterix.containers import Datagram
+from tracker_service.outputs.foxglove_scene import (
+    SCHEMAS,
+    FoxgloveMessage,
+    MapRadar,
+    MapScene,
+)
+from tracker_service.outputs.mcap_log import McapLog
+from tracker_service.outputs.messages import (
+    BiasMessage,
+    LocalTrackMessage,
+    StatusMessage,
+    SystemTrackMessage,
+)
+
+__all__ = [
+    "FoxgloveListenError",
+    "FoxgloveSink",
+    "LiveServer",
+    "McapChannels",
+    "check_listen",
+    "foxglove_sinks",
+    "parse_listen",
+]
+
+log = logging.getLogger(__name__)
+
+_NS_PER_S = 1_000_000_000
+
+
+class FoxgloveListenError(ValueError):
+    """A ``--foxglove-listen`` that cannot work: the message names it and the fix."""
+
+
+class ChannelWriter(Protocol):
+    def write(self, message: FoxgloveMessage) -> None: ...
+    def close(self) -> None: ...
+
+
+class McapChannels:
+    """The scene's channels in the service's log (``McapLog``, closed by its owner)."""
+
+    def __init__(self, log: McapLog) -> None:
+        self.log = log
+
+    def write(self, message: FoxgloveMessage) -> None:
+        m, schema = message, SCHEMAS[message.schema]
+        self.log.log_encoded(m.topic, m.schema, lambda: schema, m.data, m.time)
+
+    def close(self) -> None:
+        """The log is its owner's to close."""
+
+
+def parse_listen(text: str) -> tuple[str, int]:
+    """ "HOST:PORT" (e.g. 127.0.0.1:8765, 0.0.0.0:8765) -> (host, port)."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise FoxgloveListenError(
+            f"--foxglove-listen {text!r}: expected HOST:PORT, e.g. 127.0.0.1:8765"
+        )
+    return host.strip("[]"), int(port)
+
+
+def check_listen(text: str) -> tuple[str, int]:
+    """``parse_listen``, and whether the port can be had now and the SDK is installed:
+    a one-line error at start-up rather than a failing output later."""
+    host, port = parse_listen(text)
+    try:
+        import foxglove  # noqa: F401
+    except ImportError:
+        raise FoxgloveListenError(
+            "--foxglove-listen needs the Foxglove SDK: pip install 'tracker-service[foxglove]'"
+        ) from None
+    if port:
+        try:
+            with socket.create_server((host, port)):
+                pass
+        except OSError as exc:
+            raise FoxgloveListenError(
+                f"--foxglove-listen {text}: {exc.strerror or exc} (another tracker-service or "
+                "Foxglove bridge there?): give another port"
+            ) from None
+    return host, port
+
+
+class LiveServer:
+    """The Foxglove SDK's WebSocket server (protocol ``foxglove.sdk.v1``), its own
+    context, one JSON channel per topic with the scene's JSON schema. A client that
+    subscribes gets the messages from then on: the picture within a second, the sites
+    within ``MapScene.sites_period_s``."""
+
+    def __init__(self, host: str, port: int, name: str = "tracker-service") -> None:
+        import foxglove
+
+        self._foxglove = foxglove
+        self._context = foxglove.Context()
+        try:
+            self.server = foxglove.start_server(
+                name=name, host=host, port=port, context=self._context
+            )
+        except RuntimeError as exc:
+            raise FoxgloveListenError(f"--foxglove-listen {host}:{port}: {exc}") from None
+        self._channels: dict[str, Any] = {}
+        log.info("foxglove: live view on ws://%s:%d (open it in the Foxglove app)", host, self.port)
+
+    @property
+    def port(self) -> int:
+        port: int = self.server.port
+        return port
+
+    def write(self, message: FoxgloveMessage) -> None:
+        channel = self._channels.get(message.topic)
+        if channel is None:
+            schema = self._foxglove.Schema(
+                name=message.schema,
+                encoding="jsonschema",
+                data=json.dumps(SCHEMAS[message.schema]).encode(),
+            )
+            channel = self._foxglove.Channel(
+                message.topic, schema=schema, message_encoding="json", context=self._context
+            )
+            self._channels[message.topic] = channel
+        channel.log(message.data, log_time=round(message.time * _NS_PER_S))
+
+    def close(self) -> None:
+        for channel in self._channels.values():
+            channel.close()
+        self.server.stop()
+
+
+class FoxgloveSink:
+    """The scene's messages to one ``ChannelWriter``; see the module docstring."""
+
+    resends_tracks = False
+
+    def __init__(self, name: str, writer: ChannelWriter, scene: MapScene) -> None:
+        self.name = name
+        self.writer = writer
+        self.scene = scene
+
+    def _write(self, messages: list[FoxgloveMessage]) -> None:
+        for message in messages:
+            self.writer.write(message)
+
+    def datagram(self, input_name: str, datagram: Datagram) -> None:
+        """Datagrams are the log's own."""
+
+    def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
+        self._write(self.scene.update(message, time))
+
+    def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
+        """Local tracks are not drawn (the log has them as JSON)."""
+
+    def asterix(self, data: bytes, time: float) -> None:
+        # Once a second of data time: the picture goes on while no track updates.
+        self._write(self.scene.tick(time))
+
+    def bias(self, message: BiasMessage, time: float) -> None:
+        """Bias estimates are the log's own."""
+
+    def status(self, message: StatusMessage, time: float) -> None:
+        self._write(self.scene.tick(time))
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+def foxglove_sinks(
+    sites: Sequence[MapRadar],
+    log: McapLog | None,
+    listen: str | None,
+    *,
+    trail_s: float = 180.0,
+) -> list[FoxgloveSink]:
+    """The Foxglove outputs of a service: into ``log`` when there is one, live on
+    ``listen`` ("HOST:PORT") when given. Each has a scene of its own: their threads
+    share nothing."""
+    sinks = []
+    if log is not None:
+        sinks.append(
+            FoxgloveSink("foxglove-mcap", McapChannels(log), MapScene(sites, trail_s=trail_s))
+        )
+    if listen is not None:
+        host, port = parse_listen(listen)
+        sinks.append(
+            FoxgloveSink("foxglove", LiveServer(host, port), MapScene(sites, trail_s=trail_s))
+        )
+    return sinks
