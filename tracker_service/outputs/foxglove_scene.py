@@ -271,11 +271,11 @@ class MapScene:
     def tick(self, time: float) -> list[FoxgloveMessage]:
         """Data time moves on to ``time``: the picture and the sites when due."""
         out = []
-        if self._next_sites is None or time >= self._next_sites:
-            self._next_sites = time + self.sites_period_s
+        due, self._next_sites = _due(self._next_sites, self.sites_period_s, time)
+        if due:
             out.append(FoxgloveMessage(RADARS_TOPIC, GEOJSON, self.sites_geojson(), time))
-        if self._next_picture is None or time >= self._next_picture:
-            self._next_picture = time + self.picture_period_s
+        due, self._next_picture = _due(self._next_picture, self.picture_period_s, time)
+        if due:
             out.append(FoxgloveMessage(PICTURE_TOPIC, GEOJSON, self.picture_geojson(), time))
         return out
 
@@ -417,6 +417,16 @@ class MapScene:
                 )
             self._sites_payload = _geojson(features)
         return self._sites_payload
+
+
+def _due(next_time: float | None, period: float, time: float) -> tuple[bool, float | None]:
+    """Whether a periodic message is due at ``time``, and when the next one is: on a grid
+    of ``period`` from the first (a quiet spell makes no burst, a late call no drift)."""
+    if next_time is None:
+        return True, time + period
+    if time < next_time:
+        return False, next_time
+    return True, next_time + period * (math.floor((time - next_time) / period) + 1)
 
 
 def _ahead(m: SystemTrackMessage) -> list[float]:
