@@ -158,6 +158,7 @@ def test_a_track_update_is_a_location_fix_with_identity_and_colour() -> None:
     out = scene.update(message, T0)
     assert [m.topic for m in out] == [TRACKS_TOPIC, RADARS_TOPIC, PICTURE_TOPIC]
     fix = validate(out[0])
+    assert set(fix) == set(SCHEMAS[LOCATION_FIX]["properties"])  # every field, none else
     assert fix["frame_id"] == "track/7"
     assert (fix["latitude"], fix["longitude"]) == (48.5, 17.5)
     assert fix["altitude"] == pytest.approx(350 * 30.48)
@@ -348,7 +349,7 @@ def test_live_view_over_websocket(tmp_path: Path) -> None:
             "replay",
             str(RECORDING),
             "--speed",
-            "4",
+            "10",
             "--zenoh-listen",
             f"tcp/127.0.0.1:{free_port()}",
             "--foxglove-listen",

@@ -502,7 +502,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", required=True, help="the file to write")
 
 
-def run(args: argparse.Namespace, stderr: IO[str] = sys.stderr) -> int:
+def run(args: argparse.Namespace, stderr: IO[str] | None = None) -> int:
+    stderr = stderr or sys.stderr
     out = Path(args.output)
     try:
         tracks, points = export(Path(args.log), out, args.format, args.tracks)

@@ -36,6 +36,7 @@ from typing import Any
 
 from pyproj import Geod
 
+from tracker_service.outputs.mcap_log import LOCATION_FIX_SCHEMA
 from tracker_service.outputs.messages import SystemTrackMessage
 
 __all__ = [
@@ -67,70 +68,12 @@ _EARTH_RADIUS_M = 6_371_000.0
 _RING_POINTS = 72
 _WGS84 = Geod(ellps="WGS84")
 
-_TIME = {
-    "type": "object",
-    "title": "time",
-    "properties": {
-        "sec": {"type": "integer", "minimum": 0},
-        "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
-    },
-}
-_COLOR = {
-    "title": "foxglove.Color",
-    "type": "object",
-    "properties": {k: {"type": "number"} for k in ("r", "g", "b", "a")},
-    "required": ["r", "g", "b", "a"],
-}
-_KEY_VALUE = {
-    "title": "foxglove.KeyValuePair",
-    "type": "object",
-    "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
-    "required": ["key", "value"],
-}
-
 # The two schemas the map panel reads, with the fields Foxglove's schema of that name
-# defines (recognised by the schema name, the fields by theirs); the tests check them
-# against the Foxglove SDK's own message classes.
+# defines (the panel recognises the schema by its name, the fields by theirs); the tests
+# check them against the Foxglove SDK's own message classes. LocationFix is the log's own
+# (``/map/system_tracks`` shares it: one schema of that name in a file).
 SCHEMAS: dict[str, dict[str, Any]] = {
-    LOCATION_FIX: {
-        "title": LOCATION_FIX,
-        "description": "A navigation satellite fix for any Global Navigation Satellite System",
-        "type": "object",
-        "properties": {
-            "timestamp": _TIME,
-            "frame_id": {"type": "string"},
-            "latitude": {"type": "number"},
-            "longitude": {"type": "number"},
-            "altitude": {"type": "number"},
-            "position_covariance": {
-                "type": "array",
-                "items": {"type": "number"},
-                "minItems": 9,
-                "maxItems": 9,
-            },
-            "position_covariance_type": {
-                "title": "foxglove.PositionCovarianceType",
-                "oneOf": [
-                    {"title": "UNKNOWN", "const": 0},
-                    {"title": "APPROXIMATED", "const": 1},
-                    {"title": "DIAGONAL_KNOWN", "const": 2},
-                    {"title": "KNOWN", "const": 3},
-                ],
-            },
-            "color": _COLOR,
-            "metadata": {"type": "array", "items": _KEY_VALUE},
-        },
-        "required": [
-            "timestamp",
-            "frame_id",
-            "latitude",
-            "longitude",
-            "altitude",
-            "position_covariance",
-            "position_covariance_type",
-            "metadata",
-        ],
-    },
+    LOCATION_FIX: LOCATION_FIX_SCHEMA,
     GEOJSON: {
         "title": GEOJSON,
         "description": "GeoJSON data for annotating maps",

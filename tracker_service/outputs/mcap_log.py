@@ -105,6 +105,23 @@ LOCATION_FIX_SCHEMA: dict[str, Any] = {
                 {"title": "KNOWN", "const": 3},
             ],
         },
+        "color": {
+            "title": "foxglove.Color",
+            "description": "Color used to visualize the location",
+            "type": "object",
+            "properties": {c: {"type": "number"} for c in ("r", "g", "b", "a")},
+            "required": ["r", "g", "b", "a"],
+        },
+        "metadata": {
+            "type": "array",
+            "items": {
+                "title": "foxglove.KeyValuePair",
+                "type": "object",
+                "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
+                "required": ["key", "value"],
+            },
+            "description": "Additional metadata of the fix (identity, label). Keys are unique.",
+        },
     },
 }
 _COVARIANCE_UNKNOWN = 0
