@@ -312,7 +312,7 @@ async def receive_live(port: int, deadline: float) -> tuple[str, list[dict[str, 
                 f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"]
             )
             break
-        except OSError:
+        except ConnectionRefusedError:  # not listening yet
             if time.monotonic() > deadline:
                 raise
             await asyncio.sleep(0.2)

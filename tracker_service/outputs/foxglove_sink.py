@@ -92,9 +92,13 @@ def check_listen(text: str) -> tuple[str, int]:
             "--foxglove-listen needs the Foxglove SDK: pip install 'tracker-service[foxglove]'"
         ) from None
     if port:
+        # Bound, not listening: a client that tries the port meanwhile is refused, not
+        # accepted by this probe and reset. SO_REUSEADDR as the server has it: a port
+        # left in TIME_WAIT by a daemon just stopped is free, one listened on is not.
         try:
-            with socket.create_server((host, port)):
-                pass
+            with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                probe.bind((host, port))
         except OSError as exc:
             raise FoxgloveListenError(
                 f"--foxglove-listen {text}: {exc.strerror or exc} (another tracker-service or "
