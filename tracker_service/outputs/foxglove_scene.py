@@ -174,7 +174,7 @@ class MapScene:
         sites: Sequence[MapRadar],
         *,
         trail_s: float = 180.0,
-        trail_spacing_s: float = 4.0,
+        trail_spacing_s: float = 12.0,
         picture_period_s: float = 1.0,
         sites_period_s: float = 10.0,
     ) -> None:
@@ -224,7 +224,7 @@ class MapScene:
 
     def _extend_trail(self, trail: deque[_Point], m: SystemTrackMessage) -> None:
         if not trail or m.time - trail[-1][0] >= self.trail_spacing_s:
-            trail.append((m.time, m.lon, m.lat))
+            trail.append((m.time, round(m.lon, 5), round(m.lat, 5)))
         while trail and m.time - trail[0][0] > self.trail_s:
             trail.popleft()
 
@@ -276,12 +276,16 @@ class MapScene:
             m = track.last
             colour = _hex(track_colour(m))
             label = track_label(m)
+            # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
+            # precision (/system_tracks has the full values).
+            here = [round(m.lon, 5), round(m.lat, 5)]
             properties = {"name": label, **dict(self._identity(m))}
+            del properties["label"]  # the name
             features.append(
                 {
                     "type": "Feature",
                     "id": f"track/{number}",
-                    "geometry": {"type": "Point", "coordinates": [m.lon, m.lat]},
+                    "geometry": {"type": "Point", "coordinates": here},
                     "properties": {
                         **properties,
                         "style": {
@@ -294,8 +298,8 @@ class MapScene:
                 }
             )
             trail = [[lon, lat] for _, lon, lat in track.trail]
-            if not trail or trail[-1] != [m.lon, m.lat]:
-                trail.append([m.lon, m.lat])
+            if not trail or trail[-1] != here:
+                trail.append(here)
             if len(trail) >= 2:
                 features.append(
                     {
@@ -313,7 +317,7 @@ class MapScene:
                 {
                     "type": "Feature",
                     "id": f"vector/{number}",
-                    "geometry": {"type": "LineString", "coordinates": [[m.lon, m.lat], _ahead(m)]},
+                    "geometry": {"type": "LineString", "coordinates": [here, _ahead(m)]},
                     "properties": {
                         "name": f"{label} 1 min",
                         "track": str(number),
@@ -380,7 +384,7 @@ def _ahead(m: SystemTrackMessage) -> list[float]:
     lat = m.lat + math.degrees(d_north / _EARTH_RADIUS_M)
     cos_lat = max(math.cos(math.radians(m.lat)), 1e-6)
     lon = m.lon + math.degrees(d_east / (_EARTH_RADIUS_M * cos_lat))
-    return [(lon + 180.0) % 360.0 - 180.0, max(min(lat, 90.0), -90.0)]
+    return [round((lon + 180.0) % 360.0 - 180.0, 5), round(max(min(lat, 90.0), -90.0), 5)]
 
 
 def _ring(site: MapRadar) -> list[list[float]]:

@@ -1,13 +1,13 @@
 """Foxglove as ``Sink``s: the map scene (``foxglove_scene.py``) into the MCAP log and,
 live, through the Foxglove SDK's WebSocket server.
 
-Two outputs, each isolated like the others (``IsolatedSink`` on its own thread): the
-"foxglove-mcap" one writes the scene's channels into the service's log (beside the
-log's own channels, whose writes ``McapLog`` serialises), the "foxglove" one serves them
-to the Foxglove app (``--foxglove-listen HOST:PORT``, open ``ws://HOST:PORT`` in the app).
-The SDK (``pip install 'tracker-service[foxglove]'``) is needed by the live view only:
-it is a 19 MB compiled extension, so an optional extra rather than a dependency; the log's
-channels are written without it.
+The log's Foxglove channels ride on the log's own output (``with_map_channels``: the
+"mcap" sink, its thread, its failures: a full disk is one outage of the log, not two
+outputs flapping on one file). The live view is an output of its own, "foxglove"
+(``--foxglove-listen HOST:PORT``, open ``ws://HOST:PORT`` in the app), isolated like the
+others. The SDK (``pip install 'tracker-service[foxglove]'``) is needed by the live view
+only: it is a 19 MB compiled extension, so an optional extra rather than a dependency; the
+log's channels are written without it.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from tracker_service.outputs.messages import (
     StatusMessage,
     SystemTrackMessage,
 )
+from tracker_service.outputs.sink import Sink
 
 __all__ = [
     "FoxgloveListenError",
@@ -39,8 +40,9 @@ __all__ = [
     "LiveServer",
     "McapChannels",
     "check_listen",
-    "foxglove_sinks",
+    "live_sink",
     "parse_listen",
+    "with_map_channels",
 ]
 
 log = logging.getLogger(__name__)
@@ -153,60 +155,68 @@ class LiveServer:
 
 
 class FoxgloveSink:
-    """The scene's messages to one ``ChannelWriter``; see the module docstring."""
+    """The scene's messages to one ``ChannelWriter``; each call goes first to ``inner``,
+    when given (the log's own sink, whose log the writer writes into)."""
 
-    resends_tracks = False
-
-    def __init__(self, name: str, writer: ChannelWriter, scene: MapScene) -> None:
+    def __init__(
+        self, name: str, writer: ChannelWriter, scene: MapScene, inner: Sink | None = None
+    ) -> None:
         self.name = name
         self.writer = writer
         self.scene = scene
+        self.inner = inner
+        self.resends_tracks = False if inner is None else inner.resends_tracks
 
     def _write(self, messages: list[FoxgloveMessage]) -> None:
         for message in messages:
             self.writer.write(message)
 
     def datagram(self, input_name: str, datagram: Datagram) -> None:
-        """Datagrams are the log's own."""
+        if self.inner is not None:
+            self.inner.datagram(input_name, datagram)
 
     def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
+        if self.inner is not None:
+            self.inner.system(message, payload, time)
         self._write(self.scene.update(message, time))
 
     def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
-        """Local tracks are not drawn (the log has them as JSON)."""
+        if self.inner is not None:
+            self.inner.local(message, payload, time)
 
     def asterix(self, data: bytes, time: float) -> None:
+        if self.inner is not None:
+            self.inner.asterix(data, time)
         # Once a second of data time: the picture goes on while no track updates.
         self._write(self.scene.tick(time))
 
     def bias(self, message: BiasMessage, time: float) -> None:
-        """Bias estimates are the log's own."""
+        if self.inner is not None:
+            self.inner.bias(message, time)
 
     def status(self, message: StatusMessage, time: float) -> None:
+        if self.inner is not None:
+            self.inner.status(message, time)
         self._write(self.scene.tick(time))
 
     def close(self) -> None:
-        self.writer.close()
+        try:
+            self.writer.close()
+        finally:
+            if self.inner is not None:
+                self.inner.close()
 
 
-def foxglove_sinks(
-    sites: Sequence[MapRadar],
-    log: McapLog | None,
-    listen: str | None,
-    *,
-    trail_s: float = 180.0,
-) -> list[FoxgloveSink]:
-    """The Foxglove outputs of a service: into ``log`` when there is one, live on
-    ``listen`` ("HOST:PORT") when given. Each has a scene of its own: their threads
-    share nothing."""
-    sinks = []
-    if log is not None:
-        sinks.append(
-            FoxgloveSink("foxglove-mcap", McapChannels(log), MapScene(sites, trail_s=trail_s))
-        )
-    if listen is not None:
-        host, port = parse_listen(listen)
-        sinks.append(
-            FoxgloveSink("foxglove", LiveServer(host, port), MapScene(sites, trail_s=trail_s))
-        )
-    return sinks
+def with_map_channels(
+    log_sink: Sink, log: McapLog, sites: Sequence[MapRadar], *, trail_s: float = 180.0
+) -> FoxgloveSink:
+    """The log's sink (``McapSink``) with the scene's channels in the same ``log``: one
+    output, named as the log's."""
+    scene = MapScene(sites, trail_s=trail_s)
+    return FoxgloveSink(log_sink.name, McapChannels(log), scene, inner=log_sink)
+
+
+def live_sink(sites: Sequence[MapRadar], listen: str, *, trail_s: float = 180.0) -> FoxgloveSink:
+    """The live view on ``listen`` ("HOST:PORT"): the output "foxglove"."""
+    host, port = parse_listen(listen)
+    return FoxgloveSink("foxglove", LiveServer(host, port), MapScene(sites, trail_s=trail_s))

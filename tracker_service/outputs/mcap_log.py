@@ -27,7 +27,6 @@ import json
 import logging
 import math
 import os
-import threading
 import time as clock
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -297,8 +296,6 @@ class McapLog(Closing):
         self._closed = False
         self.files: list[Path] = []
         """Every file started, in order."""
-        self._lock = threading.Lock()
-        """Writes come from more than one output thread (the log's, Foxglove's)."""
 
     def log_datagram(self, datagram: Datagram, input_name: str = "udp") -> None:
         """A received datagram, on ``/datagrams/<input_name>``; its time is required."""
@@ -380,16 +377,15 @@ class McapLog(Closing):
         data: bytes,
         time: float,
     ) -> None:
-        with self._lock:
-            if self._closed:
-                raise ValueError("the log is closed")
-            log_time = time_ns(time)
-            file = self._file_for(log_time)
-            try:
-                self._add(file, topic, schema, schema_of, data, log_time)
-            except OSError:
-                self._abandon(file)
-                raise
+        if self._closed:
+            raise ValueError("the log is closed")
+        log_time = time_ns(time)
+        file = self._file_for(log_time)
+        try:
+            self._add(file, topic, schema, schema_of, data, log_time)
+        except OSError:
+            self._abandon(file)
+            raise
 
     def _add(
         self,
@@ -474,10 +470,6 @@ class McapLog(Closing):
 
     def flush(self) -> None:
         """Writes the chunk in progress out now (a quiet feed would otherwise hold it)."""
-        with self._lock:
-            self._flush()
-
-    def _flush(self) -> None:
         file = self._file
         if file is not None:
             try:
@@ -529,10 +521,6 @@ class McapLog(Closing):
         """Finishes the current file (summary, footer) and gives the reserve back; later
         calls do nothing. On a full disk the file is closed without its summary, and
         the error logged rather than raised."""
-        with self._lock:
-            self._close()
-
-    def _close(self) -> None:
         if not self._closed:
             self._closed = True
             try:

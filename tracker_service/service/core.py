@@ -46,7 +46,7 @@ from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
 from tracker_service.outputs.cat062 import encode_cat065, encode_system_tracks
 from tracker_service.outputs.foxglove_scene import MapRadar
-from tracker_service.outputs.foxglove_sink import foxglove_sinks
+from tracker_service.outputs.foxglove_sink import live_sink, with_map_channels
 from tracker_service.outputs.mapping import MessageMapper
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.mcap_sink import CAT062_TOPIC, SYSTEM_TRACKS_TOPIC, McapSink
@@ -336,16 +336,11 @@ class Outputs:
         adapters: list[Sink] = []
         if publisher is not None:
             adapters.append(ZenohSink(publisher))
+        sites, trail_s = radar_sites(config), config.foxglove.trail_s
         if log_file is not None:
-            adapters.append(McapSink(log_file))
-        adapters.extend(
-            foxglove_sinks(
-                radar_sites(config),
-                log_file,
-                config.foxglove.listen,
-                trail_s=config.foxglove.trail_s,
-            )
-        )
+            adapters.append(with_map_channels(McapSink(log_file), log_file, sites, trail_s=trail_s))
+        if config.foxglove.listen is not None:
+            adapters.append(live_sink(sites, config.foxglove.listen, trail_s=trail_s))
         self.sinks = [QueuedSink(IsolatedSink(sink, backoff)) for sink in adapters]
         self.timings = timings or ServiceTimings()
         self.counts = ServiceCounts()
