@@ -360,9 +360,11 @@ def test_live_view_over_websocket(tmp_path: Path) -> None:
     )
     try:
         subprotocol, channels, fix = asyncio.run(receive_live(port, time.monotonic() + 60.0))
-    finally:
+    except Exception as exc:
         process.terminate()
-        _, stderr = process.communicate(timeout=30)
+        raise AssertionError(f"the service said: {process.communicate(timeout=30)[1]}") from exc
+    process.terminate()
+    _, stderr = process.communicate(timeout=30)
     assert f"open ws://127.0.0.1:{port} in the Foxglove app" in stderr
     assert subprotocol == "foxglove.sdk.v1"
     by_topic = {c["topic"]: c for c in channels}

@@ -288,12 +288,7 @@ class MapScene:
                     "geometry": {"type": "Point", "coordinates": here},
                     "properties": {
                         **properties,
-                        "style": {
-                            "color": colour,
-                            "fillColor": colour,
-                            "fillOpacity": 1.0,
-                            "weight": 2,
-                        },
+                        "style": {"color": colour, "fillColor": colour, "fillOpacity": 1.0},
                     },
                 }
             )
@@ -308,7 +303,6 @@ class MapScene:
                         "geometry": {"type": "LineString", "coordinates": trail},
                         "properties": {
                             "name": f"{label} trail",
-                            "track": str(number),
                             "style": {"color": colour, "weight": 2, "opacity": 0.5},
                         },
                     }
@@ -320,7 +314,6 @@ class MapScene:
                     "geometry": {"type": "LineString", "coordinates": [here, _ahead(m)]},
                     "properties": {
                         "name": f"{label} 1 min",
-                        "track": str(number),
                         "style": {"color": colour, "weight": 1, "opacity": 0.9},
                     },
                 }

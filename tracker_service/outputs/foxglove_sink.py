@@ -208,15 +208,27 @@ class FoxgloveSink:
 
 
 def with_map_channels(
-    log_sink: Sink, log: McapLog, sites: Sequence[MapRadar], *, trail_s: float = 180.0
+    log_sink: Sink,
+    log: McapLog,
+    sites: Sequence[MapRadar],
+    *,
+    trail_s: float = 180.0,
+    picture_period_s: float = 1.0,
 ) -> FoxgloveSink:
     """The log's sink (``McapSink``) with the scene's channels in the same ``log``: one
     output, named as the log's."""
-    scene = MapScene(sites, trail_s=trail_s)
+    scene = MapScene(sites, trail_s=trail_s, picture_period_s=picture_period_s)
     return FoxgloveSink(log_sink.name, McapChannels(log), scene, inner=log_sink)
 
 
-def live_sink(sites: Sequence[MapRadar], listen: str, *, trail_s: float = 180.0) -> FoxgloveSink:
+def live_sink(
+    sites: Sequence[MapRadar],
+    listen: str,
+    *,
+    trail_s: float = 180.0,
+    picture_period_s: float = 1.0,
+) -> FoxgloveSink:
     """The live view on ``listen`` ("HOST:PORT"): the output "foxglove"."""
     host, port = parse_listen(listen)
-    return FoxgloveSink("foxglove", LiveServer(host, port), MapScene(sites, trail_s=trail_s))
+    scene = MapScene(sites, trail_s=trail_s, picture_period_s=picture_period_s)
+    return FoxgloveSink("foxglove", LiveServer(host, port), scene)

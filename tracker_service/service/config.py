@@ -228,6 +228,9 @@ class FoxgloveConfig(_Strict):
     """HOST:PORT of the live view's WebSocket server (the Foxglove SDK); none when unset."""
     trail_s: Annotated[float, Field(ge=0.0, le=3600.0)] = 180.0
     """How much of each track's past the map shows as its trail."""
+    picture_period_s: Annotated[float, Field(ge=0.1, le=60.0)] = 1.0
+    """Data seconds between two pictures (GeoJSON of every track, about 1.5 kB a track
+    before compression: the biggest channel of the log; 4 s, a scan, halves the log)."""
     range_nm: Annotated[float, Field(gt=0.0, le=500.0)] = 250.0
     """The range ring drawn around each radar site."""
     ranges_nm: dict[str, Annotated[float, Field(gt=0.0, le=500.0)]] = {}

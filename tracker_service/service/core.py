@@ -336,11 +336,12 @@ class Outputs:
         adapters: list[Sink] = []
         if publisher is not None:
             adapters.append(ZenohSink(publisher))
-        sites, trail_s = radar_sites(config), config.foxglove.trail_s
+        sites, fox = radar_sites(config), config.foxglove
+        scene = {"trail_s": fox.trail_s, "picture_period_s": fox.picture_period_s}
         if log_file is not None:
-            adapters.append(with_map_channels(McapSink(log_file), log_file, sites, trail_s=trail_s))
-        if config.foxglove.listen is not None:
-            adapters.append(live_sink(sites, config.foxglove.listen, trail_s=trail_s))
+            adapters.append(with_map_channels(McapSink(log_file), log_file, sites, **scene))
+        if fox.listen is not None:
+            adapters.append(live_sink(sites, fox.listen, **scene))
         self.sinks = [QueuedSink(IsolatedSink(sink, backoff)) for sink in adapters]
         self.timings = timings or ServiceTimings()
         self.counts = ServiceCounts()
