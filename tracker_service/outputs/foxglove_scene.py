@@ -163,6 +163,8 @@ class _Track:
     last: SystemTrackMessage
     trail: deque[_Point] = field(default_factory=deque)
     """(time, lon, lat), oldest first."""
+    features: str | None = None
+    """Its features in the picture, as JSON; None when it moved since."""
 
 
 class MapScene:
@@ -205,6 +207,7 @@ class MapScene:
             if track is None:
                 track = self._tracks[message.number] = _Track(message)
             track.last = message
+            track.features = None
             self._extend_trail(track.trail, message)
             fix = self.location_fix(message)
             out.append(FoxgloveMessage(TRACKS_TOPIC, LOCATION_FIX, fix, time))
@@ -270,55 +273,64 @@ class MapScene:
         yield "sources", ",".join(sorted({s.radar for s in m.sources}))
 
     def picture_geojson(self) -> bytes:
-        features: list[dict[str, Any]] = []
+        """Every live track's point, trail and vector, as one FeatureCollection; a track's
+        features are made again only when it has moved since the last picture."""
+        fragments = []
         for number in sorted(self._tracks):
             track = self._tracks[number]
-            m = track.last
-            colour = _hex(track_colour(m))
-            label = track_label(m)
-            # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
-            # precision (/system_tracks has the full values).
-            here = [round(m.lon, 5), round(m.lat, 5)]
-            properties = {"name": label, **dict(self._identity(m))}
-            del properties["label"]  # the name
+            if track.features is None:
+                track.features = self._features(number, track)
+            fragments.append(track.features)
+        collection = '{"type":"FeatureCollection","features":[' + ",".join(fragments) + "]}"
+        return _dumps({"geojson": collection})
+
+    def _features(self, number: int, track: _Track) -> str:
+        m = track.last
+        colour = _hex(track_colour(m))
+        label = track_label(m)
+        # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
+        # precision (/system_tracks has the full values).
+        here = [round(m.lon, 5), round(m.lat, 5)]
+        properties = {"name": label, **dict(self._identity(m))}
+        del properties["label"]  # the name
+        features: list[dict[str, Any]] = [
+            {
+                "type": "Feature",
+                "id": f"track/{number}",
+                "geometry": {"type": "Point", "coordinates": here},
+                "properties": {
+                    **properties,
+                    "style": {"color": colour, "fillColor": colour, "fillOpacity": 1.0},
+                },
+            }
+        ]
+        trail = [[lon, lat] for _, lon, lat in track.trail]
+        if not trail or trail[-1] != here:
+            trail.append(here)
+        if len(trail) >= 2:
             features.append(
                 {
                     "type": "Feature",
-                    "id": f"track/{number}",
-                    "geometry": {"type": "Point", "coordinates": here},
+                    "id": f"trail/{number}",
+                    "geometry": {"type": "LineString", "coordinates": trail},
                     "properties": {
-                        **properties,
-                        "style": {"color": colour, "fillColor": colour, "fillOpacity": 1.0},
+                        "name": f"{label} trail",
+                        "style": {"color": colour, "weight": 2, "opacity": 0.5},
                     },
                 }
             )
-            trail = [[lon, lat] for _, lon, lat in track.trail]
-            if not trail or trail[-1] != here:
-                trail.append(here)
-            if len(trail) >= 2:
-                features.append(
-                    {
-                        "type": "Feature",
-                        "id": f"trail/{number}",
-                        "geometry": {"type": "LineString", "coordinates": trail},
-                        "properties": {
-                            "name": f"{label} trail",
-                            "style": {"color": colour, "weight": 2, "opacity": 0.5},
-                        },
-                    }
-                )
-            features.append(
-                {
-                    "type": "Feature",
-                    "id": f"vector/{number}",
-                    "geometry": {"type": "LineString", "coordinates": [here, _ahead(m)]},
-                    "properties": {
-                        "name": f"{label} 1 min",
-                        "style": {"color": colour, "weight": 1, "opacity": 0.9},
-                    },
-                }
-            )
-        return _geojson(features)
+        features.append(
+            {
+                "type": "Feature",
+                "id": f"vector/{number}",
+                "geometry": {"type": "LineString", "coordinates": [here, _ahead(m)]},
+                "properties": {
+                    "name": f"{label} 1 min",
+                    "style": {"color": colour, "weight": 1, "opacity": 0.9},
+                },
+            }
+        )
+        return ",".join(json.dumps(f, separators=(",", ":")) for f in features)
 
     def sites_geojson(self) -> bytes:
         if self._sites_payload is None:
