@@ -212,8 +212,13 @@ def test_the_picture_holds_labels_trails_and_vectors_and_forgets_ended_tracks() 
     assert vector[1][0] - vector[0][0] == pytest.approx(
         12_000 / (6_371_000 * 0.6626) * 57.2958, rel=0.01
     )
+    # A track that moves after a picture is where it moved to in the next one.
+    scene.update(track(8, time=T0 + 119, lon=17.7, mode3a="7000"), T0 + 119)
+    moved = picture(scene)["track/8"]
+    assert moved["geometry"]["coordinates"] == [17.7, 48.5]
+    assert moved["properties"]["status"] == "confirmed"
     scene.update(track(time=T0 + 120, status="ended"), T0 + 120)
-    assert set(picture(scene)) == {"track/8", "vector/8"}
+    assert set(picture(scene)) == {"track/8", "trail/8", "vector/8"}
     assert scene.live_tracks == [8]
 
 
