@@ -40,6 +40,7 @@ from tracker_service.outputs.mcap_log import LOCATION_FIX_SCHEMA
 from tracker_service.outputs.messages import SystemTrackMessage
 
 __all__ = [
+    "CHANNELS",
     "GEOJSON",
     "LOCATION_FIX",
     "PICTURE_TOPIC",
@@ -58,6 +59,8 @@ PICTURE_TOPIC = "/foxglove/picture"
 RADARS_TOPIC = "/foxglove/radars"
 LOCATION_FIX = "foxglove.LocationFix"
 GEOJSON = "foxglove.GeoJSON"
+CHANNELS = {TRACKS_TOPIC: LOCATION_FIX, PICTURE_TOPIC: GEOJSON, RADARS_TOPIC: GEOJSON}
+"""Every topic the scene writes, with its schema."""
 
 _NS_PER_S = 1_000_000_000
 _METRES_PER_NM = 1852.0

@@ -16,10 +16,11 @@ import json
 import logging
 import socket
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import Protocol
 
 from asterix.containers import Datagram
 from tracker_service.outputs.foxglove_scene import (
+    CHANNELS,
     SCHEMAS,
     FoxgloveMessage,
     MapRadar,
@@ -120,13 +121,26 @@ class LiveServer:
 
         self._foxglove = foxglove
         self._context = foxglove.Context()
+        # Every channel before the server starts: each client is advertised them all when
+        # it connects (a channel made while a client subscribes can be refused to it as
+        # unknown, seen with SDK 0.30).
+        self._channels = {
+            topic: foxglove.Channel(
+                topic,
+                schema=foxglove.Schema(
+                    name=schema, encoding="jsonschema", data=json.dumps(SCHEMAS[schema]).encode()
+                ),
+                message_encoding="json",
+                context=self._context,
+            )
+            for topic, schema in CHANNELS.items()
+        }
         try:
             self.server = foxglove.start_server(
                 name=name, host=host, port=port, context=self._context
             )
         except RuntimeError as exc:
             raise FoxgloveListenError(f"--foxglove-listen {host}:{port}: {exc}") from None
-        self._channels: dict[str, Any] = {}
         log.info("foxglove: live view on ws://%s:%d (open it in the Foxglove app)", host, self.port)
 
     @property
@@ -135,18 +149,7 @@ class LiveServer:
         return port
 
     def write(self, message: FoxgloveMessage) -> None:
-        channel = self._channels.get(message.topic)
-        if channel is None:
-            schema = self._foxglove.Schema(
-                name=message.schema,
-                encoding="jsonschema",
-                data=json.dumps(SCHEMAS[message.schema]).encode(),
-            )
-            channel = self._foxglove.Channel(
-                message.topic, schema=schema, message_encoding="json", context=self._context
-            )
-            self._channels[message.topic] = channel
-        channel.log(message.data, log_time=round(message.time * _NS_PER_S))
+        self._channels[message.topic].log(message.data, log_time=round(message.time * _NS_PER_S))
 
     def close(self) -> None:
         for channel in self._channels.values():
