@@ -118,6 +118,9 @@ def test_geojson_one_feature_per_track(log_dir: Path, tmp_path: Path) -> None:
 def test_kml_one_placemark_per_track(log_dir: Path, tmp_path: Path) -> None:
     tracks = updates_by_number(log_dir)
     root = ET.fromstring(export(log_dir, tmp_path / "tracks.kml", "kml"))
+    schema = root.find("kml:Document/kml:Schema", KML)
+    assert schema is not None and schema.get("id") == "track_data"
+    arrays = {f.get("name") for f in schema.findall("gx:SimpleArrayField", KML)}
     placemarks = root.findall("kml:Document/kml:Placemark", KML)
     assert len(placemarks) == len(tracks)
     for placemark in placemarks:
@@ -138,8 +141,11 @@ def test_kml_one_placemark_per_track(log_dir: Path, tmp_path: Path) -> None:
             or (data.get("squawk") and f"A{data['squawk']}")
             or data["flight_id"]
         )
-        speeds = track.find("kml:ExtendedData/kml:SchemaData/gx:SimpleArrayData", KML)
-        assert speeds is not None and len(list(speeds)) == len(updates)
+        data_of = track.find("kml:ExtendedData/kml:SchemaData", KML)
+        assert data_of is not None and data_of.get("schemaUrl") == "#track_data"
+        values = data_of.findall("gx:SimpleArrayData", KML)
+        assert {v.get("name") for v in values} == arrays
+        assert all(len(list(v)) == len(updates) for v in values)
 
 
 def test_csv_rows_in_traffic_columns(log_dir: Path, tmp_path: Path) -> None:

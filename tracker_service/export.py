@@ -358,11 +358,25 @@ def write_geojson(points: Iterable[Point], out: Path) -> tuple[int, int]:
     return tracks, n
 
 
+_KML_ARRAYS = (
+    ("flight_level", "FL"),
+    ("groundspeed_kt", "GS (kt)"),
+    ("vertical_rate_fpm", "VS (ft/min)"),
+)
+_KML_SCHEMA = (
+    '<Schema id="track_data">\n'
+    + "".join(
+        f'<gx:SimpleArrayField name="{name}" type="float">'
+        f"<displayName>{escape(shown)}</displayName></gx:SimpleArrayField>\n"
+        for name, shown in _KML_ARRAYS
+    )
+    + "</Schema>\n"
+)
 _KML_HEAD = """<?xml version="1.0" encoding="UTF-8"?>
 <kml xmlns="http://www.opengis.net/kml/2.2" xmlns:gx="http://www.google.com/kml/ext/2.2">
 <Document>
 <name>{name}</name>
-"""
+{schema}"""
 
 
 def write_kml(points: Iterable[Point], out: Path) -> tuple[int, int]:
@@ -371,7 +385,7 @@ def write_kml(points: Iterable[Point], out: Path) -> tuple[int, int]:
     per update in ``ExtendedData``."""
     tracks = n = 0
     with out.open("w", encoding="utf-8") as stream:
-        stream.write(_KML_HEAD.format(name=escape(out.stem)))
+        stream.write(_KML_HEAD.format(name=escape(out.stem), schema=_KML_SCHEMA))
         for track in by_track(points):
             identity = _identity(track[0], track)
             stream.write(f"<Placemark><name>{escape(_name(identity))}</name>\n")
@@ -387,7 +401,7 @@ def write_kml(points: Iterable[Point], out: Path) -> tuple[int, int]:
                 stream.write(f"<when>{_iso(p.time)}</when>\n")
             for p in track:
                 stream.write(f"<gx:coord>{p.lon} {p.lat} {p.altitude_m or 0.0}</gx:coord>\n")
-            stream.write("<ExtendedData><SchemaData>\n")
+            stream.write('<ExtendedData><SchemaData schemaUrl="#track_data">\n')
             for name, values in (
                 ("flight_level", [p.altitude_ft and p.altitude_ft / _FT_PER_FL for p in track]),
                 ("groundspeed_kt", [round(p.groundspeed_kt, 1) for p in track]),
