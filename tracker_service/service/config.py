@@ -229,8 +229,10 @@ class FoxgloveConfig(_Strict):
     trail_s: Annotated[float, Field(ge=0.0, le=3600.0)] = 180.0
     """How much of each track's past the map shows as its trail."""
     picture_period_s: Annotated[float, Field(ge=0.1, le=60.0)] = 1.0
-    """Data seconds between two pictures (GeoJSON of every track, about 1.5 kB a track
-    before compression: the biggest channel of the log; 4 s, a scan, halves the log)."""
+    """Data seconds between two pictures of the live view (GeoJSON of every track)."""
+    log_picture_period_s: Annotated[float, Field(ge=0.1, le=60.0)] = 4.0
+    """The same in the log, where the picture (about 1.2 kB a track before compression)
+    is the biggest channel: one a scan; every update is on ``/foxglove/tracks``."""
     range_nm: Annotated[float, Field(gt=0.0, le=500.0)] = 250.0
     """The range ring drawn around each radar site."""
     ranges_nm: dict[str, Annotated[float, Field(gt=0.0, le=500.0)]] = {}

@@ -336,12 +336,9 @@ class Outputs:
         adapters: list[Sink] = []
         if publisher is not None:
             adapters.append(ZenohSink(publisher))
-        sites, fox = radar_sites(config), config.foxglove
-        scene = {"trail_s": fox.trail_s, "picture_period_s": fox.picture_period_s}
         if log_file is not None:
-            adapters.append(with_map_channels(McapSink(log_file), log_file, sites, **scene))
-        if fox.listen is not None:
-            adapters.append(live_sink(sites, fox.listen, **scene))
+            adapters.append(logged_with_map(config, McapSink(log_file), log_file))
+        adapters.extend(live_map(config))
         self.sinks = [QueuedSink(IsolatedSink(sink, backoff)) for sink in adapters]
         self.timings = timings or ServiceTimings()
         self.counts = ServiceCounts()
@@ -731,6 +728,29 @@ class Outputs:
         owner may close the publisher and the log. Later calls do nothing."""
         for sink in self.sinks:
             sink.close()
+
+
+def logged_with_map(config: ServiceConfig, log_sink: Sink, log_file: McapLog) -> Sink:
+    """The log's sink with the Foxglove map channels in the same log (``[foxglove]``)."""
+    fox = config.foxglove
+    return with_map_channels(
+        log_sink,
+        log_file,
+        radar_sites(config),
+        trail_s=fox.trail_s,
+        picture_period_s=fox.log_picture_period_s,
+    )
+
+
+def live_map(config: ServiceConfig) -> list[Sink]:
+    """The Foxglove live view, when ``[foxglove] listen`` (``--foxglove-listen``) asks."""
+    fox = config.foxglove
+    if fox.listen is None:
+        return []
+    sites = radar_sites(config)
+    return [
+        live_sink(sites, fox.listen, trail_s=fox.trail_s, picture_period_s=fox.picture_period_s)
+    ]
 
 
 def radar_sites(config: ServiceConfig) -> list[MapRadar]:
