@@ -143,6 +143,15 @@ def build_parser() -> argparse.ArgumentParser:
         "within --max-age seconds.",
     )
     add_health_arguments(health)
+    export = commands.add_parser(
+        "export",
+        help="write the tracks of a service log as GeoJSON, KML, CSV or Parquet",
+        description="One feature, placemark or set of rows per track (time, position, level, "
+        "speed, identity); CSV and Parquet columns as the traffic library reads them.",
+    )
+    from tracker_service.export import add_arguments as add_export_arguments
+
+    add_export_arguments(export)
     return parser
 
 
@@ -232,6 +241,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tracker_service.play import run as play_run
 
         return play_run(args)
+    if args.command == "export":
+        from tracker_service.export import run as export_run
+
+        return export_run(args)
     if args.command in ("replay", "run", "health"):
         from tracker_service.service import command
 

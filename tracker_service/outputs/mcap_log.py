@@ -104,6 +104,23 @@ LOCATION_FIX_SCHEMA: dict[str, Any] = {
                 {"title": "KNOWN", "const": 3},
             ],
         },
+        "color": {
+            "title": "foxglove.Color",
+            "description": "Color used to visualize the location",
+            "type": "object",
+            "properties": {c: {"type": "number"} for c in ("r", "g", "b", "a")},
+            "required": ["r", "g", "b", "a"],
+        },
+        "metadata": {
+            "type": "array",
+            "items": {
+                "title": "foxglove.KeyValuePair",
+                "type": "object",
+                "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
+                "required": ["key", "value"],
+            },
+            "description": "Additional metadata of the fix (identity, label). Keys are unique.",
+        },
     },
 }
 _COVARIANCE_UNKNOWN = 0
@@ -302,6 +319,19 @@ class McapLog(Closing):
         """As :meth:`log`, for a message already serialised (``model_dump_json``), so that
         the service serialises each message once for Zenoh and the log."""
         self._write(topic, schema_name(model_type), lambda: json_schema(model_type), data, time)
+
+    def log_encoded(
+        self,
+        topic: str,
+        schema: str,
+        schema_of: Callable[[], dict[str, Any]],
+        data: bytes,
+        time: float,
+    ) -> None:
+        """A message already encoded as JSON, on ``topic`` with the JSON schema named
+        ``schema`` (``schema_of`` gives it the first time a file needs it): Foxglove's
+        well-known schemas (``foxglove_sink.py``)."""
+        self._write(topic, schema, schema_of, data, time)
 
     def log_location(
         self,

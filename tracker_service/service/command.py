@@ -29,6 +29,7 @@ from tracker_service.chain import BatchOutput
 from tracker_service.inputs.udp import InputCounters
 from tracker_service.log_level import configure
 from tracker_service.outputs.asterix_udp import with_destinations
+from tracker_service.outputs.foxglove_sink import FoxgloveListenError, check_listen
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.messages import StatusMessage
 from tracker_service.outputs.zenoh_out import ZenohPublisher
@@ -123,6 +124,15 @@ def _add_asterix_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_foxglove_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--foxglove-listen",
+        metavar="HOST:PORT",
+        help="serve a live view to the Foxglove app on ws://HOST:PORT, e.g. 127.0.0.1:8765 "
+        "(needs pip install 'tracker-service[foxglove]'); sets [foxglove] listen",
+    )
+
+
 def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "recording",
@@ -151,6 +161,7 @@ def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mcap-dir", help="write the service's MCAP log into this directory")
     _add_zenoh_arguments(parser)
     _add_asterix_arguments(parser)
+    _add_foxglove_arguments(parser)
 
 
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -162,6 +173,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     )
     _add_zenoh_arguments(parser)
     _add_asterix_arguments(parser)
+    _add_foxglove_arguments(parser)
 
 
 def add_health_arguments(parser: argparse.ArgumentParser) -> None:
@@ -241,7 +253,21 @@ def _with_cli(config: ServiceConfig, args: argparse.Namespace) -> ServiceConfig:
         config = with_destinations(config, getattr(args, "asterix_udp", []))
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    return config.model_copy(update={"zenoh": zenoh})
+    return _with_foxglove(config.model_copy(update={"zenoh": zenoh}), args)
+
+
+def _with_foxglove(config: ServiceConfig, args: argparse.Namespace) -> ServiceConfig:
+    """``--foxglove-listen`` on top of ``[foxglove] listen``, checked now (the SDK there,
+    the port free) so that a live view that cannot start is one line at start-up."""
+    listen = getattr(args, "foxglove_listen", None) or config.foxglove.listen
+    if listen is None:
+        return config
+    try:
+        check_listen(listen)
+    except FoxgloveListenError as exc:
+        raise ConfigError(str(exc)) from None
+    foxglove = config.foxglove.model_copy(update={"listen": listen})
+    return config.model_copy(update={"foxglove": foxglove})
 
 
 @contextmanager
@@ -568,6 +594,8 @@ def replay(args: argparse.Namespace) -> int:
     mcap_dir = None if args.mcap_dir is None else Path(args.mcap_dir)
     speed: float = args.speed
     print(f"{args.recording}: {source.kind}; watch with: {_watch_hint(config)}", file=sys.stderr)
+    if config.foxglove.listen is not None:
+        print(f"foxglove: open ws://{config.foxglove.listen} in the Foxglove app", file=sys.stderr)
     progress = Progress(source.span)
     try:
         return _replay(args, source, config, mcap_dir, speed, progress)

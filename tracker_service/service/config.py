@@ -267,6 +267,22 @@ class AsterixUdpOutput(_Strict):
     @property
     def destination(self) -> str:
         return f"{self.address}:{self.port}"
+class FoxgloveConfig(_Strict):
+    """The Foxglove channels (the log's, the live view's): ``outputs/foxglove_scene.py``."""
+
+    listen: str | None = None
+    """HOST:PORT of the live view's WebSocket server (the Foxglove SDK); none when unset."""
+    trail_s: Annotated[float, Field(ge=0.0, le=3600.0)] = 180.0
+    """How much of each track's past the map shows as its trail."""
+    picture_period_s: Annotated[float, Field(ge=0.1, le=60.0)] = 1.0
+    """Data seconds between two pictures of the live view (GeoJSON of every track)."""
+    log_picture_period_s: Annotated[float, Field(ge=0.1, le=60.0)] = 4.0
+    """The same in the log, where the picture (about 1.2 kB a track before compression)
+    is the biggest channel: one a scan; every update is on ``/foxglove/tracks``."""
+    range_nm: Annotated[float, Field(gt=0.0, le=500.0)] = 250.0
+    """The range ring drawn around each radar site."""
+    ranges_nm: dict[str, Annotated[float, Field(gt=0.0, le=500.0)]] = {}
+    """Per radar ("SAC/SIC") a range ring of its own instead of ``range_nm``."""
 
 
 class ServiceConfig(_Strict):
@@ -283,6 +299,7 @@ class ServiceConfig(_Strict):
     mcap: McapConfig = McapConfig()
     asterix_udp: list[AsterixUdpOutput] = []
     """ASTERIX over UDP destinations (CAT062, CAT063, CAT065): outputs/asterix_udp.py."""
+    foxglove: FoxgloveConfig = FoxgloveConfig()
 
     @field_validator("tracker")
     @classmethod

@@ -47,6 +47,8 @@ from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
 from tracker_service.outputs.asterix_udp import asterix_udp_sinks
 from tracker_service.outputs.cat062 import encode_cat065, encode_system_tracks
+from tracker_service.outputs.foxglove_scene import MapRadar
+from tracker_service.outputs.foxglove_sink import live_sink, with_map_channels
 from tracker_service.outputs.mapping import MessageMapper
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.mcap_sink import CAT062_TOPIC, SYSTEM_TRACKS_TOPIC, McapSink
@@ -343,8 +345,9 @@ class Outputs:
                 )
                 adapters.append(picture)
         if log_file is not None:
-            adapters.append(McapSink(log_file))
+            adapters.append(logged_with_map(config, McapSink(log_file), log_file))
         adapters.extend(asterix_udp_sinks(config, self.plane))
+        adapters.extend(live_map(config))
         self.sinks = [QueuedSink(IsolatedSink(sink, backoff)) for sink in adapters]
         self.timings = timings or ServiceTimings()
         self.counts = ServiceCounts()
@@ -745,6 +748,38 @@ class Outputs:
         owner may close the publisher and the log. Later calls do nothing."""
         for sink in self.sinks:
             sink.close()
+
+
+def logged_with_map(config: ServiceConfig, log_sink: Sink, log_file: McapLog) -> Sink:
+    """The log's sink with the Foxglove map channels in the same log (``[foxglove]``)."""
+    fox = config.foxglove
+    return with_map_channels(
+        log_sink,
+        log_file,
+        radar_sites(config),
+        trail_s=fox.trail_s,
+        picture_period_s=fox.log_picture_period_s,
+    )
+
+
+def live_map(config: ServiceConfig) -> list[Sink]:
+    """The Foxglove live view, when ``[foxglove] listen`` (``--foxglove-listen``) asks."""
+    fox = config.foxglove
+    if fox.listen is None:
+        return []
+    sites = radar_sites(config)
+    return [
+        live_sink(sites, fox.listen, trail_s=fox.trail_s, picture_period_s=fox.picture_period_s)
+    ]
+
+
+def radar_sites(config: ServiceConfig) -> list[MapRadar]:
+    """The configured radars as the map draws them (``[foxglove]`` range rings)."""
+    rings = config.foxglove.ranges_nm
+    return [
+        MapRadar(r.key, r.name, r.lat, r.lon, rings.get(r.key, config.foxglove.range_nm))
+        for r in config.radars
+    ]
 
 
 def block_categories(payload: bytes) -> Iterator[int]:

@@ -1,0 +1,408 @@
+"""The air picture as Foxglove's Map panel shows it: one identity, label, colour and
+trail per system track, and the radar sites with their ranges.
+
+``MapScene`` follows the system-track messages and makes, in Foxglove's well-known
+schemas (JSON encoding, JSON schemas as Foxglove publishes them):
+
+- ``/foxglove/tracks``: a ``foxglove.LocationFix`` per update, ``frame_id`` the track
+  ("track/1234"), coloured by status and sources, its identity, label, level and speed in
+  ``metadata`` (what the map's tooltip lists);
+- ``/foxglove/picture``: a ``foxglove.GeoJSON`` every ``picture_period_s`` of data time,
+  the whole picture: per live track a point named by its label (callsign or Mode 3/A code,
+  flight level, ground speed), its trail over the last ``trail_s`` and a one-minute speed
+  vector, each styled with the track's colour (``properties.style``: ``color``,
+  ``weight``, ``opacity``, ``fillColor``, ``fillOpacity``, as the map panel's GeoJSON
+  layer reads them);
+- ``/foxglove/radars``: a ``foxglove.GeoJSON`` of the radar sites and their range rings,
+  every ``sites_period_s`` (a client that joins late, or a log file cut by rotation, has
+  them within that time).
+
+Memory is bounded: per live track its latest message and at most
+``trail_s / trail_spacing_s + 1`` trail points; an ended track is forgotten.
+
+Colours, from the display conventions of ATC situation displays: a track fused from two
+or more sources green, one source blue, coasting amber, a Mode S address that another
+live track also carries red.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import deque
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from pyproj import Geod
+
+from tracker_service.outputs.mcap_log import LOCATION_FIX_SCHEMA
+from tracker_service.outputs.messages import SystemTrackMessage
+
+__all__ = [
+    "CHANNELS",
+    "GEOJSON",
+    "LOCATION_FIX",
+    "PICTURE_TOPIC",
+    "RADARS_TOPIC",
+    "SCHEMAS",
+    "TRACKS_TOPIC",
+    "FoxgloveMessage",
+    "MapRadar",
+    "MapScene",
+    "track_colour",
+    "track_label",
+]
+
+TRACKS_TOPIC = "/foxglove/tracks"
+PICTURE_TOPIC = "/foxglove/picture"
+RADARS_TOPIC = "/foxglove/radars"
+LOCATION_FIX = "foxglove.LocationFix"
+GEOJSON = "foxglove.GeoJSON"
+CHANNELS = {TRACKS_TOPIC: LOCATION_FIX, PICTURE_TOPIC: GEOJSON, RADARS_TOPIC: GEOJSON}
+"""Every topic the scene writes, with its schema."""
+
+_NS_PER_S = 1_000_000_000
+_METRES_PER_NM = 1852.0
+_METRES_PER_FL = 30.48
+_KT_PER_MPS = 3600.0 / 1852.0
+_SPEED_VECTOR_S = 60.0
+_EARTH_RADIUS_M = 6_371_000.0
+_RING_POINTS = 72
+_WGS84 = Geod(ellps="WGS84")
+
+# The two schemas the map panel reads, with the fields Foxglove's schema of that name
+# defines (the panel recognises the schema by its name, the fields by theirs); the tests
+# check them against the Foxglove SDK's own message classes. LocationFix is the log's own
+# (``/map/system_tracks`` shares it: one schema of that name in a file).
+SCHEMAS: dict[str, dict[str, Any]] = {
+    LOCATION_FIX: LOCATION_FIX_SCHEMA,
+    GEOJSON: {
+        "title": GEOJSON,
+        "description": "GeoJSON data for annotating maps",
+        "type": "object",
+        "properties": {"geojson": {"type": "string"}},
+        "required": ["geojson"],
+    },
+}
+_COVARIANCE_KNOWN = 3
+
+Rgb = tuple[float, float, float]
+_MULTI: Rgb = (0.18, 0.8, 0.25)
+_SINGLE: Rgb = (0.12, 0.56, 1.0)
+_COASTING: Rgb = (1.0, 0.69, 0.0)
+_DUPLICATE: Rgb = (0.9, 0.1, 0.1)
+_ENDED: Rgb = (0.5, 0.5, 0.5)
+
+
+@dataclass(frozen=True)
+class FoxgloveMessage:
+    """One message for a Foxglove channel: its topic, schema name (a key of
+    ``SCHEMAS``), JSON payload and data time (POSIX s)."""
+
+    topic: str
+    schema: str
+    data: bytes
+    time: float
+
+
+@dataclass(frozen=True)
+class MapRadar:
+    """A radar as the map shows it: its site and the range of its coverage ring."""
+
+    key: str
+    """ "SAC/SIC"."""
+    name: str
+    lat: float
+    lon: float
+    range_nm: float
+
+
+def track_colour(message: SystemTrackMessage) -> Rgb:
+    """See the module docstring."""
+    if message.status == "ended":
+        return _ENDED
+    if message.duplicate_address:
+        return _DUPLICATE
+    if message.status == "coasting":
+        return _COASTING
+    return _MULTI if len({s.radar for s in message.sources}) >= 2 else _SINGLE
+
+
+def track_label(message: SystemTrackMessage) -> str:
+    """What an ATC label shows: callsign, else Mode 3/A code, else the track number;
+    flight level; ground speed in knots. E.g. "DLH65A FL350 452kt", "A7000 FL--- 120kt"."""
+    callsign = (message.callsign or "").strip()
+    identity = callsign or (f"A{message.mode3a}" if message.mode3a else f"#{message.number}")
+    level = "FL---" if message.flight_level is None else f"FL{round(message.flight_level):03d}"
+    return f"{identity} {level} {round(message.ground_speed_mps * _KT_PER_MPS)}kt"
+
+
+def _hex(rgb: Rgb) -> str:
+    return "#" + "".join(f"{round(c * 255):02x}" for c in rgb)
+
+
+def _timestamp(time: float) -> dict[str, int]:
+    # The fractional part of a float is exact: split off first, no 128 ns rounding.
+    sec = math.floor(time)
+    nsec = min(round((time - sec) * _NS_PER_S), _NS_PER_S - 1)
+    return {"sec": max(sec, 0), "nsec": nsec}
+
+
+def _dumps(value: object) -> bytes:
+    return json.dumps(value, separators=(",", ":")).encode()
+
+
+def _geojson(features: list[dict[str, Any]]) -> bytes:
+    collection = {"type": "FeatureCollection", "features": features}
+    return _dumps({"geojson": json.dumps(collection, separators=(",", ":"))})
+
+
+_Point = tuple[float, float, float]
+
+
+@dataclass
+class _Track:
+    last: SystemTrackMessage
+    trail: deque[_Point] = field(default_factory=deque)
+    """(time, lon, lat), oldest first."""
+    features: str | None = None
+    """Its features in the picture, as JSON; None when it moved since."""
+
+
+class MapScene:
+    """See the module docstring. ``update`` and ``tick`` return the messages that fall due;
+    the scene's state follows only from the messages and times it is given."""
+
+    def __init__(
+        self,
+        sites: Sequence[MapRadar],
+        *,
+        trail_s: float = 180.0,
+        trail_spacing_s: float = 12.0,
+        picture_period_s: float = 1.0,
+        sites_period_s: float = 10.0,
+    ) -> None:
+        if trail_s < 0 or trail_spacing_s <= 0 or picture_period_s <= 0 or sites_period_s <= 0:
+            raise ValueError("trail_s must be >= 0 and the periods and spacing positive")
+        self.sites = list(sites)
+        self.trail_s = trail_s
+        self.trail_spacing_s = trail_spacing_s
+        self.picture_period_s = picture_period_s
+        self.sites_period_s = sites_period_s
+        self._tracks: dict[int, _Track] = {}
+        self._next_picture: float | None = None
+        self._next_sites: float | None = None
+        self._sites_payload: bytes | None = None
+
+    @property
+    def live_tracks(self) -> list[int]:
+        return sorted(self._tracks)
+
+    def update(self, message: SystemTrackMessage, time: float) -> list[FoxgloveMessage]:
+        """A system-track message at data time ``time``: its fix (none for "ended", whose
+        track leaves the picture), then whatever periodic message falls due."""
+        out: list[FoxgloveMessage] = []
+        if message.status == "ended":
+            self._tracks.pop(message.number, None)
+        else:
+            track = self._tracks.get(message.number)
+            if track is None:
+                track = self._tracks[message.number] = _Track(message)
+            track.last = message
+            track.features = None
+            self._extend_trail(track.trail, message)
+            fix = self.location_fix(message)
+            out.append(FoxgloveMessage(TRACKS_TOPIC, LOCATION_FIX, fix, time))
+        out.extend(self.tick(time))
+        return out
+
+    def tick(self, time: float) -> list[FoxgloveMessage]:
+        """Data time moves on to ``time``: the picture and the sites when due."""
+        out = []
+        due, self._next_sites = _due(self._next_sites, self.sites_period_s, time)
+        if due:
+            out.append(FoxgloveMessage(RADARS_TOPIC, GEOJSON, self.sites_geojson(), time))
+        due, self._next_picture = _due(self._next_picture, self.picture_period_s, time)
+        if due:
+            out.append(FoxgloveMessage(PICTURE_TOPIC, GEOJSON, self.picture_geojson(), time))
+        return out
+
+    def _extend_trail(self, trail: deque[_Point], m: SystemTrackMessage) -> None:
+        if not trail or m.time - trail[-1][0] >= self.trail_spacing_s:
+            trail.append((m.time, round(m.lon, 5), round(m.lat, 5)))
+        while trail and m.time - trail[0][0] > self.trail_s:
+            trail.popleft()
+
+    def location_fix(self, message: SystemTrackMessage) -> bytes:
+        p = message.covariance
+        if message.altitude_m is not None:
+            altitude = message.altitude_m
+        elif message.flight_level is not None:
+            altitude = message.flight_level * _METRES_PER_FL
+        else:
+            altitude = 0.0
+        r, g, b = track_colour(message)
+        fix = {
+            "timestamp": _timestamp(message.time),
+            "frame_id": f"track/{message.number}",
+            "latitude": message.lat,
+            "longitude": message.lon,
+            "altitude": altitude,
+            # The plane's axes are east and north near its centre; the vertical is not
+            # estimated, so large rather than zero.
+            "position_covariance": [p[0][0], p[0][1], 0.0, p[1][0], p[1][1], 0.0, 0.0, 0.0, 1e6],
+            "position_covariance_type": _COVARIANCE_KNOWN,
+            "color": {"r": r, "g": g, "b": b, "a": 1.0},
+            "metadata": [{"key": k, "value": v} for k, v in self._identity(message)],
+        }
+        return _dumps(fix)
+
+    @staticmethod
+    def _identity(m: SystemTrackMessage) -> Iterator[tuple[str, str]]:
+        yield "label", track_label(m)
+        yield "track", str(m.number)
+        yield "status", m.status
+        if m.callsign:
+            yield "callsign", m.callsign.strip()
+        if m.mode3a:
+            yield "mode3a", m.mode3a
+        if m.address:
+            yield "address", m.address
+        if m.flight_level is not None:
+            yield "flight_level", f"{m.flight_level:.2f}"
+        yield "ground_speed_kt", f"{m.ground_speed_mps * _KT_PER_MPS:.0f}"
+        yield "track_angle_deg", f"{m.track_angle_deg:.0f}"
+        yield "sources", ",".join(sorted({s.radar for s in m.sources}))
+
+    def picture_geojson(self) -> bytes:
+        """Every live track's point, trail and vector, as one FeatureCollection; a track's
+        features are made again only when it has moved since the last picture."""
+        fragments = []
+        for number in sorted(self._tracks):
+            track = self._tracks[number]
+            if track.features is None:
+                track.features = self._features(number, track)
+            fragments.append(track.features)
+        collection = '{"type":"FeatureCollection","features":[' + ",".join(fragments) + "]}"
+        return _dumps({"geojson": collection})
+
+    def _features(self, number: int, track: _Track) -> str:
+        m = track.last
+        colour = _hex(track_colour(m))
+        label = track_label(m)
+        # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
+        # precision (/system_tracks has the full values).
+        here = [round(m.lon, 5), round(m.lat, 5)]
+        properties = {"name": label, **dict(self._identity(m))}
+        del properties["label"]  # the name
+        features: list[dict[str, Any]] = [
+            {
+                "type": "Feature",
+                "id": f"track/{number}",
+                "geometry": {"type": "Point", "coordinates": here},
+                "properties": {
+                    **properties,
+                    "style": {"color": colour, "fillColor": colour, "fillOpacity": 1.0},
+                },
+            }
+        ]
+        trail = [[lon, lat] for _, lon, lat in track.trail]
+        if not trail or trail[-1] != here:
+            trail.append(here)
+        if len(trail) >= 2:
+            features.append(
+                {
+                    "type": "Feature",
+                    "id": f"trail/{number}",
+                    "geometry": {"type": "LineString", "coordinates": trail},
+                    "properties": {
+                        "name": f"{label} trail",
+                        "style": {"color": colour, "weight": 2, "opacity": 0.5},
+                    },
+                }
+            )
+        features.append(
+            {
+                "type": "Feature",
+                "id": f"vector/{number}",
+                "geometry": {"type": "LineString", "coordinates": [here, _ahead(m)]},
+                "properties": {
+                    "name": f"{label} 1 min",
+                    "style": {"color": colour, "weight": 1, "opacity": 0.9},
+                },
+            }
+        )
+        return ",".join(json.dumps(f, separators=(",", ":")) for f in features)
+
+    def sites_geojson(self) -> bytes:
+        if self._sites_payload is None:
+            features: list[dict[str, Any]] = []
+            for site in self.sites:
+                name = f"{site.name} ({site.key})" if site.name else site.key
+                features.append(
+                    {
+                        "type": "Feature",
+                        "id": f"radar/{site.key}",
+                        "geometry": {"type": "Point", "coordinates": [site.lon, site.lat]},
+                        "properties": {
+                            "name": name,
+                            "radar": site.key,
+                            "range_nm": site.range_nm,
+                            "style": {"color": "#ffffff", "fillColor": "#ffffff", "weight": 2},
+                        },
+                    }
+                )
+                features.append(
+                    {
+                        "type": "Feature",
+                        "id": f"range/{site.key}",
+                        "geometry": {"type": "Polygon", "coordinates": [_ring(site)]},
+                        "properties": {
+                            "name": f"{name} {site.range_nm:g} NM",
+                            "radar": site.key,
+                            "style": {
+                                "color": "#a0a0a0",
+                                "weight": 1,
+                                "opacity": 0.6,
+                                "fillOpacity": 0.0,
+                            },
+                        },
+                    }
+                )
+            self._sites_payload = _geojson(features)
+        return self._sites_payload
+
+
+def _due(next_time: float | None, period: float, time: float) -> tuple[bool, float | None]:
+    """Whether a periodic message is due at ``time``, and when the next one is: on a grid
+    of ``period`` from the first (a quiet spell makes no burst, a late call no drift)."""
+    if next_time is None:
+        return True, time + period
+    if time < next_time:
+        return False, next_time
+    return True, next_time + period * (math.floor((time - next_time) / period) + 1)
+
+
+def _ahead(m: SystemTrackMessage) -> list[float]:
+    """Where the track is in one minute at its velocity (the plane's axes taken as east
+    and north: a display's speed vector, not a prediction)."""
+    d_north = m.vy_mps * _SPEED_VECTOR_S
+    d_east = m.vx_mps * _SPEED_VECTOR_S
+    lat = m.lat + math.degrees(d_north / _EARTH_RADIUS_M)
+    cos_lat = max(math.cos(math.radians(m.lat)), 1e-6)
+    lon = m.lon + math.degrees(d_east / (_EARTH_RADIUS_M * cos_lat))
+    return [round((lon + 180.0) % 360.0 - 180.0, 5), round(max(min(lat, 90.0), -90.0), 5)]
+
+
+def _ring(site: MapRadar) -> list[list[float]]:
+    """The geodesic circle of the site's range, closed, counter-clockwise (RFC 7946)."""
+    azimuths = [360.0 - 360.0 * k / _RING_POINTS for k in range(_RING_POINTS)]
+    lons, lats, _ = _WGS84.fwd(
+        [site.lon] * _RING_POINTS,
+        [site.lat] * _RING_POINTS,
+        azimuths,
+        [site.range_nm * _METRES_PER_NM] * _RING_POINTS,
+    )
+    ring = [[float(lon), float(lat)] for lon, lat in zip(lons, lats, strict=True)]
+    return [*ring, ring[0]]
