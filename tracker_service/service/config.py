@@ -267,6 +267,8 @@ class AsterixUdpOutput(_Strict):
     @property
     def destination(self) -> str:
         return f"{self.address}:{self.port}"
+
+
 class FoxgloveConfig(_Strict):
     """The Foxglove channels (the log's, the live view's): ``outputs/foxglove_scene.py``."""
 
