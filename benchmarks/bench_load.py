@@ -33,29 +33,13 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from bench_latency import cpu_per_process, free_port
+from bench_latency import cpu_per_process, free_port, rss_mb
 
 from asterix.plots import extract_plots
 from tracker_service.cli import main as cli
 from tracker_service.simulator.recording import read_recording
 
 REPO = Path(__file__).resolve().parents[1]
-PAGE_KB = 4
-
-
-def rss_mb(pid: int) -> float:
-    """Resident set size of a process and its children, MB (Linux /proc)."""
-    total, pending = 0.0, [pid]
-    while pending:
-        current = pending.pop()
-        try:
-            pages = int(Path(f"/proc/{current}/statm").read_text().split()[1])
-            children = Path(f"/proc/{current}/task/{current}/children").read_text().split()
-        except OSError:
-            continue
-        total += pages * PAGE_KB / 1024.0
-        pending.extend(int(child) for child in children)
-    return total
 
 
 def simulate(args: argparse.Namespace) -> int:
