@@ -72,11 +72,11 @@ def free_port(kind: int) -> int:
         return port
 
 
-def simulate(scenario: str, duration: float, work: Path) -> Path:
+def simulate(scenario: str, duration: float, work: Path, lead_s: float = 0.0) -> Path:
     """The scenario's recording, its start moved to now (the daemon dates each plot's
     I140 on the day nearest its reception)."""
     text = (REPO / "config" / "scenarios" / f"{scenario}.toml").read_text(encoding="utf-8")
-    start = dt.datetime.now(dt.UTC).replace(microsecond=0)
+    start = (dt.datetime.now(dt.UTC) + dt.timedelta(seconds=lead_s)).replace(microsecond=0)
     path = work / f"{scenario}.toml"
     path.write_text(
         re.sub(r"(?m)^start = .*$", f'start = "{start:%Y-%m-%dT%H:%M:%SZ}"', text), "utf-8"
@@ -128,6 +128,13 @@ def main() -> int:
     parser.add_argument("--scenario", choices=("scale", "three_sites", "artas"), default="scale")
     parser.add_argument("--rate", type=float, default=2000.0, help="plots per second")
     parser.add_argument("--speed", type=float, help="real time times this (instead of --rate)")
+    parser.add_argument(
+        "--lead",
+        type=float,
+        default=0.0,
+        help="start the scenario this many s from now, and send from then: longer than the "
+        "simulation takes, so that plots are not older than their reception (artas: minutes)",
+    )
     parser.add_argument("--duration", type=float, default=180.0, help="scenario seconds")
     parser.add_argument("--holding-window", type=float, default=0.02, help="seconds")
     parser.add_argument("--no-mcap", action="store_true", help="run the daemon without log")
@@ -139,7 +146,7 @@ def main() -> int:
         return serve(args.serve, args.profile)
 
     work = Path(tempfile.mkdtemp(prefix="bench_latency_"))
-    recording = read_recording(simulate(args.scenario, args.duration, work))
+    recording = read_recording(simulate(args.scenario, args.duration, work, args.lead))
     datagrams = list(recording.datagrams())
     # Everything the send loop needs, worked out before it starts: its own CPU would
     # otherwise compete with the daemon's.
@@ -199,7 +206,9 @@ def main() -> int:
     own0 = time.process_time()
     cpu_wall0 = time.monotonic()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        wall0 = time.monotonic() + 0.1
+        # At the scenario's start (with --lead), else at once: the plots' times are real.
+        start_in = datagrams[0].time - time.time()
+        wall0 = time.monotonic() + max(0.1, start_in)
         first = datagrams[0].time
         for d, keys in zip(datagrams, keys_of, strict=True):
             delay = wall0 + (d.time - first) / speed - time.monotonic()

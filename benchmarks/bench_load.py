@@ -11,7 +11,11 @@ that keeps up shows a flat lag; one that does not, a lag growing with the data t
     python benchmarks/bench_load.py simulate [--scenario artas] [--duration 120]
         [--out /tmp/artas-slice.mcap]       # the slice, once (minutes for artas)
     python benchmarks/bench_load.py replay /tmp/artas-slice.mcap [--speed 1]
-        [--sample-s 5] [--samples FILE.jsonl]
+        [--sample-s 5] [--samples FILE.jsonl] [--max-wall 600]
+
+``--max-wall``: a replay that falls far behind is stopped (SIGTERM, a clean stop) after
+that many seconds; the figures are then of what it did by then (data seconds replayed
+per wall second, plots per CPU-second from its own count).
 
 Recordings go to /tmp (never into the repository). A replay has no sockets, so it drops
 nothing: what it cannot do in time shows as lag. Datagrams dropped at the UDP inputs are
@@ -22,6 +26,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
+import shutil
+import signal
 import socket
 import statistics
 import subprocess
@@ -90,6 +97,9 @@ def replay(args: argparse.Namespace) -> int:
     cpu_before = 0.0
     while process.poll() is None:
         time.sleep(args.sample_s)
+        if time.monotonic() - wall0 > args.max_wall and process.poll() is None:
+            print(f"stopped after {args.max_wall:.0f} s (SIGTERM)", file=sys.stderr)
+            process.send_signal(signal.SIGTERM)
         elapsed = time.monotonic() - wall0
         cpu = sum(cpu_per_process(process.pid).values())
         recent = [a - wall0 - (t - first) for a, t in arrivals[-2000:] if a > wall0 + elapsed - 5]
@@ -106,8 +116,10 @@ def replay(args: argparse.Namespace) -> int:
         cpu_before = cpu
         print(json.dumps(samples[-1]), file=sys.stderr)
     wall = time.monotonic() - wall0
+    time.sleep(1.0)  # the last lines of its log
     subscriber.undeclare()  # type: ignore[no-untyped-call]
     session.close()  # type: ignore[no-untyped-call]
+    shutil.rmtree(work, ignore_errors=True)  # the replay's MCAP log
     if args.samples:
         Path(args.samples).write_text("".join(json.dumps(s) + "\n" for s in samples), "utf-8")
     print("".join(log_lines[-3:]), end="", file=sys.stderr)
@@ -116,17 +128,21 @@ def replay(args: argparse.Namespace) -> int:
         return 1
     lags = [a - wall0 - (t - first) for a, t in arrivals]
     tenth = max(1, len(lags) // 10)
-    cpu_total = samples[-1]["cpu_s"] if samples else 0.0
+    cpu_total = max((s["cpu_s"] for s in samples), default=0.0)
     rss = [s["rss_mb"] for s in samples if s["rss_mb"]]
+    # The replay's own count: "replayed N datagrams (...): P plots, ..."
+    done = re.search(r"replayed (\d+) datagrams.*?: (\d+) plots", "".join(log_lines))
+    datagrams_done, plots_done = (int(done[1]), int(done[2])) if done else (0, 0)
+    data_s = max(t for _, t in arrivals) - first
     print(
         f"{Path(args.recording).name}: {len(times)} datagrams, {plots} radar plots over "
-        f"{span:.0f} s "
-        f"({plots / span:.0f} plots/s), replayed at x{args.speed:g} in {wall:.0f} s wall "
-        f"({wall - span / args.speed:+.0f} s against the schedule)"
+        f"{span:.0f} s ({plots / span:.0f} plots/s), replayed at x{args.speed:g}: "
+        f"{datagrams_done} datagrams, {plots_done} plots, {data_s:.0f} s of data in {wall:.0f} s "
+        f"wall ({data_s / wall:.2f} data seconds per wall second)"
     )
     print(
         f"CPU {cpu_total:.0f} s ({cpu_total / wall:.0%} of a core on average, "
-        f"{plots / max(cpu_total, 1e-9):.0f} plots per CPU-second); RSS "
+        f"{plots_done / max(cpu_total, 1e-9):.0f} plots per CPU-second); RSS "
         f"{min(rss, default=0):.0f}-{max(rss, default=0):.0f} MB"
     )
     print(
@@ -149,6 +165,7 @@ def main() -> int:
     rep.add_argument("--speed", type=float, default=1.0)
     rep.add_argument("--sample-s", type=float, default=5.0)
     rep.add_argument("--samples", help="write the samples here (JSON lines)")
+    rep.add_argument("--max-wall", type=float, default=600.0, help="stop it after (s)")
     args = parser.parse_args()
     return simulate(args) if args.command == "simulate" else replay(args)
 
