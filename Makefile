@@ -30,10 +30,11 @@ lint: setup
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-# Two workers, one test file each at a time (module fixtures are built once, in one worker).
+# Two workers, one test file each at a time (module fixtures are built once, in one worker),
+# in the order of tests/conftest.py (files with slow tests first), not xdist's by test count.
 TEST_WORKERS ?= 2
 test: lint
-	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 faults: setup
 	$(BIN)/python -m pytest -q tests/test_faults_*.py
