@@ -1,7 +1,7 @@
 # One command for each job; each sets up its own virtual environment first.
 #   make demo   replay the bundled recording through the service (Zenoh on DEMO_ZENOH,
 #               default tcp/127.0.0.1:7447)
-#   make test   lint, type-check and run the whole test suite (what CI runs)
+#   make test   lint, type-check and run the whole test suite on 2 workers (what CI runs)
 #   make faults the fault-injection tests alone (tests/test_faults_*.py, a few minutes)
 #   make soak   the 30-minute soak of the daemon under faults (benchmarks/soak.py)
 PYTHON ?= python3
@@ -32,8 +32,11 @@ lint: setup
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
+# Two workers, one test file each at a time (module fixtures are built once, in one worker),
+# in the order of tests/conftest.py (files with slow tests first), not xdist's by test count.
+TEST_WORKERS ?= 2
 test: lint
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 faults: setup
 	$(BIN)/python -m pytest -q tests/test_faults_*.py

@@ -10,13 +10,18 @@ Zenoh. A plot's latency is the time from the send of its datagram to the arrival
 first system-track message whose last plot it is (the plot is known by its radar and
 I140). Both clocks are this host's.
 
-    python benchmarks/bench_latency.py [--scenario scale|three_sites] [--rate 2000]
-        [--duration 180] [--holding-window 0.02] [--no-mcap] [--profile FILE]
+    python benchmarks/bench_latency.py [--scenario scale|three_sites|artas] [--rate 2000]
+        [--speed 1] [--duration 180] [--holding-window 0.02] [--no-mcap] [--profile FILE]
 
 ``scale`` (20 radars, 2,000 aircraft, about 1,460 plots/s in real time, some 31 plots per
 datagram) is the realistic load: its real time sped up about 1.37 times. ``three_sites``
 (4.5 plots per datagram) compressed to the same plot rate is a per-datagram stress test
-rather than a load a real system sees.
+rather than a load a real system sees. ``artas`` (48 radars, 4,000 aircraft) is sent in
+real time with ``--speed 1`` (which replaces ``--rate``): the ARTAS-class load.
+
+Beside the latencies: the daemon's status over Zenoh (``tracker/status``: datagrams
+dropped at its inputs, by cause, and its lag behind the wall clock) and the RSS of the
+daemon and its output process, sampled every 5 s.
 
 The holding window (``system.holding_window_s``, 1 s in config/example.toml) adds itself
 to every latency: it is what buys the deterministic order across radars. 20 ms here.
@@ -67,11 +72,11 @@ def free_port(kind: int) -> int:
         return port
 
 
-def simulate(scenario: str, duration: float, work: Path) -> Path:
+def simulate(scenario: str, duration: float, work: Path, lead_s: float = 0.0) -> Path:
     """The scenario's recording, its start moved to now (the daemon dates each plot's
     I140 on the day nearest its reception)."""
     text = (REPO / "config" / "scenarios" / f"{scenario}.toml").read_text(encoding="utf-8")
-    start = dt.datetime.now(dt.UTC).replace(microsecond=0)
+    start = (dt.datetime.now(dt.UTC) + dt.timedelta(seconds=lead_s)).replace(microsecond=0)
     path = work / f"{scenario}.toml"
     path.write_text(
         re.sub(r"(?m)^start = .*$", f'start = "{start:%Y-%m-%dT%H:%M:%SZ}"', text), "utf-8"
@@ -120,8 +125,16 @@ def serve(config_path: str, profile: str | None) -> int:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenario", choices=("scale", "three_sites"), default="scale")
+    parser.add_argument("--scenario", choices=("scale", "three_sites", "artas"), default="scale")
     parser.add_argument("--rate", type=float, default=2000.0, help="plots per second")
+    parser.add_argument("--speed", type=float, help="real time times this (instead of --rate)")
+    parser.add_argument(
+        "--lead",
+        type=float,
+        default=0.0,
+        help="start the scenario this many s from now, and send from then: longer than the "
+        "simulation takes, so that plots are not older than their reception (artas: minutes)",
+    )
     parser.add_argument("--duration", type=float, default=180.0, help="scenario seconds")
     parser.add_argument("--holding-window", type=float, default=0.02, help="seconds")
     parser.add_argument("--no-mcap", action="store_true", help="run the daemon without log")
@@ -133,7 +146,7 @@ def main() -> int:
         return serve(args.serve, args.profile)
 
     work = Path(tempfile.mkdtemp(prefix="bench_latency_"))
-    recording = read_recording(simulate(args.scenario, args.duration, work))
+    recording = read_recording(simulate(args.scenario, args.duration, work, args.lead))
     datagrams = list(recording.datagrams())
     # Everything the send loop needs, worked out before it starts: its own CPU would
     # otherwise compete with the daemon's.
@@ -143,7 +156,7 @@ def main() -> int:
         keys_of.append([(d.source, round(t / LSB)) for t in tods if np.isfinite(t)])
     plots = sum(len(keys) for keys in keys_of)
     span = datagrams[-1].time - datagrams[0].time
-    speed = args.rate / (plots / span)
+    speed = args.rate / (plots / span) if args.speed is None else args.speed
 
     ports = {(d.source, d.lan): 0 for d in datagrams}
     ports = {key: free_port(socket.SOCK_DGRAM) for key in ports}
@@ -173,6 +186,19 @@ def main() -> int:
         "tracker/system_tracks/*",
         lambda s: arrivals.append((time.time(), s.payload.to_bytes())),
     )
+    statuses: list[dict[str, Any]] = []
+    status_subscriber = session.declare_subscriber(
+        "tracker/status", lambda s: statuses.append(json.loads(s.payload.to_bytes()))
+    )
+    rss: list[tuple[float, float]] = []
+    sampling = threading.Event()
+
+    def sample_rss() -> None:
+        t0 = time.monotonic()
+        while not sampling.wait(5.0):
+            rss.append((time.monotonic() - t0, rss_mb(daemon.pid)))
+
+    threading.Thread(target=sample_rss, daemon=True).start()
     time.sleep(1.0)
 
     sent: dict[tuple[str, int], float] = {}
@@ -180,7 +206,9 @@ def main() -> int:
     own0 = time.process_time()
     cpu_wall0 = time.monotonic()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        wall0 = time.monotonic() + 0.1
+        # At the scenario's start (with --lead), else at once: the plots' times are real.
+        start_in = datagrams[0].time - time.time()
+        wall0 = time.monotonic() + max(0.1, start_in)
         first = datagrams[0].time
         for d, keys in zip(datagrams, keys_of, strict=True):
             delay = wall0 + (d.time - first) / speed - time.monotonic()
@@ -195,6 +223,7 @@ def main() -> int:
     cpu1 = cpu_per_process(daemon.pid)
     own = time.process_time() - own0
     cpu_wall = time.monotonic() - cpu_wall0
+    sampling.set()
     daemon.terminate()
     try:
         daemon.wait(timeout=60)
@@ -204,6 +233,7 @@ def main() -> int:
         daemon.kill()
         daemon.wait()
     subscriber.undeclare()  # type: ignore[no-untyped-call]
+    status_subscriber.undeclare()  # type: ignore[no-untyped-call]
     session.close()  # type: ignore[no-untyped-call]
     shutil.rmtree(work, ignore_errors=True)  # the recording and the daemon's log
 
@@ -246,6 +276,24 @@ def main() -> int:
         )
         + f"; this process (sender, subscriber) {own / cpu_wall:.0%}"
     )
+    if statuses:
+        last = statuses[-1]
+        causes: dict[str, int] = {}
+        for radar in last["radars"]:
+            for cause, count in radar.get("drop_causes", {}).items():
+                causes[cause] = causes.get(cause, 0) + count
+        lags = [s["lag_s"] for s in statuses if s.get("lag_s") is not None]
+        print(
+            f"daemon status ({len(statuses)}): drops {sum(r['drops'] for r in last['radars'])} "
+            f"{causes or ''}, lag max {max(lags, default=0.0):.2f} s, last "
+            f"{lags[-1] if lags else 0.0:.2f} s, health {last['health']}"
+        )
+    if rss:
+        print(
+            "RSS of the daemon and its output process: "
+            + ", ".join(f"{t:.0f} s {mb:.0f} MB" for t, mb in rss[:: max(1, len(rss) // 8)])
+            + f", last {rss[-1][1]:.0f} MB"
+        )
     for label, ms in (("first 30 s", latencies[0]), ("after 30 s", latencies[1])):
         if ms:
             ms.sort()
@@ -255,6 +303,21 @@ def main() -> int:
                 f"ms, max {ms[-1]:.1f} ms"
             )
     return 0
+
+
+def rss_mb(pid: int) -> float:
+    """Resident set size of a process and its children, MB (Linux /proc)."""
+    total, pending = 0.0, [pid]
+    while pending:
+        current = pending.pop()
+        try:
+            pages = int(Path(f"/proc/{current}/statm").read_text().split()[1])
+            children = Path(f"/proc/{current}/task/{current}/children").read_text().split()
+        except OSError:
+            continue
+        total += pages * 4096 / 2**20
+        pending.extend(int(child) for child in children)
+    return total
 
 
 def cpu_per_process(pid: int) -> dict[int, float]:

@@ -19,3 +19,12 @@ def shared_file(relative: str) -> Path:
     if not path.is_file():
         pytest.skip(f"{path} is absent: the shared sample data (GPL/LGPL) is not beside the repo")
     return path
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Files holding a ``slow`` test first, the rest in their order: with ``make test``
+    (pytest-xdist, ``--dist loadfile``) the long ones start at once on the two workers
+    instead of ending the run on one of them. The same order in every worker (xdist
+    requires it): a stable sort on a key of the item's own file."""
+    slow_files = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow_files)

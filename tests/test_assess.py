@@ -86,7 +86,11 @@ def _track_sets(doc: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 @pytest.mark.parametrize(
-    "path", RECORDINGS, ids=[str(p.relative_to(SHARED_DATA)) for p in RECORDINGS]
+    "path",
+    # canalA (48 minutes, one plot a datagram, about 130 s of CPU) is run once for the
+    # module by ``assessed``, and shared with test_canal_a_cat001_radar.
+    [pytest.param(p, marks=[pytest.mark.slow] * (p.name == "canalA.gps")) for p in RECORDINGS],
+    ids=[str(p.relative_to(SHARED_DATA)) for p in RECORDINGS],
 )
 def test_every_recording(assessed: Callable[[Path], Assessed], path: Path) -> None:
     """The document is whole and consistent on every recording with plots."""
@@ -245,6 +249,7 @@ def test_066_filter_fixture(assessed: Callable[[Path], Assessed]) -> None:
     assert radar["local"]["published_tracks"] == 0
 
 
+@pytest.mark.slow
 def test_canal_a_cat001_radar(assessed: Callable[[Path], Assessed]) -> None:
     """canalA.gps: 48 minutes of a CAT001 radar (SAC 20/SIC 130, Mode A/C only, north
     markers every 4.01 s without I041): 30,651 plots, 134 discrete codes. Two fixed

@@ -16,6 +16,9 @@ from tracker_service.evaluation.pipeline import EvaluationConfig
 from tracker_service.simulator.run import simulate
 from tracker_service.simulator.scenario import load_scenario
 
+# The whole of three_sites (15 minutes, with its biases) through the chain, evaluated twice.
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+import pytest
 
 from asterix.containers import Datagram
 from tests.fault_tools import EXAMPLE, NO_I010, DaemonProcess, pids_alive, write_config
@@ -147,6 +148,7 @@ def health(file: Path, max_age: float = 30.0) -> tuple[int, str]:
     return done.returncode, done.stdout + done.stderr
 
 
+@pytest.mark.slow
 def test_health_exit_codes_and_a_supervised_output_process(tmp_path: Path) -> None:
     # 2 s antenna periods: the statuses at 0 and 5 s are "ok" (a radar is silent after
     # 6 s), time enough for `health` to start on a loaded machine.

@@ -15,6 +15,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 from tests.fault_tools import REPO, DaemonProcess, plot_block, send, write_config
 
 EXIT_S = 10.0
@@ -107,6 +109,7 @@ def _daemon_run(directory: Path, seed: int) -> tuple[int | None, float, str]:
     return code, took, daemon.log()
 
 
+@pytest.mark.slow
 def test_daemons_fed_datagrams_exit_cleanly_on_sigterm_at_random_moments(
     tmp_path: Path,
 ) -> None:

@@ -509,6 +509,7 @@ def test_croatian_site_monitor_is_kept_out_when_configured() -> None:
     assert mine.any() and (run.tables["use"][mine] == PlotUse.FIXED_TRANSPONDER).all()
 
 
+@pytest.mark.slow
 def test_canala_site_monitors() -> None:
     # canalA.gps (CAT001, SAC 20/SIC 130): two transponders on 7777 with RAB = 0 at 90.8
     # and 99.8 NM, both at 150.3 deg, one plot a scan each for the whole 48 minutes; its

@@ -113,7 +113,11 @@ class DaemonProcess:
         )
         self._ready = threading.Event()
         threading.Thread(target=self._drain, daemon=True).start()
-        assert self._ready.wait(STARTUP_S), "\n".join(self.lines)
+        if not self._ready.wait(STARTUP_S):
+            # Not left running behind the failed test (with its sockets and output process).
+            self.process.terminate()
+            self.process.wait(timeout=30)
+            raise AssertionError("\n".join(self.lines) or f"not ready within {STARTUP_S} s")
 
     def _drain(self) -> None:
         assert self.process.stderr is not None

@@ -383,6 +383,7 @@ def _same(ours: Any, theirs: Any, where: str) -> None:
         assert ours == theirs, (where, ours, theirs)
 
 
+@pytest.mark.slow
 def test_libasterix_agrees_on_the_raw_capture(
     simulated: Simulated, libasterix_python: Path, tmp_path: Path
 ) -> None:

@@ -497,3 +497,27 @@ def test_2000_aircraft_for_10_minutes_build_quickly() -> None:
     print(f"2,000 aircraft x 600 s: truth built in {elapsed:.2f} s")
     assert truth.lat.shape == (2000, 1201)
     assert elapsed < 30.0  # typically ~2 s; generous for slow CI machines
+
+
+def test_traffic_enters_and_leaves_at_a_constant_count() -> None:
+    """With ``mean_flight_s``: exactly ``count`` aircraft in the air between samples (one
+    leaves on the sample where the next enters), flights 0.5-1.5x the mean, those entering
+    inside the area, and no state outside an aircraft's life."""
+    scen = scenario([], traffic={"count": 40, "area": AREA, "mean_flight_s": 120.0}, duration=600)
+    truth = build_truth(scen, np.random.default_rng(5), 600.0)
+    n = len(truth.identities)
+    assert 40 + 600 / 180 * 40 < n < 40 + 600 / 60 * 40  # about 40 + 600 / 120 * 40 = 240
+    between = truth.times[:-1] + 0.25
+    for t in between[::20]:
+        assert truth.alive(np.arange(n), np.full(n, t)).sum() == 40, t
+    entering = truth.t0 > 0
+    flights = truth.t1[entering & (truth.t1 < 600.0)] - truth.t0[entering & (truth.t1 < 600.0)]
+    assert flights.size > 100 and flights.min() >= 59.5 and flights.max() <= 180.5
+    assert np.all(truth.t0[entering] % 0.5 == 0) and np.all(truth.t1 % 0.5 == 0)
+    first = truth.state_at(np.flatnonzero(entering), truth.t0[entering])
+    assert np.all((first.lat >= AREA["lat_min"]) & (first.lat <= AREA["lat_max"]))
+    gone = np.flatnonzero(truth.t1 < 590.0)
+    assert np.isnan(truth.state_at(gone, truth.t1[gone] + 5.0).lat).all()
+    assert np.isfinite(truth.state_at(gone, truth.t1[gone]).lat).all()
+    later = truth.lat[gone][:, -1]
+    assert np.isnan(later).all()

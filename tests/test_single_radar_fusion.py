@@ -76,6 +76,7 @@ def system_against_local(capture: Path) -> tuple[int, float, float]:
     return len(system), float(np.max(dp)), float(np.max(dv))
 
 
+@pytest.mark.slow
 def test_real_single_radar_system_tracks_follow_their_local_tracks() -> None:
     """068test_bds30.gps: one Mode S radar, no ADS-B, no field monitor. On main the system
     tracks were 14.6 m/s (median) away from the local tracks, with plot innovations of

@@ -581,7 +581,11 @@ def test_the_daemon_says_why_a_capture_sent_hours_late_is_degraded(tmp_path: Pat
     """``simulate`` without ``--start now`` sent to ``run`` over UDP on 127.0.0.1: the last
     status the daemon logs (built in its output process from plain rows) names each radar,
     its offset and the fix."""
-    recording = simulate_recording(tmp_path / "old.mcap", 12.0, start="2026-06-01T10:00:00Z")
+    # Six hours before now, whatever the hour: a fixed time of day would be more than 12 h
+    # off for half the day, and then the nearest day makes it ahead of its reception.
+    six_hours_ago = datetime.datetime.now(datetime.UTC) - datetime.timedelta(hours=6)
+    start = six_hours_ago.strftime("%Y-%m-%dT%H:%M:%SZ")
+    recording = simulate_recording(tmp_path / "old.mcap", 12.0, start=start)
     feeds = Feeds(tmp_path)
     daemon = DaemonProcess(feeds, endpoint(), tmp_path / "health")
     try:

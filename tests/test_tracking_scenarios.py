@@ -27,6 +27,7 @@ def three_sites(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict[str,
     return _local("three_sites", tmp_path_factory.mktemp("three_sites"))
 
 
+@pytest.mark.slow
 def test_crossings_keep_every_identity(tmp_path: Path) -> None:
     metrics = _local("crossings", tmp_path)
     for radar, local in metrics["local"].items():
@@ -35,6 +36,7 @@ def test_crossings_keep_every_identity(tmp_path: Path) -> None:
         assert local["false_tracks"] == 0, radar
 
 
+@pytest.mark.slow
 def test_three_sites_targets_met(three_sites: dict[str, dict[str, Any]]) -> None:
     for radar, local in three_sites["local"].items():
         ratio = local["position_rms_m"] / three_sites["plots"][radar]["position_rms_m"]

@@ -1,14 +1,15 @@
-"""Writes the generated scenarios of this folder: crossings, tma and scale.
+"""Writes the generated scenarios of this folder: crossings, tma, scale and artas.
 
-three_sites.toml is written by hand; these three hold geometry that is easier to compute
-than to type (encounter start points, holding patterns, a grid of 20 radars).
+three_sites.toml is written by hand; these hold geometry that is easier to compute than
+to type (encounter start points, holding patterns, grids of 20 and 48 radars).
 
-Run: python config/scenarios/generate.py   (deterministic; overwrites the three files)
+Run: python config/scenarios/generate.py   (deterministic; overwrites the four files)
 """
 
 from __future__ import annotations
 
 import math
+import random
 from pathlib import Path
 from typing import Any
 
@@ -277,7 +278,146 @@ def scale() -> None:
     )
 
 
+# ARTAS-class: (kind, how many, antenna periods cycled through). En-route Mode S stations
+# (some with a co-mounted primary), conventional SSR, terminal Mode S + PSR and PSR-only.
+ARTAS_KINDS = [
+    ("mode_s", 20, [8.0, 10.0, 12.0]),
+    ("mode_s_psr", 6, [4.0, 5.0, 6.0]),
+    ("ssr", 12, [6.0, 8.0, 10.0, 12.0]),
+    ("terminal", 6, [4.0, 5.0]),
+    ("psr", 4, [4.0, 6.0]),
+]
+
+
+def _artas_radar(kind: str, sic: int, lat: float, lon: float, period: float, rnd: random.Random):
+    def signed(low: float, high: float) -> float:
+        return round(rnd.choice([-1.0, 1.0]) * rnd.uniform(low, high), 3)
+
+    radar = _radar(f"A{sic:02d}", sic, lat, lon, period, alt_m=round(rnd.uniform(200, 1400)))
+    radar["sac"] = 50
+    radar["output"] = {"group": f"232.1.50.{sic}", "port": 8600}
+    if kind in ("mode_s", "mode_s_psr", "terminal"):
+        radar.update(sigma_range_m=round(rnd.uniform(25, 50)), sigma_azimuth_deg=0.05)
+    else:  # conventional monopulse SSR and primaries are less accurate
+        radar.update(sigma_range_m=round(rnd.uniform(60, 90)), sigma_azimuth_deg=0.08)
+    radar["psr_sigma_range_m"] = round(rnd.uniform(60, 100))
+    radar["psr_sigma_azimuth_deg"] = 0.1
+    if kind == "mode_s":
+        radar.update(max_range_nm=250.0, psr=False)
+    elif kind == "mode_s_psr":
+        radar.update(max_range_nm=200.0, psr_max_range_nm=80.0)
+    elif kind == "ssr":
+        radar.update(max_range_nm=200.0, psr=False, mode_s=False)
+    elif kind == "terminal":
+        radar.update(max_range_nm=100.0, psr_max_range_nm=60.0, sectors=32)
+    else:
+        radar.update(max_range_nm=100.0, psr_max_range_nm=100.0, ssr=False, mode_s=False)
+    if radar.get("psr", True):
+        radar["clutter"] = {"persistent_per_scan": 3, "random_per_scan": 3.0}
+    # Realistic systematic errors: tens to 150 m, up to 1 m/NM, 0.02-0.15 deg, up to 0.1 s,
+    # some of them wandering slowly.
+    radar["bias"] = {
+        "range_offset_m": {"value": signed(20, 150), "wander_per_sqrt_h": 10.0},
+        "range_gain_m_per_nm": signed(0.0, 1.0),
+        "azimuth_offset_deg": {"value": signed(0.02, 0.15), "wander_per_sqrt_h": 0.01},
+        "time_offset_s": signed(0.0, 0.1),
+    }
+    radar["pathologies"] = {
+        "reflection": 0.001,
+        "split": 0.002,
+        "garbled_mode_c": 0.001,
+        "missing_mode_c": 0.002,
+        "garbled_mode_3a": 0.001,
+        "missing_mode_3a": 0.001,
+    }
+    if sic % 4 == 1:  # one station in four feeds two LANs
+        radar["dual_lan"] = True
+        radar["output"]["second_lan_group"] = f"232.2.50.{sic}"
+    if kind in ("mode_s", "ssr") and sic % 3 == 0:
+        radar["field_monitor"] = {
+            "lat": round(lat + 0.08, 4),
+            "lon": round(lon + 0.1, 4),
+            "alt_m": radar["alt_m"] - 100.0,
+            "mode3a": "7777",
+            "address": f"FFF{sic:03X}" if kind == "mode_s" else None,
+        }
+        if radar["field_monitor"]["address"] is None:
+            del radar["field_monitor"]["address"]
+    return radar
+
+
+def artas() -> None:
+    rnd = random.Random(48)
+    area = {"lat_min": 42.0, "lat_max": 58.67, "lon_min": -2.0, "lon_max": 24.0}
+    kinds = [(k, periods[i % len(periods)]) for k, n, periods in ARTAS_KINDS for i in range(n)]
+    rnd.shuffle(kinds)
+    radars = []
+    rows, cols = 8, 6  # 1,000 NM / 8 north-south, / 6 east-west: 125 x 167 NM cells
+    for row in range(rows):
+        for col in range(cols):
+            sic = 1 + row * cols + col
+            kind, period = kinds[sic - 1]
+            lat = area["lat_min"] + (row + 0.5 + rnd.uniform(-0.3, 0.3)) * 16.67 / rows
+            lon = area["lon_min"] + (col + 0.5 + rnd.uniform(-0.3, 0.3)) * 26.0 / cols
+            radar = _artas_radar(kind, sic, round(lat, 4), round(lon, 4), period, rnd)
+            radar["initial_azimuth_deg"] = round(rnd.uniform(0.0, 360.0), 1)
+            radars.append(radar)
+    stations = [
+        {
+            "name": name,
+            "sac": 50,
+            "sic": sic,
+            "lat": lat,
+            "lon": lon,
+            "alt_m": 300.0,
+            "range_nm": 200.0,
+            "report_interval_s": 1.0,
+            "latency_s": 0.3,
+            "output": {"group": f"232.1.2.{sic}", "port": 8621},
+        }
+        for name, sic, lat, lon in [
+            ("ADS-B North", 101, 55.5, 6.0),
+            ("ADS-B Centre", 102, 50.3, 14.0),
+            ("ADS-B South", 103, 45.0, 8.0),
+        ]
+    ]
+    _write(
+        HERE / "artas.toml",
+        {
+            "name": "artas",
+            "description": "ARTAS-class: 48 radars, 3 ADS-B stations, 4,000 aircraft in the air",
+            "seed": 48,
+            "start": "2026-06-01T12:00:00Z",
+            "duration_s": 1800.0,
+            "system_centre": {"lat": 50.33, "lon": 11.0},
+            "truth_rate_hz": 0.2,
+            "traffic": {
+                "count": 4000,
+                "area": area,
+                "fl_min": 50.0,
+                "fl_max": 410.0,
+                "turning_fraction": 0.15,
+                "climbing_fraction": 0.2,
+                "mode_s_fraction": 0.9,
+                "psr_only_fraction": 0.01,
+                "adsb_fraction": 0.6,
+                "shared_address_pairs": 2,
+                "code_changes": 20,
+                "mean_flight_s": 2400.0,
+            },
+        },
+        [("radars", r) for r in radars] + [("adsb_stations", s) for s in stations],
+        "What EUROCONTROL's ARTAS carries: 48 radars on a jittered 8 x 6 grid over a\n"
+        "1,000 x 1,000 NM region (20 en-route Mode S, 6 Mode S with a primary, 12\n"
+        "conventional SSR, 6 terminal Mode S + PSR, 4 PSR-only; periods 4-12 s; one in four\n"
+        "on two LANs; biases of tens of metres and hundredths of a degree), three ADS-B\n"
+        "stations, and 4,000 aircraft in the air at any time, entering and leaving\n"
+        "(40-minute flights on average). Simulate a slice: --duration 120.",
+    )
+
+
 if __name__ == "__main__":
     crossings()
     tma()
     scale()
+    artas()

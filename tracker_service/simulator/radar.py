@@ -41,6 +41,9 @@ FT = 0.3048
 KT = 1852.0 / 3600.0
 CLUTTER_PD = 0.9
 ICAO_G = 9.80665
+NEAR_COVERAGE_M = 20_000.0
+"""An aircraft whose range at every scan's middle is this far beyond the radar's maximum
+cannot be in coverage at a crossing (half a period from a middle: a few km at 1,200 kt)."""
 
 
 @dataclass
@@ -162,12 +165,20 @@ class RadarModel:
 
     # --- detection geometry ---------------------------------------------------------------
 
-    def _measure(self, aircraft: npt.NDArray[np.int64], t: FloatArray) -> dict[str, FloatArray]:
+    def _measure(
+        self, aircraft: npt.NDArray[np.int64], t: FloatArray, horizon: bool = True
+    ) -> dict[str, FloatArray]:
+        """Geometry and state at ``t``; the radar horizon (costly: a geodesic per point)
+        only with ``horizon``, else ``visible`` is all true."""
         state = self.truth.state_at(aircraft, t)
         h_ellipsoid = state.h_msl + geometry.geoid_undulation_m(state.lat, state.lon)
         x, y, z = geometry.geodetic_to_ecef(state.lat, state.lon, h_ellipsoid)
         rho, azimuth, elevation = geometry.measure(self.site, x, y, z)
-        visible = geometry.line_of_sight(self.site, x, y, z)
+        visible = (
+            geometry.line_of_sight(self.site, x, y, z)
+            if horizon
+            else np.ones(np.shape(rho), dtype=np.bool_)
+        )
         return {
             "rho": rho,
             "azimuth": azimuth,
@@ -191,26 +202,41 @@ class RadarModel:
         flight, so each crossing is found exactly once even when the aircraft sits near the
         azimuth where scans start, or passes near the radar.
         """
-        n, period = len(self.truth.identities), self.period
+        period = self.period
         mids = (np.arange(self.scans + 1) + 0.5) * period
-        aircraft = np.repeat(np.arange(n), len(mids))
-        when = np.tile(mids, n)
-        seen = self._measure(aircraft, np.minimum(when, self.duration))["azimuth"]
-        azimuth = np.asarray(seen).reshape(n, len(mids))
-        # Unwrap through gaps (not alive): fill with the last known azimuth first.
-        filled = np.where(np.isfinite(azimuth), azimuth, np.nan)
-        for a in range(n):
-            row = filled[a]
-            known = np.flatnonzero(np.isfinite(row))
-            if len(known):
-                row[:] = np.interp(np.arange(len(row)), known, row[known])
+        # Only aircraft alive in the run and near the coverage at some scan's middle.
+        candidates = np.flatnonzero(self.truth.t0 <= self.duration)
+        when = np.tile(mids, candidates.size)
+        seen = self._measure(
+            np.repeat(candidates, len(mids)), np.minimum(when, self.duration), horizon=False
+        )
+        rho_at_mid = np.nan_to_num(seen["rho"], nan=np.inf).reshape(-1, len(mids))
+        near = rho_at_mid.min(axis=1, initial=np.inf) <= self.radar.max_range_nm * NM + (
+            NEAR_COVERAGE_M
+        )
+        candidates = candidates[near]
+        n = candidates.size
+        azimuth = np.asarray(seen["azimuth"]).reshape(-1, len(mids))[near]
+        # Unwrap through gaps (not alive): a lifetime is one stretch, so the gaps are at its
+        # ends, filled with the nearest known azimuth (forward, then backward).
+        known = np.isfinite(azimuth)
+        columns = np.arange(len(mids))
+        last_known = np.maximum.accumulate(np.where(known, columns, -1), axis=1)
+        next_known = np.minimum.accumulate(np.where(known, columns, len(mids))[:, ::-1], axis=1)[
+            :, ::-1
+        ]
+        nearest = np.where(last_known >= 0, last_known, np.minimum(next_known, len(mids) - 1))
+        filled = np.take_along_axis(azimuth, nearest, axis=1)
         unwrapped = np.unwrap(filled, period=360.0, axis=1)
         phase_at_mid = self._phase(unwrapped)
         # Crossing numbers m with t = P (m + phase) inside the run, per aircraft.
-        m_lo = np.floor(-phase_at_mid.max(axis=1, initial=0.0) - 1).astype(np.int64)
-        m_hi = np.ceil(self.scans - phase_at_mid.min(axis=1, initial=0.0) + 1).astype(np.int64)
+        # (Rows never alive at a middle stay NaN and get no crossing: counts below.)
+        highest = np.nan_to_num(phase_at_mid.max(axis=1, initial=0.0))
+        lowest = np.nan_to_num(phase_at_mid.min(axis=1, initial=0.0))
+        m_lo = np.floor(-highest - 1).astype(np.int64)
+        m_hi = np.ceil(self.scans - lowest + 1).astype(np.int64)
         counts = np.where(np.isfinite(phase_at_mid).all(axis=1), m_hi - m_lo + 1, 0)
-        ac = np.repeat(np.arange(n), counts)
+        ac = np.repeat(np.arange(n), counts)  # rows of ``candidates`` until the end
         m = (
             np.concatenate([np.arange(lo, lo + c) for lo, c in zip(m_lo, counts, strict=True)])
             if len(ac)
@@ -223,11 +249,13 @@ class RadarModel:
         for _ in range(4):
             k = np.clip(np.round(t / period - 0.5).astype(np.int64), 0, self.scans)
             reference = unwrapped[ac, k]
-            az = self._measure(ac, np.clip(t, 0.0, self.duration))["azimuth"]
+            az = self._measure(candidates[ac], np.clip(t, 0.0, self.duration), horizon=False)[
+                "azimuth"
+            ]
             continuous = reference + (np.nan_to_num(az - reference) + 180.0) % 360.0 - 180.0
             t = period * (m + self._phase(continuous))
         inside = (t >= 0.0) & (t < self.duration)
-        ac, t = ac[inside], t[inside]
+        ac, t = candidates[ac[inside]], t[inside]
         alive = self.truth.alive(ac, t)
         ac, t = ac[alive], t[alive]
         measured = self._measure(ac, t)

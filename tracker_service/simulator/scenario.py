@@ -293,6 +293,11 @@ class Traffic(_Strict):
     """Pairs of aircraft given the same Mode S address, as happens now and then."""
     code_changes: Annotated[int, Field(ge=0)] = 0
     """Aircraft whose Mode 3/A code changes in flight."""
+    mean_flight_s: Annotated[float, Field(ge=60.0)] | None = None
+    """With it, traffic enters and leaves: ``count`` stays the number in the air while
+    each aircraft flies for 0.5-1.5 times this mean (those in the air at the start part-way
+    through), then leaves, and another enters at a random point of the area. Unset: the
+    same aircraft for the whole scenario."""
 
     @model_validator(mode="after")
     def _how_many(self) -> Traffic:

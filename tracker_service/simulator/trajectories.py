@@ -26,7 +26,8 @@ Conventions (the radar and ADS-B models rely on them):
   and level at constant speed to the end of the scenario. Leg ends need not fall on the
   sample grid: the integration stops at them.
 * Lifetime. An explicit aircraft exists from ``start_s`` to the end of the scenario,
-  generated ones for the whole scenario; aircraft leaving the traffic area keep flying.
+  generated ones for the whole scenario, or, with ``mean_flight_s``, from when they enter
+  to when they leave (on the sample grid); aircraft leaving the traffic area keep flying.
   ``start_s`` need not be on the grid either: ``Truth.start_state``/``end_state`` hold
   the exact states at ``t0``/``t1``, so ``state_at`` covers the whole lifetime.
 """
@@ -291,7 +292,7 @@ class _Segments:
 
 @dataclass
 class _Start:
-    """Initial conditions, one entry per aircraft."""
+    """Initial conditions and end of life (inf: the end of the run), one per aircraft."""
 
     t0: FloatArray
     lat: FloatArray
@@ -299,13 +300,14 @@ class _Start:
     h: FloatArray
     heading: FloatArray
     speed: FloatArray
+    t1: FloatArray
 
     @staticmethod
     def concat(parts: list[_Start]) -> _Start:
         return _Start(
             *(
                 np.concatenate([getattr(p, name) for p in parts])
-                for name in ("t0", "lat", "lon", "h", "heading", "speed")
+                for name in ("t0", "lat", "lon", "h", "heading", "speed", "t1")
             )
         )
 
@@ -330,6 +332,7 @@ def _explicit(aircraft: list[Aircraft]) -> tuple[list[Identity], _Start, _Segmen
         h=_floats([ac.fl * 100.0 * FT for ac in aircraft]),
         heading=_floats([ac.heading_deg % 360.0 for ac in aircraft]),
         speed=_floats([ac.speed_kt * KT for ac in aircraft]),
+        t1=np.full(len(aircraft), np.inf),
     )
     offset: list[int] = []
     rows: list[tuple[float, float, float, float, float, float]] = []
@@ -387,6 +390,30 @@ def _round_to(x: FloatArray, step: float) -> FloatArray:
     return np.asarray(np.maximum(np.round(x / step), 1.0) * step, dtype=np.float64)
 
 
+def _lifetimes(
+    traffic: Traffic, rng: np.random.Generator, duration_s: float, dt: float
+) -> tuple[FloatArray, FloatArray]:
+    """(t0, t1) of every generated aircraft, those in the air at the start first.
+
+    Without ``mean_flight_s`` the ``count`` aircraft fly the whole scenario. With it, each
+    of ``count`` places in the air holds one flight after another, each 0.5-1.5 times the
+    mean long; the one under way at the start is a random part of its flight through.
+    Times are on the sample grid, so that a flight's ends are samples.
+    """
+    n = traffic_count(traffic)
+    if traffic.mean_flight_s is None:
+        return np.zeros(n), np.full(n, np.inf)
+    mean = traffic.mean_flight_s
+    per_place = math.ceil(duration_s / (0.5 * mean)) + 1
+    flights = rng.uniform(0.5 * mean, 1.5 * mean, (n, per_place))
+    flights[:, 0] *= rng.random(n)
+    ends = _round_to(np.cumsum(flights, axis=1), dt)
+    starts = np.concatenate([np.zeros((n, 1)), ends[:, :-1]], axis=1)
+    flying = starts < duration_s
+    order = np.argsort(starts[flying], kind="stable")
+    return starts[flying][order], ends[flying][order]
+
+
 def _generated(
     traffic: Traffic,
     rng: np.random.Generator,
@@ -394,7 +421,8 @@ def _generated(
     dt: float,
     taken: list[Identity],
 ) -> tuple[list[Identity], _Start, _Segments]:
-    n = traffic_count(traffic)
+    t0, t1 = _lifetimes(traffic, rng, duration_s, dt)
+    n = t0.size
     area = traffic.area
     phi, cumulative, _ = _latitude_cdf(area)
     lat = np.degrees(np.interp(rng.random(n) * cumulative[-1], cumulative, phi))
@@ -410,8 +438,8 @@ def _generated(
     lowest, highest = math.ceil(traffic.fl_min / 10) * 10, math.floor(traffic.fl_max / 10) * 10
     if lowest <= highest:
         fl = np.where(climbing, fl, np.clip(np.round(fl / 10.0) * 10.0, lowest, highest))
-    start = _Start(np.zeros(n), lat, lon, fl * 100.0 * FT, heading, speed)
-    segments = _generated_plans(traffic, rng, duration_s, dt, fl, turning, climbing)
+    start = _Start(t0, lat, lon, fl * 100.0 * FT, heading, speed, t1)
+    segments = _generated_plans(traffic, rng, duration_s, dt, t0, fl, turning, climbing)
     identities = _generated_identities(traffic, rng, duration_s, n, taken)
     return identities, start, segments
 
@@ -421,6 +449,7 @@ def _generated_plans(
     rng: np.random.Generator,
     duration_s: float,
     dt: float,
+    t0: FloatArray,
     fl: FloatArray,
     turning: BoolArray,
     climbing: BoolArray,
@@ -469,7 +498,8 @@ def _generated_plans(
     h_target[climbers, 1] = target * 100.0 * FT
     valid[climbers, :2] = True
 
-    ends = np.cumsum(duration, axis=1)
+    # Each plan starts when its aircraft enters (t0, 0 for those flying from the start).
+    ends = t0[:, None] + np.cumsum(duration, axis=1)
     valid[turners, :-1] = (ends - duration)[turners, :-1] < duration_s
     valid[:, -1] = True
     ends[:, -1] = np.inf
@@ -702,7 +732,7 @@ def build_truth(
     # No sample after t1, even by a rounding error (state_at would call it dead).
     times[-1] = min(times[-1], float(duration_s))
     t0 = start.t0
-    t1 = np.full(n, float(duration_s))
+    t1 = np.minimum(start.t1, float(duration_s))
 
     flight = _Integrator(start, segments)
     start_state = flight.snapshot()
@@ -720,6 +750,14 @@ def build_truth(
                 stored[name][started, k] = values[started]
     flight.advance_to(float(duration_s))  # t1 off the grid: one more partial step
     end_state = flight.snapshot()
+    # Aircraft that leave before the end (t1 on the grid): NaN after t1, end state at it.
+    leaving = np.flatnonzero(t1 < float(duration_s))
+    if leaving.size:
+        last = np.round(t1[leaving] / dt).astype(np.int64)
+        after = times[None, :] > t1[leaving, None] + _EPS
+        for name in _FIELDS:
+            getattr(end_state, name)[leaving] = stored[name][leaving, last]
+            stored[name][leaving] = np.where(after, np.nan, stored[name][leaving])
     never = t0 > t1
     for state in (start_state, end_state):
         for name in _FIELDS:
