@@ -270,10 +270,10 @@ class LocalTracker:
         if pairs is None:
             self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
             return used, blocked, updated
-        blocked[pairs.plot[cols["status"][pairs.track] == CONFIRMED]] = True
         weighted = self.associator.associate(pairs, len(p))
         if weighted.is_hard:
             # One plot per track (GNN): the plain IMM update.
+            blocked[pairs.plot[cols["status"][pairs.track] == CONFIRMED]] = True
             sel = weighted.pair
             tracks, plot_index, posterior = pairs.track[sel], pairs.plot[sel], None
             used[plot_index] = True
@@ -281,10 +281,10 @@ class LocalTracker:
             posterior = weighted_update(pairs, weighted, np.column_stack([p.x, p.y]), p.R)
             sel = posterior.reported
             tracks, plot_index = posterior.track, pairs.plot[sel]
-            # A plot goes to initiation unless a track reported it or took it more
-            # likely than not.
-            taken = np.bincount(pairs.plot[weighted.pair], weighted.weight, minlength=len(p))
-            used |= taken >= 0.5
+            # A plot goes to initiation unless it is a track's most likely plot: blocking
+            # every plot in a confirmed track's gate (or every plot the tracks together
+            # probably take) leaves a second aircraft 1 km away without a track of its
+            # own, and the first track's mixture takes both for good.
             used[plot_index] = True
         if tracks.size == 0:
             self.stats.late_plots_dropped += int(np.count_nonzero(too_old & ~used))
