@@ -274,7 +274,8 @@ def main() -> None:
             print(f"seed {seed}: {time.perf_counter() - started:.0f} s", flush=True)
             if args.json:
                 args.json.write_text(json.dumps(doc, indent=1))
-    print(summarise(doc["seeds"], args.associators))
+    if doc["seeds"]:
+        print(summarise(doc["seeds"], args.associators))
     for key, path in (("tma", args.tma), ("three_sites", args.three_sites)):
         if path is None:
             continue

@@ -270,7 +270,7 @@ class LocalTracker:
         if pairs is None:
             self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
             return used, blocked, updated
-        weighted = self.associator.associate(pairs, len(p))
+        weighted = self.associator.associate(pairs)
         if weighted.is_hard:
             # One plot per track (GNN): the plain IMM update.
             blocked[pairs.plot[cols["status"][pairs.track] == CONFIRMED]] = True

@@ -15,5 +15,5 @@ class GlobalNearestNeighbour:
     def __init__(self, config: TrackerConfig) -> None:
         self.config = config
 
-    def associate(self, pairs: GatedPairs, n_plots: int) -> WeightedPairs:
+    def associate(self, pairs: GatedPairs) -> WeightedPairs:
         return WeightedPairs.hard(global_nearest_neighbour(pairs.track, pairs.plot, pairs.cost))

@@ -47,7 +47,7 @@ class JointProbabilisticDataAssociation:
         self.log_miss = math.log(1.0 - pd)
         self.log_pd_over_clutter = math.log(pd) - math.log(config.clutter_density_per_km2 * 1e-6)
 
-    def associate(self, pairs: GatedPairs, n_plots: int) -> WeightedPairs:
+    def associate(self, pairs: GatedPairs) -> WeightedPairs:
         score = pairs.log_likelihood + self.log_pd_over_clutter
         _, t_idx = np.unique(pairs.track, return_inverse=True)
         _, p_idx = np.unique(pairs.plot, return_inverse=True)
