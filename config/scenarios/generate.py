@@ -1,15 +1,17 @@
-"""Writes the generated scenarios of this folder: crossings, tma, scale and artas.
+"""Writes the generated scenarios of this folder: crossings, encounters, tma, scale and
+artas.
 
 three_sites.toml is written by hand; these hold geometry that is easier to compute than
 to type (encounter start points, holding patterns, grids of 20 and 48 radars).
 
-Run: python config/scenarios/generate.py   (deterministic; overwrites the four files)
+Run: python config/scenarios/generate.py   (deterministic; overwrites those files)
 """
 
 from __future__ import annotations
 
 import math
 import random
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -157,6 +159,174 @@ def crossings() -> None:
         "and opposite tracks, at one flight level, with closest approaches of 1-3 NM four\n"
         "minutes after the start; Mode S, Mode A/C-only with one shared code, PSR-only.\n"
         "The scenario crosses midnight (UTC) on purpose.",
+    )
+
+
+ENCOUNTER_SPEED_KT = 420.0
+ENCOUNTER_BEFORE_S = 130.0
+"""Time from the start to each encounter's closest approach: enough for the 12 s radar to
+confirm every track (3 of 4 scans) well before it."""
+ENCOUNTER_FL = 300.0
+ENCOUNTER_TRANSPONDERS = (("S", "mode_s"), ("C", "mode_ac"), ("P", "none"))
+"""Callsign letter and transponder: Mode S, Mode A/C sharing one code, primary only."""
+PARABOLIC_TURN_DEG_S = 0.5
+PARABOLIC_CONVERGENCE_DEG = 20.0
+
+
+def _offset(centre: tuple[float, float], east_m: float, north_m: float) -> tuple[float, float]:
+    """(lat, lon) of a point east_m, north_m from ``centre`` (lat, lon)."""
+    azimuth = math.degrees(math.atan2(east_m, north_m))
+    lon, lat, _ = GEOD.fwd(centre[1], centre[0], azimuth, math.hypot(east_m, north_m))
+    return lat, lon
+
+
+def _start(
+    centre: tuple[float, float], heading: float, east_m: float, north_m: float
+) -> dict[str, Any]:
+    """The start of an aircraft on ``heading`` that passes the point east_m, north_m of
+    ``centre`` at the encounter time (flat plane: tens of metres over these 30 km)."""
+    h = math.radians(heading)
+    back = ENCOUNTER_SPEED_KT * KT * ENCOUNTER_BEFORE_S
+    lat, lon = _offset(centre, east_m - back * math.sin(h), north_m - back * math.cos(h))
+    return {"lat": lat, "lon": lon, "heading_deg": heading % 360.0}
+
+
+def _abreast(
+    centre: tuple[float, float], heading: float, spacing_km: float, n: int
+) -> list[dict[str, Any]]:
+    """``n`` aircraft side by side, ``spacing_km`` apart across ``heading``, passing abeam
+    ``centre`` at the encounter time."""
+    h = math.radians(heading)
+    across = (math.cos(h), -math.sin(h))
+    sides = [(k - (n - 1) / 2.0) * spacing_km * 1000.0 for k in range(n)]
+    return [_start(centre, heading, d * across[0], d * across[1]) for d in sides]
+
+
+def _crossing(
+    centre: tuple[float, float], heading: float, angle: float, miss_km: float
+) -> list[dict[str, Any]]:
+    """Two aircraft, the second ``angle`` degrees right of the first, closest ``miss_km``
+    apart (across the first's track) at the encounter time; 0: through one point."""
+    h = math.radians(heading)
+    half = 500.0 * miss_km
+    across = (half * math.cos(h), -half * math.sin(h))
+    return [
+        _start(centre, heading, -across[0], -across[1]),
+        _start(centre, heading + angle, across[0], across[1]),
+    ]
+
+
+def _parabolic(centre: tuple[float, float], heading: float, miss_km: float) -> list[dict[str, Any]]:
+    """A straight aircraft and one that converges at 20 degrees, turns right through
+    parallel ``miss_km`` abeam of the first at the encounter time, and diverges: a
+    parabola-like pass. The second's start is found by flying its path back (flat plane,
+    good to tens of metres over these 50 km)."""
+    straight = _abreast(centre, heading, 0.0, 1)[0]
+    rate = PARABOLIC_TURN_DEG_S
+    turn_s = PARABOLIC_CONVERGENCE_DEG / rate
+    speed = ENCOUNTER_SPEED_KT * KT
+    h = math.radians(heading)
+    across = (math.cos(h), -math.sin(h))
+    # Back from the apex: abeam on the right, heading parallel.
+    x, y, course, step = miss_km * 1000.0 * across[0], miss_km * 1000.0 * across[1], heading, 0.5
+    t = 0.0
+    while t < ENCOUNTER_BEFORE_S - 1e-9:
+        if t < turn_s:
+            course -= rate * step  # undo a right turn
+        c = math.radians(course)
+        x -= speed * step * math.sin(c)
+        y -= speed * step * math.cos(c)
+        t += step
+    lat, lon = _offset(centre, x, y)
+    straight_leg = ENCOUNTER_BEFORE_S - turn_s
+    curved = {
+        "lat": lat,
+        "lon": lon,
+        "heading_deg": course % 360.0,
+        "legs": [
+            {"duration_s": straight_leg},
+            {"duration_s": 2.0 * turn_s, "turn_rate_deg_s": rate},
+        ],
+    }
+    return [straight, curved]
+
+
+def encounters() -> None:
+    """The closely spaced encounters of the association literature (DOMAIN.md section 5),
+    each flown three times, with Mode S, with Mode A/C sharing one code and primary only,
+    seen by radars of 4, 8 and 12 s."""
+    radars = [
+        _radar("Approach", 1, 49.55, 14.75, 4.0, max_range_nm=200.0),
+        _radar("Regional", 2, 49.05, 15.80, 8.0),
+        _radar("Enroute", 3, 50.05, 15.95, 12.0),
+    ]
+    for radar in radars:
+        radar["sac"] = 33
+        radar["psr_max_range_nm"] = 200.0  # every primary-only encounter in PSR cover
+        radar["output"] = {"group": f"232.1.33.{radar['sic']}", "port": 8600}
+    # (type, geometry(centre, heading)): the aircraft's start states.
+    kinds: list[tuple[str, Callable[[tuple[float, float], float], list[dict[str, Any]]]]] = [
+        ("PAR05", lambda c, h: _abreast(c, h, 0.5, 2)),
+        ("PAR10", lambda c, h: _abreast(c, h, 1.0, 2)),
+        ("PAR20", lambda c, h: _abreast(c, h, 2.0, 2)),
+        ("OPP", lambda c, h: _crossing(c, h, 180.0, 1.0)),
+        ("X90", lambda c, h: _crossing(c, h, 90.0, 0.0)),
+        ("X45", lambda c, h: _crossing(c, h, 45.0, 0.0)),
+        ("X15", lambda c, h: _crossing(c, h, 15.0, 0.0)),
+        ("PARAB", lambda c, h: _parabolic(c, h, 1.0)),
+        ("ABR3", lambda c, h: _abreast(c, h, 1.0, 3)),
+        ("CLIMB", lambda c, h: _abreast(c, h, 1.0, 2)),
+    ]
+    aircraft: list[tuple[str, dict[str, Any]]] = []
+    index = 0
+    for t, (letter, transponder) in enumerate(ENCOUNTER_TRANSPONDERS):
+        for k, (kind, geometry) in enumerate(kinds):
+            # A 5 x 6 grid, 70 km apart: each encounter spans about 60 km of path.
+            row, col = divmod(t * len(kinds) + k, 6)
+            centre = _offset((49.55, 15.35), (col - 2.5) * 70e3, (row - 2.0) * 70e3)
+            heading = (20.0 + 37.0 * index) % 360.0
+            index += 1
+            for j, start in enumerate(geometry(centre, heading)):
+                plane: dict[str, Any] = {
+                    "callsign": f"{kind}{letter}{'ABC'[j]}",
+                    "transponder": transponder,
+                    "lat": start["lat"],
+                    "lon": start["lon"],
+                    "fl": ENCOUNTER_FL,
+                    "speed_kt": ENCOUNTER_SPEED_KT,
+                    "heading_deg": start["heading_deg"],
+                }
+                if kind == "CLIMB" and j == 1:
+                    # Through the other's level at the encounter time.
+                    plane["fl"] = ENCOUNTER_FL - 1500.0 * ENCOUNTER_BEFORE_S / 6000.0
+                    plane["legs"] = [{"duration_s": 600.0, "climb_fpm": 1500.0, "target_fl": 360.0}]
+                if "legs" in start:
+                    plane["legs"] = start["legs"]
+                if transponder == "mode_s":
+                    plane["mode3a"] = f"{(0o4000 + 8 * k + j):04o}"
+                    plane["address"] = f"{0x3D0000 + 16 * k + j:06X}"
+                elif transponder == "mode_ac":
+                    plane["mode3a"] = "7000"
+                aircraft.append(("aircraft", plane))
+    _write(
+        HERE / "encounters.toml",
+        {
+            "name": "encounters",
+            "description": "Closely spaced encounters: parallel, opposite, crossing, parabolic, "
+            "three abreast, climbing through",
+            "seed": 13,
+            "start": "2026-06-01T10:00:00Z",
+            "duration_s": 2.0 * ENCOUNTER_BEFORE_S,
+            "system_centre": {"lat": 49.55, "lon": 15.35},
+            "truth_rate_hz": 1.0,
+        },
+        [("radars", r) for r in radars] + aircraft,
+        "The association literature's closely spaced encounters, closest approach 130 s\n"
+        "after the start: parallel 0.5, 1 and 2 km apart, opposite 1 km apart, 90, 45 and\n"
+        "15 degree crossings through one point, a parabolic pass 1 km abeam, three abreast\n"
+        "1 km apart, one aircraft climbing through the other's level 1 km abeam; each with\n"
+        "Mode S (callsign letter S), Mode A/C sharing code 7000 (C) and primary only (P),\n"
+        "all at FL300, seen by radars of 4, 8 and 12 s. Callsigns: type, letter, aircraft.",
     )
 
 
@@ -418,6 +588,7 @@ def artas() -> None:
 
 if __name__ == "__main__":
     crossings()
+    encounters()
     tma()
     scale()
     artas()

@@ -43,6 +43,7 @@ from tracker_service.evaluation.system_metrics import (
     system_metrics,
     truth_biases,
 )
+from tracker_service.tracking import LocalTracker, TrackerConfig
 
 __all__ = ["Evaluation", "add_arguments", "evaluate", "main", "run"]
 
@@ -76,10 +77,15 @@ class Evaluation:
         return doc
 
 
-def evaluate(path: str | Path, config: EvaluationConfig | None = None) -> Evaluation:
-    """Track a recording's radars and measure plots and local tracks against its truth."""
+def evaluate(
+    path: str | Path,
+    config: EvaluationConfig | None = None,
+    make_tracker: Callable[[str, TrackerConfig], LocalTracker] | None = None,
+) -> Evaluation:
+    """Track a recording's radars and measure plots and local tracks against its truth.
+    ``make_tracker``: as for ``run_pipeline`` (a benchmark times the trackers)."""
     config = config or EvaluationConfig()
-    result = run_pipeline(path, config)
+    result = run_pipeline(path, config, make_tracker)
     truth = truth_from_recording(result.recording, result.plane)
     periods = {source: run.info.period_s for source, run in result.radars.items()}
     coverage = coverage_from_recording(result.recording, periods)

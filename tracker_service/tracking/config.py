@@ -9,6 +9,9 @@ KNOT_M_S = 1852.0 / 3600.0
 SHARED_MODE3A_CODES = (0o7000, 0o2000, 0o1200)
 """Conspicuity and VFR codes worn by many aircraft at once: a match proves nothing."""
 
+ASSOCIATION_METHODS = ("gnn", "jpda")
+"""The associators of ``tracking.association``, by the name ``association`` takes."""
+
 
 @dataclass(frozen=True)
 class TrackerConfig:
@@ -104,6 +107,22 @@ class TrackerConfig:
     """1-dof gate on flight-level innovations: garbled Mode C is ignored, then the filter
     restarts after ``fl_max_rejects`` rejections in a row (a real level change)."""
     fl_max_rejects: int = 2
+    association: str = "gnn"
+    """How gated plots go to tracks (``tracking.association``): "gnn", global nearest
+    neighbour, one plot per track, the right choice where aircraft are well apart;
+    "jpda", joint probabilistic association without coalescence, for closely spaced
+    targets without distinct identities (docs/association.md)."""
+    detection_probability: float = 0.9
+    """Pd of the JPDA likelihood: the prior that a track's own plot is in this batch."""
+    clutter_density_per_km2: float = 0.01
+    """Density of plots that are nobody's (clutter, new targets) in the JPDA likelihood:
+    a plot at the edge of a 100 m gate is as likely a track's as clutter's at about
+    0.01 per km^2, so a lone good pair keeps nearly all its weight."""
+    jpda_max_events: int = 5000
+    """A cluster is enumerated exactly when the product of its tracks' options (gated
+    plots + the miss) is at most this; beyond, ``jpda_k_best`` events are ranked."""
+    jpda_k_best: int = 64
+    """The most likely joint events (Murty's ranking) kept for a large cluster."""
 
     def __post_init__(self) -> None:
         n_models = 1 + len(self.turn_rates_deg_s)
@@ -114,6 +133,14 @@ class TrackerConfig:
             raise ValueError("need 0 < confirm_m <= confirm_n <= 32")
         if self.scan_period_s <= 0 or self.gate <= 0 or self.address_gate <= 0:
             raise ValueError("scan_period_s, gate and address_gate must be positive")
+        if self.association not in ASSOCIATION_METHODS:
+            raise ValueError(
+                f"association: {self.association!r} is not one of {list(ASSOCIATION_METHODS)}"
+            )
+        if not 0.0 < self.detection_probability < 1.0 or self.clutter_density_per_km2 <= 0:
+            raise ValueError("need 0 < detection_probability < 1 and clutter_density_per_km2 > 0")
+        if self.jpda_max_events < 1 or self.jpda_k_best < 1:
+            raise ValueError("jpda_max_events and jpda_k_best must be >= 1")
         if not self.max_clock_jump_periods > 0 or self.clock_resync_batches < 1:
             raise ValueError("max_clock_jump_periods and clock_resync_batches must be positive")
 

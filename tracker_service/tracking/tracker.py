@@ -14,7 +14,12 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.tracking import imm, vertical
-from tracker_service.tracking.associate import candidate_pairs, global_nearest_neighbour
+from tracker_service.tracking.association import (
+    Gate,
+    WeightedUpdate,
+    make_associator,
+    weighted_update,
+)
 from tracker_service.tracking.clock import DataClock
 from tracker_service.tracking.config import TrackerConfig
 from tracker_service.tracking.initiate import TwoPointInitiator, two_point_state
@@ -26,16 +31,11 @@ from tracker_service.tracking.plots import (
     PlotArrays,
     as_bytes,
     as_plot_arrays,
-    is_shared_code,
 )
 
 TENTATIVE, CONFIRMED, COASTING, DELETED = 0, 1, 2, 3
 
 CONFIRM_SPEED_SIGMAS = 2.0
-RADIUS_SAFETY = 1.2
-RADIUS_MARGIN_M = 50.0
-"""The pre-selection radius bounds the gate from the CV prediction of the combined state;
-the IMM's mixture can be a little wider, hence the slack."""
 
 
 def track_update_dtype(n_models: int) -> np.dtype[Any]:
@@ -137,10 +137,8 @@ class LocalTracker:
         """The out-of-line plots of the current run of batches, counted when dropped."""
         self._now = -np.inf
         self._hist_mask = (1 << self.config.confirm_n) - 1
-        # Per-tracker constants of the pre-selection radius, hoisted out of every batch.
-        self._q_max = float(self.models.q.max())
-        self._turn_max = float(np.abs(self.models.turn_rates_rad_s).max())
-        self._widest_gate = max(self.config.gate, self.config.address_gate)
+        self.gate = Gate(self.config, self.models)
+        self.associator = make_associator(self.config)
         self._scan_tolerance_s = (1.0 + self.config.miss_tolerance) * self.config.scan_period_s
 
     def _allocate(self, capacity: int) -> None:
@@ -258,7 +256,6 @@ class LocalTracker:
 
         Returns the plots used, the plots kept from initiation (too late, or in a confirmed
         track's gate: a split or a second plot of a known target), and the tracks updated."""
-        cfg = self.config
         cols = self._cols
         n = self._n
         used = np.zeros(len(p), dtype=bool)
@@ -266,95 +263,55 @@ class LocalTracker:
         updated = np.zeros(n, dtype=bool)
         if n == 0:
             return used, blocked, updated
-        time = p.time
-        plot_xy = np.column_stack([p.x, p.y])
-        t_min, t_max = float(time.min()), float(time.max())
-        t_mid = 0.5 * (t_min + t_max)
-        # max |t - t_mid| over the batch: rounding keeps t - t_mid monotonic in t.
-        spread = max(t_max - t_mid, t_mid - t_min)
-        coarse_xy, radius = self._reach(n, t_mid, spread)
-        r = p.R
-        plot_radius = np.sqrt(cfg.gate * (r[:, 0, 0] + r[:, 1, 1]))
-        ti, pj = candidate_pairs(coarse_xy, radius, plot_xy, plot_radius)
-        if ti.size == 0:
-            # No track near the sector (common for sparse sectors): nothing to predict.
-            return used, blocked, updated
-        dt = time[pj] - cols["t"][ti]
-        late = dt < -cfg.max_backward_s
-        too_old = np.zeros(len(p), dtype=bool)
-        if late.any():
-            too_old[pj[late]] = True
-            blocked |= too_old
-            ti, pj, dt = ti[~late], pj[~late], dt[~late]
-        if ti.size == 0:
+        gated = self.gate(cols, n, p)
+        too_old = gated.too_old
+        blocked |= too_old
+        pairs = gated.pairs
+        if pairs is None:
             self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
             return used, blocked, updated
-
-        pred = imm.predict(cols["x"][ti], cols["P"][ti], cols["mu"][ti], dt, self.models)
-        nis, log_det = imm.innovation_test(pred, plot_xy[pj], r[pj])
-        addr_t, addr_p = cols["address"][ti], p.address[pj]
-        same_address = (addr_t >= 0) & (addr_t == addr_p)
-        gated = np.flatnonzero(nis <= np.where(same_address, cfg.address_gate, cfg.gate))
-        if gated.size == 0:
-            # Skip the assignment and the IMM update: no pair passed its gate.
-            self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
+        weighted = self.associator.associate(pairs)
+        if weighted.is_hard:
+            # One plot per track (GNN): the plain IMM update.
+            blocked[pairs.plot[cols["status"][pairs.track] == CONFIRMED]] = True
+            sel = weighted.pair
+            tracks, plot_index, posterior = pairs.track[sel], pairs.plot[sel], None
+            used[plot_index] = True
+        else:
+            posterior = weighted_update(pairs, weighted, np.column_stack([p.x, p.y]), p.R)
+            sel = posterior.reported
+            tracks, plot_index = posterior.track, pairs.plot[sel]
+            # A plot goes to initiation unless it is a track's most likely plot: blocking
+            # every plot in a confirmed track's gate (or every plot the tracks together
+            # probably take) leaves a second aircraft 1 km away without a track of its
+            # own, and the first track's mixture takes both for good.
+            used[plot_index] = True
+        if tracks.size == 0:
+            self.stats.late_plots_dropped += int(np.count_nonzero(too_old & ~used))
             return used, blocked, updated
-        tg, pg = ti[gated], pj[gated]
-        blocked[pg[cols["status"][tg] == CONFIRMED]] = True
-        cost = nis[gated] + log_det[gated] + self._identity_cost(tg, p, pg)
-        sel = gated[global_nearest_neighbour(tg, pg, cost)]
-        tracks, plot_index = ti[sel], pj[sel]
-        used[plot_index] = True
         updated[tracks] = True
         self.stats.late_plots_dropped += int(np.count_nonzero(too_old & ~used))
         self.stats.plots_associated += int(tracks.size)
-        rows.append(self._apply(tracks, p.take(plot_index), pred.take(sel)))
+        rows.append(self._apply(tracks, p.take(plot_index), pairs.pred.take(sel), posterior))
         return used, blocked, updated
 
-    def _reach(self, n: int, t_mid: float, spread: float) -> tuple[FloatArray, FloatArray]:
-        """Coarse positions at the batch's middle time and a radius bounding every gate."""
-        xc, pc = self._cols["xc"][:n], self._cols["Pc"][:n]
-        dt = t_mid - self._cols["t"][:n]
-        a = np.abs(dt) + spread
-        var = (
-            pc[:, 0, 0]
-            + pc[:, 1, 1]
-            + 2.0 * a * np.abs(pc[:, 0, 2] + pc[:, 1, 3])
-            + a * a * (pc[:, 2, 2] + pc[:, 3, 3])
-            + 2.0 * self._q_max * a**3 / 3.0
-        )
-        speed = np.hypot(xc[:, 2], xc[:, 3])
-        turn = self._turn_max
-        radius = (
-            RADIUS_SAFETY * np.sqrt(self._widest_gate * var)
-            + speed * spread
-            + 0.5 * speed * turn * a * a
-            + RADIUS_MARGIN_M
-        )
-        return xc[:, :2] + xc[:, 2:] * dt[:, None], radius
-
-    def _identity_cost(self, ti: IntArray, p: PlotArrays, pj: IntArray) -> FloatArray:
-        """Identity shifts the cost among gated pairs only: it never opens a gate."""
-        cfg = self.config
-        addr_t, addr_p = self._cols["address"][ti], p.address[pj]
-        both = (addr_t >= 0) & (addr_p >= 0)
-        code_t, code_p = self._cols["mode3a"][ti], p.mode3a[pj]
-        code_match = p.mode3a_valid[pj] & (code_t >= 0) & (code_t == code_p)
-        if code_match.any():
-            code_match &= ~is_shared_code(code_p)
-        return np.asarray(
-            cfg.address_mismatch_penalty * (both & (addr_t != addr_p))
-            - cfg.address_bonus * (both & (addr_t == addr_p))
-            - cfg.mode3a_bonus * code_match,
-            dtype=np.float64,
-        )
-
-    def _apply(self, ti: IntArray, p: PlotArrays, pred: imm.ImmPrediction) -> npt.NDArray[Any]:
-        """Update the tracks ``ti`` with their plots ``p``; their output rows."""
+    def _apply(
+        self,
+        ti: IntArray,
+        p: PlotArrays,
+        pred: imm.ImmPrediction,
+        posterior: WeightedUpdate | None = None,
+    ) -> npt.NDArray[Any]:
+        """Update the tracks ``ti`` with their plots ``p`` (or, weighted over several
+        plots, to ``posterior``: ``p`` is then each track's most likely plot); their
+        output rows."""
         cfg = self.config
         cols = self._cols
         time = p.time
-        x_new, p_new, mu_new = imm.update(pred, np.column_stack([p.x, p.y]), p.R)
+        if posterior is None:
+            x_new, p_new, mu_new = imm.update(pred, np.column_stack([p.x, p.y]), p.R)
+        else:
+            x_new, p_new, mu_new = posterior.x, posterior.P, posterior.mu
         xc, pc = imm.combine(x_new, p_new, mu_new)
         cols["x"][ti] = x_new
         cols["P"][ti] = p_new

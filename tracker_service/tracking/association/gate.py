@@ -1,0 +1,166 @@
+"""The gate: which (track, plot) pairs of a batch may be one target, with their likelihoods.
+
+Stone Soup's hypothesiser: spatial pre-selection (``associate.candidate_pairs``), the IMM
+prediction of each candidate pair to its plot's time, the chi-square test of the
+normalised innovation, and the identity term (Mode S address, Mode 3/A code). Every
+associator sees the same ``GatedPairs``; only what it makes of them differs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.tracking import imm
+from tracker_service.tracking.associate import candidate_pairs
+from tracker_service.tracking.config import TrackerConfig
+from tracker_service.tracking.models import ModelSet
+from tracker_service.tracking.plots import (
+    BoolArray,
+    FloatArray,
+    IntArray,
+    PlotArrays,
+    is_shared_code,
+)
+
+RADIUS_SAFETY = 1.2
+RADIUS_MARGIN_M = 50.0
+"""The pre-selection radius bounds the gate from the CV prediction of the combined state;
+the IMM's mixture can be a little wider, hence the slack."""
+
+
+@dataclass(frozen=True)
+class GatedPairs:
+    """The pairs that passed their gate: track rows, plot indices in the batch, the
+    normalised innovation squared and log det S of the combined prediction, the identity
+    cost (-2 log of the identity likelihood ratio: negative when the identities agree)
+    and the IMM prediction of each pair's track to its plot's time."""
+
+    track: IntArray
+    plot: IntArray
+    nis: FloatArray
+    log_det: FloatArray
+    identity_cost: FloatArray
+    pred: imm.ImmPrediction
+
+    def __len__(self) -> int:
+        return int(self.track.size)
+
+    @property
+    def cost(self) -> FloatArray:
+        """-2 log of the pair's likelihood (kinematics times identity), up to a constant:
+        what a nearest-neighbour assignment minimises."""
+        return np.asarray(self.nis + self.log_det + self.identity_cost)
+
+    @property
+    def log_likelihood(self) -> FloatArray:
+        """log of the Gaussian innovation density (per m^2) times the identity ratio."""
+        return np.asarray(-0.5 * self.cost - imm.LOG_2PI)
+
+
+@dataclass(frozen=True)
+class GateResult:
+    pairs: GatedPairs | None
+    """None when no pair passed (the sparse sector: nothing predicted at all)."""
+    too_old: BoolArray
+    """Plots older than a candidate track's state by more than ``max_backward_s``."""
+
+
+class Gate:
+    """Builds the ``GatedPairs`` of a batch from the track table's columns."""
+
+    def __init__(self, config: TrackerConfig, models: ModelSet) -> None:
+        self.config = config
+        self.models = models
+        # Per-tracker constants of the pre-selection radius, hoisted out of every batch.
+        self._q_max = float(models.q.max())
+        self._turn_max = float(np.abs(models.turn_rates_rad_s).max())
+        self._widest_gate = max(config.gate, config.address_gate)
+
+    def __call__(self, cols: dict[str, npt.NDArray[Any]], n: int, p: PlotArrays) -> GateResult:
+        """The gated pairs of the batch ``p`` against the ``n`` live rows of ``cols``."""
+        cfg = self.config
+        too_old = np.zeros(len(p), dtype=bool)
+        time = p.time
+        plot_xy = np.column_stack([p.x, p.y])
+        t_min, t_max = float(time.min()), float(time.max())
+        t_mid = 0.5 * (t_min + t_max)
+        # max |t - t_mid| over the batch: rounding keeps t - t_mid monotonic in t.
+        spread = max(t_max - t_mid, t_mid - t_min)
+        coarse_xy, radius = self._reach(cols, n, t_mid, spread)
+        r = p.R
+        plot_radius = np.sqrt(cfg.gate * (r[:, 0, 0] + r[:, 1, 1]))
+        ti, pj = candidate_pairs(coarse_xy, radius, plot_xy, plot_radius)
+        if ti.size == 0:
+            # No track near the sector (common for sparse sectors): nothing to predict.
+            return GateResult(None, too_old)
+        dt = time[pj] - cols["t"][ti]
+        late = dt < -cfg.max_backward_s
+        if late.any():
+            too_old[pj[late]] = True
+            ti, pj, dt = ti[~late], pj[~late], dt[~late]
+        if ti.size == 0:
+            return GateResult(None, too_old)
+
+        pred = imm.predict(cols["x"][ti], cols["P"][ti], cols["mu"][ti], dt, self.models)
+        nis, log_det = imm.innovation_test(pred, plot_xy[pj], r[pj])
+        addr_t, addr_p = cols["address"][ti], p.address[pj]
+        same_address = (addr_t >= 0) & (addr_t == addr_p)
+        gated = np.flatnonzero(nis <= np.where(same_address, cfg.address_gate, cfg.gate))
+        if gated.size == 0:
+            return GateResult(None, too_old)
+        tg, pg = ti[gated], pj[gated]
+        pairs = GatedPairs(
+            track=tg,
+            plot=pg,
+            nis=nis[gated],
+            log_det=log_det[gated],
+            identity_cost=self._identity_cost(cols, tg, p, pg),
+            pred=pred.take(gated),
+        )
+        return GateResult(pairs, too_old)
+
+    def _reach(
+        self, cols: dict[str, npt.NDArray[Any]], n: int, t_mid: float, spread: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """Coarse positions at the batch's middle time and a radius bounding every gate."""
+        xc, pc = cols["xc"][:n], cols["Pc"][:n]
+        dt = t_mid - cols["t"][:n]
+        a = np.abs(dt) + spread
+        var = (
+            pc[:, 0, 0]
+            + pc[:, 1, 1]
+            + 2.0 * a * np.abs(pc[:, 0, 2] + pc[:, 1, 3])
+            + a * a * (pc[:, 2, 2] + pc[:, 3, 3])
+            + 2.0 * self._q_max * a**3 / 3.0
+        )
+        speed = np.hypot(xc[:, 2], xc[:, 3])
+        turn = self._turn_max
+        radius = (
+            RADIUS_SAFETY * np.sqrt(self._widest_gate * var)
+            + speed * spread
+            + 0.5 * speed * turn * a * a
+            + RADIUS_MARGIN_M
+        )
+        return xc[:, :2] + xc[:, 2:] * dt[:, None], radius
+
+    def _identity_cost(
+        self, cols: dict[str, npt.NDArray[Any]], ti: IntArray, p: PlotArrays, pj: IntArray
+    ) -> FloatArray:
+        """Identity shifts the cost among gated pairs only: it never opens a gate."""
+        cfg = self.config
+        addr_t, addr_p = cols["address"][ti], p.address[pj]
+        both = (addr_t >= 0) & (addr_p >= 0)
+        code_t, code_p = cols["mode3a"][ti], p.mode3a[pj]
+        code_match = p.mode3a_valid[pj] & (code_t >= 0) & (code_t == code_p)
+        if code_match.any():
+            code_match &= ~is_shared_code(code_p)
+        return np.asarray(
+            cfg.address_mismatch_penalty * (both & (addr_t != addr_p))
+            - cfg.address_bonus * (both & (addr_t == addr_p))
+            - cfg.mode3a_bonus * code_match,
+            dtype=np.float64,
+        )
