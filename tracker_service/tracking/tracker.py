@@ -17,6 +17,7 @@ from tracker_service.tracking import imm, vertical
 from tracker_service.tracking.associate import candidate_pairs, global_nearest_neighbour
 from tracker_service.tracking.clock import DataClock
 from tracker_service.tracking.config import TrackerConfig
+from tracker_service.tracking.identity import identity_cost
 from tracker_service.tracking.initiate import TwoPointInitiator, two_point_state
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
@@ -26,7 +27,6 @@ from tracker_service.tracking.plots import (
     PlotArrays,
     as_bytes,
     as_plot_arrays,
-    is_shared_code,
 )
 
 TENTATIVE, CONFIRMED, COASTING, DELETED = 0, 1, 2, 3
@@ -334,19 +334,14 @@ class LocalTracker:
         return xc[:, :2] + xc[:, 2:] * dt[:, None], radius
 
     def _identity_cost(self, ti: IntArray, p: PlotArrays, pj: IntArray) -> FloatArray:
-        """Identity shifts the cost among gated pairs only: it never opens a gate."""
-        cfg = self.config
-        addr_t, addr_p = self._cols["address"][ti], p.address[pj]
-        both = (addr_t >= 0) & (addr_p >= 0)
-        code_t, code_p = self._cols["mode3a"][ti], p.mode3a[pj]
-        code_match = p.mode3a_valid[pj] & (code_t >= 0) & (code_t == code_p)
-        if code_match.any():
-            code_match &= ~is_shared_code(code_p)
-        return np.asarray(
-            cfg.address_mismatch_penalty * (both & (addr_t != addr_p))
-            - cfg.address_bonus * (both & (addr_t == addr_p))
-            - cfg.mode3a_bonus * code_match,
-            dtype=np.float64,
+        cols = self._cols
+        return identity_cost(
+            cols["address"][ti],
+            p.address[pj],
+            cols["mode3a"][ti],
+            p.mode3a[pj],
+            self.config,
+            code_usable=p.mode3a_valid[pj],
         )
 
     def _apply(self, ti: IntArray, p: PlotArrays, pred: imm.ImmPrediction) -> npt.NDArray[Any]:
