@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker_service.fusion import consider
+from tracker_service.fusion import consider, nearby
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.state import FusionState
 from tracker_service.tracking.associate import global_nearest_neighbour
@@ -45,8 +45,7 @@ def assign(
 ) -> tuple[IntArray, IntArray]:
     """The free local tracks (rows) of ``radar`` that join a system track, and which."""
     candidates = open_systems(state, radar)
-    li = np.repeat(free, candidates.size)
-    sj = np.tile(candidates, free.size)
+    li, sj = _near(state, estimator, free, candidates)
     d2 = distance(state, estimator, li, sj)
     gated = d2 <= state.config.gate
     li, sj, d2 = li[gated], sj[gated], d2[gated]
@@ -58,6 +57,40 @@ def assign(
         np.searchsorted(free, li), np.searchsorted(candidates, sj), cost
     )
     return li[chosen], sj[chosen]
+
+
+def _near(
+    state: FusionState, estimator: SystemEstimator, free: IntArray, candidates: IntArray
+) -> tuple[IntArray, IntArray]:
+    """The (local row, system number) pairs the gate may pass (``nearby.py``), in the
+    order of (local row, number)."""
+    empty = np.zeros(0, dtype=np.int64)
+    if free.size == 0 or candidates.size == 0:
+        return empty, empty
+    loc, sys, cfg = state.local.rows, state.sys, state.config
+    t_local = loc["t"][free]
+    t_mid, spread = nearby.time_span(t_local)
+    b = max(nearby.largest_bias(sys["B"][candidates]), nearby.largest_bias(loc["extra"][free]))
+    q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
+    x, p = estimator.coarse_state(state, candidates)
+    t_system = sys["t"][candidates]
+    sensitivity = nearby.sensitivity_norm(sys["M"][candidates], t_system, t_mid, spread)
+    xy_s, r_s = nearby.reach(
+        x, p, t_system, 2.0 * b * sensitivity, t_mid, spread, cfg.gate, q, turn
+    )
+    xy_l, r_l = nearby.reach(
+        loc["x"][free],
+        loc["P"][free],
+        t_local,
+        np.full(free.size, 4.0 * b),
+        t_mid,
+        spread,
+        cfg.gate,
+        q,
+        turn,
+    )
+    i, j = nearby.near_pairs(xy_l, r_l, xy_s, r_s)
+    return free[i], candidates[j]
 
 
 def open_systems(state: FusionState, radar: int) -> IntArray:
@@ -99,12 +132,12 @@ def distance(
     return d2
 
 
-def identities_compatible(state: FusionState, a: int, others: IntArray) -> BoolArray:
-    """System tracks whose identities do not tell them from ``a``: no two different
+def compatible_pairs(state: FusionState, a: IntArray, b: IntArray) -> BoolArray:
+    """Pairs of system tracks whose identities do not tell them apart: no two different
     Mode S addresses, no two different Mode 3/A codes."""
     sys = state.sys
-    address, code = sys["address"][a], sys["mode3a"][a]
-    other_address, other_code = sys["address"][others], sys["mode3a"][others]
-    same_address = (address < 0) | (other_address < 0) | (other_address == address)
-    same_code = (code < 0) | (other_code < 0) | (other_code == code)
+    address_a, address_b = sys["address"][a], sys["address"][b]
+    code_a, code_b = sys["mode3a"][a], sys["mode3a"][b]
+    same_address = (address_a < 0) | (address_b < 0) | (address_a == address_b)
+    same_code = (code_a < 0) | (code_b < 0) | (code_a == code_b)
     return np.asarray(same_address & same_code, dtype=bool)

@@ -27,6 +27,11 @@ class SystemEstimator(Protocol):
         (k, 4), covariances (k, 4, 4), bias sensitivities (k, radars, 4, 2)."""
         ...
 
+    def coarse_state(self, state: FusionState, numbers: IntArray) -> tuple[FloatArray, FloatArray]:
+        """State (k, 4) and covariance (k, 4, 4) at their time that ``gate_prediction``
+        starts from: for the pre-selection of the pairs it may pass (``nearby.py``)."""
+        ...
+
     def absorb(
         self,
         state: FusionState,

@@ -42,6 +42,10 @@ class PlotFilterEstimator:
         pred = predict(state, numbers, dt)
         return pred.imm.x_comb, pred.imm.P_comb, pred.M_comb
 
+    def coarse_state(self, state: FusionState, numbers: IntArray) -> tuple[FloatArray, FloatArray]:
+        sys = state.sys
+        return imm.combine(sys["mx"][numbers], sys["mP"][numbers], sys["mu"][numbers])
+
     def absorb(
         self,
         state: FusionState,

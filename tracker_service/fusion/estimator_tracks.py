@@ -53,6 +53,9 @@ class TrackFusionEstimator:
         moved = np.einsum("kab,klbc->klac", cv_transition(dt), sys["M"][numbers])
         return xs, ps, moved
 
+    def coarse_state(self, state: FusionState, numbers: IntArray) -> tuple[FloatArray, FloatArray]:
+        return state.sys["x"][numbers], state.sys["P"][numbers]
+
     def absorb(
         self,
         state: FusionState,

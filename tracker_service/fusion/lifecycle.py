@@ -9,15 +9,15 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.fusion import consider
-from tracker_service.fusion.associate import identities_compatible
+from tracker_service.fusion import consider, nearby
+from tracker_service.fusion.associate import compatible_pairs
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.messages import ENDED, MAX_SYSTEM_NUMBER, SYSTEM_UPDATE_DTYPE
 from tracker_service.fusion.ml import predict_cv
 from tracker_service.fusion.rows import system_rows
 from tracker_service.fusion.state import FusionState
 from tracker_service.tracking.models import cv_transition
-from tracker_service.tracking.plots import BoolArray, IntArray, is_shared_code
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray, is_shared_code
 
 
 def may_found(state: FusionState, candidates: IntArray) -> BoolArray:
@@ -121,29 +121,18 @@ def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]
     }
     young: list[int] = []
     old: list[int] = []
-    for a in touched.tolist():
-        others = alive[(alive != a) & ~np.any(radars_of[alive] & radars_of[a], axis=1)]
-        others = others[identities_compatible(state, a, others)]
-        if others.size == 0:
-            continue
-        dt = sys["t"][a] - sys["t"][others]
-        xs, ps = predict_cv(sys["x"][others], sys["P"][others], dt, state.config.q)
-        d = xs - sys["x"][a]
-        # Their errors differ by their different shares of each radar's bias.
-        m = np.einsum("kab,klbc->klac", cv_transition(dt), sys["M"][others]) - sys["M"][a]
-        larger = np.trace(sys["B"][others], axis1=-2, axis2=-1) > np.trace(
-            sys["B"][a], axis1=-2, axis2=-1
-        )
-        b = np.where(larger[..., None, None], sys["B"][others], sys["B"][a])
-        s = ps + sys["P"][a] + consider.bias_share(m, b)
-        d2 = np.einsum("ka,ka->k", d, np.linalg.solve(s, d[..., None])[..., 0])
-        for b in others[d2 <= state.config.gate].tolist():
-            pair = (min(a, b), max(a, b))
-            count = counts[pair] = state.merge_counts.get(pair, 0) + 1
-            if count >= state.config.merge_after and a not in young and b not in young:
-                keep, leave = (a, b) if sys["born"][a] <= sys["born"][b] else (b, a)
-                old.append(keep)
-                young.append(leave)
+    pair_a, pair_b, d2 = _merge_tests(state, touched, alive, radars_of)
+    for a, b in zip(
+        pair_a[d2 <= state.config.gate].tolist(),
+        pair_b[d2 <= state.config.gate].tolist(),
+        strict=True,
+    ):
+        pair = (min(a, b), max(a, b))
+        count = counts[pair] = state.merge_counts.get(pair, 0) + 1
+        if count >= state.config.merge_after and a not in young and b not in young:
+            keep, leave = (a, b) if sys["born"][a] <= sys["born"][b] else (b, a)
+            old.append(keep)
+            young.append(leave)
     gone = set(young)
     state.merge_counts = {p: c for p, c in counts.items() if not gone & set(p)}
     if not young:
@@ -152,6 +141,68 @@ def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]
     ended = end(state, radar, leaving, moved_to=np.array(old, dtype=np.int64))
     state.stats.system_tracks_merged += len(young)
     return ended
+
+
+def _merge_tests(
+    state: FusionState, touched: IntArray, alive: IntArray, radars_of: npt.NDArray[np.bool_]
+) -> tuple[IntArray, IntArray, FloatArray]:
+    """Each touched system track a against the live ones b that no radar feeds both and
+    whose identities do not tell apart, near enough to pass (``nearby.py``): the 4-dof
+    distance at a's time, b predicted there, their errors differing by their different
+    shares of each radar's bias. Pairs in the order of (a, b)."""
+    sys, cfg = state.sys, state.config
+    empty = np.zeros(0, dtype=np.int64)
+    alive = _identity_candidates(state, touched, alive)
+    if touched.size == 0 or alive.size == 0:
+        return empty, empty, np.zeros(0)
+    t_mid, spread = nearby.time_span(sys["t"][touched])
+    b_max = max(nearby.largest_bias(sys["B"][alive]), nearby.largest_bias(sys["B"][touched]))
+    q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
+
+    def reach(numbers: IntArray) -> tuple[FloatArray, FloatArray]:
+        t = sys["t"][numbers]
+        sensitivity = nearby.sensitivity_norm(sys["M"][numbers], t, t_mid, spread)
+        return nearby.reach(
+            sys["x"][numbers],
+            sys["P"][numbers],
+            t,
+            2.0 * b_max * sensitivity,
+            t_mid,
+            spread,
+            cfg.gate,
+            q,
+            turn,
+        )
+
+    i, j = nearby.near_pairs(*reach(touched), *reach(alive))
+    a, b = touched[i], alive[j]
+    apart = (a != b) & ~np.any(radars_of[a] & radars_of[b], axis=1)
+    a, b = a[apart], b[apart]
+    same = compatible_pairs(state, a, b)
+    a, b = a[same], b[same]
+    if a.size == 0:
+        return empty, empty, np.zeros(0)
+    dt = sys["t"][a] - sys["t"][b]
+    xs, ps = predict_cv(sys["x"][b], sys["P"][b], dt, cfg.q)
+    d = xs - sys["x"][a]
+    m = np.einsum("kab,klbc->klac", cv_transition(dt), sys["M"][b]) - sys["M"][a]
+    larger = np.trace(sys["B"][b], axis1=-2, axis2=-1) > np.trace(sys["B"][a], axis1=-2, axis2=-1)
+    bias = np.where(larger[..., None, None], sys["B"][b], sys["B"][a])
+    s = ps + sys["P"][a] + consider.bias_share(m, bias)
+    d2 = np.einsum("ka,ka->k", d, np.linalg.solve(s, d[..., None])[..., 0])
+    return a, b, d2
+
+
+def _identity_candidates(state: FusionState, touched: IntArray, alive: IntArray) -> IntArray:
+    """The live tracks that some touched track's address and some touched track's code
+    do not tell apart from it: a cheap superset of the pairs ``compatible_pairs`` keeps
+    (with Mode S traffic, mostly the tracks of the touched tracks' own addresses)."""
+    sys = state.sys
+    address, code = sys["address"][touched], sys["mode3a"][touched]
+    other_address, other_code = sys["address"][alive], sys["mode3a"][alive]
+    address_ok = (other_address < 0) | np.isin(other_address, address) | bool((address < 0).any())
+    code_ok = (other_code < 0) | np.isin(other_code, code) | bool((code < 0).any())
+    return alive[address_ok & code_ok]
 
 
 def end_orphans(state: FusionState, radar: int, numbers: IntArray) -> npt.NDArray[Any]:

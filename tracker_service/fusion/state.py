@@ -48,6 +48,11 @@ class FusionState:
     merge_counts: dict[tuple[int, int], int] = field(default_factory=dict)
     """Consecutive joint gate passes of each pair of system tracks (track life's merge)."""
 
+    @property
+    def turn_max(self) -> float:
+        """The largest turn rate (rad/s) of the system tracks' models."""
+        return float(np.abs(self.models.turn_rates_rad_s).max())
+
     def __post_init__(self) -> None:
         self.local = LocalTrackTable(self.models.n_models)
         self.sys = new_system_table(self.models.n_models, self.n_radars)
