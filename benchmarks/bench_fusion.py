@@ -189,8 +189,10 @@ def main() -> None:
     print(
         f"method {args.method}, {args.duration:.0f} s of traffic, {args.repeats} repeats (medians)"
     )
-    header = "fuser            aircraft  sys.tracks  updates  process upd/s  refs us/upd  both upd/s  us/upd ratio"
-    print(header)
+    print(
+        "fuser            aircraft  sys.tracks  updates  process upd/s  refs us/upd"
+        "  both upd/s  us/upd ratio"
+    )
     base: dict[str, float] = {}
     for name in fusers:
         for n in args.sizes:
@@ -206,7 +208,7 @@ def main() -> None:
                 f" {refs / upd * 1e6:12.1f} {upd / both:11,.0f} {per:7.1f} {per / base[name]:5.2f}"
             )
     if args.baseline:
-        old, new = fusers
+        old = next(iter(fusers))
         for n in args.sizes:
             t_old = statistics.median(r.process_s + r.references_s for r in results[(old, n)])
             t_new = statistics.median(r.process_s + r.references_s for r in results[("new", n)])
