@@ -55,6 +55,18 @@ def _octal_code(value: int) -> str | None:
     return f"{value:04o}" if value >= 0 else None
 
 
+def _track_callsign(plot: Any, previous: _SystemTrack | None, address: str | None) -> str | None:
+    """The callsign (I048/240) of the plot that updated the track; without one (coasting,
+    or a plot without I240), the track's own from its earlier plots while its address
+    stays the same. Never the latest callsign seen for the address: two aircraft that
+    share an address would trade callsigns."""
+    if plot is not None and plot["callsign"]:
+        return str(plot["callsign"])
+    if previous is not None and previous.last.address == address:
+        return previous.last.callsign
+    return None
+
+
 @dataclass
 class _SystemTrack:
     """What the mapper remembers of a live system track between its updates."""
@@ -91,8 +103,6 @@ class MessageMapper:
     def __init__(self, plane: SystemPlane) -> None:
         self.plane = plane
         self._tracks: dict[int, _SystemTrack] = {}
-        self._callsigns: dict[int, str] = {}
-        """The latest callsign (I048/240) each Mode S address sent."""
         self._by_address: dict[str, set[int]] = defaultdict(set)
         """Live system tracks per Mode S address: the duplicate-address flag without a
         scan of every track at each update."""
@@ -105,13 +115,6 @@ class MessageMapper:
     def picture(self) -> dict[int, SystemTrackMessage]:
         """The latest message of every live system track."""
         return {number: self._tracks[number].last for number in sorted(self._tracks)}
-
-    def note_callsigns(self, plots: npt.NDArray[Any]) -> None:
-        named = plots[(plots["address"] >= 0) & (plots["callsign"] != "")]
-        for address, callsign in zip(
-            named["address"].tolist(), named["callsign"].tolist(), strict=True
-        ):
-            self._callsigns[address] = callsign
 
     def local(self, source: str, rows: npt.NDArray[Any]) -> list[LocalTrackMessage]:
         messages = []
@@ -274,7 +277,7 @@ class MessageMapper:
             lon=(lon + 180.0) % 360.0 - 180.0,
             flight_level=_none_if_nan(float(row["flight_level"])),
             address=address,
-            callsign=self._callsigns.get(int(row["address"])),
+            callsign=_track_callsign(plot, previous, address),
             mode3a=mode3a,
             mode3a_changed=previous is not None and previous.last.mode3a not in (None, mode3a),
             first=previous is None,

@@ -488,7 +488,6 @@ class Outputs:
             if output.time.out_of_line_plots:
                 # A running count already: the tracker's, not this batch's.
                 counters.rejected["out_of_line"] = output.time.out_of_line_plots
-        self.mapper.note_callsigns(plots)
         for local in self.mapper.local(output.source, output.local):
             payload = local.model_dump_json().encode()
             for sink in self.sinks:

@@ -11,7 +11,8 @@ import numpy as np
 
 from tracker_service.tracking.associate import global_nearest_neighbour, pairs_within
 from tracker_service.tracking.config import TrackerConfig
-from tracker_service.tracking.plots import FloatArray, IntArray, PlotArrays, is_shared_code
+from tracker_service.tracking.identity import identity_cost
+from tracker_service.tracking.plots import FloatArray, IntArray, PlotArrays
 
 NOISE_SIGMAS = 3.0
 
@@ -70,28 +71,10 @@ def _identity_cost(
     j: IntArray,
     cfg: TrackerConfig,
 ) -> FloatArray:
-    """Identity as a preference among kinematically possible pairs (scaled to the
-    kinematic cost of up to 1): two different addresses are two transponders."""
-    addr_a, addr_b = a.address[i], b.address[j]
-    both = (addr_a >= 0) & (addr_b >= 0)
-    code_a, code_b = a.mode3a[i], b.mode3a[j]
-    code_match = (
-        a.mode3a_valid[i]
-        & b.mode3a_valid[j]
-        & (code_a == code_b)
-        & (code_a >= 0)
-        & ~is_shared_code(code_a)
-    )
+    """Scaled to the kinematic cost of up to 1."""
     scale = 0.1
-    return np.asarray(
-        scale
-        * (
-            cfg.address_mismatch_penalty * (both & (addr_a != addr_b))
-            - cfg.address_bonus * (both & (addr_a == addr_b))
-            - cfg.mode3a_bonus * code_match
-        ),
-        dtype=np.float64,
-    )
+    usable = a.mode3a_valid[i] & b.mode3a_valid[j]
+    return scale * identity_cost(a.address[i], b.address[j], a.mode3a[i], b.mode3a[j], cfg, usable)
 
 
 def two_point_state(

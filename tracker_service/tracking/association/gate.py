@@ -17,13 +17,13 @@ import numpy.typing as npt
 from tracker_service.tracking import imm
 from tracker_service.tracking.associate import candidate_pairs
 from tracker_service.tracking.config import TrackerConfig
+from tracker_service.tracking.identity import identity_cost
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
     BoolArray,
     FloatArray,
     IntArray,
     PlotArrays,
-    is_shared_code,
 )
 
 RADIUS_SAFETY = 1.2
@@ -151,16 +151,11 @@ class Gate:
         self, cols: dict[str, npt.NDArray[Any]], ti: IntArray, p: PlotArrays, pj: IntArray
     ) -> FloatArray:
         """Identity shifts the cost among gated pairs only: it never opens a gate."""
-        cfg = self.config
-        addr_t, addr_p = cols["address"][ti], p.address[pj]
-        both = (addr_t >= 0) & (addr_p >= 0)
-        code_t, code_p = cols["mode3a"][ti], p.mode3a[pj]
-        code_match = p.mode3a_valid[pj] & (code_t >= 0) & (code_t == code_p)
-        if code_match.any():
-            code_match &= ~is_shared_code(code_p)
-        return np.asarray(
-            cfg.address_mismatch_penalty * (both & (addr_t != addr_p))
-            - cfg.address_bonus * (both & (addr_t == addr_p))
-            - cfg.mode3a_bonus * code_match,
-            dtype=np.float64,
+        return identity_cost(
+            cols["address"][ti],
+            p.address[pj],
+            cols["mode3a"][ti],
+            p.mode3a[pj],
+            self.config,
+            code_usable=p.mode3a_valid[pj],
         )

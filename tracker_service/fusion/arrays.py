@@ -1,0 +1,44 @@
+"""Index helpers over the fuser's arrays: groups, ranks and lookups without Python loops."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker_service.tracking.plots import BoolArray, IntArray
+
+
+def last_of_each(keys: IntArray) -> IntArray:
+    """Index of the last occurrence of each distinct key (sorted by key)."""
+    _, first_reversed = np.unique(keys[::-1], return_index=True)
+    return keys.size - 1 - first_reversed
+
+
+def rank_within(group: IntArray) -> IntArray:
+    """0, 1, ... in order of appearance among the equal values of ``group``."""
+    order = np.argsort(group, kind="stable")
+    sorted_group = group[order]
+    start = np.searchsorted(sorted_group, sorted_group, side="left")
+    rank = np.empty(group.size, dtype=np.int64)
+    rank[order] = np.arange(group.size) - start
+    return rank
+
+
+def positions(ids: IntArray, wanted: IntArray) -> IntArray:
+    """Index in ``ids`` of each wanted id (-1: absent)."""
+    if ids.size == 0:
+        return np.full(wanted.shape, -1, dtype=np.int64)
+    order = np.argsort(ids, kind="stable")
+    pos = np.minimum(np.searchsorted(ids[order], wanted), ids.size - 1)
+    return np.where(ids[order][pos] == wanted, order[pos], -1)
+
+
+def first_where(mask: BoolArray) -> IntArray:
+    """Column of the first true entry per row (0 when none)."""
+    return np.asarray(np.argmax(mask, axis=1), dtype=np.int64)
+
+
+def compact_slots(slots: IntArray, keep: BoolArray) -> IntArray:
+    """The kept slots moved to the front of each row, order kept, -1 after them."""
+    order = np.argsort(~keep, axis=1, kind="stable")
+    out = np.take_along_axis(np.where(keep, slots, -1), order, axis=1)
+    return out

@@ -1,0 +1,143 @@
+"""Association of local tracks with system tracks: a 4-dof chi-square gate at the local
+track's time (the residual biases of both in its covariance), identity as a cost shift
+inside the gate, then global nearest neighbour; and the review of the local tracks that
+already feed a system track (demoted, or out of the gate too often: they leave it)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker_service.fusion import consider, nearby
+from tracker_service.fusion.estimator import SystemEstimator
+from tracker_service.fusion.state import FusionState
+from tracker_service.tracking.associate import global_nearest_neighbour
+from tracker_service.tracking.identity import identity_cost
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
+from tracker_service.tracking.tracker import CONFIRMED as LOCAL_CONFIRMED
+from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
+from tracker_service.tracking.tracker import TENTATIVE as LOCAL_TENTATIVE
+
+
+def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) -> IntArray:
+    """Keep or drop the system track of each touched local track; returns the live ones
+    that may feed a system track (confirmed or coasting)."""
+    cfg = state.config
+    loc = state.local.rows
+    live: IntArray = touched[loc["status"][touched] != LOCAL_DELETED]
+    # Only confirmed local tracks feed system tracks: one that its tracker took back
+    # to tentative (a slow primary-only track: clutter) leaves its system track.
+    demoted = live[(loc["system"][live] > 0) & (loc["status"][live] == LOCAL_TENTATIVE)]
+    loc["system"][demoted] = 0
+    live = live[loc["status"][live] != LOCAL_TENTATIVE]
+    held = live[loc["system"][live] > 0]
+    d2 = distance(state, estimator, held, loc["system"][held])
+    fails = np.where(d2 <= cfg.gate, 0, loc["fails"][held] + 1)
+    loc["fails"][held] = fails
+    lost = held[fails >= cfg.reassociate_after]
+    loc["system"][lost] = 0
+    loc["fails"][lost] = 0
+    state.stats.reassociations += int(lost.size)
+    return live
+
+
+def assign(
+    state: FusionState, estimator: SystemEstimator, radar: int, free: IntArray
+) -> tuple[IntArray, IntArray]:
+    """The free local tracks (rows) of ``radar`` that join a system track, and which."""
+    candidates = open_systems(state, radar)
+    li, sj = _near(state, estimator, free, candidates)
+    d2 = distance(state, estimator, li, sj)
+    gated = d2 <= state.config.gate
+    li, sj, d2 = li[gated], sj[gated], d2[gated]
+    loc, sys = state.local.rows, state.sys
+    cost = d2 + identity_cost(
+        loc["address"][li], sys["address"][sj], loc["mode3a"][li], sys["mode3a"][sj], state.config
+    )
+    chosen = global_nearest_neighbour(
+        np.searchsorted(free, li), np.searchsorted(candidates, sj), cost
+    )
+    return li[chosen], sj[chosen]
+
+
+def _near(
+    state: FusionState, estimator: SystemEstimator, free: IntArray, candidates: IntArray
+) -> tuple[IntArray, IntArray]:
+    """The (local row, system number) pairs the gate may pass (``nearby.py``), in the
+    order of (local row, number)."""
+    empty = np.zeros(0, dtype=np.int64)
+    if free.size == 0 or candidates.size == 0:
+        return empty, empty
+    loc, sys, cfg = state.local.rows, state.sys, state.config
+    t_local = loc["t"][free]
+    t_mid, spread = nearby.time_span(t_local)
+    b = max(nearby.largest_bias(sys["B"][candidates]), nearby.largest_bias(loc["extra"][free]))
+    q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
+    x, p = estimator.coarse_state(state, candidates)
+    t_system = sys["t"][candidates]
+    sensitivity = nearby.sensitivity_norm(sys["M"][candidates], t_system, t_mid, spread)
+    xy_s, r_s = nearby.reach(
+        x, p, t_system, 2.0 * b * sensitivity, t_mid, spread, cfg.gate, q, turn
+    )
+    xy_l, r_l = nearby.reach(
+        loc["x"][free],
+        loc["P"][free],
+        t_local,
+        np.full(free.size, 4.0 * b),
+        t_mid,
+        spread,
+        cfg.gate,
+        q,
+        turn,
+    )
+    i, j = nearby.near_pairs(xy_l, r_l, xy_s, r_s)
+    return free[i], candidates[j]
+
+
+def open_systems(state: FusionState, radar: int) -> IntArray:
+    """Live system tracks a new local track of ``radar`` may join: not those already
+    fed by another confirmed local track of the same radar (another aircraft)."""
+    loc = state.local.used
+    busy = loc["alive"] & (loc["radar"] == radar) & (loc["status"] == LOCAL_CONFIRMED)
+    open_ = state.sys["alive"].copy()
+    open_[loc["system"][busy]] = False
+    open_[0] = False
+    return np.flatnonzero(open_)
+
+
+def distance(
+    state: FusionState, estimator: SystemEstimator, local: IntArray, system: IntArray
+) -> FloatArray:
+    """Chi-square distance (4 dof) of local tracks and system tracks at the local
+    tracks' times (the system tracks predicted there by the estimator: see
+    ``SystemEstimator.gate_prediction``)."""
+    if local.size == 0:
+        return np.zeros(0)
+    loc, sys = state.local.rows, state.sys
+    t = loc["t"][local]
+    dt = t - sys["t"][system]
+    xs, ps, moved = estimator.gate_prediction(state, system, dt)
+    d = loc["x"][local] - xs
+    # The residual biases: the local track carries its radar's whole, the system
+    # track its shares of each radar's (M). Before the biases are known, two radars'
+    # tracks of one aircraft lie apart by as much; a radar's local track and a system
+    # track only it feeds share the same bias, which cancels.
+    radar = loc["radar"][local]
+    rows = np.arange(local.size)
+    m = -moved
+    m[rows, radar] += consider.POSITION
+    b = sys["B"][system].copy()
+    b[rows, radar] = loc["extra"][local]
+    s = loc["P"][local] + ps + consider.bias_share(m, b)
+    d2: FloatArray = np.einsum("ka,ka->k", d, np.linalg.solve(s, d[..., None])[..., 0])
+    return d2
+
+
+def compatible_pairs(state: FusionState, a: IntArray, b: IntArray) -> BoolArray:
+    """Pairs of system tracks whose identities do not tell them apart: no two different
+    Mode S addresses, no two different Mode 3/A codes."""
+    sys = state.sys
+    address_a, address_b = sys["address"][a], sys["address"][b]
+    code_a, code_b = sys["mode3a"][a], sys["mode3a"][b]
+    same_address = (address_a < 0) | (address_b < 0) | (address_a == address_b)
+    same_code = (code_a < 0) | (code_b < 0) | (code_a == code_b)
+    return np.asarray(same_address & same_code, dtype=bool)

@@ -1,0 +1,265 @@
+"""System-track life: creation by a confirmed local track that joined none (or waited
+long enough beside a system track with its identity), joining, merging of duplicates,
+ending (orphaned, silent, or left in an abandoned future), and number reuse."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.fusion import consider, nearby
+from tracker_service.fusion.associate import compatible_pairs
+from tracker_service.fusion.estimator import SystemEstimator
+from tracker_service.fusion.messages import ENDED, MAX_SYSTEM_NUMBER, SYSTEM_UPDATE_DTYPE
+from tracker_service.fusion.ml import predict_cv
+from tracker_service.fusion.rows import system_rows
+from tracker_service.fusion.state import FusionState
+from tracker_service.tracking.models import cv_transition
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray, is_shared_code
+
+
+def may_found(state: FusionState, candidates: IntArray) -> BoolArray:
+    """A local track that found no system track founds one, unless a live system
+    track carries its Mode S address or its (not shared) Mode 3/A code: then it is
+    most likely that aircraft, seen apart while the biases are still unknown, and it
+    waits up to ``FusionConfig.found_delay_s`` for the gate to take it (a second
+    aircraft with a duplicated address or code founds its own after that)."""
+    loc, sys = state.local.rows, state.sys
+    waiting = np.isnan(loc["t_founder"][candidates])
+    loc["t_founder"][candidates[waiting]] = state.now
+    address, code = loc["address"][candidates], loc["mode3a"][candidates]
+    live = sys["alive"].copy()
+    live[0] = False
+    known = (np.isin(address, sys["address"][live]) & (address >= 0)) | (
+        np.isin(code, sys["mode3a"][live]) & (code >= 0) & ~is_shared_code(code)
+    )
+    waited = state.now - loc["t_founder"][candidates]
+    return np.asarray(~known | (waited >= state.config.found_delay), dtype=bool)
+
+
+def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -> IntArray:
+    """A system track per founding local track (rows), under the lowest free numbers
+    whose reuse delay has passed; returns the numbers."""
+    sys, loc = state.sys, state.local.rows
+    # A number freed "later" than now (the clock came back from a jump) waits its
+    # delay from now, not from a time that never was.
+    freed_at = np.minimum(sys["freed_at"], state.now)
+    free = np.flatnonzero(
+        ~sys["alive"] & (freed_at + state.config.number_reuse_delay_s <= state.now)
+    )
+    free = free[free > 0]
+    if free.size < founders.size:
+        state.stats.numbers_exhausted += int(founders.size - free.size)
+        founders = founders[: free.size]
+    numbers = free[: founders.size]
+    if numbers.size == 0:
+        return numbers
+    sys["alive"][numbers] = True
+    sys["born"][numbers] = state.now
+    sys["solo"][numbers] = True
+    sys["t"][numbers] = loc["t"][founders]
+    sys["x"][numbers] = loc["x"][founders]
+    sys["P"][numbers] = loc["P"][founders]
+    radars = loc["radar"][founders]
+    sys["B"][numbers] = 0.0
+    sys["B"][numbers, radars] = loc["extra"][founders]
+    sys["M"][numbers] = 0.0
+    if estimator.founder_carries_bias:
+        sys["M"][numbers, radars] = consider.POSITION
+    sys["mM"][numbers] = sys["M"][numbers][:, None]
+    sys["t_plot"][numbers] = loc["t_plot"][founders]
+    sys["address"][numbers] = loc["address"][founders]
+    sys["mode3a"][numbers] = loc["mode3a"][founders]
+    sys["mx"][numbers] = loc["x"][founders][:, None, :]
+    sys["mP"][numbers] = loc["P"][founders][:, None, :, :]
+    mu = loc["mu"][founders]
+    known = mu.sum(axis=1) > 0.0
+    sys["mu"][numbers] = np.where(known[:, None], mu, state.models.initial_probabilities)
+    loc["system"][founders] = numbers
+    loc["fails"][founders] = 0
+    loc["t_founder"][founders] = np.nan
+    state.stats.system_tracks_created += int(numbers.size)
+    return numbers
+
+
+def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> None:
+    """Attach local tracks to system tracks; a stale local track of the same radar on
+    that system track (coasting: the local tracker restarted the aircraft) leaves."""
+    loc, n = state.local.rows, state.local.n
+    if joined.size == 0:
+        return
+    same = np.flatnonzero(
+        loc["alive"][:n] & (loc["radar"][:n] == radar) & np.isin(loc["system"][:n], target)
+    )
+    loc["system"][same] = 0
+    loc["system"][joined] = target
+    state.sys["solo"][target] = False
+    loc["fails"][joined] = 0
+    loc["t_founder"][joined] = np.nan
+    state.sys["t_plot"][target] = np.maximum(state.sys["t_plot"][target], loc["t_plot"][joined])
+
+
+def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]:
+    """Merge each touched system track with a live one it duplicates (see
+    ``FusionConfig.merge_after``); returns the ended rows of the merged-away ones."""
+    sys, loc = state.sys, state.local.used
+    touched = touched[(touched > 0) & sys["alive"][touched]]
+    fed = loc["alive"] & (loc["system"] > 0)
+    radars_of = np.zeros((MAX_SYSTEM_NUMBER + 1, state.n_radars), dtype=bool)
+    radars_of[loc["system"][fed], loc["radar"][fed]] = True
+    alive = np.flatnonzero(sys["alive"])
+    alive = alive[alive > 0]
+    # A pair's count lives while every check of it passes: the checks of the touched
+    # tracks start from the counts of their pairs that pass again now.
+    touched_set = set(touched.tolist())
+    counts = {
+        p: c
+        for p, c in state.merge_counts.items()
+        if p[0] not in touched_set and p[1] not in touched_set
+    }
+    young: list[int] = []
+    old: list[int] = []
+    pair_a, pair_b, d2 = _merge_tests(state, touched, alive, radars_of)
+    for a, b in zip(
+        pair_a[d2 <= state.config.gate].tolist(),
+        pair_b[d2 <= state.config.gate].tolist(),
+        strict=True,
+    ):
+        pair = (min(a, b), max(a, b))
+        count = counts[pair] = state.merge_counts.get(pair, 0) + 1
+        if count >= state.config.merge_after and a not in young and b not in young:
+            keep, leave = (a, b) if sys["born"][a] <= sys["born"][b] else (b, a)
+            old.append(keep)
+            young.append(leave)
+    gone = set(young)
+    state.merge_counts = {p: c for p, c in counts.items() if not gone & set(p)}
+    if not young:
+        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
+    leaving = np.array(young, dtype=np.int64)
+    ended = end(state, radar, leaving, moved_to=np.array(old, dtype=np.int64))
+    state.stats.system_tracks_merged += len(young)
+    return ended
+
+
+def _merge_tests(
+    state: FusionState, touched: IntArray, alive: IntArray, radars_of: npt.NDArray[np.bool_]
+) -> tuple[IntArray, IntArray, FloatArray]:
+    """Each touched system track a against the live ones b that no radar feeds both and
+    whose identities do not tell apart, near enough to pass (``nearby.py``): the 4-dof
+    distance at a's time, b predicted there, their errors differing by their different
+    shares of each radar's bias. Pairs in the order of (a, b)."""
+    sys, cfg = state.sys, state.config
+    empty = np.zeros(0, dtype=np.int64)
+    alive = _identity_candidates(state, touched, alive)
+    if touched.size == 0 or alive.size == 0:
+        return empty, empty, np.zeros(0)
+    t_mid, spread = nearby.time_span(sys["t"][touched])
+    b_max = max(nearby.largest_bias(sys["B"][alive]), nearby.largest_bias(sys["B"][touched]))
+    q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
+
+    def reach(numbers: IntArray) -> tuple[FloatArray, FloatArray]:
+        t = sys["t"][numbers]
+        sensitivity = nearby.sensitivity_norm(sys["M"][numbers], t, t_mid, spread)
+        return nearby.reach(
+            sys["x"][numbers],
+            sys["P"][numbers],
+            t,
+            2.0 * b_max * sensitivity,
+            t_mid,
+            spread,
+            cfg.gate,
+            q,
+            turn,
+        )
+
+    i, j = nearby.near_pairs(*reach(touched), *reach(alive))
+    a, b = touched[i], alive[j]
+    apart = (a != b) & ~np.any(radars_of[a] & radars_of[b], axis=1)
+    a, b = a[apart], b[apart]
+    same = compatible_pairs(state, a, b)
+    a, b = a[same], b[same]
+    if a.size == 0:
+        return empty, empty, np.zeros(0)
+    dt = sys["t"][a] - sys["t"][b]
+    xs, ps = predict_cv(sys["x"][b], sys["P"][b], dt, cfg.q)
+    d = xs - sys["x"][a]
+    m = np.einsum("kab,klbc->klac", cv_transition(dt), sys["M"][b]) - sys["M"][a]
+    larger = np.trace(sys["B"][b], axis1=-2, axis2=-1) > np.trace(sys["B"][a], axis1=-2, axis2=-1)
+    bias = np.where(larger[..., None, None], sys["B"][b], sys["B"][a])
+    s = ps + sys["P"][a] + consider.bias_share(m, bias)
+    d2 = np.einsum("ka,ka->k", d, np.linalg.solve(s, d[..., None])[..., 0])
+    return a, b, d2
+
+
+def _identity_candidates(state: FusionState, touched: IntArray, alive: IntArray) -> IntArray:
+    """The live tracks that some touched track's address and some touched track's code
+    do not tell apart from it: a cheap superset of the pairs ``compatible_pairs`` keeps
+    (with Mode S traffic, mostly the tracks of the touched tracks' own addresses)."""
+    sys = state.sys
+    address, code = sys["address"][touched], sys["mode3a"][touched]
+    other_address, other_code = sys["address"][alive], sys["mode3a"][alive]
+    address_ok = (other_address < 0) | np.isin(other_address, address) | bool((address < 0).any())
+    code_ok = (other_code < 0) | np.isin(other_code, code) | bool((code < 0).any())
+    return alive[address_ok & code_ok]
+
+
+def end_orphans(state: FusionState, radar: int, numbers: IntArray) -> npt.NDArray[Any]:
+    """System tracks (among ``numbers``) left without any local track end."""
+    numbers = numbers[numbers > 0]
+    numbers = numbers[state.sys["alive"][numbers]]
+    loc = state.local.used
+    fed = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
+    fed[loc["system"][loc["alive"]]] = True
+    return end(state, radar, numbers[~fed[numbers]])
+
+
+def end_silent(state: FusionState, radar: int) -> npt.NDArray[Any]:
+    """System tracks none of whose local tracks had a plot for ``silence_s`` end."""
+    sys = state.sys
+    quiet = sys["alive"] & (sys["t_plot"] < state.now - state.config.silence_s)
+    return end(state, radar, np.flatnonzero(quiet))
+
+
+def end_future(state: FusionState, radar: int, max_ahead_s: float) -> npt.NDArray[Any]:
+    """Every radar's time jumped for good and the clock followed (``state.now``). Back in
+    time, what lies in the abandoned future ends (its rows returned), and no number
+    stays blocked or track waits for longer than its delay from the new present."""
+    now = state.now
+    sys, loc = state.sys, state.local.used
+    sys["freed_at"] = np.minimum(sys["freed_at"], now)
+    loc["t_founder"] = np.where(loc["t_founder"] > now, now, loc["t_founder"])
+    future = np.flatnonzero(sys["alive"] & (sys["t_plot"] > now + max_ahead_s))
+    return end(state, radar, future[future > 0])
+
+
+def end(
+    state: FusionState, radar: int, numbers: IntArray, moved_to: IntArray | None = None
+) -> npt.NDArray[Any]:
+    """End the system tracks ``numbers``; their local tracks go to ``moved_to`` (one
+    per number: a merge) or leave."""
+    sys = state.sys
+    if numbers.size == 0:
+        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
+    out = system_rows(
+        state,
+        numbers,
+        sys["t"][numbers],
+        sys["x"][numbers],
+        sys["P"][numbers] + consider.bias_share(sys["M"][numbers], sys["B"][numbers]),
+        np.full(numbers.size, ENDED, dtype=np.int8),
+        state.local.slots(numbers, state.config.max_sources),
+    )
+    out["radar"] = radar
+    loc = state.local.used
+    if moved_to is None:
+        loc["system"][np.isin(loc["system"], numbers)] = 0
+    else:
+        for number, target in zip(numbers.tolist(), moved_to.tolist(), strict=True):
+            loc["system"][loc["system"] == number] = target
+        sys["solo"][moved_to] = False
+    sys["alive"][numbers] = False
+    sys["freed_at"][numbers] = state.now
+    state.stats.system_tracks_ended += int(numbers.size)
+    return out

@@ -1,0 +1,91 @@
+"""Spatial pre-selection of the pairs the fuser's chi-square tests can pass: association
+(local track, system track) and merging (system track, system track). Without it each
+new local track and each touched system track was tested against every live system
+track: a cost per update growing with the traffic.
+
+A pair passes a gate d^T S^-1 d <= g only if its positions are within sqrt(g tr(S_pos))
+(the marginal form bounds the whole from below, and tr bounds the largest eigenvalue).
+Every track is moved to the batch's middle time along its velocity, with a radius that
+bounds its share of that distance: its own covariance predicted over the span (the
+largest process noise of the models), its sensitivity to every radar's residual bias
+times the largest bias covariance, its speed over the batch's time spread and the
+largest turn over that span; two tracks are a candidate pair when they lie closer than
+the sum of their radii (the local tracker's pre-selection, ``tracking/associate.py``,
+with the same safety factor and margin).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker_service.tracking.associate import candidate_pairs
+from tracker_service.tracking.plots import FloatArray, IntArray
+
+RADIUS_SAFETY = 1.2
+RADIUS_MARGIN_M = 50.0
+
+
+def time_span(t: FloatArray) -> tuple[float, float]:
+    """The middle and half the range of times t."""
+    lo, hi = float(t.min()), float(t.max())
+    return 0.5 * (lo + hi), 0.5 * (hi - lo)
+
+
+def largest_bias(B: FloatArray) -> float:
+    """The largest trace of the residual-bias covariances B (..., 2, 2)."""
+    return float(np.trace(B, axis1=-2, axis2=-1).max(initial=0.0))
+
+
+def reach(
+    x: FloatArray,
+    P: FloatArray,
+    t: FloatArray,
+    bias_var: FloatArray,
+    t_mid: float,
+    spread: float,
+    gate: float,
+    q_max: float,
+    turn_max: float,
+) -> tuple[FloatArray, FloatArray]:
+    """Positions (k, 2) at ``t_mid`` of states x (k, 4) with covariances P (k, 4, 4) at
+    times t, and a radius bounding each one's share of a passing pair's distance;
+    ``bias_var`` (k,): a bound on the trace of its residual-bias terms over the span."""
+    dt = t_mid - t
+    a = np.abs(dt) + spread
+    var = (
+        P[:, 0, 0]
+        + P[:, 1, 1]
+        + 2.0 * a * np.abs(P[:, 0, 2] + P[:, 1, 3])
+        + a * a * (P[:, 2, 2] + P[:, 3, 3])
+        + 2.0 * q_max * a**3 / 3.0
+        + bias_var
+    )
+    speed = np.hypot(x[:, 2], x[:, 3])
+    turn = 0.5 * speed * turn_max * a * a
+    # A turn moves the predicted mean, and the spread of the models' means widens S.
+    var += turn * turn
+    radius = (
+        RADIUS_SAFETY * np.sqrt(gate * np.maximum(var, 0.0))
+        + speed * spread
+        + turn
+        + RADIUS_MARGIN_M
+    )
+    return x[:, :2] + x[:, 2:] * dt[:, None], radius
+
+
+def sensitivity_norm(M: FloatArray, t: FloatArray, t_mid: float, spread: float) -> FloatArray:
+    """A bound on the squared Frobenius norm of the position rows of sensitivities M
+    (k, radars, 4, 2) predicted over up to |t_mid - t| + spread, summed over radars."""
+    a = np.abs(t_mid - t) + spread
+    position = np.square(M[:, :, :2, :]).sum(axis=(1, 2, 3))
+    velocity = np.square(M[:, :, 2:, :]).sum(axis=(1, 2, 3))
+    return np.asarray(2.0 * (position + a * a * velocity), dtype=np.float64)
+
+
+def near_pairs(
+    xy_a: FloatArray, radius_a: FloatArray, xy_b: FloatArray, radius_b: FloatArray
+) -> tuple[IntArray, IntArray]:
+    """(i, j) with a[i] and b[j] closer than the sum of their radii, sorted by (i, j)."""
+    i, j = candidate_pairs(xy_a, radius_a, xy_b, radius_b)
+    order = np.lexsort((j, i))
+    return i[order], j[order]

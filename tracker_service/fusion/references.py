@@ -1,0 +1,71 @@
+"""What the bias estimator takes from the fuser: predictions of each plot's system track
+at the plot's time that the plot has not updated (DOMAIN.md section 6, variant 3)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.fusion.arrays import compact_slots, positions
+from tracker_service.fusion.estimator_tracks import fuse_local_tracks
+from tracker_service.fusion.state import FusionState
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray, PlotArrays
+
+
+@dataclass(frozen=True)
+class References:
+    """Per update row with a plot whose local track feeds a system track: predictions of
+    that system track at the plot's time, from the other radars' local tracks only
+    (``others_*``, valid when one contributes within ``max_reference_age_s``) and from all
+    its local tracks as they were before this batch (``all_*``); positions (N, 2), their
+    covariances (N, 2, 2), the velocity of the others' prediction (N, 2), and which radars
+    contribute (N, n_radars)."""
+
+    plot_id: IntArray
+    system_number: IntArray
+    time: FloatArray
+    others_valid: BoolArray
+    others_xy: FloatArray
+    others_P: FloatArray
+    others_v: FloatArray
+    all_xy: FloatArray
+    all_P: FloatArray
+    radars_seen: BoolArray
+
+
+def references(
+    state: FusionState, radar: int, updates: npt.NDArray[Any], p: PlotArrays
+) -> References:
+    """See ``SystemTracker.references``."""
+    with_plot = updates[updates["plot_id"] >= 0]
+    rows = state.local.find(radar, with_plot, create=False)
+    loc = state.local.rows
+    numbers = np.where(rows >= 0, loc["system"][np.maximum(rows, 0)], 0)
+    fed = numbers > 0
+    with_plot, numbers = with_plot[fed], numbers[fed]
+    at = positions(p.plot_id, with_plot["plot_id"])
+    t = np.where(at >= 0, p.time[np.maximum(at, 0)], with_plot["time"])
+    slots = state.local.slots(numbers, state.config.max_sources)
+    s = np.maximum(slots, 0)
+    recent = (slots >= 0) & (t[:, None] - loc["t_plot"][s] <= state.config.reference_age_s)
+    others = recent & (loc["radar"][s] != radar)
+    x_o, p_o = fuse_local_tracks(state, compact_slots(slots, others), t)
+    x_a, p_a = fuse_local_tracks(state, slots, t)
+    seen = np.zeros((numbers.size, state.n_radars), dtype=bool)
+    r, c = np.nonzero(recent)
+    seen[r, loc["radar"][s[r, c]]] = True
+    return References(
+        plot_id=with_plot["plot_id"].astype(np.int64),
+        system_number=numbers,
+        time=t,
+        others_valid=others.any(axis=1),
+        others_xy=x_o[:, :2],
+        others_P=p_o[:, :2, :2],
+        others_v=x_o[:, 2:],
+        all_xy=x_a[:, :2],
+        all_P=p_a[:, :2, :2],
+        radars_seen=seen,
+    )

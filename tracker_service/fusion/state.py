@@ -1,0 +1,58 @@
+"""What the fuser's parts share: its configuration, its two tables, its clock's present
+and its running counts. Each role (association, track life, estimators, references)
+is a module of functions over a ``FusionState``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.fusion.config import FusionConfig
+from tracker_service.fusion.table import LocalTrackTable, new_system_table
+from tracker_service.tracking.models import ModelSet
+
+
+@dataclass
+class FusionStats:
+    """Running counts since the fuser started."""
+
+    batches: int = 0
+    rows: int = 0
+    system_tracks_created: int = 0
+    system_tracks_ended: int = 0
+    reassociations: int = 0
+    late_plots_skipped: int = 0
+    unknown_plot_ids: int = 0
+    numbers_exhausted: int = 0
+    system_tracks_merged: int = 0
+    out_of_line_updates: int = 0
+    """Local-track updates refused by the clock: too far ahead of the fuser's clock or
+    behind it (see ``tracking.clock``), e.g. a radar whose time is out of step."""
+    clock_resyncs: int = 0
+
+
+@dataclass
+class FusionState:
+    config: FusionConfig
+    n_radars: int
+    models: ModelSet
+    stats: FusionStats = field(default_factory=FusionStats)
+    local: LocalTrackTable = field(init=False)
+    sys: npt.NDArray[Any] = field(init=False)
+    """The system-track table (``table.system_dtype``), indexed by number."""
+    now: float = -np.inf
+    """The fuser's clock at the batch in hand."""
+    merge_counts: dict[tuple[int, int], int] = field(default_factory=dict)
+    """Consecutive joint gate passes of each pair of system tracks (track life's merge)."""
+
+    @property
+    def turn_max(self) -> float:
+        """The largest turn rate (rad/s) of the system tracks' models."""
+        return float(np.abs(self.models.turn_rates_rad_s).max())
+
+    def __post_init__(self) -> None:
+        self.local = LocalTrackTable(self.models.n_models)
+        self.sys = new_system_table(self.models.n_models, self.n_radars)

@@ -1,0 +1,212 @@
+"""The fuser's two tables: the local tracks seen so far, and the system tracks.
+
+The local-track table holds one row per radar and local track number, with the latest
+state and the system track it feeds, found by a sorted key index; the system-track table
+is indexed by the system track number (1..4095).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.fusion.arrays import last_of_each, rank_within
+from tracker_service.fusion.messages import MAX_SOURCES, MAX_SYSTEM_NUMBER
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
+from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
+
+KEY_SHIFT = 32
+"""Local-track key: radar << KEY_SHIFT | local track number."""
+
+
+def local_dtype(n_models: int) -> np.dtype[Any]:
+    return np.dtype(
+        [
+            ("key", np.int64),
+            ("radar", np.int64),
+            ("number", np.int64),
+            ("system", np.int64),  # 0: none
+            ("status", np.int8),
+            ("alive", np.bool_),
+            ("t", np.float64),  # time of the state
+            ("x", np.float64, (4,)),
+            ("P", np.float64, (4, 4)),
+            ("extra", np.float64, (2, 2)),  # residual-bias covariance of the latest plot
+            ("plot_id", np.int64),
+            ("t_plot", np.float64),
+            ("fl", np.float64),
+            ("rate", np.float64),
+            ("t_fl", np.float64),
+            ("address", np.int64),
+            ("mode3a", np.int64),
+            ("fails", np.int64),
+            ("t_founder", np.float64),  # first time it could have founded a system track
+            ("mu", np.float64, (n_models,)),  # its model probabilities (0: not known)
+        ]
+    )
+
+
+def system_dtype(n_models: int, n_radars: int) -> np.dtype[Any]:
+    return np.dtype(
+        [
+            ("alive", np.bool_),
+            ("t", np.float64),  # time of x, P, M: the latest output (or filter) state
+            ("x", np.float64, (4,)),
+            # "plots": the error's covariance without the residual biases, which enter
+            # through M and B (fusion/consider.py); "tracks": the whole covariance, M = 0.
+            ("P", np.float64, (4, 4)),
+            ("M", np.float64, (n_radars, 4, 2)),  # sensitivity to each radar's bias
+            ("B", np.float64, (n_radars, 2, 2)),  # each radar's latest residual bias cov.
+            ("t_plot", np.float64),  # latest plot of any of its local tracks
+            ("freed_at", np.float64),
+            ("born", np.float64),
+            ("address", np.int64),
+            ("mode3a", np.int64),
+            ("solo", np.bool_),  # fed by its founding local track alone so far
+            ("mx", np.float64, (n_models, 4)),  # "plots" method: the IMM's models
+            ("mP", np.float64, (n_models, 4, 4)),
+            ("mu", np.float64, (n_models,)),
+            ("mM", np.float64, (n_models, n_radars, 4, 2)),
+        ]
+    )
+
+
+def new_system_table(n_models: int, n_radars: int) -> npt.NDArray[Any]:
+    table = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=system_dtype(n_models, n_radars))
+    table["freed_at"] = -np.inf
+    return table
+
+
+class LocalTrackTable:
+    """``rows[:n]``: every local track seen and not yet compacted away (``alive`` false
+    once deleted). ``rows`` may be replaced when it grows: read it afresh, never keep it
+    across a call that may create rows."""
+
+    def __init__(self, n_models: int) -> None:
+        self.n_models = n_models
+        self.rows: npt.NDArray[Any] = np.zeros(64, dtype=local_dtype(n_models))
+        self.n = 0
+        self._index_keys = np.zeros(0, dtype=np.int64)
+        self._index_rows = np.zeros(0, dtype=np.int64)
+
+    @property
+    def used(self) -> npt.NDArray[Any]:
+        """The rows in use (a view)."""
+        return self.rows[: self.n]
+
+    def find(self, radar: int, u: npt.NDArray[Any], create: bool = True) -> IntArray:
+        """Row of each update's local track (-1: unknown, and not created: a deleted
+        track never seen before, or ``create`` false)."""
+        keys = (np.int64(radar) << KEY_SHIFT) | u["track_number"].astype(np.int64)
+        rows = self._lookup(keys)
+        missing = (rows < 0) & (u["status"] != LOCAL_DELETED)
+        if create and missing.any():
+            new_keys, first = np.unique(keys[missing], return_index=True)
+            start = self._grow(new_keys.size)
+            fresh = self.rows[start : start + new_keys.size]
+            fresh[...] = np.zeros(1, dtype=self.rows.dtype)
+            fresh["key"] = new_keys
+            fresh["radar"] = radar
+            fresh["number"] = u["track_number"][missing][first]
+            fresh["alive"] = True
+            fresh["t"] = np.nan  # no state yet
+            fresh["t_plot"] = -np.inf
+            fresh["t_founder"] = np.nan
+            fresh["fl"] = np.nan
+            fresh["address"] = fresh["mode3a"] = -1
+            self.reindex()
+            rows = self._lookup(keys)
+        return rows
+
+    def _lookup(self, keys: IntArray) -> IntArray:
+        pos = np.searchsorted(self._index_keys, keys)
+        pos = np.minimum(pos, max(self._index_keys.size - 1, 0))
+        if self._index_keys.size == 0:
+            return np.full(keys.shape, -1, dtype=np.int64)
+        return np.where(self._index_keys[pos] == keys, self._index_rows[pos], -1)
+
+    def _grow(self, k: int) -> int:
+        start = self.n
+        if start + k > self.rows.shape[0]:
+            grown = np.zeros(max(2 * self.rows.shape[0], start + k), dtype=self.rows.dtype)
+            grown[:start] = self.rows[:start]
+            self.rows = grown
+        self.n = start + k
+        return start
+
+    def reindex(self) -> None:
+        loc = self.used
+        live = np.flatnonzero(loc["alive"])
+        order = np.argsort(loc["key"][live])
+        self._index_keys = loc["key"][live][order]
+        self._index_rows = live[order]
+
+    def remove(self, rows: IntArray) -> None:
+        """Deleted local tracks leave their system tracks and the index."""
+        if rows.size:
+            self.rows["alive"][rows] = False
+            self.rows["system"][rows] = 0
+            self.reindex()
+
+    def compact(self) -> None:
+        """Drop deleted local tracks once they are half the table (rows move: reindex)."""
+        alive = self.rows["alive"][: self.n]
+        if np.count_nonzero(~alive) * 2 <= self.n:
+            return
+        survivors = self.rows[: self.n][alive]
+        self.n = survivors.shape[0]
+        self.rows[: self.n] = survivors
+        self.reindex()
+
+    def store(
+        self, rows: IntArray, u: npt.NDArray[Any], extra: FloatArray, has_plot: BoolArray
+    ) -> None:
+        """The latest row of each local track: its status and identity; the latest row
+        with a plot (or any row of a track without state yet): its state."""
+        loc = self.rows
+        last = last_of_each(rows)
+        r, v = rows[last], u[last]
+        loc["status"][r] = v["status"]
+        loc["address"][r] = np.where(v["address"] >= 0, v["address"], loc["address"][r])
+        loc["mode3a"][r] = np.where(v["mode3a"] >= 0, v["mode3a"], loc["mode3a"][r])
+        with_fl = np.isfinite(v["flight_level"])
+        loc["fl"][r[with_fl]] = v["flight_level"][with_fl]
+        loc["rate"][r[with_fl]] = np.nan_to_num(v["climb_rate_fl_per_s"][with_fl])
+        loc["t_fl"][r[with_fl]] = v["time"][with_fl]
+        stateless = np.isnan(loc["t"][rows])
+        sel = np.flatnonzero(has_plot | stateless)
+        last = sel[last_of_each(rows[sel])]
+        r, v = rows[last], u[last]
+        loc["t"][r] = v["time"]
+        loc["x"][r] = np.column_stack([v["x"], v["y"], v["vx"], v["vy"]])
+        loc["P"][r] = v["P"].reshape(-1, 4, 4)
+        loc["extra"][r] = extra[last]
+        if v.dtype["model_probabilities"].shape == (self.n_models,):
+            # The local trackers' IMM is the plot filter's (both TrackerConfig's model
+            # set): a system track founded by a local track starts in its models.
+            loc["mu"][r] = v["model_probabilities"]
+        plotted = has_plot[last]
+        loc["plot_id"][r[plotted]] = v["plot_id"][plotted]
+        loc["t_plot"][r[plotted]] = v["time"][plotted]
+
+    def slots(self, numbers: IntArray, max_sources: int) -> IntArray:
+        """Local rows feeding each system track (rows of ``numbers``, which may repeat),
+        most recent plot first, at most ``max_sources``, -1 padding: (k, MAX_SOURCES)."""
+        loc = self.used
+        k = numbers.size
+        slots = np.full((k, MAX_SOURCES), -1, dtype=np.int64)
+        unique, inverse = np.unique(numbers, return_inverse=True)
+        feeding = np.flatnonzero(loc["alive"] & np.isin(loc["system"], unique))
+        if feeding.size == 0 or k == 0:
+            return slots
+        group = np.searchsorted(unique, loc["system"][feeding])
+        order = np.lexsort((-loc["t_plot"][feeding], group))
+        feeding, group = feeding[order], group[order]
+        rank = rank_within(group)
+        keep = rank < max_sources
+        per_unique = np.full((unique.size, MAX_SOURCES), -1, dtype=np.int64)
+        per_unique[group[keep], rank[keep]] = feeding[keep]
+        slots[:] = per_unique[inverse.reshape(-1)]
+        return slots
