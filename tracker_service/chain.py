@@ -50,7 +50,7 @@ from tracker_service.radar_stage import (
     rejections,
     source_order,
 )
-from tracker_service.sources import DEFAULT_MAX_UNKNOWN, SourceAdmission
+from tracker_service.sources import DEFAULT_MAX_UNKNOWN, SourceCounts
 from tracker_service.stage_messages import RadarBatch
 from tracker_service.time_sanity import TimeSanity, TimeSanityConfig
 from tracker_service.tracking import LocalTracker, TrackerConfig
@@ -72,6 +72,7 @@ __all__ = [
     "FieldMonitor",
     "PlotUse",
     "RadarInfo",
+    "RadarStageFailed",
     "RadarStages",
     "RadarState",
     "blocks_of",
@@ -89,6 +90,18 @@ ChainStats = StageStats
 """The chain's counts are its radar stage's."""
 
 
+class RadarStageFailed(RuntimeError):
+    """The radar side is gone (a worker process died): no datagram's fault, so the
+    service does not count and skip it but stops."""
+
+
+class Admission(Protocol):
+    """What the service reads of source admission (``SourceAdmission``)."""
+
+    @property
+    def counts(self) -> SourceCounts: ...
+
+
 class RadarStages(Protocol):
     """What the chain needs of its radar side: one ``RadarStage``, or stages in other
     processes behind a proxy."""
@@ -97,7 +110,7 @@ class RadarStages(Protocol):
     radars: dict[str, RadarState]
 
     @property
-    def admission(self) -> SourceAdmission: ...
+    def admission(self) -> Admission: ...
 
     def feed(self, payload: bytes, received: float, order: int) -> list[RadarBatch]: ...
 
@@ -144,7 +157,7 @@ class Chain:
         return self.radar_stage.stats
 
     @property
-    def admission(self) -> SourceAdmission:
+    def admission(self) -> Admission:
         return self.radar_stage.admission
 
     @property

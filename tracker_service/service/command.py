@@ -25,7 +25,8 @@ import numpy.typing as npt
 
 from asterix.containers import Datagram
 from tracker_service.bias import ObservedFrom
-from tracker_service.chain import BatchOutput
+from tracker_service.chain import BatchOutput, RadarStageFailed, RadarStages
+from tracker_service.distribution import RemoteRadarStages
 from tracker_service.inputs.udp import InputCounters
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.messages import StatusMessage
@@ -43,11 +44,12 @@ from tracker_service.service.core import CoreState, Outputs, TrackerService
 from tracker_service.service.replay import (
     CONFIG_METADATA,
     Progress,
+    Replay,
     open_replay,
     parse_date,
     parse_speed,
 )
-from tracker_service.service.signals import stop_on_signals
+from tracker_service.service.signals import StopSignal, stop_on_signals
 
 __all__ = [
     "OutputProcess",
@@ -130,6 +132,15 @@ def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
         help="the UTC day of a capture that holds times of day only (GPS, final, raw, hex)",
     )
     parser.add_argument("--mcap-dir", help="write the service's MCAP log into this directory")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="run the radar stages in N worker processes, fusion and the outputs in this "
+        "one, over Zenoh on 127.0.0.1 (default 0: everything in this process); the system "
+        "tracks are the same either way",
+    )
     _add_zenoh_arguments(parser)
 
 
@@ -240,6 +251,7 @@ def open_service(
     zenoh: bool = True,
     output_process: bool = False,
     health_file: Path | None = None,
+    radar_stage: RadarStages | None = None,
 ) -> Iterator[TrackerService]:
     """The core with its Zenoh session and MCAP log, in this process or, with
     ``output_process``, in a process of their own (which writes each status into
@@ -247,14 +259,14 @@ def open_service(
     log are closed, whatever happened."""
     if output_process:
         with OutputProcess(config, mcap_dir, zenoh=zenoh, health_file=health_file) as outputs:
-            service = TrackerService(config, outputs=outputs)
+            service = TrackerService(config, outputs=outputs, radar_stage=radar_stage)
             try:
                 yield service
             finally:
                 service.close()
         return
     with open_outputs(config, mcap_dir, zenoh=zenoh) as (publisher, mcap):
-        service = TrackerService(config, publisher, mcap)
+        service = TrackerService(config, publisher, mcap, radar_stage=radar_stage)
         try:
             yield service
         finally:
@@ -501,6 +513,28 @@ def _watch_hint(config: ServiceConfig) -> str:
     return f"tracker-service subscribe {connect}{prefix}".replace("  ", " ").strip()
 
 
+def _replay_datagrams(
+    service: TrackerService, source: Replay, speed: float, stop: StopSignal
+) -> None:
+    progress = Progress(source.span)
+    first: float | None = None
+    wall0 = time.monotonic()
+    for name, datagram in source.datagrams:
+        if stop.is_set():
+            break
+        assert datagram.time is not None
+        if first is None:
+            first = datagram.time
+        if math.isfinite(speed):
+            delay = wall0 + (datagram.time - first) / speed - time.monotonic()
+            if delay > 0 and stop.wait(delay):
+                break
+        service.process(name, datagram)
+        progress.update(service.now, service.counts.datagrams, len(service.live_tracks))
+    progress.update(service.now, service.counts.datagrams, len(service.live_tracks), True)
+    progress.finish()
+
+
 def replay(args: argparse.Namespace) -> int:
     try:
         config = None if args.config is None else load_service_config(args.config)
@@ -512,26 +546,22 @@ def replay(args: argparse.Namespace) -> int:
     mcap_dir = None if args.mcap_dir is None else Path(args.mcap_dir)
     speed: float = args.speed
     print(f"{args.recording}: {source.kind}; watch with: {_watch_hint(config)}", file=sys.stderr)
-    progress = Progress(source.span)
-    with stop_on_signals() as stop, open_service(config, mcap_dir) as service:
-        service.set_input_counters(source.counters)
-        first: float | None = None
-        wall0 = time.monotonic()
-        for name, datagram in source.datagrams:
-            if stop.is_set():
-                break
-            assert datagram.time is not None
-            if first is None:
-                first = datagram.time
-            if math.isfinite(speed):
-                delay = wall0 + (datagram.time - first) / speed - time.monotonic()
-                if delay > 0 and stop.wait(delay):
-                    break
-            service.process(name, datagram)
-            progress.update(service.now, service.counts.datagrams, len(service.live_tracks))
-        progress.update(service.now, service.counts.datagrams, len(service.live_tracks), True)
-        progress.finish()
-        log_files = [] if service.log is None else list(service.log.files)
+    try:
+        with contextlib.ExitStack() as stack:
+            stop = stack.enter_context(stop_on_signals())
+            workers = None
+            if args.workers > 0:
+                workers = stack.enter_context(
+                    RemoteRadarStages(
+                        args.recording, config, args.date, args.workers, config.zenoh.prefix
+                    )
+                )
+            service = stack.enter_context(open_service(config, mcap_dir, radar_stage=workers))
+            _replay_datagrams(service, source, speed, stop)
+            log_files = [] if service.log is None else list(service.log.files)
+    except RadarStageFailed as exc:
+        print(f"tracker-service replay: {exc}", file=sys.stderr)
+        return 1
     counts = service.counts
     duplicates = sum(c.duplicates for c in source.counters.values())
     print(
