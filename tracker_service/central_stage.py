@@ -11,8 +11,9 @@ their input (the one-process chain: as they come; over Zenoh: merged by receptio
   radar out of step is kept out of fusion;
 - corrects its plots and local updates with the radar's current bias estimate, to first
   order through the Jacobian the radar stage sent (x - C s, time - s_t): the same as
-  converting corrected range and azimuth, within centimetres for biases of a few hundred
-  metres and tenths of a degree;
+  converting corrected range and azimuth within a metre or two for biases of 150 m and
+  0.15 degrees (the second order, rho dtheta^2 / 2, is 0.7 m at 200 km), against plot
+  errors of tens of metres;
 - feeds the bias estimator the batch's observations (other radars' fused tracks, field
   monitors, ADS-B), then the fuser.
 
