@@ -96,7 +96,10 @@ def test_three_workers_for_three_radars_too(
 
 def _workers_of(pid: int) -> list[int]:
     out = subprocess.run(
-        ["ps", "-ww", "-o", "pid=,args=", "--ppid", str(pid)], capture_output=True, text=True, check=False
+        ["ps", "-ww", "-o", "pid=,args=", "--ppid", str(pid)],
+        capture_output=True,
+        text=True,
+        check=False,
     ).stdout
     return [int(line.split()[0]) for line in out.splitlines() if "spawn_main" in line]
 
