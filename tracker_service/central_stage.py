@@ -171,7 +171,7 @@ class CentralStage:
         if self.fuser is None or index is None or not len(local) or out_of_step is not None:
             return BatchOutput(source, message.plots, local, _NO_SYSTEM_ROWS, report)
         extra = None
-        if bias is not None and bias_cov is not None:
+        if bias is not None and bias_cov is not None and not message.snapshot:
             extra = self._estimate_biases(index, message, batch, local, bias, bias_cov)
         system = self.fuser.process(index, local, batch, extra)
         return BatchOutput(source, message.plots, local, system, report)

@@ -503,3 +503,59 @@ class RadarStage:
         if surveyed is not None:
             monitor_xy[table["rab"]] = surveyed
         return monitor_xy
+
+    def live_tracks(self, order: int, received: float) -> list[RadarBatch]:
+        """Each radar's live local tracks (``LocalTracker.live_rows``), for a central stage
+        that starts while this one runs: each confirmed or coasting track with its
+        estimate as a pseudo-plot (position, its covariance as R, identity), so that the
+        fuser founds its system tracks at once (``RadarBatch.snapshot``: no bias
+        observation is made of them)."""
+        batches = []
+        for source, state in sorted(self.radars.items(), key=lambda kv: source_order(kv[0])):
+            local = state.tracker.live_rows()
+            local = local[local["status"] != 0]  # tentative tracks are not fused
+            n = len(local)
+            first_id = state.next_plot_id
+            state.next_plot_id += n
+            local["plot_id"] = np.arange(first_id, first_id + n)
+            p = local["P"].reshape(-1, 4, 4)
+            table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
+            tracked = np.zeros(n, dtype=PLOT_DTYPE)
+            for rows in (table, tracked):
+                rows["plot_id"] = local["plot_id"]
+                rows["time"] = local["time"]
+                rows["x"], rows["y"] = local["x"], local["y"]
+                rows["R"] = p[:, :2, :2]
+                rows["flight_level"] = local["flight_level"]
+                rows["address"] = local["address"]
+                rows["mode3a"] = local["mode3a"]
+            tracked["fl_valid"] = np.isfinite(local["flight_level"])
+            tracked["mode3a_valid"] = local["mode3a"] >= 0
+            tracked["typ"] = table["typ"] = 2
+            table["sequence"] = state.sequence
+            # Seen from the site on the plane: what CAT062 I340 says of a measured plot.
+            dx, dy = local["x"] - state.site_xy[0], local["y"] - state.site_xy[1]
+            table["rho_m"] = np.hypot(dx, dy)
+            table["theta_deg"] = np.degrees(np.arctan2(dx, dy)) % 360.0
+            table["kind"] = KIND_UNKNOWN
+            table["aircraft"] = -1
+            table["detection_time"] = np.nan
+            c = local_jacobian(local, np.zeros((0, 2, 4)), first_id, state.site_xy)
+            batches.append(
+                RadarBatch(
+                    source=source,
+                    received=received,
+                    order=order,
+                    plots=table,
+                    tracked=tracked,
+                    jacobian=c,
+                    monitor_xy=np.full((n, 2), np.nan),
+                    local=local,
+                    local_jacobian=c,
+                    time=self.time_sanity.report(source),
+                    effective_offset_s=self.time_sanity.effective_offset(source),
+                    incarnation=self.incarnation,
+                    snapshot=True,
+                )
+            )
+        return batches

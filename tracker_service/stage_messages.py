@@ -100,6 +100,9 @@ class RadarBatch:
     incarnation: int = 0
     """Which start of its radar stage made it: a restarted stage's track numbers are new
     tracks to the central stage."""
+    snapshot: bool = False
+    """Live tracks with their estimates as pseudo-plots (``RadarStage.live_tracks``), not
+    measurements: fused, never a bias observation."""
 
 
 @dataclass
@@ -134,6 +137,7 @@ _BATCH_META = np.dtype(
         ("received", np.float64),
         ("order", np.int64),
         ("incarnation", np.int64),
+        ("snapshot", np.bool_),
         ("effective_offset_s", np.float64),
         ("time_base", "U16"),
         ("offset_s", np.float64),
@@ -178,6 +182,7 @@ def _batch_meta(batch: RadarBatch) -> npt.NDArray[Any]:
         batch.received,
         batch.order,
         batch.incarnation,
+        batch.snapshot,
         _nan(batch.effective_offset_s),
         t.time_base,
         _nan(t.offset_s),
@@ -276,6 +281,7 @@ def decode_message(payload: bytes) -> DatagramResult:
                     time=report,
                     effective_offset_s=_none(m["effective_offset_s"]),
                     incarnation=int(m["incarnation"]),
+                    snapshot=bool(m["snapshot"]),
                     **parts,
                 )
             )

@@ -151,6 +151,35 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
         help="a file the daemon writes each status message into, as JSON (for a "
         "container's health check: `tracker-service health --file FILE`)",
     )
+    parser.add_argument(
+        "--role",
+        choices=("radar", "fusion"),
+        help="run one stage (docs/deployment.md): 'radar' the radar stages of --radars, "
+        "published over Zenoh; 'fusion' fusion and the outputs, fed by the radar "
+        "processes; default: everything in this process",
+    )
+    parser.add_argument(
+        "--radars",
+        type=lambda text: [part.strip() for part in text.split(",") if part.strip()],
+        default=[],
+        metavar="SAC/SIC,...",
+        help="with --role radar: the configured radars whose inputs this process takes",
+    )
+    parser.add_argument(
+        "--stage-listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="with --role: Zenoh endpoint of the stage session to listen on, e.g. "
+        "tls/0.0.0.0:7450 (repeatable; the [zenoh] config_file and mode apply)",
+    )
+    parser.add_argument(
+        "--stage-connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="with --role: Zenoh endpoint of the stage session to connect to (repeatable)",
+    )
     _add_zenoh_arguments(parser)
 
 
@@ -611,16 +640,26 @@ def health(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from tracker_service.service.daemon import Daemon, InputError
+    from tracker_service.service.roles import FusionRole, RadarRole
 
     try:
         config = _with_cli(load_service_config(args.config), args)
     except ConfigError as exc:
         print(f"tracker-service run: {exc}", file=sys.stderr)
         return 2
+    if args.radars and args.role != "radar":
+        print("tracker-service run: --radars goes with --role radar", file=sys.stderr)
+        return 2
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     health_file = None if args.health_file is None else Path(args.health_file)
     with stop_on_signals() as stop:
         try:
+            if args.role == "radar":
+                radar_role = RadarRole(config, args.radars, args.stage_listen, args.stage_connect)
+                return radar_role.run(stop)
+            if args.role == "fusion":
+                fusion_role = FusionRole(config, args.stage_listen, args.stage_connect, health_file)
+                return fusion_role.run(stop)
             return Daemon(config, health_file).run(stop)
         except InputError as exc:
             print(f"tracker-service run: {args.config}: {exc}", file=sys.stderr)

@@ -63,6 +63,7 @@ from tracker_service.radar_stage import RadarStage
 from tracker_service.ratelimit import RateLimitedLog
 from tracker_service.service.config import ServiceConfig, parse_service_config
 from tracker_service.sources import SourceCounts
+from tracker_service.stage_messages import RadarBatch
 from tracker_service.test_targets import SeenTestTargets
 from tracker_service.time_sanity import (
     TimeReport,
@@ -864,6 +865,22 @@ class TrackerService:
             self.outputs.error(name, "not_asterix", reason)
         else:
             self._feed(name, datagram.payload, received)
+        self._periodic()
+
+    def process_batch(self, batch: RadarBatch) -> None:
+        """One radar stage's batch (``run --role fusion``): the central stage and the
+        outputs, as ``process`` takes a datagram through the whole chain."""
+        self._advance_to(batch.received)
+        try:
+            self.outputs.batch(self.chain.central.process(batch), self.chain.sources)
+        except Exception:
+            self._warn.exception(
+                "processing",
+                "radar %s: batch at %.3f could not be processed",
+                batch.source,
+                batch.received,
+            )
+            self.outputs.count(input_name(batch.source), "processing_failed", 1)
         self._periodic()
 
     def _feed(self, name: str, payload: bytes, received: float) -> None:
