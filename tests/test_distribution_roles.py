@@ -174,10 +174,14 @@ def test_a_radar_process_killed_and_a_fusion_process_restarted(
     # Killed: 25/13 feeds nothing; the others go on.
     silent = radars_between(killed_at + lag, restarted_at)
     assert "25/13" not in silent and {"25/11", "25/12"} <= silent
-    # Its tracks that only it saw coast, then end, as for a silent radar.
-    assert any(t["status"] == "ended" for t in tracks if killed_at < t["time"] < restarted_at)
-    # Restarted: 25/13 is back.
+    # Restarted: 25/13 is back, on the system tracks the others keep (its old local
+    # tracks ended in the fuser), not beside them as duplicates.
     assert "25/13" in radars_between(east_back_at + lag, fusion_killed_at)
+    live_before = {t["number"] for t in tracks if killed_at - PERIOD_S <= t["time"] < killed_at}
+    live_after = {
+        t["number"] for t in tracks if fusion_killed_at - PERIOD_S <= t["time"] < fusion_killed_at
+    }
+    assert len(live_after) <= 1.2 * len(live_before), (len(live_before), len(live_after))
     # The new fusion process: its picture back within two antenna periods.
     before = {
         t["number"] for t in tracks if fusion_killed_at - PERIOD_S <= t["time"] < fusion_killed_at

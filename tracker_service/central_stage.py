@@ -46,6 +46,7 @@ from tracker_service.geodesy import SystemPlane
 from tracker_service.radar_stage import CAT021, PlotUse, RadarInfo, blocks_of, source_order
 from tracker_service.stage_messages import RadarBatch
 from tracker_service.time_sanity import TimeConsensus, TimeReport, TimeSanityConfig
+from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
 
 __all__ = ["BatchOutput", "CentralStage", "corrected"]
 
@@ -128,6 +129,7 @@ class CentralStage:
         self._incarnations: dict[str, tuple[int, int]] = {}
         """Per radar, its stage's incarnation and the offset added to its track numbers."""
         self._highest_track: dict[str, int] = {}
+        self._live_local: dict[str, dict[int, npt.NDArray[Any]]] = {}
 
     def feed_adsb(self, payload: bytes, received: float) -> None:
         """The CAT021 blocks of a datagram: the bias estimator's absolute reference."""
@@ -152,10 +154,49 @@ class CentralStage:
 
     def process(self, message: RadarBatch) -> BatchOutput:
         """One radar batch, in input order (see the module docstring)."""
-        self._renumber(message)
+        restarted = self._renumber(message)
         source = message.source
         info = self.infos.get(source)
         index = self.sources.index(source) if info is not None and info.surveyed else None
+        ended = _NO_SYSTEM_ROWS
+        if restarted and self.fuser is not None and index is not None:
+            ended = self._end_local_tracks(index, source, message)
+        output = self._process(message, index)
+        if len(ended):
+            output.system = np.concatenate([ended, output.system])
+        self._remember(source, output.local)
+        return output
+
+    def _end_local_tracks(self, index: int, source: str, message: RadarBatch) -> npt.NDArray[Any]:
+        """A restarted radar stage's predecessor's local tracks, deleted in the fuser at the
+        new stage's time: their system tracks go on with the other radars (or end, as
+        orphans), and the new stage's tracks join them afresh instead of founding
+        duplicates beside tracks the fuser still holds for that radar."""
+        assert self.fuser is not None
+        old = self._live_local.pop(source, {})
+        if not old:
+            return _NO_SYSTEM_ROWS
+        rows = np.array(list(old.values()), dtype=message.local.dtype)
+        rows["status"] = LOCAL_DELETED
+        rows["plot_id"] = -1
+        now = float(message.local["time"].max()) if len(message.local) else message.received
+        rows["time"] = np.maximum(rows["time"], now)
+        return self.fuser.process(index, rows, np.zeros(0, dtype=message.tracked.dtype), None)
+
+    def _remember(self, source: str, local: npt.NDArray[Any]) -> None:
+        """The latest update of each live local track of each radar."""
+        if not len(local):
+            return
+        live = self._live_local.setdefault(source, {})
+        for row in local:
+            number = int(row["track_number"])
+            if row["status"] == LOCAL_DELETED:
+                live.pop(number, None)
+            else:
+                live[number] = row.copy()
+
+    def _process(self, message: RadarBatch, index: int | None) -> BatchOutput:
+        source = message.source
         out_of_step = self.consensus.out_of_step(
             source, message.effective_offset_s, message.received
         )
@@ -176,9 +217,10 @@ class CentralStage:
         system = self.fuser.process(index, local, batch, extra)
         return BatchOutput(source, message.plots, local, system, report)
 
-    def _renumber(self, message: RadarBatch) -> None:
+    def _renumber(self, message: RadarBatch) -> bool:
         """Plot ids for the system, in the order batches are taken; a restarted radar
-        stage's track numbers after the highest its predecessor used."""
+        stage's track numbers after the highest its predecessor used. True for the first
+        batch of a restarted stage."""
         n = len(message.plots)
         if n:
             offset = self._next_plot_id - int(message.plots["plot_id"][0])
@@ -190,7 +232,8 @@ class CentralStage:
                 message.local["plot_id"][with_plot] += offset
         source = message.source
         known = self._incarnations.get(source)
-        if known is None or known[0] != message.incarnation:
+        restarted = known is not None and known[0] != message.incarnation
+        if known is None or restarted:
             shift = 0 if known is None else self._highest_track.get(source, 0)
             self._incarnations[source] = known = (message.incarnation, shift)
         if len(message.local):
@@ -199,6 +242,7 @@ class CentralStage:
             highest = int(message.local["track_number"].max())
             if highest > self._highest_track.get(source, 0):
                 self._highest_track[source] = highest
+        return restarted
 
     def _estimate_biases(
         self,
