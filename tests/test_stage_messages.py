@@ -13,7 +13,7 @@ import pytest
 from tracker_service.central_stage import corrected
 from tracker_service.chain import Chain, RadarStage
 from tracker_service.geodesy import convert_plots
-from tracker_service.service.core import build_chain, config_from_recording
+from tracker_service.service.core import build_chain, build_radar_stage, config_from_recording
 from tracker_service.simulator.recording import read_recording
 from tracker_service.stage_messages import (
     MAGIC,
@@ -160,3 +160,29 @@ def test_the_radar_stage_sends_plots_as_received_and_the_centre_corrects_them(
     assert np.abs(shift - exact_shift).max() < 2.0
     assert np.abs(shift - exact_shift).max() < 0.005 * np.abs(exact_shift).max()
     assert np.allclose(fixed["time"], batch.tracked["time"] - bias[3])
+
+
+def test_a_restarted_radar_stage_replaces_its_predecessors_tracks_in_the_fuser() -> None:
+    """A new incarnation's local tracks are new tracks, numbered after the old ones, and
+    the old ones are deleted in the fuser (else the new ones found duplicates)."""
+    recording = read_recording(RECORDING)
+    config = config_from_recording(recording.metadata)
+    chain = build_chain(config)
+    datagrams = list(recording.datagrams())
+    for datagram in datagrams[:900]:
+        chain.feed(datagram.payload, datagram.time)
+    fuser = chain.fuser
+    assert fuser is not None
+    radar = chain.sources.index("25/13")
+
+    def live() -> set[int]:
+        loc = fuser._loc[: fuser._n]
+        return set(loc["number"][loc["alive"] & (loc["radar"] == radar)].tolist())
+
+    before = live()
+    assert len(before) > 10
+    chain.radar_stage = build_radar_stage(config, incarnation=1)
+    for datagram in datagrams[900:1100]:
+        chain.feed(datagram.payload, datagram.time)
+    after = live()
+    assert after and min(after) > max(before)

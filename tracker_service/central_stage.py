@@ -23,6 +23,7 @@ on the order the batches are taken in, not on when they crossed the network.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
@@ -168,10 +169,10 @@ class CentralStage:
         return output
 
     def _end_local_tracks(self, index: int, source: str, message: RadarBatch) -> npt.NDArray[Any]:
-        """A restarted radar stage's predecessor's local tracks, deleted in the fuser at the
-        new stage's time: their system tracks go on with the other radars (or end, as
-        orphans), and the new stage's tracks join them afresh instead of founding
-        duplicates beside tracks the fuser still holds for that radar."""
+        """A restarted radar stage's predecessor's local tracks, deleted in the fuser:
+        their system tracks go on with the other radars (or end, as orphans), and the new
+        stage's tracks join them afresh instead of founding duplicates beside tracks the
+        fuser still holds for that radar."""
         assert self.fuser is not None
         old = self._live_local.pop(source, {})
         if not old:
@@ -179,8 +180,10 @@ class CentralStage:
         rows = np.array(list(old.values()), dtype=message.local.dtype)
         rows["status"] = LOCAL_DELETED
         rows["plot_id"] = -1
-        now = float(message.local["time"].max()) if len(message.local) else message.received
-        rows["time"] = np.maximum(rows["time"], now)
+        # At the fuser's own time: their last updates are as old as the outage, which
+        # its clock would refuse as out of line.
+        now = self.fuser.clock.now
+        rows["time"] = now if math.isfinite(now) else message.received
         return self.fuser.process(index, rows, np.zeros(0, dtype=message.tracked.dtype), None)
 
     def _remember(self, source: str, local: npt.NDArray[Any]) -> None:
