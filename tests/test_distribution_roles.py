@@ -1,8 +1,12 @@
 """``run --role radar`` and ``--role fusion`` as real processes with real Zenoh sessions on
 127.0.0.1, fed real UDP datagrams (the simulator's recording, paced): a radar process
-killed with SIGKILL stops only its radar, whose tracks coast and end while the others go
-on, and its restart resumes it; a fusion process restarted has its picture back from the
-radar processes' live tracks within two antenna periods."""
+killed with SIGKILL stops only its radar while the others go on, and its restart resumes
+it on the same system tracks; a fusion process restarted has its picture back from the
+radar processes' live tracks within two antenna periods.
+
+In three_sites every aircraft 25/13 sees at the kill is seen by another radar too, so
+no system track ends here: one that only a silent radar fed ends by the fuser's silence
+rule, as in one process (tests/test_service_replay.py, a radar that stops)."""
 
 from __future__ import annotations
 
