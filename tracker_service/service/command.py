@@ -565,6 +565,9 @@ def _replay_datagrams(
 
 
 def replay(args: argparse.Namespace) -> int:
+    if args.workers < 0:
+        print(f"tracker-service replay: --workers {args.workers}: give 0 or more", file=sys.stderr)
+        return 2
     try:
         config = None if args.config is None else load_service_config(args.config)
         source = open_replay(args.recording, config, args.date)
