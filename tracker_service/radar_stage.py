@@ -317,8 +317,6 @@ class RadarState:
     fixed: FixedTargets
     site_xy: FloatArray
     sequence: int = 0
-    next_plot_id: int = 0
-    """Plot ids are the radar's own; the central stage numbers them for the system."""
 
 
 @dataclass
@@ -366,6 +364,9 @@ class RadarStage:
             {source: info.period_s for source, info in self.infos.items()},
         )
         self._heights = HeightModel()
+        self.next_plot_id = 0
+        """The stage's plots numbered in its order: in one process the system's numbers;
+        the central stage renumbers those of stages in other processes."""
         self._monitors = {
             source: np.array(plane.from_geodetic(m.lat_deg, m.lon_deg, m.alt_m), dtype=float)
             for source, info in self.infos.items()
@@ -441,7 +442,7 @@ class RadarStage:
         self, source: str, raw: npt.NDArray[Any], received: float, order: int
     ) -> RadarBatch:
         state = self._radar(source)
-        first_id = state.next_plot_id
+        first_id = self.next_plot_id
         batch, table, c = convert_batch(
             raw,
             state.info,
@@ -463,7 +464,7 @@ class RadarStage:
         if implausible.any():
             table["use"][implausible & (table["use"] == PlotUse.TRACKED)] = PlotUse.TIME_IMPLAUSIBLE
         state.sequence += 1
-        state.next_plot_id += len(raw)
+        self.next_plot_id += len(raw)
         self.stats.plots += len(raw)
         n_monitor = int(np.count_nonzero(table["rab"]))
         if n_monitor:
@@ -515,8 +516,8 @@ class RadarStage:
             local = state.tracker.live_rows()
             local = local[local["status"] != 0]  # tentative tracks are not fused
             n = len(local)
-            first_id = state.next_plot_id
-            state.next_plot_id += n
+            first_id = self.next_plot_id
+            self.next_plot_id += n
             local["plot_id"] = np.arange(first_id, first_id + n)
             p = local["P"].reshape(-1, 4, 4)
             table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
