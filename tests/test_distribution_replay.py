@@ -134,7 +134,12 @@ def test_a_worker_killed_stops_the_replay_with_a_clear_error(
     assert len(workers) == 2, f"the worker processes did not start: {''.join(stderr)}"
     time.sleep(3.0)  # well into the replay (at twice real time, 15 s long)
     os.kill(workers[0], signal.SIGKILL)
-    assert process.wait(timeout=30) == 1
+    try:
+        code = process.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        raise AssertionError(f"the replay did not stop: {''.join(stderr)}") from None
+    assert code == 1
     reader.join(timeout=5)
     text = "".join(stderr)
     assert "radar worker" in text and "exited with code -9" in text, text
