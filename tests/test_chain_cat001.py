@@ -58,7 +58,7 @@ def test_the_plots_are_timed_on_the_radars_clock(run: tuple[Chain, Any, Any, Any
     lag = received - plots["time"]
     assert np.all(lag > -0.5) and np.median(lag) < 2.0 and np.all(lag < 10.0)
     # The north markers (no I041) give the antenna period: about 4 s.
-    period = chain._clock.antenna_period(20, 130)
+    period = chain.radar_stage.clock.antenna_period(20, 130)
     assert period is not None and 3.9 < period < 4.1
     # Nothing kept out for its time (its site monitors on 7777 are, for what they are).
     assert not np.any(plots["use"] == PlotUse.TIME_IMPLAUSIBLE)

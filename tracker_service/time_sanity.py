@@ -404,13 +404,13 @@ class TimeSanity:
             return self._consensus_value
         self._consensus_at = self._latest
         values = [v for t in self._timelines.values() if (v := self._effective(t)) is not None]
-        limit = self.config.max_offset_s
-        self._consensus_value = (
-            max(values, key=lambda v: (sum(abs(v - w) <= limit for w in values), -abs(v)))
-            if len(values) >= 2
-            else None
-        )
+        self._consensus_value = consensus_of(values, self.config.max_offset_s)
         return self._consensus_value
+
+    def effective_offset(self, source: str) -> float | None:
+        """The radar's offset from reception with enough evidence, after re-basing (what
+        the central stage's ``TimeConsensus`` compares)."""
+        return self._effective(self._timeline(source))
 
     def out_of_step(self, source: str) -> float | None:
         """How far a radar's time is from the other radars' (``_consensus``), when beyond
@@ -466,6 +466,43 @@ class TimeSanity:
             timeline.source,
             jump,
         )
+
+
+def consensus_of(values: Sequence[float], limit: float) -> float | None:
+    """The offset of the largest group of ``values`` that agree within ``limit`` (the one
+    nearest reception on a tie); None with fewer than two."""
+    if len(values) < 2:
+        return None
+    return max(values, key=lambda v: (sum(abs(v - w) <= limit for w in values), -abs(v)))
+
+
+class TimeConsensus:
+    """The radars' time against each other where their radar stages are apart: each
+    batch brings its radar's effective offset (``TimeSanity.effective_offset``); a radar
+    out of step with the consensus (as ``TimeSanity.out_of_step`` judges it in one
+    stage) is kept out of fusion. Recomputed once per ``CONSENSUS_INTERVAL_S`` of
+    reception time, in the order the central stage takes the batches."""
+
+    def __init__(self, config: TimeSanityConfig | None = None) -> None:
+        self.config = config or TimeSanityConfig()
+        self._offsets: dict[str, float] = {}
+        self._at = -math.inf
+        self._value: float | None = None
+
+    def out_of_step(self, source: str, offset: float | None, received: float) -> float | None:
+        """Notes ``source``'s ``offset`` at ``received``; its step from the consensus when
+        beyond ``max_offset_s``, else None."""
+        if offset is None:
+            self._offsets.pop(source, None)
+        else:
+            self._offsets[source] = offset
+        if abs(received - self._at) >= CONSENSUS_INTERVAL_S:
+            self._at = received
+            self._value = consensus_of(list(self._offsets.values()), self.config.max_offset_s)
+        if offset is None or self._value is None:
+            return None
+        step = offset - self._value
+        return step if abs(step) > self.config.max_offset_s else None
 
 
 def _median(values: Sequence[float], toward: float | None = None) -> float:

@@ -25,7 +25,8 @@ import numpy.typing as npt
 
 from asterix.containers import Datagram
 from tracker_service.bias import ObservedFrom
-from tracker_service.chain import BatchOutput
+from tracker_service.chain import BatchOutput, RadarStageFailed, RadarStages
+from tracker_service.distribution import RemoteRadarStages
 from tracker_service.inputs.udp import InputCounters
 from tracker_service.log_level import configure
 from tracker_service.outputs.asterix_udp import with_destinations
@@ -56,7 +57,7 @@ from tracker_service.service.replay import (
     parse_date,
     parse_speed,
 )
-from tracker_service.service.signals import stop_on_signals
+from tracker_service.service.signals import StopSignal, stop_on_signals
 
 __all__ = [
     "OutputProcess",
@@ -159,6 +160,15 @@ def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
         help="the UTC day of a capture that holds times of day only (GPS, final, raw, hex)",
     )
     parser.add_argument("--mcap-dir", help="write the service's MCAP log into this directory")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="run the radar stages in N worker processes, fusion and the outputs in this "
+        "one, over Zenoh on 127.0.0.1 (default 0: everything in this process); the system "
+        "tracks are the same either way",
+    )
     _add_zenoh_arguments(parser)
     _add_asterix_arguments(parser)
     _add_foxglove_arguments(parser)
@@ -170,6 +180,35 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
         "--health-file",
         help="a file the daemon writes each status message into, as JSON (for a "
         "container's health check: `tracker-service health --file FILE`)",
+    )
+    parser.add_argument(
+        "--role",
+        choices=("radar", "fusion"),
+        help="run one stage (docs/deployment.md): 'radar' the radar stages of --radars, "
+        "published over Zenoh; 'fusion' fusion and the outputs, fed by the radar "
+        "processes; default: everything in this process",
+    )
+    parser.add_argument(
+        "--radars",
+        type=lambda text: [part.strip() for part in text.split(",") if part.strip()],
+        default=[],
+        metavar="SAC/SIC,...",
+        help="with --role radar: the configured radars whose inputs this process takes",
+    )
+    parser.add_argument(
+        "--stage-listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="with --role: Zenoh endpoint of the stage session to listen on, e.g. "
+        "tls/0.0.0.0:7450 (repeatable; the [zenoh] config_file and mode apply)",
+    )
+    parser.add_argument(
+        "--stage-connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="with --role: Zenoh endpoint of the stage session to connect to (repeatable)",
     )
     _add_zenoh_arguments(parser)
     _add_asterix_arguments(parser)
@@ -314,6 +353,7 @@ def open_service(
     zenoh: bool = True,
     output_process: bool = False,
     health_file: Path | None = None,
+    radar_stage: RadarStages | None = None,
 ) -> Iterator[TrackerService]:
     """The core with its Zenoh session and MCAP log, in this process or, with
     ``output_process``, in a process of their own (which writes each status into
@@ -321,14 +361,14 @@ def open_service(
     log are closed, whatever happened."""
     if output_process:
         with OutputProcess(config, mcap_dir, zenoh=zenoh, health_file=health_file) as outputs:
-            service = TrackerService(config, outputs=outputs)
+            service = TrackerService(config, outputs=outputs, radar_stage=radar_stage)
             try:
                 yield service
             finally:
                 service.close()
         return
     with open_outputs(config, mcap_dir, zenoh=zenoh) as (publisher, mcap):
-        service = TrackerService(config, publisher, mcap)
+        service = TrackerService(config, publisher, mcap, radar_stage=radar_stage)
         try:
             yield service
         finally:
@@ -583,7 +623,32 @@ def _watch_hint(config: ServiceConfig) -> str:
     return f"tracker-service subscribe {connect}{prefix}".replace("  ", " ").strip()
 
 
+def _replay_datagrams(
+    service: TrackerService, source: Replay, speed: float, stop: StopSignal
+) -> None:
+    progress = Progress(source.span)
+    first: float | None = None
+    wall0 = time.monotonic()
+    for name, datagram in source.datagrams:
+        if stop.is_set():
+            break
+        assert datagram.time is not None
+        if first is None:
+            first = datagram.time
+        if math.isfinite(speed):
+            delay = wall0 + (datagram.time - first) / speed - time.monotonic()
+            if delay > 0 and stop.wait(delay):
+                break
+        service.process(name, datagram)
+        progress.update(service.now, service.counts.datagrams, len(service.live_tracks))
+    progress.update(service.now, service.counts.datagrams, len(service.live_tracks), True)
+    progress.finish()
+
+
 def replay(args: argparse.Namespace) -> int:
+    if args.workers < 0:
+        print(f"tracker-service replay: --workers {args.workers}: give 0 or more", file=sys.stderr)
+        return 2
     try:
         config = None if args.config is None else load_service_config(args.config)
         source = open_replay(args.recording, config, args.date)
@@ -596,41 +661,25 @@ def replay(args: argparse.Namespace) -> int:
     print(f"{args.recording}: {source.kind}; watch with: {_watch_hint(config)}", file=sys.stderr)
     if config.foxglove.listen is not None:
         print(f"foxglove: open ws://{config.foxglove.listen} in the Foxglove app", file=sys.stderr)
-    progress = Progress(source.span)
     try:
-        return _replay(args, source, config, mcap_dir, speed, progress)
+        with contextlib.ExitStack() as stack:
+            stop = stack.enter_context(stop_on_signals())
+            workers = None
+            if args.workers > 0:
+                workers = stack.enter_context(
+                    RemoteRadarStages(
+                        args.recording, config, args.date, args.workers, config.zenoh.prefix
+                    )
+                )
+            service = stack.enter_context(open_service(config, mcap_dir, radar_stage=workers))
+            _replay_datagrams(service, source, speed, stop)
+            log_files = [] if service.log is None else list(service.log.files)
+    except RadarStageFailed as exc:
+        print(f"tracker-service replay: {exc}", file=sys.stderr)
+        return 1
     except (ZenohConfigError, OSError) as exc:
         print(f"tracker-service replay: {exc}", file=sys.stderr)
         return 2
-
-
-def _replay(
-    args: argparse.Namespace,
-    source: Replay,
-    config: ServiceConfig,
-    mcap_dir: Path | None,
-    speed: float,
-    progress: Progress,
-) -> int:
-    with stop_on_signals() as stop, open_service(config, mcap_dir) as service:
-        service.set_input_counters(source.counters)
-        first: float | None = None
-        wall0 = time.monotonic()
-        for name, datagram in source.datagrams:
-            if stop.is_set():
-                break
-            assert datagram.time is not None
-            if first is None:
-                first = datagram.time
-            if math.isfinite(speed):
-                delay = wall0 + (datagram.time - first) / speed - time.monotonic()
-                if delay > 0 and stop.wait(delay):
-                    break
-            service.process(name, datagram)
-            progress.update(service.now, service.counts.datagrams, len(service.live_tracks))
-        progress.update(service.now, service.counts.datagrams, len(service.live_tracks), True)
-        progress.finish()
-        log_files = [] if service.log is None else list(service.log.files)
     counts = service.counts
     duplicates = sum(c.duplicates for c in source.counters.values())
     print(
@@ -696,16 +745,26 @@ def _container_health(status: StatusMessage, age: float, silent_for: float, behi
 
 def run(args: argparse.Namespace) -> int:
     from tracker_service.service.daemon import Daemon, InputError
+    from tracker_service.service.roles import FusionRole, RadarRole
 
     try:
         config = _with_cli(load_service_config(args.config), args)
     except ConfigError as exc:
         print(f"tracker-service run: {exc}", file=sys.stderr)
         return 2
+    if args.radars and args.role != "radar":
+        print("tracker-service run: --radars goes with --role radar", file=sys.stderr)
+        return 2
     configure()
     health_file = None if args.health_file is None else Path(args.health_file)
     with stop_on_signals() as stop:
         try:
+            if args.role == "radar":
+                radar_role = RadarRole(config, args.radars, args.stage_listen, args.stage_connect)
+                return radar_role.run(stop)
+            if args.role == "fusion":
+                fusion_role = FusionRole(config, args.stage_listen, args.stage_connect, health_file)
+                return fusion_role.run(stop)
             return Daemon(config, health_file).run(stop)
         except InputError as exc:
             print(f"tracker-service run: {args.config}: {exc}", file=sys.stderr)

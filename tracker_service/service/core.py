@@ -38,6 +38,8 @@ from tracker_service.chain import (
     FieldMonitor,
     PlotUse,
     RadarInfo,
+    RadarStageFailed,
+    RadarStages,
     rejections,
     source_order,
 )
@@ -62,9 +64,11 @@ from tracker_service.outputs.sink import Backoff, IsolatedSink, OutputState, Que
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_picture import ZenohPictureSink
 from tracker_service.outputs.zenoh_sink import ZenohSink
+from tracker_service.radar_stage import RadarStage
 from tracker_service.ratelimit import RateLimitedLog
 from tracker_service.service.config import ServiceConfig, parse_service_config
 from tracker_service.sources import SourceCounts
+from tracker_service.stage_messages import RadarBatch
 from tracker_service.test_targets import SeenTestTargets
 from tracker_service.time_sanity import (
     TimeReport,
@@ -183,31 +187,53 @@ def bias_config(config: ServiceConfig) -> BiasConfig:
     return BiasConfig(**values)
 
 
+def _chain_arguments(config: ServiceConfig) -> dict[str, Any]:
+    """``Chain`` arguments of a configuration (the radar stage takes its share of them)."""
+    return {
+        "radars": {radar.key: _radar_info(radar) for radar in config.radars},
+        "plane": SystemPlane(
+            config.system.centre_lat, config.system.centre_lon, config.system.projection
+        ),
+        "tracker": dataclass_kwargs("tracker", config.tracker, TrackerConfig),
+        "time_sanity": TimeSanityConfig(
+            **dataclass_kwargs("time_sanity", config.time_sanity, TimeSanityConfig)
+        ),
+        "fixed_targets": config.fixed_target_config(),
+        "max_unknown_sources": config.system.max_unknown_sources,
+    }
+
+
 def build_chain(
     config: ServiceConfig,
     make_tracker: Callable[[str, TrackerConfig], LocalTracker] | None = None,
+    radar_stage: RadarStages | None = None,
 ) -> Chain:
     """The chain of a configuration: its radars, plane, tracker, fusion and bias settings;
-    ``make_tracker`` as for ``Chain`` (assess passes one that keeps the plots it tracks)."""
-    infos = {radar.key: _radar_info(radar) for radar in config.radars}
-    plane = SystemPlane(
-        config.system.centre_lat, config.system.centre_lon, config.system.projection
-    )
+    ``make_tracker`` as for ``Chain`` (assess passes one that keeps the plots it tracks);
+    ``radar_stage``: radar stages in other processes (``distribution``)."""
     fusion = FusionConfig(**dataclass_kwargs("fusion", config.fusion, FusionConfig))
-    tracker = dataclass_kwargs("tracker", config.tracker, TrackerConfig)
-    time_sanity = TimeSanityConfig(
-        **dataclass_kwargs("time_sanity", config.time_sanity, TimeSanityConfig)
-    )
     return Chain(
-        infos,
-        plane,
-        tracker,
-        make_tracker,
+        **_chain_arguments(config),
+        make_tracker=make_tracker,
         fusion=fusion,
         bias=bias_config(config),
-        time_sanity=time_sanity,
-        fixed_targets=config.fixed_target_config(),
-        max_unknown_sources=config.system.max_unknown_sources,
+        radar_stage=radar_stage,
+    )
+
+
+def build_radar_stage(config: ServiceConfig, incarnation: int = 0) -> RadarStage:
+    """The radar stage of a configuration, as ``build_chain`` makes it (every configured
+    radar known to it: which of them it is fed is its caller's choice)."""
+    arguments = _chain_arguments(config)
+    return RadarStage(
+        arguments["radars"],
+        arguments["plane"],
+        arguments["tracker"],
+        None,
+        arguments["time_sanity"],
+        arguments["fixed_targets"],
+        arguments["max_unknown_sources"],
+        incarnation,
     )
 
 
@@ -828,9 +854,10 @@ class TrackerService:
         log_file: McapLog | None = None,
         timings: ServiceTimings | None = None,
         outputs: OutputSink | None = None,
+        radar_stage: RadarStages | None = None,
     ) -> None:
         self.config = config
-        self.chain = build_chain(config)
+        self.chain = build_chain(config, radar_stage=radar_stage)
         self.plane = self.chain.plane
         self.timings = timings or ServiceTimings()
         self.outputs = outputs or Outputs(config, publisher, log_file, self.timings)
@@ -894,6 +921,22 @@ class TrackerService:
             self._feed(name, datagram.payload, received)
         self._periodic()
 
+    def process_batch(self, batch: RadarBatch) -> None:
+        """One radar stage's batch (``run --role fusion``): the central stage and the
+        outputs, as ``process`` takes a datagram through the whole chain."""
+        self._advance_to(batch.received)
+        try:
+            self.outputs.batch(self.chain.central.process(batch), self.chain.sources)
+        except Exception:
+            self._warn.exception(
+                "processing",
+                "radar %s: batch at %.3f could not be processed",
+                batch.source,
+                batch.received,
+            )
+            self.outputs.count(input_name(batch.source), "processing_failed", 1)
+        self._periodic()
+
     def _feed(self, name: str, payload: bytes, received: float) -> None:
         unknown = [c for c in block_categories(payload) if c not in HANDLED_CATEGORIES]
         if unknown:
@@ -904,6 +947,8 @@ class TrackerService:
             outputs = self.chain.feed(payload, received)
             for output in outputs:
                 self.outputs.batch(output, self.chain.sources)
+        except RadarStageFailed:
+            raise
         except Exception:
             self._warn.exception(
                 "processing", "%s: datagram at %.3f could not be processed", name, received

@@ -203,7 +203,7 @@ def _duplicate(
     return False
 
 
-def _first_source(payload: bytes) -> str | None:
+def first_source(payload: bytes) -> str | None:
     """SAC/SIC of the datagram's first record: I010 leads the UAP of CAT021, 034 and 048."""
     pos = 3
     if len(payload) <= pos:
@@ -269,7 +269,7 @@ def _capture(path: Path, config: ServiceConfig, day_posix: float | None) -> Repl
             if isinstance(item, ContainerError):
                 print(f"{path}: offset {item.offset}: {item.reason}", file=sys.stderr)
                 continue
-            name = input_name(_first_source(item.payload) or "0/0")
+            name = input_name(first_source(item.payload) or "0/0")
             t = item.time
             if t is None:
                 t = _own_time_of_day(item.payload)

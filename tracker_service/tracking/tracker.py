@@ -217,6 +217,20 @@ class LocalTracker:
             parts.append(self._track(p))
         return _join(parts, self.output_dtype)
 
+    def live_rows(self) -> npt.NDArray[Any]:
+        """Every live track as an output row at its own latest time, without a plot: what
+        a fuser that starts while this tracker runs needs to rebuild its picture."""
+        n, cols = self._n, self._cols
+        return self._rows(
+            np.arange(n),
+            cols["t"][:n].copy(),
+            cols["status"][:n].copy(),
+            np.full(n, -1, dtype=np.int64),
+            cols["mu"][:n].copy(),
+            cols["xc"][:n].copy(),
+            cols["Pc"][:n].copy(),
+        )
+
     def _delete_all(self) -> npt.NDArray[Any]:
         """Every live track deleted, at its own latest time."""
         n, cols = self._n, self._cols

@@ -1,0 +1,275 @@
+"""The radar stages in other processes, over Zenoh: ``tracker-service replay --workers N``.
+
+The main process runs the service as in one process (the central stage, the outputs,
+their schedule), with a ``RemoteRadarStages`` as its chain's radar side. Each of the N
+worker processes reads the same input, numbers its datagrams as the main process does
+(every datagram the service would feed the chain counts), and runs a ``RadarStage`` over
+the datagrams of the radars assigned to it (``assign``: the configured radars in SAC/SIC
+order, round robin; an unconfigured source by a hash of its SAC/SIC). For each of them it
+publishes a ``stage_messages.DatagramResult`` on ``<prefix>/stage/replay/<k>/result``.
+
+The main process takes, for each datagram in input order, the next result of the worker
+that owns it, and checks that it is that datagram's (``order``): the central stage sees
+the same batches in the same order as in one process, so the system tracks are the same
+messages with the same numbers and values, whatever the timing of the network. The
+workers run ahead of the main process as far as Zenoh's queues let them.
+
+Sessions as everywhere in the service (``outputs.zenoh_session``): peers, scouting off,
+explicit endpoints only; the main process listens on 127.0.0.1 on a free port, the
+workers connect to it, and nothing else can join by accident.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import multiprocessing
+import queue
+import socket
+import time
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from multiprocessing.synchronize import Event
+from pathlib import Path
+from typing import Any, Self
+
+import zenoh
+
+from tracker_service.chain import RadarStageFailed, RadarState, source_order
+from tracker_service.inputs.udp import block_chain_error
+from tracker_service.outputs.zenoh_session import zenoh_config
+from tracker_service.radar_stage import StageStats
+from tracker_service.service.config import ServiceConfig, parse_service_config
+from tracker_service.service.core import build_radar_stage
+from tracker_service.service.replay import first_source, open_replay
+from tracker_service.sources import SourceCounts
+from tracker_service.stage_messages import (
+    DatagramResult,
+    MessageKind,
+    RadarBatch,
+    decode_message,
+    encode_message,
+)
+
+__all__ = ["RemoteRadarStages", "WorkerFailed", "assign", "owner"]
+
+log = logging.getLogger(__name__)
+
+READY_TIMEOUT_S = 30.0
+"""A worker that has not reached the main process's session in this long gives up."""
+RESULT_TIMEOUT_S = 1.0
+"""How long the main process waits for a result before it checks its worker still runs."""
+
+
+class WorkerFailed(RadarStageFailed):
+    """A worker process died or sent what the main process did not expect."""
+
+
+def assign(sources: Sequence[str], workers: int) -> dict[str, int]:
+    """Which worker runs each configured radar: SAC/SIC order, round robin."""
+    return {source: k % workers for k, source in enumerate(sorted(sources, key=source_order))}
+
+
+def owner(payload: bytes, assignment: dict[str, int], workers: int) -> int:
+    """The worker of a datagram: its first record's source's (a datagram that mixes
+    radars goes whole to one worker, as it goes whole to the one-process chain)."""
+    source = first_source(payload) or "0/0"
+    found = assignment.get(source)
+    return found if found is not None else zlib.crc32(source.encode()) % workers
+
+
+def result_key(prefix: str, worker: int) -> str:
+    return f"{prefix}/stage/replay/{worker}/result"
+
+
+def ready_key(prefix: str) -> str:
+    return f"{prefix}/stage/replay/ready"
+
+
+def free_loopback_port() -> int:
+    """A TCP port free on 127.0.0.1 now (the main process listens on it at once)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port: int = probe.getsockname()[1]
+        return port
+
+
+@dataclass
+class _WorkerArgs:
+    recording: str
+    config_json: str
+    day_posix: float | None
+    worker: int
+    workers: int
+    endpoint: str
+    prefix: str
+
+
+def _wait_ready(session: zenoh.Session, prefix: str) -> None:
+    """Until the main process answers: its subscriber is declared by then, so that no
+    result is published before anyone hears it."""
+    deadline = time.monotonic() + READY_TIMEOUT_S
+    while time.monotonic() < deadline:
+        for reply in session.get(ready_key(prefix), timeout=1.0):
+            if reply.ok is not None:
+                return
+        time.sleep(0.05)
+    raise WorkerFailed(f"no answer from the main process on {ready_key(prefix)}")
+
+
+def _run_worker(args: _WorkerArgs, done: Event) -> None:
+    """A worker process: its radars' stage over the input, each result published."""
+    logging.basicConfig(level=logging.WARNING)
+    config = parse_service_config(json.loads(args.config_json), "replay worker")
+    source = open_replay(args.recording, config, args.day_posix)
+    stage = build_radar_stage(config)
+    assignment = assign([radar.key for radar in config.radars], args.workers)
+    session = zenoh.open(zenoh_config("peer", connect=[args.endpoint]))
+    try:
+        publisher = session.declare_publisher(
+            result_key(args.prefix, args.worker),
+            congestion_control=zenoh.CongestionControl.BLOCK,
+            encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM,
+        )
+        _wait_ready(session, args.prefix)
+        order = 0
+        for _name, datagram in source.datagrams:
+            payload = datagram.payload
+            if datagram.time is None or block_chain_error(payload) is not None:
+                continue  # the service does not feed these to the chain
+            if owner(payload, assignment, args.workers) == args.worker:
+                batches = stage.feed(payload, datagram.time, order)
+                result = DatagramResult(
+                    order, datagram.time, batches, stage.stats.decode_errors, stage.admission.counts
+                )
+                publisher.put(encode_message(result))
+            order += 1
+        publisher.put(encode_message(DatagramResult(order, 0.0, kind=MessageKind.END_OF_INPUT)))
+        # Until the main process has what it needs: closing at once could drop the tail.
+        done.wait()
+    finally:
+        session.close()  # type: ignore[no-untyped-call]
+
+
+@dataclass
+class _RemoteAdmission:
+    """The workers' source admission counts, summed."""
+
+    per_worker: list[SourceCounts] = field(default_factory=list)
+
+    @property
+    def counts(self) -> SourceCounts:
+        return SourceCounts(
+            sum(c.no_source for c in self.per_worker),
+            sum(c.unknown_dropped for c in self.per_worker),
+            sum(c.unknown_sources_dropped for c in self.per_worker),
+        )
+
+
+class RemoteRadarStages:
+    """The chain's radar side in ``workers`` processes (see the module docstring), which
+    replay ``recording`` with ``config`` (``day_posix`` as ``open_replay``'s). A context
+    manager: leaving it ends the workers and closes the session."""
+
+    def __init__(
+        self,
+        recording: str | Path,
+        config: ServiceConfig,
+        day_posix: float | None,
+        workers: int,
+        prefix: str = "tracker",
+    ) -> None:
+        if workers < 1:
+            raise ValueError(f"--workers {workers}: give 1 or more")
+        self.workers = workers
+        self.stats = StageStats()
+        self.radars: dict[str, RadarState] = {}
+        self.admission = _RemoteAdmission([SourceCounts() for _ in range(workers)])
+        self._assignment = assign([radar.key for radar in config.radars], workers)
+        self._decode_errors = [0] * workers
+        self._queues: list[queue.Queue[bytes]] = [queue.Queue() for _ in range(workers)]
+        endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
+        self._session = zenoh.open(zenoh_config("peer", listen=[endpoint]))
+        self._subscriber = self._session.declare_subscriber(
+            f"{prefix}/stage/replay/*/result", self._received
+        )
+        self._queryable = self._session.declare_queryable(
+            ready_key(prefix), lambda query: query.reply(ready_key(prefix), b"")
+        )
+        context = multiprocessing.get_context("spawn")
+        self._done = context.Event()
+        self._processes = [
+            context.Process(
+                target=_run_worker,
+                args=(
+                    _WorkerArgs(
+                        str(recording),
+                        config.model_dump_json(),
+                        day_posix,
+                        k,
+                        workers,
+                        endpoint,
+                        prefix,
+                    ),
+                    self._done,
+                ),
+                name=f"tracker-radar-worker-{k}",
+            )
+            for k in range(workers)
+        ]
+        for process in self._processes:
+            process.start()
+
+    def _received(self, sample: zenoh.Sample) -> None:
+        worker = int(str(sample.key_expr).split("/")[-2])
+        self._queues[worker].put(sample.payload.to_bytes())
+
+    def _next(self, worker: int) -> DatagramResult:
+        while True:
+            try:
+                return decode_message(self._queues[worker].get(timeout=RESULT_TIMEOUT_S))
+            except queue.Empty:
+                process = self._processes[worker]
+                if not process.is_alive():
+                    raise WorkerFailed(
+                        f"radar worker {worker} exited with code {process.exitcode}"
+                    ) from None
+
+    def feed(self, payload: bytes, received: float, order: int) -> list[RadarBatch]:
+        """The batches of one datagram, from the worker that owns it."""
+        worker = owner(payload, self._assignment, self.workers)
+        result = self._next(worker)
+        if result.kind != MessageKind.DATAGRAM_RESULT or result.order != order:
+            raise WorkerFailed(
+                f"radar worker {worker}: expected datagram {order}, got {result.kind.name} "
+                f"{result.order} (do the workers read the same input?)"
+            )
+        self.stats.datagrams += 1
+        self.stats.decode_errors += result.decode_errors - self._decode_errors[worker]
+        self._decode_errors[worker] = result.decode_errors
+        self.admission.per_worker[worker] = result.sources
+        for batch in result.batches:
+            self.stats.plots += len(batch.plots)
+            self.stats.field_monitor_plots += int(batch.plots["rab"].sum())
+        return result.batches
+
+    def close(self) -> None:
+        """Ends the workers (they wait for this once their input is read) and the session."""
+        self._done.set()
+        for process in self._processes:
+            process.join(timeout=5.0)
+            if process.is_alive():
+                process.kill()
+                process.join()
+        with contextlib.suppress(zenoh.ZError):
+            self._queryable.undeclare()  # type: ignore[no-untyped-call]
+            self._subscriber.undeclare()  # type: ignore[no-untyped-call]
+            self._session.close()  # type: ignore[no-untyped-call]
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

@@ -1,0 +1,376 @@
+"""``tracker-service run --role radar|fusion``: the chain's two stages in processes (or
+hosts) of their own, over Zenoh (docs/deployment.md).
+
+A radar process (``RadarRole``) takes the UDP inputs of the radars it is given, merges
+them in reception order behind the holding window as the daemon does, runs their radar
+stage, and publishes under ``<prefix>/stage/radars/<name>/`` (``name``: its radars,
+"25_11-25_12"):
+
+- ``batches``: a ``stage_messages.DatagramResult`` per datagram with plots, ordered by
+  reception time in microseconds; and every ``HEARTBEAT_S`` one without batches whose
+  order is a watermark (the process will send nothing older);
+- ``alive``: a liveliness token, gone when the process is (a SIGKILL closes its links:
+  the fusion process learns it at once and stops waiting for it);
+- ``live``: a queryable that answers with its radars' live local tracks (``LIVE_TRACKS``).
+
+The fusion process (``FusionRole``) subscribes to every radar process's batches and
+liveliness, merges the batches by reception time (order, then SAC/SIC), releasing one
+once every live radar process's watermark has passed it, and runs the central stage and
+the outputs (in a process of their own, as the daemon does). ADS-B inputs are its own.
+At its start it asks every radar process for its live tracks, so that the picture is
+back before the next antenna turn. A radar process that dies stops only its radars:
+their system tracks coast and end as if the radars were silent; restarted, it resumes
+them (its tracks new to the fuser: ``stage_messages.RadarBatch.incarnation``).
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import zenoh
+
+from asterix.containers import Datagram
+from tracker_service.chain import source_order
+from tracker_service.inputs.udp import UdpInput
+from tracker_service.outputs.zenoh_session import zenoh_config
+from tracker_service.radar_stage import RadarState, StageStats
+from tracker_service.service.command import open_service
+from tracker_service.service.config import ServiceConfig
+from tracker_service.service.core import TrackerService, build_radar_stage, input_name
+from tracker_service.service.daemon import QUIET_S, InputError, Merger, open_inputs
+from tracker_service.service.signals import Stop
+from tracker_service.sources import SourceCounts
+from tracker_service.stage_messages import (
+    DatagramResult,
+    MessageKind,
+    RadarBatch,
+    StageMessageError,
+    decode_message,
+    encode_message,
+)
+
+__all__ = ["FusionRole", "RadarRole", "StageMerge", "stage_name"]
+
+log = logging.getLogger(__name__)
+
+HEARTBEAT_S = 0.1
+"""A radar process's watermark period: the latency it adds to fusion at most."""
+STALLED_S = 2.0
+"""A live radar process silent this long (no batch, no heartbeat) is not waited for."""
+LIVE_QUERY_S = 2.0
+POLL_S = 0.002
+
+
+def stage_name(radars: list[str]) -> str:
+    """The key segment of a radar process: its radars, "25_11-25_12"."""
+    return "-".join(input_name(r) for r in sorted(radars, key=source_order))
+
+
+def _micro(t: float) -> int:
+    return round(t * 1e6)
+
+
+def _session(config: ServiceConfig, listen: list[str], connect: list[str]) -> zenoh.Session:
+    z = config.zenoh
+    return zenoh.open(
+        zenoh_config(
+            z.mode,
+            listen,
+            connect,
+            z.config_file,
+            scouting=z.scouting,
+            allow_plaintext=z.allow_plaintext,
+        )
+    )
+
+
+class RadarRole:
+    """See the module docstring. ``radars``: "SAC/SIC" of configured radars with an
+    ``[input]``; ``listen``/``connect``: the stage session's endpoints."""
+
+    def __init__(
+        self, config: ServiceConfig, radars: list[str], listen: list[str], connect: list[str]
+    ) -> None:
+        known = {radar.key for radar in config.radars}
+        unknown = [r for r in radars if r not in known]
+        if unknown or not radars:
+            raise InputError(
+                f"--radars {','.join(radars)}: {', '.join(unknown) or 'none given'} not among "
+                f"the configured radars ({', '.join(sorted(known, key=source_order))})"
+            )
+        self.config = config
+        self.radars = radars
+        self.listen, self.connect = listen, connect
+        self.name = stage_name(radars)
+
+    def run(self, stop: Stop) -> int:
+        config = self.config
+        mine = [r for r in config.radars if r.key in self.radars]
+        inputs = open_inputs(config.model_copy(update={"radars": mine, "adsb": []}))
+        stage = build_radar_stage(config, incarnation=time.time_ns() // 1_000_000)
+        lock = threading.Lock()
+        system = config.system
+        merger = Merger(
+            system.holding_window_s,
+            system.holding_window_max_datagrams,
+            int(system.holding_window_max_mb * 1024 * 1024),
+        )
+        base = f"{config.zenoh.prefix}/stage/radars/{self.name}"
+        watermark = _micro(time.time() - system.holding_window_s)
+        session = _session(config, self.listen, self.connect)
+
+        def answer(query: zenoh.Query) -> None:
+            with lock:
+                batches = stage.live_tracks(watermark, watermark / 1e6)
+            result = DatagramResult(
+                watermark, watermark / 1e6, batches, kind=MessageKind.LIVE_TRACKS
+            )
+            query.reply(f"{base}/live", encode_message(result))
+
+        try:
+            publisher = session.declare_publisher(
+                f"{base}/batches",
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM,
+            )
+            token = session.liveliness().declare_token(f"{base}/alive")
+            queryable = session.declare_queryable(f"{base}/live", answer)
+            log.info("radar stage %s: publishing under %s/", ", ".join(self.radars), base)
+            next_beat = 0.0
+            while not stop.is_set():
+                received = False
+                for udp in inputs:
+                    while (datagram := udp.get(timeout=0)) is not None:
+                        merger.push(udp.name, datagram)
+                        received = True
+                now = time.time()
+                for _name, datagram in merger.release(now):
+                    assert datagram.time is not None
+                    order = _micro(datagram.time)
+                    with lock:
+                        batches = stage.feed(datagram.payload, datagram.time, order)
+                    if batches:
+                        publisher.put(
+                            encode_message(
+                                DatagramResult(
+                                    order,
+                                    datagram.time,
+                                    batches,
+                                    stage.stats.decode_errors,
+                                    stage.admission.counts,
+                                )
+                            )
+                        )
+                if now >= next_beat:
+                    watermark = _micro(now - system.holding_window_s)
+                    publisher.put(encode_message(DatagramResult(watermark, watermark / 1e6)))
+                    next_beat = now + HEARTBEAT_S
+                if not received:
+                    stop.wait(POLL_S)
+            queryable.undeclare()  # type: ignore[no-untyped-call]
+            token.undeclare()  # type: ignore[no-untyped-call]
+        finally:
+            for udp in inputs:
+                udp.close()
+            session.close()  # type: ignore[no-untyped-call]
+        return 0
+
+
+class NoRadarStages:
+    """The fusion process's chain has no radar stage of its own: its datagrams (ADS-B)
+    go to the central stage only."""
+
+    def __init__(self) -> None:
+        self.stats = StageStats()
+        self.radars: dict[str, RadarState] = {}
+
+    @property
+    def admission(self) -> NoRadarStages:
+        return self
+
+    @property
+    def counts(self) -> SourceCounts:
+        return SourceCounts()
+
+    def feed(self, payload: bytes, received: float, order: int) -> list[RadarBatch]:
+        return []
+
+
+@dataclass
+class _Producer:
+    watermark: int = -1
+    heard: float = 0.0
+    alive: bool = True
+
+
+class StageMerge:
+    """Radar batches (and the fusion process's own datagrams) of several producers,
+    released in (order, SAC/SIC) order once every live producer has passed them."""
+
+    def __init__(self) -> None:
+        self.producers: dict[str, _Producer] = {}
+        self._heap: list[tuple[int, tuple[int, ...], int, RadarBatch | tuple[str, Datagram]]] = []
+        self._seq = itertools.count()
+
+    def __len__(self) -> int:
+        return len(self._heap)
+
+    def note(self, producer: str, watermark: int, now: float) -> None:
+        entry = self.producers.setdefault(producer, _Producer())
+        entry.watermark = max(entry.watermark, watermark)
+        entry.heard = now
+        entry.alive = True
+
+    def gone(self, producer: str) -> None:
+        entry = self.producers.get(producer)
+        if entry is not None:
+            entry.alive = False
+
+    def push_batch(self, batch: RadarBatch) -> None:
+        key = source_order(batch.source)
+        heapq.heappush(self._heap, (batch.order, key, next(self._seq), batch))
+
+    def push_datagram(self, name: str, datagram: Datagram) -> None:
+        assert datagram.time is not None
+        heapq.heappush(self._heap, (_micro(datagram.time), (), next(self._seq), (name, datagram)))
+
+    def release(self, now: float) -> list[RadarBatch | tuple[str, Datagram]]:
+        waited = [
+            p.watermark for p in self.producers.values() if p.alive and now - p.heard < STALLED_S
+        ]
+        limit = min(waited) if waited else None
+        out = []
+        while self._heap and (limit is None or self._heap[0][0] <= limit):
+            out.append(heapq.heappop(self._heap)[3])
+        return out
+
+
+class FusionRole:
+    """See the module docstring."""
+
+    def __init__(
+        self,
+        config: ServiceConfig,
+        listen: list[str],
+        connect: list[str],
+        health_file: Path | None = None,
+    ) -> None:
+        self.config = config
+        self.listen, self.connect = listen, connect
+        self.health_file = health_file
+
+    def run(self, stop: Stop) -> int:
+        config = self.config
+        prefix = f"{config.zenoh.prefix}/stage/radars"
+        window = config.system.holding_window_s
+        inputs = open_inputs(config.model_copy(update={"radars": []}))
+        events: queue.Queue[tuple[str, str, bytes]] = queue.Queue()
+
+        def producer_of(key: zenoh.KeyExpr) -> str:
+            return str(key).removeprefix(prefix + "/").split("/")[0]
+
+        session = _session(config, self.listen, self.connect)
+        try:
+            with open_service(
+                config,
+                config.mcap.directory,
+                output_process=True,
+                health_file=self.health_file,
+                radar_stage=NoRadarStages(),
+            ) as service:
+                service.advance(time.time() - window)
+                session.declare_subscriber(
+                    f"{prefix}/*/batches",
+                    lambda s: events.put(("batch", producer_of(s.key_expr), s.payload.to_bytes())),
+                )
+                session.liveliness().declare_subscriber(
+                    f"{prefix}/*/alive",
+                    lambda s: events.put((str(s.kind), producer_of(s.key_expr), b"")),
+                    history=True,
+                )
+                merge = StageMerge()
+                self._rebuild(session, prefix, merge)
+                log.info("fusion: taking the radar stages under %s/", prefix)
+                self._loop(service, inputs, events, merge, stop)
+        finally:
+            for udp in inputs:
+                udp.close()
+            session.close()  # type: ignore[no-untyped-call]
+        return 0
+
+    @staticmethod
+    def _rebuild(session: zenoh.Session, prefix: str, merge: StageMerge) -> None:
+        """Every radar process's live tracks, before their next batches."""
+        for reply in session.get(f"{prefix}/*/live", timeout=LIVE_QUERY_S):
+            if reply.ok is None:
+                continue
+            try:
+                result = decode_message(reply.ok.payload.to_bytes())
+            except StageMessageError as exc:
+                log.warning("live tracks from %s refused: %s", reply.ok.key_expr, exc)
+                continue
+            for batch in result.batches:
+                merge.push_batch(batch)
+            log.info(
+                "live tracks of %s: %d",
+                reply.ok.key_expr,
+                sum(len(b.local) for b in result.batches),
+            )
+
+    def _loop(
+        self,
+        service: TrackerService,
+        inputs: list[UdpInput],
+        events: queue.Queue[tuple[str, str, bytes]],
+        merge: StageMerge,
+        stop: Stop,
+    ) -> None:
+        window = self.config.system.holding_window_s
+        last_data = time.time()
+        while not stop.is_set():
+            now = time.time()
+            busy = False
+            while True:
+                try:
+                    kind, producer, payload = events.get_nowait()
+                except queue.Empty:
+                    break
+                busy = True
+                if kind == "batch":
+                    try:
+                        result = decode_message(payload)
+                    except StageMessageError as exc:
+                        log.warning("a batch from %s refused: %s", producer, exc)
+                        continue
+                    merge.note(producer, result.order, now)
+                    for batch in result.batches:
+                        merge.push_batch(batch)
+                elif kind.endswith("DELETE"):
+                    log.warning("radar stage %s gone: its radars coast", producer)
+                    merge.gone(producer)
+                else:
+                    merge.note(producer, -1, now)
+            for udp in inputs:
+                while (datagram := udp.get(timeout=0)) is not None:
+                    merge.push_datagram(udp.name, datagram)
+                    busy = True
+            if inputs:
+                merge.note("local", _micro(now - window), now)
+            for item in merge.release(now):
+                last_data = now
+                if isinstance(item, RadarBatch):
+                    service.process_batch(item)
+                else:
+                    service.process(*item)
+            if now - last_data > QUIET_S and not merge:
+                service.advance(now - window)
+                last_data = now - QUIET_S + 0.1
+            if not busy:
+                stop.wait(POLL_S)

@@ -1,0 +1,301 @@
+"""The messages between the radar stage and the central stage, and their binary encoding.
+
+A radar stage (``radar_stage.RadarStage``) turns one datagram of a radar into a
+``RadarBatch``: the radar's plots as it sent them (no bias correction: the radar stage
+knows nothing of fusion), the bias Jacobian of every plot and of every local-track
+update, and its local-track updates. The central stage (``central_stage.CentralStage``)
+applies the bias correction of the moment to them, so the result does not depend on
+when a batch crosses the network: only on the order the central stage takes them in.
+
+On Zenoh a message is one payload (docs/stage-messages.md)::
+
+    magic  b"TSM1"                 4 bytes
+    kind   u8                      MessageKind
+    count  u16 little-endian       number of sections
+    count x section:
+        name    u8 length + UTF-8  e.g. "meta", "0/plots"
+        length  u32 little-endian  bytes of the array that follows
+        array   .npy format v1/v2  (numpy's own: a header with the dtype, shape and
+                                   order as a Python literal, then the raw bytes);
+                                   read with allow_pickle=False: no object arrays
+
+Every array is a plain or structured numpy array, so a reader in any language with an
+.npy reader takes it. Scalars travel as a one-row structured array ``meta``; ``None``
+is NaN.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import struct
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.sources import SourceCounts
+from tracker_service.time_sanity import TimeReport
+
+__all__ = [
+    "MAGIC",
+    "DatagramResult",
+    "MessageKind",
+    "RadarBatch",
+    "StageMessageError",
+    "decode_message",
+    "encode_message",
+]
+
+MAGIC = b"TSM1"
+_HEAD = struct.Struct("<4sBH")
+_LENGTH = struct.Struct("<I")
+FloatArray = npt.NDArray[np.float64]
+
+
+class MessageKind(IntEnum):
+    DATAGRAM_RESULT = 1
+    """What a radar stage made of one datagram it owns (``DatagramResult``)."""
+    LIVE_TRACKS = 2
+    """A radar stage's live local tracks, the answer to the central stage's query at its
+    start (a ``DatagramResult`` whose batches hold local tracks and no plots)."""
+    END_OF_INPUT = 3
+    """A replay worker has read its whole input (``meta`` only: its last order)."""
+
+
+class StageMessageError(ValueError):
+    """A payload that is not a stage message (wrong magic, cut short, bad array)."""
+
+
+@dataclass
+class RadarBatch:
+    """One radar's part of one datagram, as its radar stage made it."""
+
+    source: str
+    received: float
+    """Reception time (POSIX s) of the datagram."""
+    order: int
+    """The datagram's position in its input (replay: the stream index; live: the
+    reception time in microseconds): the central stage's merge key."""
+    plots: npt.NDArray[Any]
+    """Every plot of the datagram (``radar_stage.RAW_PLOT_DTYPE``), uncorrected."""
+    tracked: npt.NDArray[Any]
+    """The local tracker's batch (``tracking.PLOT_DTYPE``): the tracked plots, uncorrected."""
+    jacobian: FloatArray
+    """(n_plots, 2, 4): d(x, y)/d[range offset, gain, azimuth, time] of each plot (the
+    time column, which needs a velocity, 0)."""
+    monitor_xy: FloatArray
+    """(n_plots, 2): the surveyed position of each field monitor or surveyed fixed
+    transponder, NaN for the others."""
+    local: npt.NDArray[Any]
+    """The local tracker's updates (``tracking.track_update_dtype``), uncorrected."""
+    local_jacobian: FloatArray
+    """(n_local, 2, 4): the bias Jacobian at each update's position."""
+    time: TimeReport
+    effective_offset_s: float | None
+    """The radar's data time minus reception after re-basing (``TimeSanity``), for the
+    central stage's consensus of the radars' time."""
+    incarnation: int = 0
+    """Which start of its radar stage made it: a restarted stage's track numbers are new
+    tracks to the central stage."""
+    snapshot: bool = False
+    """Live tracks with their estimates as pseudo-plots (``RadarStage.live_tracks``), not
+    measurements: fused, never a bias observation."""
+
+
+@dataclass
+class DatagramResult:
+    """A radar stage's answer for one datagram: its batches, and its running counts
+    (the central stage's status shows them as the one-process chain's)."""
+
+    order: int
+    received: float
+    batches: list[RadarBatch] = field(default_factory=list)
+    decode_errors: int = 0
+    """Cumulative, since the stage started."""
+    sources: SourceCounts = field(default_factory=SourceCounts)
+    """Cumulative source admission counts."""
+    kind: MessageKind = MessageKind.DATAGRAM_RESULT
+
+
+_META = np.dtype(
+    [
+        ("order", np.int64),
+        ("received", np.float64),
+        ("decode_errors", np.int64),
+        ("no_source", np.int64),
+        ("unknown_dropped", np.int64),
+        ("unknown_sources_dropped", np.int64),
+        ("batches", np.int32),
+    ]
+)
+_BATCH_META = np.dtype(
+    [
+        ("source", "U16"),
+        ("received", np.float64),
+        ("order", np.int64),
+        ("incarnation", np.int64),
+        ("snapshot", np.bool_),
+        ("effective_offset_s", np.float64),
+        ("time_base", "U16"),
+        ("offset_s", np.float64),
+        ("offset_reported", np.bool_),
+        ("out_of_step_s", np.float64),
+        ("implausible", np.int64),
+        ("clock_resyncs", np.int64),
+        ("last_clock_jump_s", np.float64),
+        ("last_clock_jump_at", np.float64),
+        ("out_of_line_plots", np.int64),
+    ]
+)
+_BATCH_ARRAYS = ("plots", "tracked", "jacobian", "monitor_xy", "local", "local_jacobian")
+
+
+def _nan(value: float | None) -> float:
+    return math.nan if value is None else float(value)
+
+
+def _none(value: Any) -> float | None:
+    number = float(value)
+    return None if math.isnan(number) else number
+
+
+def _npy(array: npt.NDArray[Any]) -> bytes:
+    out = io.BytesIO()
+    np.lib.format.write_array(out, np.ascontiguousarray(array), allow_pickle=False)
+    return out.getvalue()
+
+
+def _section(name: str, array: npt.NDArray[Any]) -> bytes:
+    label = name.encode()
+    data = _npy(array)
+    return bytes([len(label)]) + label + _LENGTH.pack(len(data)) + data
+
+
+def _batch_meta(batch: RadarBatch) -> npt.NDArray[Any]:
+    meta = np.zeros(1, dtype=_BATCH_META)
+    t = batch.time
+    meta[0] = (
+        batch.source,
+        batch.received,
+        batch.order,
+        batch.incarnation,
+        batch.snapshot,
+        _nan(batch.effective_offset_s),
+        t.time_base,
+        _nan(t.offset_s),
+        t.offset_reported,
+        _nan(t.out_of_step_s),
+        t.implausible,
+        t.clock_resyncs,
+        t.last_clock_jump_s,
+        t.last_clock_jump_at,
+        t.out_of_line_plots,
+    )
+    return meta
+
+
+def encode_message(result: DatagramResult) -> bytes:
+    """The payload of ``result`` (see the module docstring)."""
+    meta = np.zeros(1, dtype=_META)
+    counts = result.sources
+    meta[0] = (
+        result.order,
+        result.received,
+        result.decode_errors,
+        counts.no_source,
+        counts.unknown_dropped,
+        counts.unknown_sources_dropped,
+        len(result.batches),
+    )
+    sections = [_section("meta", meta)]
+    for k, batch in enumerate(result.batches):
+        sections.append(_section(f"{k}/meta", _batch_meta(batch)))
+        sections.extend(_section(f"{k}/{name}", getattr(batch, name)) for name in _BATCH_ARRAYS)
+    return _HEAD.pack(MAGIC, int(result.kind), len(sections)) + b"".join(sections)
+
+
+def _sections(payload: bytes) -> tuple[MessageKind, dict[str, npt.NDArray[Any]]]:
+    view = memoryview(payload)
+    if len(view) < _HEAD.size:
+        raise StageMessageError(f"{len(view)} bytes: shorter than a stage message header")
+    magic, kind, count = _HEAD.unpack_from(view)
+    if magic != MAGIC:
+        raise StageMessageError(f"magic {bytes(magic)!r}, not {MAGIC!r}")
+    try:
+        message_kind = MessageKind(kind)
+    except ValueError:
+        raise StageMessageError(f"unknown message kind {kind}") from None
+    pos = _HEAD.size
+    arrays: dict[str, npt.NDArray[Any]] = {}
+    for _ in range(count):
+        if pos >= len(view):
+            raise StageMessageError(f"cut short at byte {pos}")
+        size = view[pos]
+        name = bytes(view[pos + 1 : pos + 1 + size]).decode()
+        pos += 1 + size
+        if pos + _LENGTH.size > len(view):
+            raise StageMessageError(f"section {name!r} cut short")
+        (length,) = _LENGTH.unpack_from(view, pos)
+        pos += _LENGTH.size
+        if pos + length > len(view):
+            raise StageMessageError(f"section {name!r}: {length} bytes announced, fewer left")
+        try:
+            arrays[name] = np.lib.format.read_array(
+                io.BytesIO(view[pos : pos + length]), allow_pickle=False
+            )
+        except ValueError as exc:
+            raise StageMessageError(f"section {name!r}: {exc}") from None
+        pos += length
+    return message_kind, arrays
+
+
+def decode_message(payload: bytes) -> DatagramResult:
+    """The message of ``payload``; ``StageMessageError`` when it is none."""
+    kind, arrays = _sections(payload)
+    try:
+        meta = arrays["meta"][0]
+        batches = []
+        for k in range(int(meta["batches"])):
+            m = arrays[f"{k}/meta"][0]
+            report = TimeReport(
+                source=str(m["source"]),
+                time_base=str(m["time_base"]),  # type: ignore[arg-type]
+                offset_s=_none(m["offset_s"]),
+                offset_reported=bool(m["offset_reported"]),
+                out_of_step_s=_none(m["out_of_step_s"]),
+                implausible=int(m["implausible"]),
+                clock_resyncs=int(m["clock_resyncs"]),
+                last_clock_jump_s=float(m["last_clock_jump_s"]),
+                last_clock_jump_at=float(m["last_clock_jump_at"]),
+                out_of_line_plots=int(m["out_of_line_plots"]),
+            )
+            parts = {name: arrays[f"{k}/{name}"] for name in _BATCH_ARRAYS}
+            batches.append(
+                RadarBatch(
+                    source=str(m["source"]),
+                    received=float(m["received"]),
+                    order=int(m["order"]),
+                    time=report,
+                    effective_offset_s=_none(m["effective_offset_s"]),
+                    incarnation=int(m["incarnation"]),
+                    snapshot=bool(m["snapshot"]),
+                    **parts,
+                )
+            )
+    except (KeyError, IndexError, ValueError) as exc:
+        raise StageMessageError(f"incomplete message: {exc!r}") from None
+    return DatagramResult(
+        order=int(meta["order"]),
+        received=float(meta["received"]),
+        batches=batches,
+        decode_errors=int(meta["decode_errors"]),
+        sources=SourceCounts(
+            no_source=int(meta["no_source"]),
+            unknown_dropped=int(meta["unknown_dropped"]),
+            unknown_sources_dropped=int(meta["unknown_sources_dropped"]),
+        ),
+        kind=kind,
+    )
