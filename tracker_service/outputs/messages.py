@@ -306,11 +306,16 @@ def iso_time(posix: float) -> str:
     return datetime.fromtimestamp(posix, UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
+def wrap_degrees(angle: float) -> float:
+    """``angle`` in [0, 360): a tiny negative angle is 0, not the 360.0 that ``% 360.0``
+    rounds it to (outside the schemas' bounds)."""
+    wrapped = angle % 360.0
+    return 0.0 if wrapped >= 360.0 else wrapped
+
+
 def track_angle_deg(vx_mps: float, vy_mps: float) -> float:
-    """Clockwise from north, in [0, 360): a tiny negative angle is 0, not 360.0 (which
-    ``% 360.0`` gives it)."""
-    angle = math.degrees(math.atan2(vx_mps, vy_mps)) % 360.0
-    return 0.0 if angle >= 360.0 else angle
+    """Clockwise from north, in [0, 360)."""
+    return wrap_degrees(math.degrees(math.atan2(vx_mps, vy_mps)))
 
 
 def position_sigma_m(covariance: list[list[float]]) -> float:
