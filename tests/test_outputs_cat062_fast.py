@@ -16,7 +16,7 @@ from tracker_service.outputs.cat062 import (
     encode_system_tracks,
     encode_system_tracks_generic,
 )
-from tracker_service.outputs.messages import SystemTrackMessage
+from tracker_service.outputs.messages import SystemTrackMessage, TrackSource
 from tracker_service.service import SystemConfig
 
 SYSTEM = SystemConfig(centre_lat=48.5, centre_lon=11.0, sac=25, sic=100, service_id=3)
@@ -130,7 +130,7 @@ def _plain(**changes: object) -> SystemTrackMessage:
         "lat": 48.5,
         "lon": 11.0,
         "flight_level": 350.0,
-        "sources": [{"radar": "25/11", "local_track": 1, "age_s": 0.0}],
+        "sources": [TrackSource(radar="25/11", local_track=1, age_s=0.0)],
         "status": "confirmed",
     }
     return SystemTrackMessage.from_state(**(fields | changes))

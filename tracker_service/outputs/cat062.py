@@ -10,7 +10,8 @@ row of a batch at once with numpy and writes the records of each item layout as 
 matrix, about 40 times faster than the generic codec; ``encode_system_tracks_generic``
 builds each record's item dicts and encodes them with ``asterix.codec.encode_record``: the
 reference the fast path is tested against, byte for byte. Both take their values from
-``track_columns``, so they differ only in the encoding. Items whose values are few and
+``track_columns``, so they differ only in the encoding. The service keeps the messages as
+their values (``encode_system_documents``), not as models. Items whose values are few and
 discrete (identity, status bits, the sensor) are encoded by the codec's own item encoders
 and cached; only the quantities are written here, with the items' LSBs and sizes read from
 the specification.
@@ -18,7 +19,7 @@ the specification.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
 from functools import cache
@@ -41,6 +42,7 @@ __all__ = [
     "MAX_BLOCK_OCTETS",
     "TrackColumns",
     "encode_cat065",
+    "encode_system_documents",
     "encode_system_tracks",
     "encode_system_tracks_generic",
     "system_track_records",
@@ -78,9 +80,19 @@ def encode_system_tracks(
 ) -> bytes:
     """CAT062 data blocks of the messages, in order, each block at most
     ``max_block_octets`` long (ValueError if one record alone is longer)."""
-    if not messages:
+    return encode_system_documents([m.model_dump() for m in messages], config, max_block_octets)
+
+
+def encode_system_documents(
+    docs: Sequence[Mapping[str, Any]],
+    config: SystemConfig,
+    max_block_octets: int = MAX_BLOCK_OCTETS,
+) -> bytes:
+    """As :func:`encode_system_tracks`, of the messages' values (``model_dump()``'s
+    shape: ``updates.SystemUpdate.doc``), as the service keeps them."""
+    if not docs:
         return b""
-    return _blocks(_fast_records(track_columns(messages, config), config), max_block_octets)
+    return _blocks(_fast_records(track_columns(docs, config), config), max_block_octets)
 
 
 def encode_system_tracks_generic(
@@ -164,18 +176,19 @@ def _optional(values: Sequence[float | None]) -> FloatArray:
     return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
 
 
-def track_columns(messages: Sequence[SystemTrackMessage], config: SystemConfig) -> TrackColumns:
-    """The CAT062 values of the messages, computed over the whole batch at once."""
-    lat = np.array([m.lat for m in messages], dtype=np.float64)
-    lon = np.array([m.lon for m in messages], dtype=np.float64)
-    plane_velocity = np.array([[m.vx_mps, m.vy_mps] for m in messages], dtype=np.float64)
+def track_columns(docs: Sequence[Mapping[str, Any]], config: SystemConfig) -> TrackColumns:
+    """The CAT062 values of system-track messages given as their values
+    (``model_dump()``'s shape: ``updates.SystemUpdate.doc``), over the whole batch at once."""
+    lat = np.array([m["lat"] for m in docs], dtype=np.float64)
+    lon = np.array([m["lon"] for m in docs], dtype=np.float64)
+    plane_velocity = np.array([[m["vx_mps"], m["vy_mps"]] for m in docs], dtype=np.float64)
     # I185's axes are the target's own east and north, not the system plane's: undo the
     # plane's convergence and scale at each target (2-3 deg at 300 km from the centre).
     jacobian = _plane(config).jacobian(lat, lon)[:, :, :2]
     local_velocity = np.asarray(
         np.linalg.solve(jacobian, plane_velocity[:, :, None])[:, :, 0], dtype=np.float64
     )
-    p = np.array([m.covariance for m in messages], dtype=np.float64).reshape(-1, 4, 4)
+    p = np.array([m["covariance"] for m in docs], dtype=np.float64).reshape(-1, 4, 4)
     sx = np.sqrt(np.maximum(p[:, 0, 0], 0.0))
     sy = np.sqrt(np.maximum(p[:, 1, 1], 0.0))
     # Note 2 of I062/500: sign(Cov(X,Y)) * sqrt(|Cov(X,Y)|).
@@ -184,28 +197,32 @@ def track_columns(messages: Sequence[SystemTrackMessage], config: SystemConfig) 
     east_m = prime_vertical_radius_m(lat) * np.maximum(np.cos(np.radians(lat)), 1e-9)
     # None in a float array is NaN: an age never measured.
     ages = np.array(
-        [(m.ages.psr, m.ages.ssr, m.ages.mode_s, m.ages.adsb) for m in messages], dtype=np.float64
+        [
+            (m["ages"]["psr"], m["ages"]["ssr"], m["ages"]["mode_s"], m["ages"]["adsb"])
+            for m in docs
+        ],
+        dtype=np.float64,
     ).reshape(-1, 4)
-    plots = [m.last_plot for m in messages]
+    plots = [m["last_plot"] for m in docs]
     return TrackColumns(
-        time_of_day=_time_of_day(np.array([m.time for m in messages], dtype=np.float64)),
+        time_of_day=_time_of_day(np.array([m["time"] for m in docs], dtype=np.float64)),
         lat=lat,
         lon=(lon + 180.0) % 360.0 - 180.0,
-        x=np.array([m.x_m for m in messages], dtype=np.float64),
-        y=np.array([m.y_m for m in messages], dtype=np.float64),
+        x=np.array([m["x_m"] for m in docs], dtype=np.float64),
+        y=np.array([m["y_m"] for m in docs], dtype=np.float64),
         vx=local_velocity[:, 0],
         vy=local_velocity[:, 1],
-        number=np.array([m.number for m in messages], dtype=np.int64),
-        mode3a=[m.mode3a for m in messages],
-        mode3a_changed=np.array([m.mode3a_changed for m in messages], dtype=bool),
-        callsign=[m.callsign for m in messages],
-        address=[m.address for m in messages],
-        status=[_status_flags(m) for m in messages],
+        number=np.array([m["number"] for m in docs], dtype=np.int64),
+        mode3a=[m["mode3a"] for m in docs],
+        mode3a_changed=np.array([m["mode3a_changed"] for m in docs], dtype=bool),
+        callsign=[m["callsign"] for m in docs],
+        address=[m["address"] for m in docs],
+        status=[_status_flags(m) for m in docs],
         ages=np.minimum(ages, AGE_MAX_S),
-        flight_level=_optional([m.flight_level for m in messages]),
+        flight_level=_optional([m["flight_level"] for m in docs]),
         # I135 holds barometric altitude in FL units; QNH=1 says it is above sea level.
-        altitude_fl=_optional([m.altitude_m for m in messages]) / 0.3048 / 100.0,
-        climb_rate_fpm=_optional([m.climb_rate_fpm for m in messages]),
+        altitude_fl=_optional([m["altitude_m"] for m in docs]) / 0.3048 / 100.0,
+        climb_rate_fpm=_optional([m["climb_rate_fpm"] for m in docs]),
         apc=np.minimum(np.stack([sx, sy], axis=1), APC_MAX_M),
         cov=cov,
         apw=np.minimum(
@@ -214,13 +231,13 @@ def track_columns(messages: Sequence[SystemTrackMessage], config: SystemConfig) 
         atv=np.minimum(
             np.sqrt(np.maximum(np.stack([p[:, 2, 2], p[:, 3, 3]], axis=1), 0.0)), ATV_MAX_MPS
         ),
-        sensor=[None if plot is None else _sac_sic(plot.radar) for plot in plots],
+        sensor=[None if plot is None else _sac_sic(plot["radar"]) for plot in plots],
         rho_nm=np.minimum(
-            _optional([None if plot is None else plot.range_m for plot in plots]) / NM,
+            _optional([None if plot is None else plot["range_m"] for plot in plots]) / NM,
             RHO_MAX_NM,
         ),
         theta_deg=_wrapped(
-            _optional([None if plot is None else plot.azimuth_deg for plot in plots]),
+            _optional([None if plot is None else plot["azimuth_deg"] for plot in plots]),
             AZIMUTH_LSB,
             65536,
         ),
@@ -238,7 +255,7 @@ def system_track_records(
     """The CAT062 item dicts of the messages (decoded shape)."""
     if not messages:
         return []
-    columns = track_columns(messages, config)
+    columns = track_columns([m.model_dump() for m in messages], config)
     return [_record(columns, k, config) for k in range(len(columns))]
 
 
@@ -287,19 +304,19 @@ _STATUS_FLAGS = ("MON", "TSE", "TSB", "CST", "PSR", "SSR", "MDS", "ADS")
 """The I080 flags that vary; the others are 0, KOS 1."""
 
 
-def _status_flags(m: SystemTrackMessage) -> tuple[int, ...]:
-    ages = m.ages
+def _status_flags(m: Mapping[str, Any]) -> tuple[int, ...]:
+    ages, status = m["ages"], m["status"]
     return (
-        int(len(m.sources) == 1),
-        int(m.status == "ended"),
-        int(m.first),
-        int(m.status == "coasting"),
+        int(len(m["sources"]) == 1),
+        int(status == "ended"),
+        int(m["first"]),
+        int(status == "coasting"),
         # A sensor type that never updated the track is "older than any threshold".
-        int(ages.psr is None),
-        int(ages.ssr is None),
-        int(ages.mode_s is None),
-        int(ages.adsb is None),
-        int(m.duplicate_address),
+        int(ages["psr"] is None),
+        int(ages["ssr"] is None),
+        int(ages["mode_s"] is None),
+        int(ages["adsb"] is None),
+        int(m["duplicate_address"]),
     )
 
 
