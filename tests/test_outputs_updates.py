@@ -52,7 +52,7 @@ def _plots(rng: np.random.Generator, n: int, t: float, first_id: int) -> npt.NDA
     plots["plot_id"] = np.arange(first_id, first_id + n)
     plots["time"] = t + rng.uniform(0, 1, n)
     plots["x"], plots["y"] = rng.normal(0, 3e5, n), rng.normal(0, 3e5, n)
-    plots["rho_m"] = rng.uniform(1e3, 4e5, n)
+    plots["rho_m"] = np.where(rng.random(n) < 0.1, np.nan, rng.uniform(1e3, 4e5, n))
     # An azimuth a hair below 360 wraps to 0 in the messages.
     plots["theta_deg"] = np.where(rng.random(n) < 0.1, -1e-14, rng.uniform(0, 360, n))
     plots["typ"] = rng.integers(0, 8, n)
@@ -86,6 +86,15 @@ def _system_rows(
     rows["local_numbers"] = rng.integers(0, 30, (n, rows["local_numbers"].shape[1]))
     rows["local_plot_ids"] = np.where(rng.random((n, rows["local_plot_ids"].shape[1])) < 0.3, -1, 5)
     return rows
+
+
+def _valid(message: SystemTrackMessage) -> SystemTrackMessage:
+    """The message as a subscriber reads it (a NaN published as null)."""
+    return SystemTrackMessage.model_validate_json(message.model_dump_json())
+
+
+def _pictures(mapper: MessageMapper) -> dict[int, SystemTrackMessage]:
+    return {n: _valid(m) for n, m in mapper.picture().items()}
 
 
 def test_writers_follow_the_models_field_order() -> None:
@@ -122,13 +131,15 @@ def test_batch_path_publishes_what_the_models_publish(seed: int) -> None:
             assert list(got) == list(SYSTEM_FIELDS)
             assert got == json.loads(message.model_dump_json()), message.number
             # Valid against the model (and so the published schema), as built.
-            assert SystemTrackMessage.model_validate_json(update.payload) == message
-            assert update.message() == message
+            assert SystemTrackMessage.model_validate_json(update.payload) == _valid(message)
+            assert _valid(update.message()) == _valid(message)
             assert update.ended == (message.status == "ended")
             assert update.location() == location_fix(message)
-        assert batch.picture() == models.picture()
+        assert _pictures(batch) == _pictures(models)
     ended = batch.end_all_updates()
-    assert [SystemTrackMessage.model_validate_json(u.payload) for u in ended] == models.end_all()
+    assert [SystemTrackMessage.model_validate_json(u.payload) for u in ended] == [
+        _valid(m) for m in models.end_all()
+    ]
     assert batch.live_tracks == models.live_tracks == []
 
 
@@ -140,4 +151,16 @@ def test_non_finite_values_are_null_as_pydantic_writes_them() -> None:
     for message, update in zip(
         models.local("40/1", local), batch.local_updates("40/1", local), strict=True
     ):
+        assert json.loads(update.payload) == json.loads(message.model_dump_json())
+
+
+def test_non_finite_system_values_are_null_as_pydantic_writes_them() -> None:
+    rng = np.random.default_rng(10)
+    plots = _plots(rng, 5, NOON, 0)
+    system = _system_rows(rng, 4, NOON, plots)
+    system["status"] = 0
+    system["P"][1, 3] = np.inf
+    models, batch = MessageMapper(PLANE), MessageMapper(PLANE)
+    expected = models.system(system, plots, SOURCES)
+    for message, update in zip(expected, batch.system_updates(system, plots, SOURCES), strict=True):
         assert json.loads(update.payload) == json.loads(message.model_dump_json())

@@ -42,6 +42,7 @@ from tracker_service.outputs.updates import (
     local_json,
     location_of,
     system_json,
+    system_model,
 )
 
 __all__ = ["LOCAL_STATUS", "LocationFix", "MessageMapper", "location_fix"]
@@ -95,6 +96,34 @@ def location_fix(message: SystemTrackMessage) -> LocationFix:
     return location_of(
         message.time, message.lat, message.lon, message.flight_level, message.covariance
     )
+
+
+def _local_model(
+    source: str,
+    number: int,
+    state: list[float],
+    p: list[float],
+    values: tuple[Any, ...],
+    model_probabilities: list[float],
+) -> str:
+    level, rate, status, plot_id, mode3a, address = values
+    return LocalTrackMessage.model_construct(
+        radar=source,
+        number=number,
+        time=state[0],
+        x_m=state[1],
+        y_m=state[2],
+        vx_mps=state[3],
+        vy_mps=state[4],
+        covariance=[p[0:4], p[4:8], p[8:12], p[12:16]],
+        flight_level=level,
+        climb_rate_fpm=rate,
+        status=status,
+        plot_id=plot_id,
+        mode3a=mode3a,
+        address=address,
+        model_probabilities=model_probabilities,
+    ).model_dump_json()
 
 
 class MessageMapper:
@@ -194,62 +223,52 @@ class MessageMapper:
         n = len(rows)
         if not n:
             return []
-        p = rows["P"].reshape(n, 16).tolist()
-        climb = (rows["climb_rate_fl_per_s"] * 6000.0).tolist()
+        p = rows["P"].reshape(n, 16)
+        mu = rows["model_probabilities"]
+        state = np.stack([rows[k] for k in ("time", "x", "y", "vx", "vy")], axis=1)
+        finite = (
+            np.isfinite(state).all(axis=1)
+            & np.isfinite(p).all(axis=1)
+            & np.isfinite(mu.reshape(n, -1)).all(axis=1)
+        ).tolist()
         columns = zip(
             rows["track_number"].tolist(),
-            rows["time"].tolist(),
-            rows["x"].tolist(),
-            rows["y"].tolist(),
-            rows["vx"].tolist(),
-            rows["vy"].tolist(),
+            state.tolist(),
+            p.tolist(),
             rows["flight_level"].tolist(),
-            climb,
+            (rows["climb_rate_fl_per_s"] * 6000.0).tolist(),
             rows["status"].tolist(),
             rows["plot_id"].tolist(),
             rows["mode3a"].tolist(),
             rows["address"].tolist(),
-            rows["model_probabilities"].tolist(),
+            mu.tolist(),
+            finite,
             strict=True,
         )
         updates = []
-        for k, (
-            number,
-            time,
-            x,
-            y,
-            vx,
-            vy,
-            level,
-            rate,
-            status,
-            plot_id,
-            code,
-            address,
-            mu,
-        ) in enumerate(columns):
-            doc = {
-                "radar": source,
-                "number": number,
-                "time": time,
-                "x_m": x,
-                "y_m": y,
-                "vx_mps": vx,
-                "vy_mps": vy,
-                "flight_level": _none_if_nan(level),
-                "climb_rate_fpm": _none_if_nan(rate),
-                "status": LOCAL_STATUS[status],
-                "plot_id": plot_id if plot_id >= 0 else None,
-                "mode3a": _octal_code(code),
-                "address": _hex_address(address),
-                "model_probabilities": mu,
-            }
-            deleted = doc["status"] == "deleted"
-            if deleted:
-                self._local_times.pop((source, number), None)
+        times = self._local_times
+        for number, s, p_k, level, rate, status_code, plot_id, code, address, mu_k, ok in columns:
+            status = LOCAL_STATUS[status_code]
+            values = (
+                _none_if_nan(level),
+                _none_if_nan(rate),
+                status,
+                plot_id if plot_id >= 0 else None,
+                _octal_code(code),
+                _hex_address(address),
+            )
+            if ok:
+                payload = local_json(source, number, s, p_k, *values, mu_k)
             else:
-                self._local_times[(source, number)] = time
-            updates.append(LocalUpdate(number, deleted, local_json(doc, p[k])))
+                # Not finite (never so in the chain's rows): JSON has no such numbers;
+                # the model writes them as pydantic does, null.
+                payload = _local_model(source, number, s, p_k, values, mu_k).encode()
+            deleted = status == "deleted"
+            if deleted:
+                times.pop((source, number), None)
+            else:
+                times[(source, number)] = s[0]
+            updates.append(LocalUpdate(number, deleted, payload))
         return updates
 
     def system_updates(
@@ -273,6 +292,10 @@ class MessageMapper:
         )
         p = rows["P"].reshape(n, 16).tolist()
         covariance = rows["P"].reshape(n, 4, 4).tolist()
+        finite = (
+            np.isfinite(rows["P"].reshape(n, 16)).all(axis=1)
+            & np.isfinite(np.stack([rows[k] for k in ("time", "x", "y", "vx", "vy")])).all(axis=0)
+        ).tolist()
         columns = zip(
             rows["system_number"].tolist(),
             rows["time"].tolist(),
@@ -374,7 +397,11 @@ class MessageMapper:
                 "ages": ages,
                 "duplicate_address": address is not None and bool(self._by_address.get(address)),
             }
-            update = SystemUpdate(number, doc, system_json(doc, p[k]))
+            if finite[k]:
+                payload = system_json(doc, p[k])
+            else:
+                payload = system_model(doc).model_dump_json().encode()
+            update = SystemUpdate(number, doc, payload)
             if status == ENDED:
                 self._tracks.pop(number, None)
             else:
@@ -393,7 +420,11 @@ class MessageMapper:
             doc = last.model_dump() if isinstance(last, SystemTrackMessage) else dict(last.doc)
             doc |= {"status": "ended", "first": False}
             p = [v for row in doc["covariance"] for v in row]
-            ended.append(SystemUpdate(number, doc, system_json(doc, p)))
+            finite = all(map(math.isfinite, p))
+            payload = (
+                system_json(doc, p) if finite else system_model(doc).model_dump_json().encode()
+            )
+            ended.append(SystemUpdate(number, doc, payload))
         self._by_address.clear()
         return ended
 

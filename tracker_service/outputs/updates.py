@@ -7,7 +7,7 @@ the chain's rows into these, and the sinks carry a whole batch in one call
 field order of its pydantic model (``LocalTrackMessage``, ``SystemTrackMessage``; a test
 holds the writers to the models' fields and to their ``model_dump_json``, field by field);
 the model itself is built only where a consumer asks for one (``message()``: the picture,
-a sink without batch support), validated.
+a sink without batch support).
 """
 
 from __future__ import annotations
@@ -16,9 +16,16 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
-from tracker_service.outputs.messages import LocalTrackMessage, SystemTrackMessage
+from tracker_service.outputs.messages import (
+    LastPlot,
+    LocalTrackMessage,
+    SensorAges,
+    SystemTrackMessage,
+    TrackSource,
+)
 
 __all__ = [
     "LOCAL_FIELDS",
@@ -29,6 +36,7 @@ __all__ = [
     "local_json",
     "location_of",
     "system_json",
+    "system_model",
 ]
 
 _METRES_PER_FL = 30.48
@@ -83,96 +91,160 @@ SYSTEM_FIELDS = (
 """The order ``system_json`` writes: ``SystemTrackMessage``'s (checked by a test)."""
 
 
+def _optional(value: float | int | None) -> str:
+    return "null" if value is None else repr(value)
+
+
 def _number(value: float | None) -> str:
     """A JSON number; None and the non-finite (which JSON lacks) as null, as pydantic."""
-    if value is None or not math.isfinite(value):
-        return "null"
-    return repr(value)
+    return "null" if value is None or not math.isfinite(value) else repr(value)
 
 
-def _integer(value: int | None) -> str:
-    return "null" if value is None else str(value)
+def _quoted(value: str | None) -> str:
+    """A string of the messages' own character sets (radar keys, hex, octal): no escapes."""
+    return "null" if value is None else f'"{value}"'
 
 
-def _string(value: str | None) -> str:
+@lru_cache(maxsize=65536)
+def _callsign(value: str | None) -> str:
     return "null" if value is None else json.dumps(value)
 
 
-def _bool(value: bool) -> str:
-    return "true" if value else "false"
+_COVARIANCE = "[[%r,%r,%r,%r],[%r,%r,%r,%r],[%r,%r,%r,%r],[%r,%r,%r,%r]]"
+_LOCAL = (
+    '{"radar":"%s","number":%d,"time":%r,"x_m":%r,"y_m":%r,"vx_mps":%r,"vy_mps":%r,'
+    f'"covariance":{_COVARIANCE},'
+    '"flight_level":%s,"climb_rate_fpm":%s,"status":"%s","plot_id":%s,"mode3a":%s,'
+    '"address":%s,"model_probabilities":[%s]}'
+)
 
 
-def _covariance(p: Sequence[float]) -> str:
-    """The flattened 4x4 as JSON rows."""
-    f = [_number(v) for v in p]
-    return (
-        f"[[{','.join(f[0:4])}],[{','.join(f[4:8])}],[{','.join(f[8:12])}],[{','.join(f[12:16])}]]"
-    )
-
-
-def local_json(doc: Mapping[str, Any], p: Sequence[float]) -> bytes:
+def local_json(
+    radar: str,
+    number: int,
+    state: Sequence[float],
+    p: Sequence[float],
+    flight_level: float | None,
+    climb_rate_fpm: float | None,
+    status: str,
+    plot_id: int | None,
+    mode3a: str | None,
+    address: str | None,
+    model_probabilities: Sequence[float],
+) -> bytes:
     """A local-track update as ``LocalTrackMessage.model_dump_json`` writes it, up to
-    number formatting; ``p`` is the covariance flattened."""
-    probabilities = ",".join(_number(v) for v in doc["model_probabilities"])
+    number formatting: ``state`` is (time, x, y, vx, vy), ``p`` the covariance
+    flattened; every float finite (the caller sends the others through the model, which
+    writes them as null)."""
     return (
-        f'{{"radar":{_string(doc["radar"])},"number":{doc["number"]},'
-        f'"time":{_number(doc["time"])},"x_m":{_number(doc["x_m"])},'
-        f'"y_m":{_number(doc["y_m"])},"vx_mps":{_number(doc["vx_mps"])},'
-        f'"vy_mps":{_number(doc["vy_mps"])},"covariance":{_covariance(p)},'
-        f'"flight_level":{_number(doc["flight_level"])},'
-        f'"climb_rate_fpm":{_number(doc["climb_rate_fpm"])},'
-        f'"status":"{doc["status"]}","plot_id":{_integer(doc["plot_id"])},'
-        f'"mode3a":{_string(doc["mode3a"])},"address":{_string(doc["address"])},'
-        f'"model_probabilities":[{probabilities}]}}'
+        _LOCAL
+        % (
+            radar,
+            number,
+            *state,
+            *p,
+            _optional(flight_level),
+            _optional(climb_rate_fpm),
+            status,
+            _optional(plot_id),
+            _quoted(mode3a),
+            _quoted(address),
+            ",".join(map(repr, model_probabilities)),
+        )
     ).encode()
 
 
-def _source(s: Mapping[str, Any]) -> str:
-    return (
-        f'{{"radar":{_string(s["radar"])},"local_track":{s["local_track"]},'
-        f'"age_s":{_number(s["age_s"])},"plot_id":{_integer(s["plot_id"])}}}'
-    )
+_SOURCE = '{"radar":"%s","local_track":%d,"age_s":%r,"plot_id":%s}'
+_LAST_PLOT = '{"radar":"%s","time":%r,"lat":%r,"lon":%r,"range_m":%s,"azimuth_deg":%s}'
+_AGES = '{"psr":%s,"ssr":%s,"mode_s":%s,"adsb":%s}'
+_SYSTEM = (
+    '{"number":%d,"time":%r,"time_iso":"%s","lat":%r,"lon":%r,"altitude_m":%s,'
+    '"flight_level":%s,"x_m":%r,"y_m":%r,"vx_mps":%r,"vy_mps":%r,"ground_speed_mps":%r,'
+    '"track_angle_deg":%r,"climb_rate_fpm":%s,'
+    f'"covariance":{_COVARIANCE},'
+    '"position_sigma_m":%r,"address":%s,"callsign":%s,"mode3a":%s,"mode3a_changed":%s,'
+    '"first":%s,"sources":[%s],"status":"%s","last_plot":%s,"ages":%s,'
+    '"duplicate_address":%s}'
+)
+_BOOL = ("false", "true")
 
 
 def _last_plot(plot: Mapping[str, Any] | None) -> str:
     if plot is None:
         return "null"
-    return (
-        f'{{"radar":{_string(plot["radar"])},"time":{_number(plot["time"])},'
-        f'"lat":{_number(plot["lat"])},"lon":{_number(plot["lon"])},'
-        f'"range_m":{_number(plot["range_m"])},"azimuth_deg":{_number(plot["azimuth_deg"])}}}'
-    )
-
-
-def _ages(ages: Mapping[str, float | None]) -> str:
-    return (
-        f'{{"psr":{_number(ages["psr"])},"ssr":{_number(ages["ssr"])},'
-        f'"mode_s":{_number(ages["mode_s"])},"adsb":{_number(ages["adsb"])}}}'
+    return _LAST_PLOT % (
+        plot["radar"],
+        plot["time"],
+        plot["lat"],
+        plot["lon"],
+        # A plot without a polar position (NaN) has neither.
+        _number(plot["range_m"]),
+        _number(plot["azimuth_deg"]),
     )
 
 
 def system_json(doc: Mapping[str, Any], p: Sequence[float]) -> bytes:
     """A system-track update as ``SystemTrackMessage.model_dump_json`` writes it, up to
-    number formatting; ``p`` is the covariance flattened."""
-    sources = ",".join(_source(s) for s in doc["sources"])
+    number formatting; ``p`` is the covariance flattened. Its floats must be finite, as
+    for ``local_json``."""
+    ages = doc["ages"]
+    sources = ",".join(
+        _SOURCE % (s["radar"], s["local_track"], s["age_s"], _optional(s["plot_id"]))
+        for s in doc["sources"]
+    )
     return (
-        f'{{"number":{doc["number"]},"time":{_number(doc["time"])},'
-        f'"time_iso":"{doc["time_iso"]}","lat":{_number(doc["lat"])},'
-        f'"lon":{_number(doc["lon"])},"altitude_m":{_number(doc["altitude_m"])},'
-        f'"flight_level":{_number(doc["flight_level"])},"x_m":{_number(doc["x_m"])},'
-        f'"y_m":{_number(doc["y_m"])},"vx_mps":{_number(doc["vx_mps"])},'
-        f'"vy_mps":{_number(doc["vy_mps"])},'
-        f'"ground_speed_mps":{_number(doc["ground_speed_mps"])},'
-        f'"track_angle_deg":{_number(doc["track_angle_deg"])},'
-        f'"climb_rate_fpm":{_number(doc["climb_rate_fpm"])},'
-        f'"covariance":{_covariance(p)},'
-        f'"position_sigma_m":{_number(doc["position_sigma_m"])},'
-        f'"address":{_string(doc["address"])},"callsign":{_string(doc["callsign"])},'
-        f'"mode3a":{_string(doc["mode3a"])},"mode3a_changed":{_bool(doc["mode3a_changed"])},'
-        f'"first":{_bool(doc["first"])},"sources":[{sources}],"status":"{doc["status"]}",'
-        f'"last_plot":{_last_plot(doc["last_plot"])},"ages":{_ages(doc["ages"])},'
-        f'"duplicate_address":{_bool(doc["duplicate_address"])}}}'
+        _SYSTEM
+        % (
+            doc["number"],
+            doc["time"],
+            doc["time_iso"],
+            doc["lat"],
+            doc["lon"],
+            _optional(doc["altitude_m"]),
+            _optional(doc["flight_level"]),
+            doc["x_m"],
+            doc["y_m"],
+            doc["vx_mps"],
+            doc["vy_mps"],
+            doc["ground_speed_mps"],
+            doc["track_angle_deg"],
+            _optional(doc["climb_rate_fpm"]),
+            *p,
+            doc["position_sigma_m"],
+            _quoted(doc["address"]),
+            _callsign(doc["callsign"]),
+            _quoted(doc["mode3a"]),
+            _BOOL[doc["mode3a_changed"]],
+            _BOOL[doc["first"]],
+            sources,
+            doc["status"],
+            _last_plot(doc["last_plot"]),
+            _AGES
+            % (
+                _optional(ages["psr"]),
+                _optional(ages["ssr"]),
+                _optional(ages["mode_s"]),
+                _optional(ages["adsb"]),
+            ),
+            _BOOL[doc["duplicate_address"]],
+        )
     ).encode()
+
+
+def system_model(doc: Mapping[str, Any]) -> SystemTrackMessage:
+    """The model of a system update's values, unvalidated (values that hold no bound, such
+    as a non-finite one, serialised as pydantic writes them)."""
+    plot = doc["last_plot"]
+    return SystemTrackMessage.model_construct(
+        **(
+            dict(doc)
+            | {
+                "sources": [TrackSource.model_construct(**s) for s in doc["sources"]],
+                "last_plot": None if plot is None else LastPlot.model_construct(**plot),
+                "ages": SensorAges.model_construct(**doc["ages"]),
+            }
+        )
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -202,7 +274,8 @@ class SystemUpdate:
         return bool(self.doc["status"] == "ended")
 
     def message(self) -> SystemTrackMessage:
-        return SystemTrackMessage.model_validate(self.doc)
+        """The model, unvalidated, as the pydantic path builds it from the rows."""
+        return system_model(self.doc)
 
     def location(self) -> LocationFix:
         d = self.doc
