@@ -5,16 +5,20 @@ models' field order, and valid against the models (the published JSON schemas)."
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import pytest
+from mcap.reader import make_reader
 
 from tracker_service.chain import RAW_PLOT_DTYPE
 from tracker_service.fusion import COASTING, ENDED, SYSTEM_UPDATE_DTYPE
 from tracker_service.geodesy import SystemPlane
 from tracker_service.outputs.mapping import MessageMapper, location_fix
+from tracker_service.outputs.mcap_log import McapLog, read_log_messages
+from tracker_service.outputs.mcap_sink import McapSink
 from tracker_service.outputs.messages import LocalTrackMessage, SystemTrackMessage
 from tracker_service.outputs.updates import LOCAL_FIELDS, SYSTEM_FIELDS
 from tracker_service.tracking.tracker import track_update_dtype
@@ -164,3 +168,41 @@ def test_non_finite_system_values_are_null_as_pydantic_writes_them() -> None:
     expected = models.system(system, plots, SOURCES)
     for message, update in zip(expected, batch.system_updates(system, plots, SOURCES), strict=True):
         assert json.loads(update.payload) == json.loads(message.model_dump_json())
+
+
+def test_batches_logged_read_back_by_mcap_and_the_streaming_reader(tmp_path: Path) -> None:
+    """A batch of updates through the MCAP sink: every payload, in order, one LocationFix
+    per live system update, the same as the per-message calls log."""
+    rng = np.random.default_rng(3)
+    plots = _plots(rng, 30, NOON, 0)
+    mapper = MessageMapper(PLANE)
+    local = mapper.local_updates("40/2", _local_rows(rng, 12, NOON))
+    system = mapper.system_updates(_system_rows(rng, 20, NOON, plots), plots, SOURCES)
+    with McapLog(tmp_path / "batch") as log:
+        sink = McapSink(log)
+        sink.local_updates("40/2", local, NOON + 1)
+        sink.local_updates("40/2", [], NOON + 1)
+        sink.system_updates(system, NOON + 1)
+    with McapLog(tmp_path / "single") as log:
+        sink = McapSink(log)
+        for u in local:
+            sink.local(u.message(), u.payload, NOON + 1)
+        for s in system:
+            sink.system(s.message(), s.payload, NOON + 1)
+
+    def read(path: Path) -> list[tuple[str, float, dict[str, Any]]]:
+        with path.open("rb") as stream:
+            official = [
+                (c.topic, m.log_time, json.loads(m.data))
+                for _, c, m in make_reader(stream).iter_messages(log_time_order=False)
+            ]
+        streamed = [(m.topic, m.time, m.data) for m in read_log_messages(path)]
+        assert [(t, d) for t, _, d in official] == [(t, d) for t, _, d in streamed]
+        return sorted(((t, n / 1e9, d) for t, n, d in official), key=lambda m: m[0])
+
+    batch = read(next((tmp_path / "batch").glob("*.mcap")))
+    assert batch == read(next((tmp_path / "single").glob("*.mcap")))
+    topics = [t for t, _, _ in batch]
+    assert topics.count("/local_tracks/40_2") == len(local)
+    assert topics.count("/system_tracks") == len(system)
+    assert topics.count("/map/system_tracks") == sum(not s.ended for s in system)

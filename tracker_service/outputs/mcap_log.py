@@ -339,13 +339,12 @@ class McapLog(Closing):
 
     def log_locations(self, topic: str, fixes: Sequence[LocationFix]) -> None:
         """A ``foxglove.LocationFix`` for each fix, each logged at its own time."""
-        if fixes:
-            self._write(
-                topic,
-                _LOCATION_FIX,
-                lambda: LOCATION_FIX_SCHEMA,
-                [_location(f.time, f.lat, f.lon, f.altitude_m, f.covariance) for f in fixes],
-            )
+        self._write(
+            topic,
+            _LOCATION_FIX,
+            lambda: LOCATION_FIX_SCHEMA,
+            [_location(f.time, f.lat, f.lon, f.altitude_m, f.covariance) for f in fixes],
+        )
 
     def _write(
         self,
@@ -357,6 +356,8 @@ class McapLog(Closing):
         """``messages``: (data, log time in ns) each, on one topic."""
         if self._closed:
             raise ValueError("the log is closed")
+        if not messages:
+            return
         file = self._file_for(messages[0][1])
         try:
             self._add(file, topic, schema, schema_of, messages)
