@@ -284,18 +284,21 @@ def run(c: Captured, repeats: int) -> dict[str, Any]:
     }
     samples: dict[str, dict[str, list[float]]] = {k: {"old": [], "new": []} for k in stages}
     samples["all outputs"] = {"old": [], "new": []}
-    for _ in range(repeats):
-        for name, (old, new) in stages.items():
-            for label, fn in (("old", old), ("new", new)):
-                gc.collect()
-                start = time.process_time()
-                fn()
-                samples[name][label].append(time.process_time() - start)
-        gc.collect()
-        start = time.process_time()
-        all_new()
-        samples["all outputs"]["new"].append(time.process_time() - start)
-    publisher.close()
+    try:
+        for _ in range(repeats):
+            for name, (old, new) in stages.items():
+                for label, fn in (("old", old), ("new", new)):
+                    gc.collect()
+                    start = time.process_time()
+                    fn()
+                    samples[name][label].append(time.process_time() - start)
+            gc.collect()
+            start = time.process_time()
+            all_new()
+            samples["all outputs"]["new"].append(time.process_time() - start)
+    finally:
+        # Zenoh's threads would keep a failed run alive.
+        publisher.close()
     # The system stage's old and new each also map the local rows (the sources' ages
     # need them): subtract that, so each stage is its own.
     report: dict[str, Any] = {
