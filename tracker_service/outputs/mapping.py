@@ -42,7 +42,6 @@ from tracker_service.outputs.updates import (
     local_json,
     location_of,
     system_json,
-    system_model,
 )
 
 __all__ = ["LOCAL_STATUS", "LocationFix", "MessageMapper", "location_fix"]
@@ -96,34 +95,6 @@ def location_fix(message: SystemTrackMessage) -> LocationFix:
     return location_of(
         message.time, message.lat, message.lon, message.flight_level, message.covariance
     )
-
-
-def _local_model(
-    source: str,
-    number: int,
-    state: list[float],
-    p: list[float],
-    values: tuple[Any, ...],
-    model_probabilities: list[float],
-) -> str:
-    level, rate, status, plot_id, mode3a, address = values
-    return LocalTrackMessage.model_construct(
-        radar=source,
-        number=number,
-        time=state[0],
-        x_m=state[1],
-        y_m=state[2],
-        vx_mps=state[3],
-        vy_mps=state[4],
-        covariance=[p[0:4], p[4:8], p[8:12], p[12:16]],
-        flight_level=level,
-        climb_rate_fpm=rate,
-        status=status,
-        plot_id=plot_id,
-        mode3a=mode3a,
-        address=address,
-        model_probabilities=model_probabilities,
-    ).model_dump_json()
 
 
 class MessageMapper:
@@ -223,52 +194,65 @@ class MessageMapper:
         n = len(rows)
         if not n:
             return []
-        p = rows["P"].reshape(n, 16)
-        mu = rows["model_probabilities"]
-        state = np.stack([rows[k] for k in ("time", "x", "y", "vx", "vy")], axis=1)
-        finite = (
-            np.isfinite(state).all(axis=1)
-            & np.isfinite(p).all(axis=1)
-            & np.isfinite(mu.reshape(n, -1)).all(axis=1)
-        ).tolist()
         columns = zip(
             rows["track_number"].tolist(),
-            state.tolist(),
-            p.tolist(),
+            rows["time"].tolist(),
+            rows["x"].tolist(),
+            rows["y"].tolist(),
+            rows["vx"].tolist(),
+            rows["vy"].tolist(),
+            rows["P"].reshape(n, 4, 4).tolist(),
             rows["flight_level"].tolist(),
             (rows["climb_rate_fl_per_s"] * 6000.0).tolist(),
             rows["status"].tolist(),
             rows["plot_id"].tolist(),
             rows["mode3a"].tolist(),
             rows["address"].tolist(),
-            mu.tolist(),
-            finite,
+            rows["model_probabilities"].tolist(),
             strict=True,
         )
         updates = []
         times = self._local_times
-        for number, s, p_k, level, rate, status_code, plot_id, code, address, mu_k, ok in columns:
+        for (
+            number,
+            time,
+            x,
+            y,
+            vx,
+            vy,
+            p,
+            level,
+            rate,
+            status_code,
+            plot_id,
+            code,
+            address,
+            mu,
+        ) in columns:
             status = LOCAL_STATUS[status_code]
-            values = (
-                _none_if_nan(level),
-                _none_if_nan(rate),
-                status,
-                plot_id if plot_id >= 0 else None,
-                _octal_code(code),
-                _hex_address(address),
-            )
-            if ok:
-                payload = local_json(source, number, s, p_k, *values, mu_k)
-            else:
-                # Not finite (never so in the chain's rows): JSON has no such numbers;
-                # the model writes them as pydantic does, null.
-                payload = _local_model(source, number, s, p_k, values, mu_k).encode()
+            doc = {
+                "radar": source,
+                "number": number,
+                "time": time,
+                "x_m": x,
+                "y_m": y,
+                "vx_mps": vx,
+                "vy_mps": vy,
+                "covariance": p,
+                "flight_level": _none_if_nan(level),
+                "climb_rate_fpm": _none_if_nan(rate),
+                "status": status,
+                "plot_id": plot_id if plot_id >= 0 else None,
+                "mode3a": _octal_code(code),
+                "address": _hex_address(address),
+                "model_probabilities": mu,
+            }
             deleted = status == "deleted"
             if deleted:
                 times.pop((source, number), None)
             else:
-                times[(source, number)] = s[0]
-            updates.append(LocalUpdate(number, deleted, payload))
+                times[(source, number)] = time
+            updates.append(LocalUpdate(number, deleted, local_json(doc)))
         return updates
 
     def system_updates(
@@ -290,12 +274,7 @@ class MessageMapper:
             plot_lat.tolist(),
             plot_lon.tolist(),
         )
-        p = rows["P"].reshape(n, 16).tolist()
         covariance = rows["P"].reshape(n, 4, 4).tolist()
-        finite = (
-            np.isfinite(rows["P"].reshape(n, 16)).all(axis=1)
-            & np.isfinite(np.stack([rows[k] for k in ("time", "x", "y", "vx", "vy")])).all(axis=0)
-        ).tolist()
         columns = zip(
             rows["system_number"].tolist(),
             rows["time"].tolist(),
@@ -397,11 +376,7 @@ class MessageMapper:
                 "ages": ages,
                 "duplicate_address": address is not None and bool(self._by_address.get(address)),
             }
-            if finite[k]:
-                payload = system_json(doc, p[k])
-            else:
-                payload = system_model(doc).model_dump_json().encode()
-            update = SystemUpdate(number, doc, payload)
+            update = SystemUpdate(number, doc, system_json(doc))
             if status == ENDED:
                 self._tracks.pop(number, None)
             else:
@@ -419,12 +394,7 @@ class MessageMapper:
             last = track.last
             doc = last.model_dump() if isinstance(last, SystemTrackMessage) else dict(last.doc)
             doc |= {"status": "ended", "first": False}
-            p = [v for row in doc["covariance"] for v in row]
-            finite = all(map(math.isfinite, p))
-            payload = (
-                system_json(doc, p) if finite else system_model(doc).model_dump_json().encode()
-            )
-            ended.append(SystemUpdate(number, doc, payload))
+            ended.append(SystemUpdate(number, doc, system_json(doc)))
         self._by_address.clear()
         return ended
 
