@@ -34,6 +34,7 @@ from tracker_service.outputs.messages import (
     SystemTrackMessage,
 )
 from tracker_service.outputs.sink import Sink
+from tracker_service.outputs.updates import LocalUpdate, SystemUpdate
 
 __all__ = [
     "FoxgloveListenError",
@@ -186,6 +187,31 @@ class FoxgloveSink:
     def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
         if self.inner is not None:
             self.inner.local(message, payload, time)
+
+    def system_updates(self, updates: Sequence[SystemUpdate], time: float) -> None:
+        """A batch (``updates.py``): the inner sink takes it whole when it takes batches;
+        the scene needs each update's values as a model (built unvalidated)."""
+        inner = self.inner
+        batch = None if inner is None else getattr(inner, "system_updates", None)
+        messages = [update.message() for update in updates]
+        if batch is not None:
+            batch(updates, time)
+        elif inner is not None:
+            for update, message in zip(updates, messages, strict=True):
+                inner.system(message, update.payload, time)
+        for message in messages:
+            self._write(self.scene.update(message, time))
+
+    def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None:
+        inner = self.inner
+        if inner is None:
+            return
+        batch = getattr(inner, "local_updates", None)
+        if batch is not None:
+            batch(radar, updates, time)
+            return
+        for update in updates:
+            inner.local(update.message(), update.payload, time)
 
     def asterix(self, data: bytes, time: float) -> None:
         if self.inner is not None:

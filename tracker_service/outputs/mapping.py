@@ -30,6 +30,18 @@ from tracker_service.outputs.messages import (
     SensorAges,
     SystemTrackMessage,
     TrackSource,
+    iso_time,
+    position_sigma_m,
+    track_angle_deg,
+    wrap_degrees,
+)
+from tracker_service.outputs.updates import (
+    LocalUpdate,
+    LocationFix,
+    SystemUpdate,
+    local_json,
+    location_of,
+    system_json,
 )
 
 __all__ = ["LOCAL_STATUS", "LocationFix", "MessageMapper", "location_fix"]
@@ -40,7 +52,6 @@ LOCAL_STATUS: tuple[LocalStatus, ...] = ("tentative", "confirmed", "coasting", "
 _PSR_TYPES = frozenset((1, 3, 6, 7))
 _SSR_TYPES = frozenset((2, 3))
 _MODE_S_TYPES = frozenset((4, 5, 6, 7))
-_METRES_PER_FL = 30.48
 
 
 def _none_if_nan(value: float) -> float | None:
@@ -55,46 +66,54 @@ def _octal_code(value: int) -> str | None:
     return f"{value:04o}" if value >= 0 else None
 
 
-def _track_callsign(plot: Any, previous: _SystemTrack | None, address: str | None) -> str | None:
+def _track_callsign(
+    plot_callsign: str | None, previous: _SystemTrack | None, address: str | None
+) -> str | None:
     """The callsign (I048/240) of the plot that updated the track; without one (coasting,
     or a plot without I240), the track's own from its earlier plots while its address
     stays the same. Never the latest callsign seen for the address: two aircraft that
     share an address would trade callsigns."""
-    if plot is not None and plot["callsign"]:
-        return str(plot["callsign"])
-    if previous is not None and previous.last.address == address:
-        return previous.last.callsign
+    if plot_callsign:
+        return plot_callsign
+    if previous is not None and previous.address == address:
+        return previous.callsign
     return None
 
 
 @dataclass
 class _SystemTrack:
-    """What the mapper remembers of a live system track between its updates."""
+    """What the mapper remembers of a live system track between its updates: its last
+    message (the batch path keeps the update, whose model is built only when asked for)."""
 
-    last: SystemTrackMessage
-    last_plot: LastPlot | None = None
+    last: SystemTrackMessage | SystemUpdate
+    last_plot: LastPlot | dict[str, Any] | None = None
     sensor_times: dict[str, float] = field(default_factory=dict)
 
+    @property
+    def message(self) -> SystemTrackMessage:
+        last = self.last
+        return last if isinstance(last, SystemTrackMessage) else last.message()
 
-@dataclass(frozen=True)
-class LocationFix:
-    """A system track's position as a map shows it (``foxglove.LocationFix``)."""
+    @property
+    def mode3a(self) -> str | None:
+        last = self.last
+        return last.mode3a if isinstance(last, SystemTrackMessage) else last.doc["mode3a"]
 
-    time: float
-    lat: float
-    lon: float
-    altitude_m: float
-    covariance: tuple[float, ...]
-    """3x3 ENU position covariance (m², row-major)."""
+    @property
+    def address(self) -> str | None:
+        last = self.last
+        return last.address if isinstance(last, SystemTrackMessage) else last.doc["address"]
+
+    @property
+    def callsign(self) -> str | None:
+        last = self.last
+        return last.callsign if isinstance(last, SystemTrackMessage) else last.doc["callsign"]
 
 
 def location_fix(message: SystemTrackMessage) -> LocationFix:
-    p = message.covariance
-    # ENU position covariance: the plane's axes are east and north near the centre; the
-    # vertical is unknown, so left large rather than zero.
-    covariance = (p[0][0], p[0][1], 0.0, p[1][0], p[1][1], 0.0, 0.0, 0.0, 1e6)
-    altitude = 0.0 if message.flight_level is None else message.flight_level * _METRES_PER_FL
-    return LocationFix(message.time, message.lat, message.lon, altitude, covariance)
+    return location_of(
+        message.time, message.lat, message.lon, message.flight_level, message.covariance
+    )
 
 
 class MessageMapper:
@@ -114,7 +133,7 @@ class MessageMapper:
 
     def picture(self) -> dict[int, SystemTrackMessage]:
         """The latest message of every live system track."""
-        return {number: self._tracks[number].last for number in sorted(self._tracks)}
+        return {number: self._tracks[number].message for number in sorted(self._tracks)}
 
     def local(self, source: str, rows: npt.NDArray[Any]) -> list[LocalTrackMessage]:
         messages = []
@@ -174,7 +193,221 @@ class MessageMapper:
         ended = []
         for number in sorted(self._tracks):
             track = self._tracks.pop(number)
-            ended.append(track.last.model_copy(update={"status": "ended", "first": False}))
+            ended.append(track.message.model_copy(update={"status": "ended", "first": False}))
+        self._by_address.clear()
+        return ended
+
+    # --- the batch path: plain updates with their JSON, no model per update -----------
+
+    def local_updates(self, source: str, rows: npt.NDArray[Any]) -> list[LocalUpdate]:
+        """As :meth:`local`, each update as its JSON (``LocalTrackMessage``'s)."""
+        n = len(rows)
+        if not n:
+            return []
+        columns = zip(
+            rows["track_number"].tolist(),
+            rows["time"].tolist(),
+            rows["x"].tolist(),
+            rows["y"].tolist(),
+            rows["vx"].tolist(),
+            rows["vy"].tolist(),
+            rows["P"].reshape(n, 4, 4).tolist(),
+            rows["flight_level"].tolist(),
+            (rows["climb_rate_fl_per_s"] * 6000.0).tolist(),
+            rows["status"].tolist(),
+            rows["plot_id"].tolist(),
+            rows["mode3a"].tolist(),
+            rows["address"].tolist(),
+            rows["model_probabilities"].tolist(),
+            strict=True,
+        )
+        updates = []
+        times = self._local_times
+        for (
+            number,
+            time,
+            x,
+            y,
+            vx,
+            vy,
+            p,
+            level,
+            rate,
+            status_code,
+            plot_id,
+            code,
+            address,
+            mu,
+        ) in columns:
+            status = LOCAL_STATUS[status_code]
+            doc = {
+                "radar": source,
+                "number": number,
+                "time": time,
+                "x_m": x,
+                "y_m": y,
+                "vx_mps": vx,
+                "vy_mps": vy,
+                "covariance": p,
+                "flight_level": _none_if_nan(level),
+                "climb_rate_fpm": _none_if_nan(rate),
+                "status": status,
+                "plot_id": plot_id if plot_id >= 0 else None,
+                "mode3a": _octal_code(code),
+                "address": _hex_address(address),
+                "model_probabilities": mu,
+            }
+            deleted = status == "deleted"
+            if deleted:
+                times.pop((source, number), None)
+            else:
+                times[(source, number)] = time
+            updates.append(LocalUpdate(number, deleted, local_json(doc)))
+        return updates
+
+    def system_updates(
+        self, rows: npt.NDArray[Any], plots: npt.NDArray[Any], sources: Sequence[str]
+    ) -> list[SystemUpdate]:
+        """As :meth:`system`, each update as plain values and its JSON
+        (``SystemTrackMessage``'s)."""
+        n = len(rows)
+        if not n:
+            return []
+        lat, lon = self.plane.to_geodetic(rows["x"], rows["y"])
+        plot_index = {p: i for i, p in enumerate(plots["plot_id"].tolist())}
+        plot_lat, plot_lon = self.plane.to_geodetic(plots["x"], plots["y"])
+        plot_callsigns = plots["callsign"].tolist()
+        plot_columns = (
+            plots["time"].tolist(),
+            plots["typ"].tolist(),
+            plots["rho_m"].tolist(),
+            [wrap_degrees(theta) for theta in plots["theta_deg"].tolist()],
+            plot_lat.tolist(),
+            plot_lon.tolist(),
+        )
+        covariance = rows["P"].reshape(n, 4, 4).tolist()
+        columns = zip(
+            rows["system_number"].tolist(),
+            rows["time"].tolist(),
+            rows["x"].tolist(),
+            rows["y"].tolist(),
+            rows["vx"].tolist(),
+            rows["vy"].tolist(),
+            rows["flight_level"].tolist(),
+            rows["climb_rate_fl_per_s"].tolist(),
+            rows["status"].tolist(),
+            rows["fresh"].tolist(),
+            rows["radar"].tolist(),
+            rows["plot_id"].tolist(),
+            rows["address"].tolist(),
+            rows["mode3a"].tolist(),
+            rows["n_sources"].tolist(),
+            rows["local_radars"].tolist(),
+            rows["local_numbers"].tolist(),
+            rows["local_plot_ids"].tolist(),
+            lat.tolist(),
+            ((lon + 180.0) % 360.0 - 180.0).tolist(),
+            strict=True,
+        )
+        updates = []
+        for k, row in enumerate(columns):
+            (number, time, x, y, vx, vy, level, climb, status, fresh, radar, plot_id) = row[:12]
+            (address_raw, code_raw, n_sources, radars, numbers, plot_ids, lat_k, lon_k) = row[12:]
+            previous = self._tracks.get(number)
+            sensor_times = {} if previous is None else previous.sensor_times
+            last_plot = None if previous is None else previous.last_plot
+            if isinstance(last_plot, LastPlot):
+                last_plot = last_plot.model_dump()
+            plot = plot_index.get(plot_id)
+            plot_callsign = None
+            if plot is not None and fresh:
+                plot_callsign = str(plot_callsigns[plot])
+                plot_time, typ, rho, theta, p_lat, p_lon = (c[plot] for c in plot_columns)
+                for sensor, types in (
+                    ("psr", _PSR_TYPES),
+                    ("ssr", _SSR_TYPES),
+                    ("mode_s", _MODE_S_TYPES),
+                ):
+                    if typ in types:
+                        sensor_times[sensor] = plot_time
+                last_plot = {
+                    "radar": sources[radar],
+                    "time": plot_time,
+                    "lat": p_lat,
+                    "lon": p_lon,
+                    "range_m": rho,
+                    "azimuth_deg": theta,
+                }
+            track_sources = []
+            for slot in range(n_sources):
+                local_radar, local = sources[radars[slot]], numbers[slot]
+                local_time = self._local_times.get((local_radar, local), time)
+                track_sources.append(
+                    {
+                        "radar": local_radar,
+                        "local_track": local,
+                        "age_s": max(time - local_time, 0.0),
+                        "plot_id": plot_ids[slot] if plot_ids[slot] >= 0 else None,
+                    }
+                )
+            address = _hex_address(address_raw)
+            mode3a = _octal_code(code_raw)
+            if previous is not None and previous.address is not None:
+                self._by_address[previous.address].discard(number)
+            ages: dict[str, float | None] = {"psr": None, "ssr": None, "mode_s": None}
+            ages |= {"adsb": None} | {s: max(time - t, 0.0) for s, t in sensor_times.items()}
+            rate = _none_if_nan(climb)
+            doc = {
+                "number": number,
+                "time": time,
+                "time_iso": iso_time(time),
+                "lat": lat_k,
+                "lon": lon_k,
+                "altitude_m": None,
+                "flight_level": _none_if_nan(level),
+                "x_m": x,
+                "y_m": y,
+                "vx_mps": vx,
+                "vy_mps": vy,
+                "ground_speed_mps": math.hypot(vx, vy),
+                "track_angle_deg": track_angle_deg(vx, vy),
+                "climb_rate_fpm": None if rate is None else rate * 6000.0,
+                "covariance": covariance[k],
+                "position_sigma_m": position_sigma_m(covariance[k]),
+                "address": address,
+                "callsign": _track_callsign(plot_callsign, previous, address),
+                "mode3a": mode3a,
+                "mode3a_changed": previous is not None and previous.mode3a not in (None, mode3a),
+                "first": previous is None,
+                "sources": track_sources,
+                "status": "ended"
+                if status == ENDED
+                else "coasting"
+                if status == COASTING
+                else "confirmed",
+                "last_plot": last_plot,
+                "ages": ages,
+                "duplicate_address": address is not None and bool(self._by_address.get(address)),
+            }
+            update = SystemUpdate(number, doc, system_json(doc))
+            if status == ENDED:
+                self._tracks.pop(number, None)
+            else:
+                self._tracks[number] = _SystemTrack(update, last_plot, sensor_times)
+                if address is not None:
+                    self._by_address[address].add(number)
+            updates.append(update)
+        return updates
+
+    def end_all_updates(self) -> list[SystemUpdate]:
+        """As :meth:`end_all`, as updates."""
+        ended = []
+        for number in sorted(self._tracks):
+            track = self._tracks.pop(number)
+            last = track.last
+            doc = last.model_dump() if isinstance(last, SystemTrackMessage) else dict(last.doc)
+            doc |= {"status": "ended", "first": False}
+            ended.append(SystemUpdate(number, doc, system_json(doc)))
         self._by_address.clear()
         return ended
 
@@ -226,6 +459,8 @@ class MessageMapper:
         previous = self._tracks.get(number)
         sensor_times = {} if previous is None else previous.sensor_times
         last_plot = None if previous is None else previous.last_plot
+        if isinstance(last_plot, dict):
+            last_plot = LastPlot.model_construct(**last_plot)
         if plot is not None and plot_position is not None:
             radar = chain_sources[int(row["radar"])]
             typ = int(plot["typ"])
@@ -242,7 +477,7 @@ class MessageMapper:
                 lat=plot_position[0],
                 lon=plot_position[1],
                 range_m=float(plot["rho_m"]),
-                azimuth_deg=float(plot["theta_deg"]) % 360.0,
+                azimuth_deg=wrap_degrees(float(plot["theta_deg"])),
             )
         sources = []
         for slot in range(int(row["n_sources"])):
@@ -261,8 +496,8 @@ class MessageMapper:
         address = _hex_address(int(row["address"]))
         mode3a = _octal_code(int(row["mode3a"]))
         status = int(row["status"])
-        if previous is not None and previous.last.address is not None:
-            self._by_address[previous.last.address].discard(number)
+        if previous is not None and previous.address is not None:
+            self._by_address[previous.address].discard(number)
         message = SystemTrackMessage.from_state(
             time=time,
             x_m=float(row["x"]),
@@ -277,9 +512,11 @@ class MessageMapper:
             lon=(lon + 180.0) % 360.0 - 180.0,
             flight_level=_none_if_nan(float(row["flight_level"])),
             address=address,
-            callsign=_track_callsign(plot, previous, address),
+            callsign=_track_callsign(
+                None if plot is None else str(plot["callsign"]), previous, address
+            ),
             mode3a=mode3a,
-            mode3a_changed=previous is not None and previous.last.mode3a not in (None, mode3a),
+            mode3a_changed=previous is not None and previous.mode3a not in (None, mode3a),
             first=previous is None,
             sources=sources,
             status="ended"

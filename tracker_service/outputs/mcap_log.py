@@ -43,6 +43,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from asterix.containers import Datagram
 from tracker_service.closing import Closing
+from tracker_service.outputs.updates import LocationFix
 from tracker_service.simulator.recording import json_schema, schema_name, start_mcap, time_ns
 
 __all__ = [
@@ -318,7 +319,22 @@ class McapLog(Closing):
     def log_json(self, topic: str, model_type: type[BaseModel], data: bytes, time: float) -> None:
         """As :meth:`log`, for a message already serialised (``model_dump_json``), so that
         the service serialises each message once for Zenoh and the log."""
-        self._write(topic, schema_name(model_type), lambda: json_schema(model_type), data, time)
+        self._write(
+            topic, schema_name(model_type), lambda: json_schema(model_type), [(data, time_ns(time))]
+        )
+
+    def log_json_many(
+        self, topic: str, model_type: type[BaseModel], payloads: Sequence[bytes], time: float
+    ) -> None:
+        """As :meth:`log_json` for each payload, all at ``time``: the channel looked up
+        once for the batch."""
+        log_time = time_ns(time)
+        self._write(
+            topic,
+            schema_name(model_type),
+            lambda: json_schema(model_type),
+            [(data, log_time) for data in payloads],
+        )
 
     def log_encoded(
         self,
@@ -331,7 +347,7 @@ class McapLog(Closing):
         """A message already encoded as JSON, on ``topic`` with the JSON schema named
         ``schema`` (``schema_of`` gives it the first time a file needs it): Foxglove's
         well-known schemas (``foxglove_sink.py``)."""
-        self._write(topic, schema, schema_of, data, time)
+        self._write(topic, schema, schema_of, [(data, time_ns(time))])
 
     def log_location(
         self,
@@ -344,29 +360,20 @@ class McapLog(Closing):
     ) -> None:
         """A ``foxglove.LocationFix``; ``covariance`` is the 3x3 ENU position covariance
         (m², row-major), or None when unknown."""
-        if covariance is not None and len(covariance) != 9:
-            raise ValueError(f"covariance must hold 9 values (3x3), not {len(covariance)}")
-        values = [float(v) for v in covariance] if covariance is not None else [0.0] * 9
-        if not all(map(math.isfinite, (lat, lon, alt, *values))):
-            raise ValueError("a location must be finite")
-        ns = time_ns(time)
-        fix = {
-            "timestamp": {"sec": ns // _NS_PER_S, "nsec": ns % _NS_PER_S},
-            "frame_id": "",
-            "latitude": lat,
-            "longitude": lon,
-            "altitude": alt,
-            "position_covariance": values,
-            "position_covariance_type": (
-                _COVARIANCE_UNKNOWN if covariance is None else _COVARIANCE_KNOWN
-            ),
-        }
         self._write(
             topic,
             _LOCATION_FIX,
             lambda: LOCATION_FIX_SCHEMA,
-            json.dumps(fix, separators=(",", ":")).encode(),
-            time,
+            [_location(time, lat, lon, alt, covariance)],
+        )
+
+    def log_locations(self, topic: str, fixes: Sequence[LocationFix]) -> None:
+        """A ``foxglove.LocationFix`` for each fix, each logged at its own time."""
+        self._write(
+            topic,
+            _LOCATION_FIX,
+            lambda: LOCATION_FIX_SCHEMA,
+            [_location(f.time, f.lat, f.lon, f.altitude_m, f.covariance) for f in fixes],
         )
 
     def _write(
@@ -374,15 +381,16 @@ class McapLog(Closing):
         topic: str,
         schema: str,
         schema_of: Callable[[], dict[str, Any]],
-        data: bytes,
-        time: float,
+        messages: Sequence[tuple[bytes, int]],
     ) -> None:
+        """``messages``: (data, log time in ns) each, on one topic."""
         if self._closed:
             raise ValueError("the log is closed")
-        log_time = time_ns(time)
-        file = self._file_for(log_time)
+        if not messages:
+            return
+        file = self._file_for(messages[0][1])
         try:
-            self._add(file, topic, schema, schema_of, data, log_time)
+            self._add(file, topic, schema, schema_of, messages)
         except OSError:
             self._abandon(file)
             raise
@@ -393,8 +401,7 @@ class McapLog(Closing):
         topic: str,
         schema: str,
         schema_of: Callable[[], dict[str, Any]],
-        data: bytes,
-        log_time: int,
+        messages: Sequence[tuple[bytes, int]],
     ) -> None:
         known = file.channels.get(topic)
         if known is None:
@@ -409,25 +416,30 @@ class McapLog(Closing):
         if channel_schema != schema:
             raise ValueError(f"topic {topic!r} carries {channel_schema}, not {schema}")
         sequence = file.sequences.get(channel, 0)
-        file.sequences[channel] = sequence + 1
-        file.writer.add_message(
-            channel_id=channel,
-            log_time=log_time,
-            data=data,
-            publish_time=log_time,
-            sequence=sequence % _MAX_SEQUENCE,
-        )
-        file.messages += 1
-        file.unwritten += 1
+        add, stream = file.writer.add_message, file.stream
+        for data, log_time in messages:
+            add(
+                channel_id=channel,
+                log_time=log_time,
+                data=data,
+                publish_time=log_time,
+                sequence=sequence % _MAX_SEQUENCE,
+            )
+            sequence += 1
+            file.messages += 1
+            file.unwritten += 1
+            # Cheap when nothing is pending; when the writer has just completed a chunk,
+            # this hands it to the operating system, where it survives the process.
+            if stream.flush():
+                # The writer writes a chunk out whole: nothing is left behind in it.
+                file.unwritten = 0
+        file.sequences[channel] = sequence
         if clock.monotonic() - self._last_flush >= self._flush_interval_s:
             # mcap-python leaves flush() unannotated.
             file.writer.flush()  # type: ignore[no-untyped-call]
             self._last_flush = clock.monotonic()
-        # Cheap when nothing is pending; when the writer has just completed a chunk, this
-        # hands it to the operating system, where it survives the process.
-        if file.stream.flush():
-            # The writer writes a chunk out whole: nothing is left behind in it.
-            file.unwritten = 0
+            if stream.flush():
+                file.unwritten = 0
 
     def _file_for(self, log_time: int) -> _File:
         file = self._file
@@ -536,6 +548,27 @@ class McapLog(Closing):
                 )
             finally:
                 self._reserve.release()
+
+
+def _location(
+    time: float, lat: float, lon: float, alt: float, covariance: Sequence[float] | None
+) -> tuple[bytes, int]:
+    """A ``foxglove.LocationFix`` as JSON (what ``json.dumps`` writes of it, compact), and
+    its log time: the fix's own."""
+    if covariance is not None and len(covariance) != 9:
+        raise ValueError(f"covariance must hold 9 values (3x3), not {len(covariance)}")
+    values = [float(v) for v in covariance] if covariance is not None else [0.0] * 9
+    if not all(map(math.isfinite, (lat, lon, alt, *values))):
+        raise ValueError("a location must be finite")
+    ns = time_ns(time)
+    kind = _COVARIANCE_UNKNOWN if covariance is None else _COVARIANCE_KNOWN
+    data = (
+        f'{{"timestamp":{{"sec":{ns // _NS_PER_S},"nsec":{ns % _NS_PER_S}}},"frame_id":"",'
+        f'"latitude":{float(lat)!r},"longitude":{float(lon)!r},"altitude":{float(alt)!r},'
+        f'"position_covariance":[{",".join(map(repr, values))}],'
+        f'"position_covariance_type":{kind}}}'
+    )
+    return data.encode(), ns
 
 
 class LoggedMessage(NamedTuple):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from asterix.containers import Datagram
 from tracker_service.outputs.mapping import location_fix
 from tracker_service.outputs.mcap_log import LoggedDatagram, McapLog
@@ -11,6 +13,7 @@ from tracker_service.outputs.messages import (
     StatusMessage,
     SystemTrackMessage,
 )
+from tracker_service.outputs.updates import LocalUpdate, SystemUpdate
 
 __all__ = [
     "CAT062_TOPIC",
@@ -55,6 +58,16 @@ class McapSink:
     def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
         topic = f"/local_tracks/{topic_name(message.radar)}"
         self.log.log_json(topic, LocalTrackMessage, payload, time)
+
+    def system_updates(self, updates: Sequence[SystemUpdate], time: float) -> None:
+        self.log.log_json_many(
+            SYSTEM_TRACKS_TOPIC, SystemTrackMessage, [u.payload for u in updates], time
+        )
+        self.log.log_locations(LOCATION_TOPIC, [u.location() for u in updates if not u.ended])
+
+    def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None:
+        topic = f"/local_tracks/{topic_name(radar)}"
+        self.log.log_json_many(topic, LocalTrackMessage, [u.payload for u in updates], time)
 
     def asterix(self, data: bytes, time: float) -> None:
         record = LoggedDatagram(input="cat062", time=time, src=None, dst=None, payload=data.hex())

@@ -186,7 +186,7 @@ class SystemTrackMessage(_Message):
             "vx_mps": vx_mps,
             "vy_mps": vy_mps,
             "ground_speed_mps": math.hypot(vx_mps, vy_mps),
-            "track_angle_deg": math.degrees(math.atan2(vx_mps, vy_mps)) % 360.0,
+            "track_angle_deg": track_angle_deg(vx_mps, vy_mps),
             "covariance": covariance,
             "position_sigma_m": position_sigma_m(covariance),
             "climb_rate_fpm": (
@@ -380,6 +380,18 @@ MODELS: tuple[type[BaseModel], ...] = (
 def iso_time(posix: float) -> str:
     """ISO 8601 UTC with microseconds, e.g. 2026-06-01T10:00:00.500000Z."""
     return datetime.fromtimestamp(posix, UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def wrap_degrees(angle: float) -> float:
+    """``angle`` in [0, 360): a tiny negative angle is 0, not the 360.0 that ``% 360.0``
+    rounds it to (outside the schemas' bounds)."""
+    wrapped = angle % 360.0
+    return 0.0 if wrapped >= 360.0 else wrapped
+
+
+def track_angle_deg(vx_mps: float, vy_mps: float) -> float:
+    """Clockwise from north, in [0, 360)."""
+    return wrap_degrees(math.degrees(math.atan2(vx_mps, vy_mps)))
 
 
 def position_sigma_m(covariance: list[list[float]]) -> float:

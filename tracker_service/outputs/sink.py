@@ -28,7 +28,7 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -40,9 +40,18 @@ from tracker_service.outputs.messages import (
     SystemTrackMessage,
     iso_time,
 )
+from tracker_service.outputs.updates import LocalUpdate, SystemUpdate
 from tracker_service.ratelimit import RateLimitedLog
 
-__all__ = ["Backoff", "IsolatedSink", "OutputState", "QueuedSink", "Sink", "describe_failure"]
+__all__ = [
+    "Backoff",
+    "BatchSink",
+    "IsolatedSink",
+    "OutputState",
+    "QueuedSink",
+    "Sink",
+    "describe_failure",
+]
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +80,16 @@ class Sink(Protocol):
     def status(self, message: StatusMessage, time: float) -> None: ...
 
     def close(self) -> None: ...
+
+
+class BatchSink(Sink, Protocol):
+    """A ``Sink`` that also takes a batch's updates in one call (``updates.py``): the
+    service's path. ``IsolatedSink`` gives a sink without these methods each update as a
+    message, one call each."""
+
+    def system_updates(self, updates: Sequence[SystemUpdate], time: float) -> None: ...
+
+    def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None: ...
 
 
 _REASONS = {
@@ -164,7 +183,7 @@ class IsolatedSink:
         self._clock = clock
         self._retry_at = 0.0
         self._log = limited_log or RateLimitedLog(log, 60.0, clock)
-        self._missed: dict[int, tuple[SystemTrackMessage, bytes, float]] = {}
+        self._missed: dict[int, tuple[SystemTrackMessage | SystemUpdate, bytes, float]] = {}
         """Per system track whose updates were dropped, the latest (for resends_tracks);
         at most one per track number."""
 
@@ -182,6 +201,34 @@ class IsolatedSink:
 
     def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
         self._run(time, self.sink.local, message, payload, time)
+        self._resend()
+
+    def system_updates(self, updates: Sequence[SystemUpdate], time: float) -> None:
+        """A batch's system-track updates in one call of the sink (one failure, counted
+        as that many messages dropped), or one ``system`` call each for a sink that takes
+        no batches."""
+        batch = getattr(self.sink, "system_updates", None)
+        if batch is None:
+            for update in updates:
+                self.system(update.message(), update.payload, time)
+            return
+        if self._run(time, batch, updates, time, messages=len(updates)):
+            if self._missed:
+                for update in updates:
+                    self._missed.pop(update.number, None)
+        elif self.sink.resends_tracks and self.state.failing_since is not None:
+            for update in updates:
+                self._missed[update.number] = (update, update.payload, time)
+        self._resend()
+
+    def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None:
+        """As :meth:`system_updates`, for one radar's local-track updates."""
+        batch = getattr(self.sink, "local_updates", None)
+        if batch is None:
+            for update in updates:
+                self.local(update.message(), update.payload, time)
+            return
+        self._run(time, batch, radar, updates, time, messages=len(updates))
         self._resend()
 
     def asterix(self, data: bytes, time: float) -> None:
@@ -206,27 +253,36 @@ class IsolatedSink:
         """Once the output works again, what it missed of each track, in number order."""
         if not self._missed or self.state.failing_since is not None:
             return
+        batch = getattr(self.sink, "system_updates", None)
         for number in sorted(self._missed):
             message, payload, time = self._missed.pop(number)
-            delivered = self._run(time, self.sink.system, message, payload, time)
+            if isinstance(message, SystemUpdate):
+                if batch is not None:
+                    delivered = self._run(time, batch, [message], time)
+                else:
+                    delivered = self._run(time, self.sink.system, message.message(), payload, time)
+            else:
+                delivered = self._run(time, self.sink.system, message, payload, time)
             if not delivered and self.state.failing_since is not None:
                 # Down again: this one and the rest wait for the next recovery.
                 self._missed[number] = (message, payload, time)
                 return
 
-    def _run(self, time: float, call: Callable[..., None], *args: object) -> bool:
-        """Whether the call went through."""
+    def _run(
+        self, time: float, call: Callable[..., None], *args: object, messages: int = 1
+    ) -> bool:
+        """Whether the call (of ``messages`` messages) went through."""
         state = self.state
         if state.failing_since is not None and self._clock() < self._retry_at:
-            state.dropped += 1
-            state.dropped_in_outage += 1
+            state.dropped += messages
+            state.dropped_in_outage += messages
             return False
         try:
             call(*args)
         except (ValueError, TypeError) as exc:
             # The message, not the output: this one is refused, the next goes through.
-            state.dropped += 1
-            state.refused += 1
+            state.dropped += messages
+            state.refused += messages
             self._log.error(
                 f"{self.name} refused",
                 "output %s: a %s message refused (%s); %d refused since start",
@@ -237,7 +293,7 @@ class IsolatedSink:
             )
             return False
         except Exception as exc:
-            self._failed(time, exc)
+            self._failed(time, exc, messages)
             return False
         if state.failing_since is not None:
             log.warning(
@@ -252,10 +308,10 @@ class IsolatedSink:
         state.delivered += 1
         return True
 
-    def _failed(self, time: float, exc: Exception) -> None:
+    def _failed(self, time: float, exc: Exception, messages: int = 1) -> None:
         state = self.state
-        state.dropped += 1
-        state.dropped_in_outage += 1
+        state.dropped += messages
+        state.dropped_in_outage += messages
         state.failures += 1
         state.reason = describe_failure(exc)
         delay = self.backoff.delay(state.failures)
@@ -316,6 +372,13 @@ class QueuedSink:
     def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
         self._put(time, self.sink.local, (message, payload, time))
 
+    def system_updates(self, updates: Sequence[SystemUpdate], time: float) -> None:
+        """A batch in one queued call: one queue operation for the batch."""
+        self._put(time, self.sink.system_updates, (updates, time), len(updates))
+
+    def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None:
+        self._put(time, self.sink.local_updates, (radar, updates, time), len(updates))
+
     def asterix(self, data: bytes, time: float) -> None:
         self._put(time, self.sink.asterix, (data, time))
 
@@ -351,15 +414,21 @@ class QueuedSink:
             return
         self.sink.close()
 
-    def _put(self, time: float, call: Callable[..., None], args: tuple[object, ...]) -> None:
+    def _put(
+        self,
+        time: float,
+        call: Callable[..., None],
+        args: tuple[object, ...],
+        messages: int = 1,
+    ) -> None:
         state = self.state
         if self._closed:
             raise ValueError(f"output {self.name} is closed")
         try:
             self._queue.put_nowait((call, args))
         except queue.Full:
-            state.overflowed += 1
-            state.dropped += 1
+            state.overflowed += messages
+            state.dropped += messages
             if state.full_since is None:
                 state.full_since = time
             self._log.warning(

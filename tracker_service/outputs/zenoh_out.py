@@ -16,7 +16,7 @@ Keys (``tracker`` being the default prefix):
 from __future__ import annotations
 
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import zenoh
@@ -87,6 +87,13 @@ class ZenohPublisher(Closing):
             self._picture[key] = payload
         self._put_json(key, payload)
 
+    def put_system_tracks(self, tracks: Sequence[tuple[int, bytes]]) -> None:
+        """As :meth:`put_system_track` for each (number, JSON), the picture updated once."""
+        keyed = [(self._track_key(number), payload) for number, payload in tracks]
+        with self._lock:
+            self._picture.update(keyed)
+        self._put_many(keyed)
+
     def end_system_track(self, number: int, model: BaseModel | bytes) -> None:
         """Publishes the track's last message (the caller's, with status "ended") and then
         deletes its key; from then on the queryable no longer answers it."""
@@ -103,6 +110,13 @@ class ZenohPublisher(Closing):
     ) -> None:
         key = f"{self.prefix}/local_tracks/{_source_key(sac_sic)}/{number}"
         self._put_json(key, _json(model))
+
+    def put_local_tracks(
+        self, sac_sic: tuple[int, int], tracks: Iterable[tuple[int, bytes]]
+    ) -> None:
+        """As :meth:`put_local_track` for each (number, JSON) of one radar."""
+        prefix = f"{self.prefix}/local_tracks/{_source_key(sac_sic)}/"
+        self._put_many((prefix + str(number), payload) for number, payload in tracks)
 
     def put_bias(self, sac_sic: tuple[int, int], model: BaseModel | bytes) -> None:
         key = f"{self.prefix}/bias/{_source_key(sac_sic)}"
@@ -152,6 +166,11 @@ class ZenohPublisher(Closing):
             encoding=zenoh.Encoding.APPLICATION_JSON,
             congestion_control=congestion,
         )
+
+    def _put_many(self, keyed: Iterable[tuple[str, bytes]]) -> None:
+        put, json = self._session.put, zenoh.Encoding.APPLICATION_JSON
+        for key, payload in keyed:
+            put(key, payload, encoding=json)
 
     def _answer(self, query: zenoh.Query) -> None:
         with self._lock:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from asterix.containers import Datagram
 from tracker_service.outputs.messages import (
     BiasMessage,
@@ -9,6 +11,7 @@ from tracker_service.outputs.messages import (
     StatusMessage,
     SystemTrackMessage,
 )
+from tracker_service.outputs.updates import LocalUpdate, SystemUpdate
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 
 __all__ = ["ZenohSink"]
@@ -39,6 +42,21 @@ class ZenohSink:
 
     def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
         self.publisher.put_local_track(_sac_sic(message.radar), message.number, payload)
+
+    def system_updates(self, updates: Sequence[SystemUpdate], time: float) -> None:
+        # In the batch's order: the updates between two ends in one call.
+        live: list[tuple[int, bytes]] = []
+        for update in updates:
+            if update.ended:
+                self.publisher.put_system_tracks(live)
+                live = []
+                self.publisher.end_system_track(update.number, update.payload)
+            else:
+                live.append((update.number, update.payload))
+        self.publisher.put_system_tracks(live)
+
+    def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None:
+        self.publisher.put_local_tracks(_sac_sic(radar), [(u.number, u.payload) for u in updates])
 
     def asterix(self, data: bytes, time: float) -> None:
         self.publisher.put_cat062(data)

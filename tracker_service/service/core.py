@@ -48,7 +48,7 @@ from tracker_service.fusion import FusionConfig
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
 from tracker_service.outputs.asterix_udp import asterix_udp_sinks
-from tracker_service.outputs.cat062 import encode_cat065, encode_system_tracks
+from tracker_service.outputs.cat062 import encode_cat065, encode_system_documents
 from tracker_service.outputs.foxglove_scene import MapRadar
 from tracker_service.outputs.foxglove_sink import live_sink, with_map_channels
 from tracker_service.outputs.mapping import MessageMapper
@@ -61,6 +61,7 @@ from tracker_service.outputs.messages import (
     SystemTrackMessage,
 )
 from tracker_service.outputs.sink import Backoff, IsolatedSink, OutputState, QueuedSink, Sink
+from tracker_service.outputs.updates import SystemUpdate
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_picture import ZenohPictureSink
 from tracker_service.outputs.zenoh_sink import ZenohSink
@@ -384,7 +385,7 @@ class Outputs:
         self._feeds = [r.key for r in config.radars] + [a.key for a in config.adsb]
         self._adsb_feeds = frozenset(a.key for a in config.adsb)
         self._radars: dict[str, _RadarCounters] = defaultdict(_RadarCounters)
-        self._pending_cat062: dict[int, SystemTrackMessage] = {}
+        self._pending_cat062: dict[int, SystemUpdate] = {}
         self._cat062_batches = 0
         self._start: float | None = None
         self._now = -math.inf
@@ -514,29 +515,32 @@ class Outputs:
             if output.time.out_of_line_plots:
                 # A running count already: the tracker's, not this batch's.
                 counters.rejected["out_of_line"] = output.time.out_of_line_plots
-        for local in self.mapper.local(output.source, output.local):
-            payload = local.model_dump_json().encode()
+        # The batch path (outputs/updates.py): JSON written from the rows, each sink
+        # called once per batch, no pydantic model per update.
+        local = self.mapper.local_updates(output.source, output.local)
+        if local:
             for sink in self.sinks:
-                sink.local(local, payload, self._now)
+                sink.local_updates(output.source, local, self._now)
         if len(output.system):
-            for message in self.mapper.system(output.system, plots, sources):
-                self._emit_system(message)
+            self._emit_system(self.mapper.system_updates(output.system, plots, sources))
 
-    def _emit_system(self, message: SystemTrackMessage) -> None:
-        self.counts.system_updates += 1
-        self.counts.system_tracks.add(message.number)
-        self._pending_cat062[message.number] = message
-        payload = message.model_dump_json().encode()
+    def _emit_system(self, updates: list[SystemUpdate]) -> None:
+        if not updates:
+            return
+        self.counts.system_updates += len(updates)
+        for update in updates:
+            self.counts.system_tracks.add(update.number)
+            self._pending_cat062[update.number] = update
         for sink in self.sinks:
-            sink.system(message, payload, self._now)
+            sink.system_updates(updates, self._now)
 
     # --- periodic outputs (the core says when) -----------------------------------------
 
     def publish_cat062(self) -> None:
-        messages = [self._pending_cat062[n] for n in sorted(self._pending_cat062)]
+        updates = [self._pending_cat062[n].doc for n in sorted(self._pending_cat062)]
         self._pending_cat062.clear()
         system = self.config.system
-        data = encode_system_tracks(messages, system) + encode_cat065(
+        data = encode_system_documents(updates, system) + encode_cat065(
             "end_of_batch", self._now, self._cat062_batches, system
         )
         self._cat062_batches += 1
@@ -754,8 +758,7 @@ class Outputs:
         try:
             if self._start is None:
                 return
-            for ended in self.mapper.end_all():
-                self._emit_system(ended)
+            self._emit_system(self.mapper.end_all_updates())
             self.publish_cat062()
             self.publish_status()
             log.info(

@@ -1,0 +1,149 @@
+"""The CAT062 fast path gives, byte for byte, what the generic codec gives for the same
+tracks, and the codec decodes it."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from asterix import EncodeError
+from asterix.codec import Block, decode_blocks
+from tracker_service.outputs.cat062 import (
+    MAX_BLOCK_OCTETS,
+    encode_system_tracks,
+    encode_system_tracks_generic,
+)
+from tracker_service.outputs.messages import SystemTrackMessage, TrackSource
+from tracker_service.service import SystemConfig
+
+SYSTEM = SystemConfig(centre_lat=48.5, centre_lon=11.0, sac=25, sic=100, service_id=3)
+NOON = 1_780_315_200.0  # 2026-06-01T12:00:00Z
+
+
+def _num(low: float, high: float) -> st.SearchStrategy[float]:
+    return st.floats(low, high, allow_nan=False, allow_infinity=False)
+
+
+_optional_age = st.none() | _num(0.0, 200.0)
+_radar = st.tuples(st.integers(0, 255), st.integers(0, 255)).map(lambda s: f"{s[0]}/{s[1]}")
+
+
+@st.composite
+def _covariance(draw: st.DrawFn) -> list[list[float]]:
+    sx, sy = draw(_num(0.0, 1e5)), draw(_num(0.0, 1e5))
+    rho = draw(_num(-1.0, 1.0))
+    svx, svy = draw(_num(0.0, 100.0)), draw(_num(0.0, 100.0))
+    sxy = rho * sx * sy
+    return [
+        [sx * sx, sxy, 0.0, 0.0],
+        [sxy, sy * sy, 0.0, 0.0],
+        [0.0, 0.0, svx**2, 0.0],
+        [0.0, 0.0, 0.0, svy**2],
+    ]
+
+
+@st.composite
+def _track(draw: st.DrawFn) -> SystemTrackMessage:
+    """A track anywhere in the items' ranges, with every optional item present or not;
+    times across midnight, azimuths near 360, quantities on and off their LSB grids."""
+    plot: dict[str, Any] | None = None
+    if draw(st.booleans()):
+        polar = draw(st.booleans())
+        plot = {
+            "radar": draw(_radar),
+            "time": NOON,
+            "lat": 48.0,
+            "lon": 11.0,
+            "range_m": draw(_num(0.0, 600_000.0)) if polar else None,
+            "azimuth_deg": draw(_num(0.0, 359.9999999)) if polar else None,
+        }
+    callsign = draw(st.none() | st.text("ABCDEFXYZ0123456789 ", min_size=1, max_size=8))
+    if callsign is not None and not callsign.strip():
+        callsign = None
+    status = draw(st.sampled_from(["confirmed", "coasting", "ended"]))
+    lat = draw(_num(40.0, 57.0))
+    return SystemTrackMessage.from_state(
+        time=draw(_num(NOON - 43_200.0, NOON + 43_199.99)),
+        x_m=draw(_num(-2e6, 2e6)),
+        y_m=draw(_num(-2e6, 2e6)),
+        vx_mps=draw(_num(-300.0, 300.0)),
+        vy_mps=draw(_num(-300.0, 300.0)),
+        covariance=draw(_covariance()),
+        climb_rate_fl_per_s=draw(st.none() | _num(-1.0, 1.0)),
+        number=draw(st.integers(0, 65535)),
+        lat=lat,
+        lon=draw(_num(-179.0, 179.0)),
+        flight_level=draw(st.none() | _num(-10.0, 500.0)),
+        altitude_m=draw(st.none() | _num(-300.0, 15_000.0)),
+        address=draw(st.none() | st.sampled_from(["4CA7A8", "000001", "FFFFFF", "3C6586"])),
+        callsign=callsign,
+        mode3a=draw(st.none() | st.integers(0, 0o7777).map(lambda c: f"{c:04o}")),
+        mode3a_changed=draw(st.booleans()),
+        first=draw(st.booleans()),
+        sources=[
+            {"radar": "25/11", "local_track": 1, "age_s": 0.0}
+            for _ in range(draw(st.integers(1, 3)))
+        ],
+        status=status,
+        last_plot=plot,
+        ages={
+            "psr": draw(_optional_age),
+            "ssr": draw(_optional_age),
+            "mode_s": draw(_optional_age),
+            "adsb": draw(_optional_age),
+        },
+        duplicate_address=draw(st.booleans()),
+    )
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(_track(), min_size=1, max_size=40))
+def test_fast_path_is_byte_identical_to_the_generic_codec(tracks: list[SystemTrackMessage]) -> None:
+    fast = encode_system_tracks(tracks, SYSTEM)
+    assert fast == encode_system_tracks_generic(tracks, SYSTEM)
+    events = list(decode_blocks(fast))
+    assert all(isinstance(e, Block) and e.cat == 62 for e in events), events
+    decoded = [r for e in events if isinstance(e, Block) for r in e.records]
+    assert [r["040"] for r in decoded] == [t.number for t in tracks]
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.lists(_track(), min_size=1, max_size=20), st.integers(100, MAX_BLOCK_OCTETS))
+def test_blocks_are_framed_alike(tracks: list[SystemTrackMessage], size: int) -> None:
+    assert encode_system_tracks(tracks, SYSTEM, size) == encode_system_tracks_generic(
+        tracks, SYSTEM, size
+    )
+
+
+def _plain(**changes: object) -> SystemTrackMessage:
+    fields: dict[str, Any] = {
+        "time": NOON,
+        "x_m": 1000.0,
+        "y_m": -2000.0,
+        "vx_mps": 200.0,
+        "vy_mps": 10.0,
+        "covariance": [[100.0, 0, 0, 0], [0, 100.0, 0, 0], [0, 0, 4.0, 0], [0, 0, 0, 4.0]],
+        "number": 7,
+        "lat": 48.5,
+        "lon": 11.0,
+        "flight_level": 350.0,
+        "sources": [TrackSource(radar="25/11", local_track=1, age_s=0.0)],
+        "status": "confirmed",
+    }
+    return SystemTrackMessage.from_state(**(fields | changes))
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("x_m", 5e6), ("climb_rate_fl_per_s", 40.0), ("flight_level", 9000.0), ("number", 70000)],
+)
+def test_a_value_beyond_its_item_is_refused_alike(field: str, value: float) -> None:
+    tracks = [_plain(), _plain(**{field: value}, validate=False)]
+    with pytest.raises(EncodeError) as generic:
+        encode_system_tracks_generic(tracks, SYSTEM)
+    with pytest.raises(EncodeError) as fast:
+        encode_system_tracks(tracks, SYSTEM)
+    assert str(fast.value) == str(generic.value)
