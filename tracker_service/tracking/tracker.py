@@ -118,6 +118,7 @@ class LocalTracker:
     def __init__(self, config: TrackerConfig | None = None, first_track_number: int = 1) -> None:
         self.config = config or TrackerConfig()
         self.models = ModelSet.from_config(self.config)
+        self.imm = imm.make_imm(self.config.imm_implementation, self.models)
         self.stats = TrackerStats()
         self.initiator = TwoPointInitiator(self.config)
         self.output_dtype = track_update_dtype(self.models.n_models)
@@ -290,8 +291,8 @@ class LocalTracker:
             self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
             return used, blocked, updated
 
-        pred = imm.predict(cols["x"][ti], cols["P"][ti], cols["mu"][ti], dt, self.models)
-        nis, log_det = imm.innovation_test(pred, plot_xy[pj], r[pj])
+        pred = self.imm.predict(cols["x"][ti], cols["P"][ti], cols["mu"][ti], dt)
+        nis, log_det = self.imm.innovation_test(pred, plot_xy[pj], r[pj])
         addr_t, addr_p = cols["address"][ti], p.address[pj]
         same_address = (addr_t >= 0) & (addr_t == addr_p)
         gated = np.flatnonzero(nis <= np.where(same_address, cfg.address_gate, cfg.gate))
@@ -354,8 +355,8 @@ class LocalTracker:
         cfg = self.config
         cols = self._cols
         time = p.time
-        x_new, p_new, mu_new = imm.update(pred, np.column_stack([p.x, p.y]), p.R)
-        xc, pc = imm.combine(x_new, p_new, mu_new)
+        step = self.imm.update(pred, np.column_stack([p.x, p.y]), p.R)
+        x_new, p_new, mu_new, xc, pc = step.x, step.P, step.mu, step.x_comb, step.P_comb
         cols["x"][ti] = x_new
         cols["P"][ti] = p_new
         cols["mu"][ti] = mu_new
@@ -564,7 +565,7 @@ class LocalTracker:
             (n_miss + cfg.miss_tolerance + 1.0) * cfg.scan_period_s - DUE_MARGIN_S
         )
         dt = now - cols["t"][idle]
-        pred = imm.predict(cols["x"][idle], cols["P"][idle], cols["mu"][idle], dt, self.models)
+        pred = self.imm.predict(cols["x"][idle], cols["P"][idle], cols["mu"][idle], dt)
         status = cols["status"][idle]
         limit = np.where(status == CONFIRMED, cfg.delete_misses, cfg.tentative_delete_misses)
         position_var = pred.P_comb[:, 0, 0] + pred.P_comb[:, 1, 1]
