@@ -143,6 +143,9 @@ def sector_stream(seed: int, targets: int, scans: int) -> list[npt.NDArray[np.vo
     speed = rng.uniform(100.0, 250.0, targets)
     heading = rng.uniform(0, 2 * np.pi, targets)
     velocity = speed[:, None] * np.column_stack([np.sin(heading), np.cos(heading)])
+    level = rng.uniform(50.0, 400.0, targets)
+    climb = np.where(rng.random(targets) < 0.3, rng.uniform(-0.5, 0.5, targets), 0.0)
+    mode_s = rng.random(targets) < 0.5
     batches = []
     for scan in range(scans):
         t = scan * period + rng.uniform(0, period, targets)
@@ -152,11 +155,15 @@ def sector_stream(seed: int, targets: int, scans: int) -> list[npt.NDArray[np.vo
         plots["x"] = pos[:, 0] + rng.normal(0, 60.0, targets)
         plots["y"] = pos[:, 1] + rng.normal(0, 60.0, targets)
         plots["R"] = np.eye(2) * 3600.0
-        plots["flight_level"] = 300.0
-        plots["fl_valid"] = True
+        # Mode S levels in 25 ft, Mode C in 100 ft, a few garbled (the filter rejects).
+        fl = level + climb * t
+        fl = np.where(mode_s, np.round(fl * 4.0) / 4.0, np.round(fl))
+        garbled = rng.random(targets) < 0.03
+        plots["flight_level"] = np.where(garbled, fl + rng.choice([-70.0, 120.0], targets), fl)
+        plots["fl_valid"] = rng.random(targets) < 0.95
         plots["mode3a"] = -1
-        plots["address"] = np.arange(targets)
-        plots["typ"] = 5
+        plots["address"] = np.where(mode_s, np.arange(targets), -1)
+        plots["typ"] = np.where(mode_s, 5, 2)
         plots["plot_id"] = scan * targets + np.arange(targets)
         sector = np.minimum((t - scan * period) / period * sectors, sectors - 1).astype(int)
         for s in range(sectors):
@@ -167,9 +174,9 @@ def sector_stream(seed: int, targets: int, scans: int) -> list[npt.NDArray[np.vo
 
 def test_trackers_agree_on_a_stream() -> None:
     """The same plots through the compiled and the numpy tracker: the same tracks (numbers,
-    statuses, plots), states equal to 1e-9 of their scale."""
+    statuses, plots), states and levels equal to 1e-9 of their scale."""
     compiled = LocalTracker(TrackerConfig(scan_period_s=5.0))
-    reference = LocalTracker(TrackerConfig(scan_period_s=5.0, imm_implementation="numpy"))
+    reference = LocalTracker(TrackerConfig(scan_period_s=5.0, implementation="numpy"))
     rows = 0
     for batch in sector_stream(11, 40, 12):
         a, b = reference.process(batch), compiled.process(batch)
@@ -177,11 +184,26 @@ def test_trackers_agree_on_a_stream() -> None:
             np.testing.assert_array_equal(a[field], b[field])
         for field in ("x", "y", "vx", "vy", "P", "model_probabilities"):
             close(a[field], b[field])
+        for field in ("flight_level", "climb_rate_fl_per_s"):
+            np.testing.assert_array_equal(np.isnan(a[field]), np.isnan(b[field]))
+            known = ~np.isnan(a[field])
+            close(a[field][known], b[field][known])
         rows += len(a)
     assert rows > 300
-    assert (compiled.tracks["status"] == 1).sum() >= 30
+    tracks, expected = compiled.tracks, reference.tracks
+    for field in ("number", "status", "hist", "misses", "address", "mode3a", "fl_rejects"):
+        np.testing.assert_array_equal(expected[field], tracks[field])
+    for field in ("t", "t_hit", "due", "t_fl"):
+        np.testing.assert_array_equal(expected[field], tracks[field])
+    for field in ("x", "P", "mu", "xc", "Pc"):
+        close(expected[field], tracks[field])
+    assert (tracks["status"] == 1).sum() >= 30
+    # The stream exercised the vertical filter's restarts and rejections.
+    assert tracks["fl_ok"].sum() >= 30
+    close(expected["Pv"], tracks["Pv"])
+    close(expected["fl"][tracks["fl_ok"]], tracks["fl"][tracks["fl_ok"]])
 
 
 def test_unknown_implementation_is_refused() -> None:
-    with pytest.raises(ValueError, match="imm_implementation"):
-        TrackerConfig(imm_implementation="fortran")
+    with pytest.raises(ValueError, match="implementation"):
+        TrackerConfig(implementation="fortran")

@@ -104,9 +104,10 @@ class TrackerConfig:
     """1-dof gate on flight-level innovations: garbled Mode C is ignored, then the filter
     restarts after ``fl_max_rejects`` rejections in a row (a real level change)."""
     fl_max_rejects: int = 2
-    imm_implementation: str = "compiled"
-    """The IMM's code: "compiled" (``tracking.kernels``, numba) or "numpy" (the plain
-    reference in ``tracking.imm``); the same filter to rounding (tests hold them to 1e-9)."""
+    implementation: str = "compiled"
+    """The code of the filters (the IMM, the vertical filter): "compiled"
+    (``tracking.kernels``, numba) or "numpy" (the plain reference: ``tracking.imm`` and
+    array operations); the same filters to rounding (tests hold them to 1e-9)."""
 
     def __post_init__(self) -> None:
         n_models = 1 + len(self.turn_rates_deg_s)
@@ -119,10 +120,8 @@ class TrackerConfig:
             raise ValueError("scan_period_s, gate and address_gate must be positive")
         if not self.max_clock_jump_periods > 0 or self.clock_resync_batches < 1:
             raise ValueError("max_clock_jump_periods and clock_resync_batches must be positive")
-        if self.imm_implementation not in ("compiled", "numpy"):
-            raise ValueError(
-                f"imm_implementation {self.imm_implementation!r}: use 'compiled' or 'numpy'"
-            )
+        if self.implementation not in ("compiled", "numpy"):
+            raise ValueError(f"implementation {self.implementation!r}: use 'compiled' or 'numpy'")
 
     @property
     def n_models(self) -> int:

@@ -97,10 +97,10 @@ def make_imm(implementation: str, models: ModelSet) -> ImmFilter:
     if implementation == "numpy":
         return NumpyImm(models)
     if implementation == "compiled":
-        from tracker_service.tracking.kernels import CompiledImm  # numba loads only here
+        from tracker_service.tracking.kernels import CompiledImm  # kernels imports this module
 
         return CompiledImm(models)
-    raise ValueError(f"imm_implementation {implementation!r}: use 'compiled' or 'numpy'")
+    raise ValueError(f"implementation {implementation!r}: use 'compiled' or 'numpy'")
 
 
 def inv2(s: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -22,7 +22,7 @@ import numpy as np
 
 from tracker_service.tracking.imm import ImmPrediction, ImmUpdate
 from tracker_service.tracking.models import ModelSet
-from tracker_service.tracking.plots import FloatArray
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
 LOG_2PI = math.log(2.0 * math.pi)
 TINY = 1e-300
@@ -309,3 +309,131 @@ class CompiledImm:
     def update(self, pred: ImmPrediction, z: FloatArray, R: FloatArray) -> ImmUpdate:
         x, p, mu, xc, pc = imm_update(pred.x, pred.P, pred.c, z, R)
         return ImmUpdate(x, p, mu, xc, pc)
+
+
+@numba.njit(cache=True)
+def vertical_update(
+    rows: IntArray,
+    t: FloatArray,
+    z: FloatArray,
+    var: FloatArray,
+    fl: FloatArray,
+    rate: FloatArray,
+    pv: FloatArray,
+    t_fl: FloatArray,
+    fl_ok: BoolArray,
+    fl_rejects: IntArray,
+    q: float,
+    gate: float,
+    max_rejects: int,
+    initial_climb_variance: float,
+) -> None:  # pragma: no cover - compiled
+    """``LocalTracker``'s vertical step of the tracks ``rows`` with their levels z (variance
+    var) at t, in place in the track table's columns: ``vertical.predict`` and
+    ``vertical.update`` (scalar Joseph form, gate), a rejected level leaving the old
+    state, and a (re)start after ``max_rejects`` rejections in a row or on the first
+    level. The numpy reference is the same step written with array operations
+    (``LocalTracker._update_vertical`` with ``implementation = "numpy"``)."""
+    for n in range(rows.shape[0]):
+        row = rows[n]
+        dt = t[n] - t_fl[row]
+        tt = abs(dt)
+        f0, r0 = fl[row], rate[row]
+        p00_old, p01_old, p11_old = pv[row, 0, 0], pv[row, 0, 1], pv[row, 1, 1]
+        p00 = p00_old + 2.0 * dt * p01_old + dt * dt * p11_old + q * tt**3 / 3.0
+        p01 = p01_old + dt * p11_old + q * dt * tt / 2.0
+        p11 = p11_old + q * tt
+        fl_p = f0 + r0 * dt
+        r = var[n]
+        y = z[n] - fl_p
+        s = p00 + r
+        k0 = p00 / s
+        k1 = p01 / s
+        a00 = (1.0 - k0) * p00
+        a01 = (1.0 - k0) * p01
+        a10 = -k1 * p00 + p01
+        a11 = -k1 * p01 + p11
+        ok = y * y / s <= gate
+        start = not fl_ok[row]
+        rejects = 0 if ok else fl_rejects[row] + 1
+        if rejects >= max_rejects:
+            start = True
+        if start:
+            fl[row] = z[n]
+            rate[row] = 0.0
+            pv[row, 0, 0] = r
+            pv[row, 0, 1] = pv[row, 1, 0] = 0.0
+            pv[row, 1, 1] = initial_climb_variance
+            t_fl[row] = t[n]
+            fl_rejects[row] = 0
+        elif ok:
+            fl[row] = fl_p + k0 * y
+            rate[row] = r0 + k1 * y
+            pv[row, 0, 0] = a00 * (1.0 - k0) + r * k0 * k0
+            pv[row, 0, 1] = -a00 * k1 + a01 + r * k0 * k1
+            pv[row, 1, 0] = a10 * (1.0 - k0) + r * k1 * k0
+            pv[row, 1, 1] = -a10 * k1 + a11 + r * k1 * k1
+            t_fl[row] = t[n]
+            fl_rejects[row] = 0
+        else:
+            fl_rejects[row] = rejects
+        fl_ok[row] = True
+
+
+@numba.njit(cache=True)
+def record_updates(
+    rows: IntArray,
+    t: FloatArray,
+    plot_address: IntArray,
+    plot_mode3a: IntArray,
+    plot_mode3a_valid: BoolArray,
+    x_new: FloatArray,
+    p_new: FloatArray,
+    mu_new: FloatArray,
+    xc_new: FloatArray,
+    pc_new: FloatArray,
+    x: FloatArray,
+    P: FloatArray,
+    mu: FloatArray,
+    xc: FloatArray,
+    pc: FloatArray,
+    t_state: FloatArray,
+    t_hit: FloatArray,
+    hist: IntArray,
+    due: FloatArray,
+    misses: IntArray,
+    address: IntArray,
+    mode3a: IntArray,
+    half_period_s: float,
+    hist_mask: int,
+    due_after_s: float,
+) -> None:  # pragma: no cover - compiled
+    """The updated tracks ``rows`` written into the track table's columns, in place: the
+    IMM's new state at t, a hit in the M-of-N history (a second plot of the same scan
+    counts no second hit), the time due for a miss, and the plots' identity where they
+    carry one. The numpy reference: ``LocalTracker._record_updates``."""
+    m = x.shape[1]
+    for n in range(rows.shape[0]):
+        row = rows[n]
+        for j in range(m):
+            mu[row, j] = mu_new[n, j]
+            for a in range(4):
+                x[row, j, a] = x_new[n, j, a]
+                for b in range(4):
+                    P[row, j, a, b] = p_new[n, j, a, b]
+        for a in range(4):
+            xc[row, a] = xc_new[n, a]
+            for b in range(4):
+                pc[row, a, b] = pc_new[n, a, b]
+        t_state[row] = t[n]
+        if t[n] < t_hit[row] + half_period_s:
+            hist[row] = hist[row] | 1
+        else:
+            hist[row] = ((hist[row] << 1) | 1) & hist_mask
+        t_hit[row] = max(t_hit[row], t[n])
+        due[row] = t_hit[row] + due_after_s
+        misses[row] = 0
+        if plot_address[n] >= 0:
+            address[row] = plot_address[n]
+        if plot_mode3a_valid[n] and plot_mode3a[n] >= 0:
+            mode3a[row] = plot_mode3a[n]
