@@ -123,6 +123,10 @@ class TrackerConfig:
     plots + the miss) is at most this; beyond, ``jpda_k_best`` events are ranked."""
     jpda_k_best: int = 64
     """The most likely joint events (Murty's ranking) kept for a large cluster."""
+    implementation: str = "compiled"
+    """The code of the filters (the IMM, the vertical filter): "compiled"
+    (``tracking.kernels``, numba) or "numpy" (the plain reference: ``tracking.imm`` and
+    array operations); the same filters to rounding (tests hold them to 1e-9)."""
 
     def __post_init__(self) -> None:
         n_models = 1 + len(self.turn_rates_deg_s)
@@ -143,6 +147,8 @@ class TrackerConfig:
             raise ValueError("jpda_max_events and jpda_k_best must be >= 1")
         if not self.max_clock_jump_periods > 0 or self.clock_resync_batches < 1:
             raise ValueError("max_clock_jump_periods and clock_resync_batches must be positive")
+        if self.implementation not in ("compiled", "numpy"):
+            raise ValueError(f"implementation {self.implementation!r}: use 'compiled' or 'numpy'")
 
     @property
     def n_models(self) -> int:

@@ -8,6 +8,7 @@ position: H = [I2 0].
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -36,6 +37,70 @@ class ImmPrediction:
             x_comb=self.x_comb[index],
             P_comb=self.P_comb[index],
         )
+
+
+@dataclass(frozen=True)
+class ImmUpdate:
+    """Per-model updated states, the updated model probabilities, and their combination."""
+
+    x: FloatArray
+    P: FloatArray
+    mu: FloatArray
+    x_comb: FloatArray
+    P_comb: FloatArray
+
+
+class ImmFilter(Protocol):
+    """The IMM steps the local tracker runs, over arrays of tracks or track-plot pairs."""
+
+    def predict(
+        self, x: FloatArray, P: FloatArray, mu: FloatArray, dt: FloatArray
+    ) -> ImmPrediction:
+        """Mixing and each model's prediction over its own step dt (k,)."""
+        ...
+
+    def innovation_test(
+        self, pred: ImmPrediction, z: FloatArray, R: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """NIS and log det S of the combined prediction at the plots z (k, 2), R (k, 2, 2)."""
+        ...
+
+    def update(self, pred: ImmPrediction, z: FloatArray, R: FloatArray) -> ImmUpdate:
+        """Every model updated with its plot, the model probabilities, the combination."""
+        ...
+
+
+class NumpyImm:
+    """The reference: the textbook equations as numpy array operations (this module)."""
+
+    def __init__(self, models: ModelSet) -> None:
+        self.models = models
+
+    def predict(
+        self, x: FloatArray, P: FloatArray, mu: FloatArray, dt: FloatArray
+    ) -> ImmPrediction:
+        return predict(x, P, mu, dt, self.models)
+
+    def innovation_test(
+        self, pred: ImmPrediction, z: FloatArray, R: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        return innovation_test(pred, z, R)
+
+    def update(self, pred: ImmPrediction, z: FloatArray, R: FloatArray) -> ImmUpdate:
+        x, p, mu = update(pred, z, R)
+        xc, pc = combine(x, p, mu)
+        return ImmUpdate(x, p, mu, xc, pc)
+
+
+def make_imm(implementation: str, models: ModelSet) -> ImmFilter:
+    """The IMM by name: "compiled" (``kernels``, numba) or "numpy" (the reference)."""
+    if implementation == "numpy":
+        return NumpyImm(models)
+    if implementation == "compiled":
+        from tracker_service.tracking.kernels import CompiledImm  # kernels imports this module
+
+        return CompiledImm(models)
+    raise ValueError(f"implementation {implementation!r}: use 'compiled' or 'numpy'")
 
 
 def inv2(s: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.tracking import imm, vertical
+from tracker_service.tracking import imm, kernels, vertical
 from tracker_service.tracking.association import (
     Gate,
     WeightedUpdate,
@@ -118,6 +118,8 @@ class LocalTracker:
     def __init__(self, config: TrackerConfig | None = None, first_track_number: int = 1) -> None:
         self.config = config or TrackerConfig()
         self.models = ModelSet.from_config(self.config)
+        self.imm = imm.make_imm(self.config.implementation, self.models)
+        self._compiled = self.config.implementation == "compiled"
         self.stats = TrackerStats()
         self.initiator = TwoPointInitiator(self.config)
         self.output_dtype = track_update_dtype(self.models.n_models)
@@ -137,7 +139,7 @@ class LocalTracker:
         """The out-of-line plots of the current run of batches, counted when dropped."""
         self._now = -np.inf
         self._hist_mask = (1 << self.config.confirm_n) - 1
-        self.gate = Gate(self.config, self.models)
+        self.gate = Gate(self.config, self.models, self.imm)
         self.associator = make_associator(self.config)
         self._scan_tolerance_s = (1.0 + self.config.miss_tolerance) * self.config.scan_period_s
 
@@ -323,15 +325,49 @@ class LocalTracker:
         cols = self._cols
         time = p.time
         if posterior is None:
-            x_new, p_new, mu_new = imm.update(pred, np.column_stack([p.x, p.y]), p.R)
+            step = self.imm.update(pred, np.column_stack([p.x, p.y]), p.R)
         else:
-            x_new, p_new, mu_new = posterior.x, posterior.P, posterior.mu
-        xc, pc = imm.combine(x_new, p_new, mu_new)
-        cols["x"][ti] = x_new
-        cols["P"][ti] = p_new
-        cols["mu"][ti] = mu_new
-        cols["xc"][ti] = xc
-        cols["Pc"][ti] = pc
+            xc, pc = imm.combine(posterior.x, posterior.P, posterior.mu)
+            step = imm.ImmUpdate(posterior.x, posterior.P, posterior.mu, xc, pc)
+        x_new, p_new, mu_new, xc, pc = step.x, step.P, step.mu, step.x_comb, step.P_comb
+        if self._compiled:
+            kernels.record_updates(
+                ti, time, p.address, p.mode3a, p.mode3a_valid, x_new, p_new, mu_new, xc, pc,
+                cols["x"], cols["P"], cols["mu"], cols["xc"], cols["Pc"], cols["t"],
+                cols["t_hit"], cols["hist"], cols["due"], cols["misses"], cols["address"],
+                cols["mode3a"], 0.5 * cfg.scan_period_s, self._hist_mask,
+                self._scan_tolerance_s - DUE_MARGIN_S,
+            )  # fmt: skip
+            hist, address, mode3a = cols["hist"][ti], cols["address"][ti], cols["mode3a"][ti]
+        else:
+            hist, address, mode3a = self._record_updates(ti, p, step)
+        self._update_vertical(ti, p)
+        status = cols["status"][ti]
+        self._confirm(ti, status, hist)  # after every other field is written
+        # A confirmed track without any secondary reply that has slowed to clutter speed
+        # goes back to tentative: its first, noisy velocity may have passed the speed test.
+        primary_only = (address < 0) & (mode3a < 0)
+        if primary_only.any():
+            speed = np.hypot(xc[:, 2], xc[:, 3])
+            slow = primary_only & (speed < cfg.min_confirm_speed_psr_only_m_s)
+            status[slow & (status == CONFIRMED)] = TENTATIVE
+        cols["status"][ti] = status
+        return self._rows(ti, time, status, p.plot_id, mu_new, xc, pc)
+
+    def _record_updates(
+        self, ti: IntArray, p: PlotArrays, step: imm.ImmUpdate
+    ) -> tuple[IntArray, IntArray, IntArray]:
+        """The numpy reference of ``kernels.record_updates``: the IMM's new state, the
+        hit history and the identity of the tracks ``ti`` written; their hist, address
+        and Mode 3/A."""
+        cfg = self.config
+        cols = self._cols
+        time = p.time
+        cols["x"][ti] = step.x
+        cols["P"][ti] = step.P
+        cols["mu"][ti] = step.mu
+        cols["xc"][ti] = step.x_comb
+        cols["Pc"][ti] = step.P_comb
         cols["t"][ti] = time
         # A plot of the scan already counted (a late one) must not count a second hit.
         t_hit = cols["t_hit"][ti]
@@ -347,18 +383,7 @@ class LocalTracker:
         cols["address"][ti] = address
         mode3a = np.where(p.mode3a_valid & (p.mode3a >= 0), p.mode3a, cols["mode3a"][ti])
         cols["mode3a"][ti] = mode3a
-        self._update_vertical(ti, p)
-        status = cols["status"][ti]
-        self._confirm(ti, status, hist)  # after every other field is written
-        # A confirmed track without any secondary reply that has slowed to clutter speed
-        # goes back to tentative: its first, noisy velocity may have passed the speed test.
-        primary_only = (address < 0) & (mode3a < 0)
-        if primary_only.any():
-            speed = np.hypot(xc[:, 2], xc[:, 3])
-            slow = primary_only & (speed < cfg.min_confirm_speed_psr_only_m_s)
-            status[slow & (status == CONFIRMED)] = TENTATIVE
-        cols["status"][ti] = status
-        return self._rows(ti, time, status, p.plot_id, mu_new, xc, pc)
+        return hist, address, mode3a
 
     def _update_vertical(self, ti: IntArray, p: PlotArrays) -> None:
         """Vertical filter of the tracks ``ti`` with their plots ``p``."""
@@ -371,6 +396,24 @@ class LocalTracker:
             ti, p = ti[has], p.take(has)
         fl, t = p.flight_level, p.time
         var = vertical.measurement_variance(fl, p.typ, cfg)
+        if self._compiled:
+            kernels.vertical_update(
+                ti,
+                t,
+                fl,
+                var,
+                cols["fl"],
+                cols["rate"],
+                cols["Pv"],
+                cols["t_fl"],
+                cols["fl_ok"],
+                cols["fl_rejects"],
+                cfg.q_vertical,
+                cfg.fl_gate,
+                cfg.fl_max_rejects,
+                cfg.initial_climb_variance,
+            )
+            return
         fl_old, rate_old, pv_old = cols["fl"][ti], cols["rate"][ti], cols["Pv"][ti]
         t_fl = cols["t_fl"][ti]
         start = ~cols["fl_ok"][ti]
@@ -535,7 +578,7 @@ class LocalTracker:
             (n_miss + cfg.miss_tolerance + 1.0) * cfg.scan_period_s - DUE_MARGIN_S
         )
         dt = now - cols["t"][idle]
-        pred = imm.predict(cols["x"][idle], cols["P"][idle], cols["mu"][idle], dt, self.models)
+        pred = self.imm.predict(cols["x"][idle], cols["P"][idle], cols["mu"][idle], dt)
         status = cols["status"][idle]
         limit = np.where(status == CONFIRMED, cfg.delete_misses, cfg.tentative_delete_misses)
         position_var = pred.P_comb[:, 0, 0] + pred.P_comb[:, 1, 1]

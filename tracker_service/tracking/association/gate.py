@@ -72,9 +72,10 @@ class GateResult:
 class Gate:
     """Builds the ``GatedPairs`` of a batch from the track table's columns."""
 
-    def __init__(self, config: TrackerConfig, models: ModelSet) -> None:
+    def __init__(self, config: TrackerConfig, models: ModelSet, imm_filter: imm.ImmFilter) -> None:
         self.config = config
         self.models = models
+        self.imm = imm_filter
         # Per-tracker constants of the pre-selection radius, hoisted out of every batch.
         self._q_max = float(models.q.max())
         self._turn_max = float(np.abs(models.turn_rates_rad_s).max())
@@ -105,8 +106,8 @@ class Gate:
         if ti.size == 0:
             return GateResult(None, too_old)
 
-        pred = imm.predict(cols["x"][ti], cols["P"][ti], cols["mu"][ti], dt, self.models)
-        nis, log_det = imm.innovation_test(pred, plot_xy[pj], r[pj])
+        pred = self.imm.predict(cols["x"][ti], cols["P"][ti], cols["mu"][ti], dt)
+        nis, log_det = self.imm.innovation_test(pred, plot_xy[pj], r[pj])
         addr_t, addr_p = cols["address"][ti], p.address[pj]
         same_address = (addr_t >= 0) & (addr_t == addr_p)
         gated = np.flatnonzero(nis <= np.where(same_address, cfg.address_gate, cfg.gate))

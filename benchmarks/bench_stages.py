@@ -1,0 +1,248 @@
+"""CPU time per plot of every stage of the whole service, side by side in one run, and the
+whole chain's plots per CPU-second (issue 12, "Speed, one process").
+
+The recording is replayed through ``TrackerService`` as ``tracker-service replay --speed
+max`` runs it in one process, every output on: a Zenoh session (peer mode, loopback only,
+no scouting) and an MCAP log in a temporary directory. Each stage's entry point is wrapped
+by a timer of the CPU time of the calling thread (``time.thread_time``); nested stages are
+exclusive (the bias step's time excludes the fusion and reference calls it makes, the
+message building excludes the sink calls). The sinks run in their output threads
+(``outputs.sink.QueuedSink``): their time is their thread's own. "other" is the
+process's CPU time (``time.process_time``, every thread, Zenoh's own threads included)
+minus the stages: the service's glue, the duplicate filter, queues, Zenoh internals.
+The recording is read into memory before the clock starts.
+
+    tracker-service simulate config/scenarios/scale.toml -o scale60.mcap --duration 60
+    python benchmarks/bench_stages.py scale60.mcap [--seconds 30] [--repeats 1]
+        [--no-mcap] [--no-zenoh] [--json]
+
+The stages and what each wraps:
+
+| stage | wrapped |
+|---|---|
+| decode | ``asterix.plots.extract_plots`` and the service messages' ``decode_blocks`` (chain) |
+| clock + conversion | ``chain.convert_batch`` (plot clock, geodesy), time sanity, fixed targets |
+| local tracking | ``LocalTracker.process`` |
+| bias | ``Chain._estimate_biases`` (observations, the estimator's update) |
+| bias references | ``SystemTracker.references`` (the fuser's references for the bias) |
+| fusion | ``SystemTracker.process`` |
+| messages | ``Outputs.batch``, ``publish_cat062`` and the periodic messages, less the rest |
+| CAT062 | ``encode_system_tracks`` and ``encode_cat065`` |
+| MCAP | ``McapSink``'s calls (the log's writer thread) |
+| Zenoh | ``ZenohSink``'s calls (the publisher's thread) |
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import functools
+import json
+import statistics
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+from asterix.containers import Datagram
+from tracker_service import chain as chain_module
+from tracker_service.chain import Chain
+from tracker_service.fusion import SystemTracker
+from tracker_service.outputs.mcap_log import McapLog
+from tracker_service.outputs.mcap_sink import McapSink
+from tracker_service.outputs.zenoh_out import ZenohPublisher
+from tracker_service.outputs.zenoh_sink import ZenohSink
+from tracker_service.service import core as core_module
+from tracker_service.service.core import Outputs, TrackerService
+from tracker_service.service.replay import open_replay
+from tracker_service.time_sanity import TimeSanity
+from tracker_service.tracking import LocalTracker
+
+STAGES = (
+    "decode",
+    "clock + conversion",
+    "local tracking",
+    "bias",
+    "bias references",
+    "fusion",
+    "messages",
+    "CAT062",
+    "MCAP",
+    "Zenoh",
+)
+SINK_CALLS = ("datagram", "system", "local", "asterix", "bias", "status", "close")
+
+
+class StageClock:
+    """Exclusive CPU seconds per stage, per thread: a stage called from within another is
+    taken off the outer one."""
+
+    def __init__(self) -> None:
+        self.seconds = dict.fromkeys(STAGES, 0.0)
+        self.calls = dict.fromkeys(STAGES, 0)
+        self._lock = threading.Lock()
+        self._local = threading.local()
+
+    def wrap(self, stage: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        @functools.wraps(fn)
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            stack: list[float] = self._local.__dict__.setdefault("stack", [])
+            stack.append(0.0)  # time of the stages nested in this call
+            started = time.thread_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                elapsed = time.thread_time() - started
+                nested = stack.pop()
+                if stack:
+                    stack[-1] += elapsed
+                with self._lock:
+                    self.seconds[stage] += elapsed - nested
+                    self.calls[stage] += 1
+
+        return timed
+
+
+@contextlib.contextmanager
+def instrumented(clock: StageClock) -> Iterator[None]:
+    """Every stage's entry point wrapped for the duration (restored afterwards)."""
+    targets: list[tuple[object, str, str]] = [
+        (chain_module, "extract_plots", "decode"),
+        (chain_module, "decode_blocks", "decode"),
+        (chain_module, "convert_batch", "clock + conversion"),
+        (TimeSanity, "check", "clock + conversion"),
+        (Chain, "_fixed_transponders", "clock + conversion"),
+        (LocalTracker, "process", "local tracking"),
+        (Chain, "_estimate_biases", "bias"),
+        (SystemTracker, "references", "bias references"),
+        (SystemTracker, "process", "fusion"),
+        (Outputs, "batch", "messages"),
+        (Outputs, "publish_cat062", "messages"),
+        (Outputs, "publish_bias", "messages"),
+        (Outputs, "publish_status", "messages"),
+        (Outputs, "close", "messages"),
+        (core_module, "encode_system_tracks", "CAT062"),
+        (core_module, "encode_cat065", "CAT062"),
+    ]
+    targets += [(McapSink, call, "MCAP") for call in SINK_CALLS]
+    targets += [(ZenohSink, call, "Zenoh") for call in SINK_CALLS]
+    saved = []
+    for owner, name, stage in targets:
+        original = getattr(owner, name, None)
+        if original is None:
+            # Another helper moved it: say so rather than time it as "other" silently.
+            print(f"bench_stages: {owner.__name__}.{name} not found, not timed", file=sys.stderr)  # type: ignore[attr-defined]
+            continue
+        own = name in vars(owner)
+        saved.append((owner, name, original, own))
+        setattr(owner, name, clock.wrap(stage, original))
+    try:
+        yield
+    finally:
+        for owner, name, original, own in reversed(saved):
+            if own:
+                setattr(owner, name, original)
+            else:
+                delattr(owner, name)
+
+
+def slice_of(path: str, seconds: float) -> tuple[Any, list[tuple[str, Datagram]]]:
+    """The recording's configuration and its first ``seconds`` of datagrams, in memory."""
+    replay = open_replay(path)
+    datagrams: list[tuple[str, Datagram]] = []
+    first = None
+    for name, datagram in replay.datagrams:
+        assert datagram.time is not None
+        first = datagram.time if first is None else first
+        if datagram.time - first > seconds:
+            break
+        datagrams.append((name, datagram))
+    return replay, datagrams
+
+
+def run_once(
+    path: str, seconds: float, mcap: bool, use_zenoh: bool
+) -> tuple[dict[str, float], int, float, float]:
+    """One replay of the slice: exclusive CPU seconds per stage (and "other"), plots,
+    process CPU seconds and wall seconds."""
+    replay, datagrams = slice_of(path, seconds)
+    clock = StageClock()
+    with contextlib.ExitStack() as stack:
+        publisher = None
+        if use_zenoh:
+            publisher = stack.enter_context(
+                contextlib.closing(ZenohPublisher("bench", mode="peer", scouting=False))
+            )
+        log = None
+        if mcap:
+            directory = stack.enter_context(tempfile.TemporaryDirectory(prefix="bench_stages"))
+            log = stack.enter_context(contextlib.closing(McapLog(directory)))
+        with instrumented(clock):
+            service = TrackerService(replay.config, publisher, log)
+            service.set_input_counters(replay.counters)
+            cpu0, wall0 = time.process_time(), time.perf_counter()
+            for name, datagram in datagrams:
+                service.process(name, datagram)
+            service.close()
+            service.local.drain()
+            cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
+            plots = service.chain.stats.plots
+    stages = dict(clock.seconds)
+    stages["other"] = cpu - sum(stages.values())
+    return stages, plots, cpu, wall
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("recording", help="a simulated recording (e.g. of scale)")
+    parser.add_argument("--seconds", type=float, default=30.0, help="slice of the recording")
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--no-mcap", action="store_true")
+    parser.add_argument("--no-zenoh", action="store_true")
+    parser.add_argument("--json", action="store_true", help="the figures as JSON on stdout")
+    args = parser.parse_args()
+    runs = []
+    for repeat in range(args.repeats):
+        runs.append(run_once(args.recording, args.seconds, not args.no_mcap, not args.no_zenoh))
+        _, plots, cpu, wall = runs[-1]
+        print(
+            f"run {repeat + 1}: {plots} plots, {cpu:.1f} CPU s, {wall:.1f} s wall,"
+            f" {plots / cpu:,.0f} plots per CPU-second",
+            file=sys.stderr,
+        )
+    plots = runs[0][1]
+    names = [*STAGES, "other"]
+    median = {n: statistics.median(r[0][n] for r in runs) for n in names}
+    cpu = statistics.median(r[2] for r in runs)
+    wall = statistics.median(r[3] for r in runs)
+    if args.json:
+        report = {
+            "recording": args.recording,
+            "seconds": args.seconds,
+            "repeats": args.repeats,
+            "plots": plots,
+            "cpu_s": cpu,
+            "wall_s": wall,
+            "plots_per_cpu_s": plots / cpu,
+            "stage_us_per_plot": {n: median[n] / plots * 1e6 for n in names},
+        }
+        json.dump(report, sys.stdout, indent=1)
+        print()
+        return
+    print(f"{Path(args.recording).name}: first {args.seconds:g} s, {plots:,} plots,")
+    print(
+        f"median of {args.repeats} run(s); outputs: mcap={not args.no_mcap}"
+        f" zenoh={not args.no_zenoh}"
+    )
+    print(f"{'stage':<20} {'CPU s':>8} {'us/plot':>9} {'share':>7}")
+    for n in names:
+        print(f"{n:<20} {median[n]:>8.2f} {median[n] / plots * 1e6:>9.1f} {median[n] / cpu:>7.1%}")
+    print(f"{'whole chain':<20} {cpu:>8.2f} {cpu / plots * 1e6:>9.1f} {1.0:>7.1%}")
+    print(f"plots per CPU-second: {plots / cpu:,.0f} (wall {wall:.1f} s, target 20,000)")
+
+
+if __name__ == "__main__":
+    main()
