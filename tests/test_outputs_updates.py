@@ -115,8 +115,6 @@ def test_batch_path_publishes_what_the_models_publish(seed: int) -> None:
         t = NOON + 5.0 * step
         plots = _plots(rng, 20, t, first_id)
         first_id += 20
-        for mapper in (models, batch):
-            mapper.note_callsigns(plots)
         source = SOURCES[step % len(SOURCES)]
         local = _local_rows(rng, 15, t)
         expected_local = [m.model_dump_json() for m in models.local(source, local)]

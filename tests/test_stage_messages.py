@@ -176,7 +176,7 @@ def test_a_restarted_radar_stage_replaces_its_predecessors_tracks_in_the_fuser()
     radar = chain.sources.index("25/13")
 
     def live() -> set[int]:
-        loc = fuser._loc[: fuser._n]
+        loc = fuser.state.local.used
         return set(loc["number"][loc["alive"] & (loc["radar"] == radar)].tolist())
 
     before = live()

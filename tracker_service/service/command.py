@@ -672,6 +672,7 @@ def replay(args: argparse.Namespace) -> int:
                     )
                 )
             service = stack.enter_context(open_service(config, mcap_dir, radar_stage=workers))
+            service.set_input_counters(source.counters)
             _replay_datagrams(service, source, speed, stop)
             log_files = [] if service.log is None else list(service.log.files)
     except RadarStageFailed as exc:
