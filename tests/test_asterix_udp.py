@@ -23,14 +23,10 @@ from asterix.codec import Block, decode_blocks
 from tests.asterix_oracle import differences
 from tests.test_service_replay import ZenohChild, endpoint, simulate
 from tracker_service.geodesy import SystemPlane
-from tracker_service.outputs.asterix_udp import (
-    blocks_in_datagrams,
-    parse_destination,
-    with_destinations,
-)
+from tracker_service.outputs.asterix_udp import blocks_in_datagrams, parse_destination
 from tracker_service.outputs.periodic import PeriodicPicture, extrapolate
 from tracker_service.service.command import open_service
-from tracker_service.service.config import AsterixUdpOutput, ServiceConfig
+from tracker_service.service.config import AsterixUdpOutput, ServiceConfig, with_destinations
 from tracker_service.service.core import TrackerService
 from tracker_service.service.replay import open_replay
 

@@ -23,7 +23,8 @@ from __future__ import annotations
 import math
 import socket
 from collections.abc import Iterator
-from typing import Any
+from ipaddress import IPv4Address
+from typing import Any, Protocol
 
 from asterix.codec import encode_block
 from asterix.containers import Datagram
@@ -37,14 +38,13 @@ from tracker_service.outputs.messages import (
     SystemTrackMessage,
 )
 from tracker_service.outputs.periodic import PeriodicPicture
-from tracker_service.service.config import AsterixUdpOutput, ServiceConfig, SystemConfig
+from tracker_service.outputs.sdps import Sdps, SdpsIdentity
 
 __all__ = [
     "AsterixUdpSink",
-    "asterix_udp_sinks",
+    "UdpDestination",
     "blocks_in_datagrams",
     "parse_destination",
-    "with_destinations",
 ]
 
 
@@ -54,29 +54,6 @@ def parse_destination(text: str) -> tuple[str, int]:
     if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
         raise ValueError(f"{text!r} is not HOST:PORT, e.g. 239.1.62.1:8600 or 127.0.0.1:8600")
     return host, int(port)
-
-
-def with_destinations(config: ServiceConfig, destinations: list[str]) -> ServiceConfig:
-    """The configuration with an ``[[asterix_udp]]`` on update per ``HOST:PORT`` of the
-    command line (``--asterix-udp``) added; ValueError naming a malformed one."""
-    added = []
-    for text in destinations:
-        host, port = parse_destination(text)
-        try:
-            added.append(AsterixUdpOutput(address=host, port=port))  # type: ignore[arg-type]
-        except ValueError as exc:
-            raise ValueError(f"--asterix-udp {text}: {_first_error(exc)}") from None
-    if not added:
-        return config
-    return config.model_copy(update={"asterix_udp": [*config.asterix_udp, *added]})
-
-
-def _first_error(exc: ValueError) -> str:
-    errors = getattr(exc, "errors", None)
-    if callable(errors):
-        first = errors()[0]
-        return f"{first['msg']} (got {first.get('input')!r})"
-    return str(exc)
 
 
 def blocks_in_datagrams(data: bytes, limit: int) -> Iterator[bytes]:
@@ -93,17 +70,49 @@ def blocks_in_datagrams(data: bytes, limit: int) -> Iterator[bytes]:
         yield data[start:pos]
 
 
+class UdpDestination(Protocol):
+    """One destination's settings (``service.config.AsterixUdpOutput`` is one)."""
+
+    @property
+    def address(self) -> IPv4Address: ...
+
+    @property
+    def port(self) -> int: ...
+
+    @property
+    def destination(self) -> str: ...
+
+    @property
+    def interface(self) -> IPv4Address | None: ...
+
+    @property
+    def ttl(self) -> int: ...
+
+    @property
+    def on_update(self) -> bool: ...
+
+    @property
+    def period_s(self) -> float | None: ...
+
+    @property
+    def status_period_s(self) -> float | None: ...
+
+    @property
+    def service_id(self) -> int | None: ...
+
+    @property
+    def max_datagram_octets(self) -> int: ...
+
+
 class AsterixUdpSink:
     """See the module docstring. ``plane`` is the system plane (for the extrapolation)."""
 
     resends_tracks = False
 
-    def __init__(self, output: AsterixUdpOutput, system: SystemConfig, plane: SystemPlane) -> None:
+    def __init__(self, output: UdpDestination, system: SdpsIdentity, plane: SystemPlane) -> None:
         self.name = f"asterix_udp {output.destination}"
         self.output = output
-        if output.service_id is not None:
-            system = system.model_copy(update={"service_id": output.service_id})
-        self.sdps = system
+        self.sdps = Sdps.of(system, output.service_id)
         """The SDPS identity of its records (I010, I015) and the plane of I100."""
         self.destination = (str(output.address), output.port)
         self.periodic = None if output.period_s is None else PeriodicPicture(plane, output.period_s)
@@ -216,8 +225,3 @@ class AsterixUdpSink:
         for payload in blocks_in_datagrams(data, self.output.max_datagram_octets):
             self._socket.sendto(payload, self.destination)
             self.sent_datagrams += 1
-
-
-def asterix_udp_sinks(config: ServiceConfig, plane: SystemPlane) -> list[AsterixUdpSink]:
-    """One sink per ``[[asterix_udp]]`` destination of the configuration."""
-    return [AsterixUdpSink(output, config.system, plane) for output in config.asterix_udp]

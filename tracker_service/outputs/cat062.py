@@ -35,7 +35,7 @@ from asterix.engine import build_fspec
 from tracker_service.geodesy.ellipsoid import meridian_radius_m, prime_vertical_radius_m
 from tracker_service.geodesy.plane import SystemPlane
 from tracker_service.outputs.messages import SystemTrackMessage
-from tracker_service.service.config import SystemConfig
+from tracker_service.outputs.sdps import SdpsIdentity
 
 __all__ = [
     "CAT062",
@@ -76,7 +76,7 @@ BoolArray = npt.NDArray[np.bool_]
 
 def encode_system_tracks(
     messages: Sequence[SystemTrackMessage],
-    config: SystemConfig,
+    config: SdpsIdentity,
     max_block_octets: int = MAX_BLOCK_OCTETS,
 ) -> bytes:
     """CAT062 data blocks of the messages, in order, each block at most
@@ -86,7 +86,7 @@ def encode_system_tracks(
 
 def encode_system_documents(
     docs: Sequence[Mapping[str, Any]],
-    config: SystemConfig,
+    config: SdpsIdentity,
     max_block_octets: int = MAX_BLOCK_OCTETS,
 ) -> bytes:
     """As :func:`encode_system_tracks`, of the messages' values (``model_dump()``'s
@@ -98,7 +98,7 @@ def encode_system_documents(
 
 def encode_system_tracks_generic(
     messages: Sequence[SystemTrackMessage],
-    config: SystemConfig,
+    config: SdpsIdentity,
     max_block_octets: int = MAX_BLOCK_OCTETS,
 ) -> bytes:
     """The same bytes as :func:`encode_system_tracks`, each record's item dicts through the
@@ -177,7 +177,7 @@ def _optional(values: Sequence[float | None]) -> FloatArray:
     return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
 
 
-def track_columns(docs: Sequence[Mapping[str, Any]], config: SystemConfig) -> TrackColumns:
+def track_columns(docs: Sequence[Mapping[str, Any]], config: SdpsIdentity) -> TrackColumns:
     """The CAT062 values of system-track messages given as their values
     (``model_dump()``'s shape: ``updates.SystemUpdate.doc``), over the whole batch at once."""
     lat = np.array([m["lat"] for m in docs], dtype=np.float64)
@@ -251,7 +251,7 @@ def _sac_sic(radar: str) -> tuple[int, int]:
 
 
 def system_track_records(
-    messages: Sequence[SystemTrackMessage], config: SystemConfig
+    messages: Sequence[SystemTrackMessage], config: SdpsIdentity
 ) -> list[dict[str, Any]]:
     """The CAT062 item dicts of the messages (decoded shape)."""
     if not messages:
@@ -264,7 +264,7 @@ def encode_cat065(
     kind: Cat065Kind,
     time: float,
     batch_number: int,
-    config: SystemConfig,
+    config: SdpsIdentity,
     *,
     degraded: bool = False,
     overload: bool = False,
@@ -296,7 +296,7 @@ def encode_cat065(
 
 
 @cache
-def _plane(config: SystemConfig) -> SystemPlane:
+def _plane(config: SdpsIdentity) -> SystemPlane:
     return SystemPlane(config.centre_lat, config.centre_lon, config.projection)
 
 
@@ -325,7 +325,7 @@ def _present(value: float) -> bool:
     return value == value  # not NaN
 
 
-def _record(c: TrackColumns, k: int, config: SystemConfig) -> dict[str, Any]:
+def _record(c: TrackColumns, k: int, config: SdpsIdentity) -> dict[str, Any]:
     items: dict[str, Any] = {
         "010": {"SAC": config.sac, "SIC": config.sic},
         "015": config.service_id,
@@ -555,7 +555,7 @@ def _status_bytes(flags: tuple[int, ...]) -> bytes:
 
 
 @cache
-def _source_bytes(config: SystemConfig) -> tuple[bytes, bytes]:
+def _source_bytes(config: SdpsIdentity) -> tuple[bytes, bytes]:
     return (
         _ITEM_ENCODERS["010"]({"SAC": config.sac, "SIC": config.sic}),
         _ITEM_ENCODERS["015"](config.service_id),
@@ -585,7 +585,7 @@ def _layouts(c: TrackColumns) -> npt.NDArray[np.int64]:
     return layout
 
 
-def _fast_records(c: TrackColumns, config: SystemConfig) -> list[bytes]:
+def _fast_records(c: TrackColumns, config: SdpsIdentity) -> list[bytes]:
     """The records of every row, byte for byte what ``encode_record`` makes of
     ``system_track_records``; a value beyond its item's range goes to the generic encoder,
     which raises ``EncodeError`` naming it, as before."""
@@ -604,7 +604,7 @@ def _fast_records(c: TrackColumns, config: SystemConfig) -> list[bytes]:
 
 
 def _layout_records(
-    c: TrackColumns, rows: IntArray, key: int, config: SystemConfig
+    c: TrackColumns, rows: IntArray, key: int, config: SdpsIdentity
 ) -> npt.NDArray[np.uint8]:
     """The records of ``rows``, which share the layout ``key``, one per matrix row."""
     n = len(rows)

@@ -43,8 +43,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from asterix.containers import Datagram
 from tracker_service.closing import Closing
+from tracker_service.mcap_format import json_schema, schema_name, start_mcap, time_ns
 from tracker_service.outputs.updates import LocationFix
-from tracker_service.simulator.recording import json_schema, schema_name, start_mcap, time_ns
 
 __all__ = [
     "LOCATION_FIX_SCHEMA",

@@ -16,8 +16,8 @@ from tracker_service.outputs.messages import (
     SystemTrackMessage,
 )
 from tracker_service.outputs.periodic import PeriodicPicture
+from tracker_service.outputs.sdps import SdpsIdentity
 from tracker_service.outputs.zenoh_out import ZenohPublisher
-from tracker_service.service.config import SystemConfig
 
 __all__ = ["ZenohPictureSink"]
 
@@ -32,7 +32,7 @@ class ZenohPictureSink:
         self,
         publisher: ZenohPublisher,
         plane: SystemPlane,
-        sdps: SystemConfig,
+        sdps: SdpsIdentity,
         period_s: float,
     ) -> None:
         self.publisher = publisher

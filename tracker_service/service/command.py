@@ -29,7 +29,6 @@ from tracker_service.chain import BatchOutput, RadarStageFailed, RadarStages
 from tracker_service.distribution import RemoteRadarStages
 from tracker_service.inputs.udp import InputCounters
 from tracker_service.log_level import configure
-from tracker_service.outputs.asterix_udp import with_destinations
 from tracker_service.outputs.foxglove_sink import FoxgloveListenError, check_listen
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.messages import StatusMessage
@@ -42,7 +41,12 @@ from tracker_service.outputs.zenoh_session import (
     zenoh_config,
 )
 from tracker_service.ratelimit import RateLimitedLog
-from tracker_service.service.config import ConfigError, ServiceConfig, load_service_config
+from tracker_service.service.config import (
+    ConfigError,
+    ServiceConfig,
+    load_service_config,
+    with_destinations,
+)
 from tracker_service.service.core import CoreState, Outputs, TrackerService
 from tracker_service.service.health import (
     DEFAULT_BEHIND_S,

@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from tracker_service.fixed_targets import FixedTargetConfig
 from tracker_service.geodesy.plane import PlaneKind
+from tracker_service.outputs.asterix_udp import parse_destination
 from tracker_service.simulator.scenario import FieldMonitor
 from tracker_service.tracking import TrackerConfig
 from tracker_service.validation import dataclass_kwargs, describe_errors
@@ -387,3 +388,26 @@ def parse_service_config(data: dict[str, Any], origin: str = "configuration") ->
         return ServiceConfig.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(f"{origin}: {describe_errors(exc, ServiceConfig)}") from None
+
+
+def with_destinations(config: ServiceConfig, destinations: list[str]) -> ServiceConfig:
+    """The configuration with an ``[[asterix_udp]]`` on update per ``HOST:PORT`` of the
+    command line (``--asterix-udp``) added; ValueError naming a malformed one."""
+    added = []
+    for text in destinations:
+        host, port = parse_destination(text)
+        try:
+            added.append(AsterixUdpOutput(address=host, port=port))  # type: ignore[arg-type]
+        except ValueError as exc:
+            raise ValueError(f"--asterix-udp {text}: {_first_error(exc)}") from None
+    if not added:
+        return config
+    return config.model_copy(update={"asterix_udp": [*config.asterix_udp, *added]})
+
+
+def _first_error(exc: ValueError) -> str:
+    errors = getattr(exc, "errors", None)
+    if callable(errors):
+        first = errors()[0]
+        return f"{first['msg']} (got {first.get('input')!r})"
+    return str(exc)

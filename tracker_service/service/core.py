@@ -47,7 +47,7 @@ from tracker_service.fixed_targets import FixedTransponder
 from tracker_service.fusion import FusionConfig
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
-from tracker_service.outputs.asterix_udp import asterix_udp_sinks
+from tracker_service.outputs.asterix_udp import AsterixUdpSink
 from tracker_service.outputs.cat062 import encode_cat065, encode_system_documents
 from tracker_service.outputs.foxglove_scene import MapRadar
 from tracker_service.outputs.foxglove_sink import live_sink, with_map_channels
@@ -373,7 +373,7 @@ class Outputs:
                 adapters.append(picture)
         if log_file is not None:
             adapters.append(logged_with_map(config, McapSink(log_file), log_file))
-        adapters.extend(asterix_udp_sinks(config, self.plane))
+        adapters.extend(AsterixUdpSink(o, config.system, self.plane) for o in config.asterix_udp)
         adapters.extend(live_map(config))
         self.sinks = [QueuedSink(IsolatedSink(sink, backoff)) for sink in adapters]
         self.timings = timings or ServiceTimings()

@@ -17,7 +17,6 @@ from __future__ import annotations
 import io
 import ipaddress
 import json
-import math
 import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -28,12 +27,19 @@ from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, IndexType, Writer
 from pydantic import BaseModel, ConfigDict, Field
 from pydantic_core import to_jsonable_python
 
 from asterix.containers import ContainerError, Datagram, detect_format, write_pcap
 from tracker_service.closing import Closing
+from tracker_service.mcap_format import (
+    MCAP_LIBRARY,
+    NS_PER_S,
+    json_schema,
+    schema_name,
+    start_mcap,
+    time_ns,
+)
 
 __all__ = [
     "FORMAT_NAME",
@@ -61,11 +67,7 @@ __all__ = [
 FORMAT_NAME = "tracker-service simulation"
 FORMAT_VERSION = "1"
 
-# The MCAP header's library string. Fixed rather than mcap-python's default (which holds
-# its version) so that upgrading mcap alone does not change the bytes of a recording.
-MCAP_LIBRARY = f"tracker-service recording {FORMAT_VERSION}"
 _CHUNK_SIZE = 1024 * 1024
-_JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 
 SUFFIXES: tuple[str, ...] = (".mcap", ".pcap", ".raw", ".ast", ".hex")
 
@@ -75,8 +77,6 @@ TRUTH_BIASES = "/truth/biases"
 TRUTH_COVERAGE = "/truth/coverage"
 _ASTERIX_PREFIX = "/asterix/"
 
-_NS_PER_S = 1_000_000_000
-_MAX_LOG_TIME = 2**64 - 1
 _MAX_SEQUENCE = 2**32  # MCAP message sequence numbers are uint32
 _MAX_UDP_PAYLOAD = 65535 - 20 - 8
 
@@ -274,18 +274,6 @@ _TRUTH_CHANNELS: tuple[tuple[str, type[BaseModel]], ...] = (
 )
 
 
-def schema_name(model: type[BaseModel]) -> str:
-    """The name of the model's MCAP schema record."""
-    return f"tracker_service.{model.__name__}"
-
-
-def json_schema(model: type[BaseModel]) -> dict[str, Any]:
-    """The JSON Schema (draft 2020-12) of a message model, as stored in the MCAP schema."""
-    # Serialization mode: the schema describes the JSON in the file, where every field
-    # (psr_only included) is always written.
-    return {"$schema": _JSON_SCHEMA_DIALECT, **model.model_json_schema(mode="serialization")}
-
-
 def asterix_topic(source: str) -> str:
     """The channel of a source's datagrams: "25/11" -> "/asterix/25_11"."""
     _check_source(source)
@@ -301,40 +289,6 @@ def asterix_topic(source: str) -> str:
 def _check_source(source: str) -> None:
     if not isinstance(source, str) or _SOURCE_RE.fullmatch(source) is None:
         raise ValueError(f"source {source!r} must be SAC/SIC in decimal, e.g. '25/11'")
-
-
-def start_mcap(stream: IO[bytes], chunk_size: int) -> Writer:
-    """An MCAP writer on ``stream``, started: zstd chunks, every index, statistics, CRCs.
-    Every option spelled out: the defaults of a later mcap release must not change the
-    bytes. zstd is applied at mcap-python's fixed level (zstandard's default, 3)."""
-    writer = Writer(
-        stream,
-        chunk_size=chunk_size,
-        compression=CompressionType.ZSTD,
-        index_types=IndexType.ALL,
-        repeat_channels=True,
-        repeat_schemas=True,
-        use_chunking=True,
-        use_statistics=True,
-        use_summary_offsets=True,
-        enable_crcs=True,
-        enable_data_crcs=True,
-    )
-    writer.start(profile="", library=MCAP_LIBRARY)
-    return writer
-
-
-def time_ns(time: float) -> int:
-    """POSIX seconds to integer nanoseconds, exact to the float's own resolution."""
-    if not math.isfinite(time) or time < 0:
-        raise ValueError(f"time {time!r} must be finite POSIX seconds >= 0")
-    # time * 1e9 in floating point would lose up to 128 ns at today's epoch times; the
-    # fractional part of a float is exact, so split it off first.
-    whole = math.floor(time)
-    ns = whole * _NS_PER_S + round((time - whole) * _NS_PER_S)
-    if ns > _MAX_LOG_TIME:
-        raise ValueError(f"time {time!r} is past what MCAP log times can hold")
-    return ns
 
 
 def _endpoint_text(endpoint: tuple[str, int], role: str) -> str:
@@ -710,7 +664,7 @@ class Recording:
             yield RecordedDatagram(
                 source=doc["source"],
                 # int / int is correctly rounded, so the writer's float comes back exactly.
-                time=log_time / _NS_PER_S,
+                time=log_time / NS_PER_S,
                 lan=doc["lan"],
                 src=_parse_endpoint(doc["src"]),
                 dst=_parse_endpoint(doc["dst"]),
@@ -833,7 +787,7 @@ def stream_datagrams(path: str | Path) -> Iterator[Datagram | ContainerError]:
                 payload = bytes.fromhex(doc["payload"])
                 # A log's reception time is its "time" exactly; a recording's is the log
                 # time (int / int is correctly rounded).
-                received = float(doc["time"]) if "time" in doc else record.log_time / _NS_PER_S
+                received = float(doc["time"]) if "time" in doc else record.log_time / NS_PER_S
                 datagram = Datagram(
                     payload,
                     number,
