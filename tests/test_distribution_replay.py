@@ -122,7 +122,9 @@ def test_a_worker_killed_stops_the_replay_with_a_clear_error(
         "--zenoh-listen",
         endpoint(),
     ]
-    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    # A session of its own: a replay that fails to stop is killed with its workers, so
+    # that no orphan slows the tests after this one.
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, start_new_session=True)
     stderr: list[str] = []
     reader = threading.Thread(target=lambda: stderr.extend(process.stderr or []), daemon=True)
     reader.start()
@@ -137,7 +139,7 @@ def test_a_worker_killed_stops_the_replay_with_a_clear_error(
     try:
         code = process.wait(timeout=60)
     except subprocess.TimeoutExpired:
-        process.kill()
+        os.killpg(process.pid, signal.SIGKILL)
         raise AssertionError(f"the replay did not stop: {''.join(stderr)}") from None
     assert code == 1
     reader.join(timeout=5)

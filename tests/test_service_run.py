@@ -34,7 +34,7 @@ from tracker_service.cli import main
 from tracker_service.simulator.recording import read_recording
 
 SPEED = 4.0
-STARTUP_S = 30.0
+STARTUP_S = 60.0  # a daemon and its output process, on a machine busy with other tests
 MALFORMED = b"\x30\x00\x02garbage"
 
 

@@ -25,8 +25,10 @@ import contextlib
 import json
 import logging
 import multiprocessing
+import os
 import queue
 import socket
+import threading
 import time
 import zlib
 from collections.abc import Sequence
@@ -119,8 +121,18 @@ def _wait_ready(session: zenoh.Session, prefix: str) -> None:
     raise WorkerFailed(f"no answer from the main process on {ready_key(prefix)}")
 
 
-def _run_worker(args: _WorkerArgs, done: Event) -> None:
+def _exit_when_orphaned(parent: int) -> None:
+    """A worker whose main process died (killed, say) ends too: nobody reads its results,
+    and an orphan would hold its core and its session for good."""
+    while True:
+        time.sleep(1.0)
+        if os.getppid() != parent:
+            os._exit(1)
+
+
+def _run_worker(args: _WorkerArgs, done: Event, parent: int) -> None:
     """A worker process: its radars' stage over the input, each result published."""
+    threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True).start()
     logging.basicConfig(level=logging.WARNING)
     config = parse_service_config(json.loads(args.config_json), "replay worker")
     source = open_replay(args.recording, config, args.day_posix)
@@ -214,6 +226,7 @@ class RemoteRadarStages:
                         prefix,
                     ),
                     self._done,
+                    os.getpid(),
                 ),
                 name=f"tracker-radar-worker-{k}",
             )
