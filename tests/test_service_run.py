@@ -114,7 +114,10 @@ class DaemonProcess:
         self._ready = threading.Event()
         threading.Thread(target=self._drain, daemon=True).start()
         if not self._ready.wait(STARTUP_S):
-            # Not left running behind the failed test (with its sockets and output process).
+            # Its stacks first (tracker_service.cli registers SIGUSR1), to say where it hangs;
+            # then not left running behind the failed test (sockets, output process).
+            self.process.send_signal(signal.SIGUSR1)
+            time.sleep(2.0)
             self.process.terminate()
             self.process.wait(timeout=30)
             raise AssertionError("\n".join(self.lines) or f"not ready within {STARTUP_S} s")

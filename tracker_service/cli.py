@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import faulthandler
 import importlib.metadata
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -207,6 +209,9 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # `kill -USR1 PID` prints every thread's stack to stderr: what a stuck process is
+    # doing, without stopping it.
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     args = build_parser().parse_args(argv)
     if args.log_level is not None:
         configure(args.log_level)
