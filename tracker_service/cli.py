@@ -209,9 +209,9 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    # `kill -USR1 PID` prints every thread's stack to stderr: what a stuck process is
-    # doing, without stopping it.
-    faulthandler.register(signal.SIGUSR1, all_threads=True)
+    # `kill -USR1 PID` prints every thread's stack on stderr (file descriptor 2, whatever
+    # sys.stderr is): what a stuck process is doing, without stopping it.
+    faulthandler.register(signal.SIGUSR1, file=2, all_threads=True)
     args = build_parser().parse_args(argv)
     if args.log_level is not None:
         configure(args.log_level)
