@@ -139,7 +139,10 @@ def test_a_worker_killed_stops_the_replay_with_a_clear_error(
     try:
         code = process.wait(timeout=60)
     except subprocess.TimeoutExpired:
+        process.send_signal(signal.SIGUSR1)  # its stacks into stderr (tracker_service.cli)
+        time.sleep(2.0)
         os.killpg(process.pid, signal.SIGKILL)
+        reader.join(timeout=5)
         raise AssertionError(f"the replay did not stop: {''.join(stderr)}") from None
     assert code == 1
     reader.join(timeout=5)

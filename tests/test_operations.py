@@ -20,6 +20,7 @@ import pytest
 
 from tests.test_service_replay import free_port, simulate
 from tracker_service.cli import main
+from tracker_service.log_level import LOG_LEVEL_VARIABLE
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_session import zenoh_config
 from tracker_service.service.config import load_service_config
@@ -154,7 +155,13 @@ def test_subscribe_says_when_it_is_not_connected() -> None:
         proc.wait(timeout=30)
 
 
-def test_version_and_log_level(capsys: pytest.CaptureFixture[str]) -> None:
+def test_version_and_log_level(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # `--log-level` reaches child processes through the environment: the variable is
+    # restored after the test, or every daemon this worker starts later logs at WARNING
+    # and never says it is running.
+    monkeypatch.delenv(LOG_LEVEL_VARIABLE, raising=False)
     with pytest.raises(SystemExit) as done:
         main(["--version"])
     assert done.value.code == 0
@@ -163,6 +170,7 @@ def test_version_and_log_level(capsys: pytest.CaptureFixture[str]) -> None:
         main(["--log-level", "chatty", "health", "--file", "x"])
     assert "invalid choice: 'CHATTY'" in capsys.readouterr().err
     assert main(["--log-level", "warning", "health", "--file", "/nonexistent"]) == 1
+    assert os.environ[LOG_LEVEL_VARIABLE] == "WARNING"
 
 
 def test_init_writes_the_example_configuration_and_scenarios(
