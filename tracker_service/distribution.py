@@ -270,7 +270,14 @@ class RemoteRadarStages:
 
     def close(self) -> None:
         """Ends the workers (they wait for this once their input is read) and the session."""
-        self._done.set()
+        # A worker killed while it waited on the event may hold the event's lock for good
+        # (set() would then block): with one dead, the others are ended instead.
+        if all(process.is_alive() or process.exitcode == 0 for process in self._processes):
+            self._done.set()
+        else:
+            for process in self._processes:
+                if process.is_alive():
+                    process.terminate()
         for process in self._processes:
             process.join(timeout=5.0)
             if process.is_alive():
