@@ -272,7 +272,10 @@ class RemoteRadarStages:
         """Ends the workers (they wait for this once their input is read) and the session."""
         # A worker killed while it waited on the event may hold the event's lock for good
         # (set() would then block): with one dead, the others are ended instead.
-        if all(process.is_alive() or process.exitcode == 0 for process in self._processes):
+        dead = [
+            (k, p.exitcode) for k, p in enumerate(self._processes) if p.exitcode not in (None, 0)
+        ]
+        if not dead:
             self._done.set()
         else:
             for process in self._processes:
@@ -287,6 +290,11 @@ class RemoteRadarStages:
             self._queryable.undeclare()  # type: ignore[no-untyped-call]
             self._subscriber.undeclare()  # type: ignore[no-untyped-call]
             self._session.close()  # type: ignore[no-untyped-call]
+        if dead:
+            # Its results may all have arrived, but a replay that lost a worker is no
+            # replay to trust: said, as when the loss is seen earlier.
+            worker, code = dead[0]
+            raise WorkerFailed(f"radar worker {worker} exited with code {code}")
 
     def __enter__(self) -> Self:
         return self
