@@ -199,11 +199,16 @@ def test_geoid_propagates_nan() -> None:
 # --- Atmosphere ---------------------------------------------------------------------------
 
 
-def test_standard_atmosphere_is_the_plain_conversion() -> None:
+def test_standard_atmosphere_is_the_geopotential_conversion() -> None:
+    # In ISA a pressure altitude is the geopotential height, r h / (r + h).
+    r = 6356766.0
     h = np.array([-300.0, 0.0, 1000.0, 9144.0, 11000.0, 15000.0, 20000.0])
-    assert np.allclose(pressure_altitude_ft(h), h / FT_M, rtol=0, atol=1e-6)
+    assert np.allclose(pressure_altitude_ft(h), r * h / (r + h) / FT_M, rtol=0, atol=1e-6)
     ft = np.array([-1000.0, 0.0, 30000.0, 36089.0, 45000.0, 65000.0])
-    assert np.allclose(geometric_height_m(ft), ft * FT_M, rtol=0, atol=1e-6)
+    hp = ft * FT_M
+    assert np.allclose(geometric_height_m(ft), r * hp / (r - hp), rtol=0, atol=1e-6)
+    # FL350 is 17.9 m above 35,000 ft geometric.
+    assert float(geometric_height_m(35000.0)) - 10668.0 == pytest.approx(17.9, abs=0.1)
 
 
 def test_pressure_follows_the_icao_table() -> None:
@@ -223,11 +228,14 @@ def test_low_qnh_raises_pressure_altitude_at_sea_level() -> None:
 
 def test_warm_air_puts_a_flight_level_higher() -> None:
     true_ft = float(geometric_height_m(30000.0, 1013.25, 15.0)) / FT_M
-    # ISA + 15 K: T/T_ISA = 303.15 / 288.15, 5.2 %, about 1,560 ft at FL300.
-    assert 1450.0 < true_ft - 30000.0 < 1650.0
-    assert true_ft / 30000.0 == pytest.approx(303.15 / 288.15, rel=1e-9)
+    # ISA + 15 K: T/T_ISA = 303.15 / 288.15, 5.2 %, about 1,560 ft at FL300, in
+    # geopotential height (the geometric one is 0.15 % more again).
+    assert 1450.0 < true_ft - 30000.0 < 1750.0
+    r_ft = 6356766.0 / FT_M
+    geopotential_ft = r_ft * true_ft / (r_ft + true_ft)
+    assert geopotential_ft / 30000.0 == pytest.approx(303.15 / 288.15, rel=1e-9)
     cold_ft = float(geometric_height_m(30000.0, 1013.25, -15.0)) / FT_M
-    assert -1650.0 < cold_ft - 30000.0 < -1450.0
+    assert -1650.0 < cold_ft - 30000.0 < -1350.0
     assert float(pressure_altitude_ft(true_ft * FT_M, 1013.25, 15.0)) == pytest.approx(30000.0)
 
 

@@ -27,7 +27,7 @@ from tracker_service.bias import BiasConfig, BiasEstimator, ObservedFrom
 from tracker_service.central_stage import BatchOutput, CentralStage
 from tracker_service.fixed_targets import FixedTargetConfig
 from tracker_service.fusion import FusionConfig, SystemTracker
-from tracker_service.geodesy import RadarSite, SystemPlane
+from tracker_service.geodesy import Atmosphere, RadarSite, SystemPlane
 from tracker_service.radar_stage import (
     CAT001,
     CAT002,
@@ -78,6 +78,7 @@ __all__ = [
     "blocks_of",
     "convert_batch",
     "radar_infos",
+    "recording_atmosphere",
     "rejections",
     "source_order",
     "system_plane",
@@ -121,7 +122,8 @@ class Chain:
     fuser's configuration (None: local tracks only); ``make_tracker(source, config)``
     builds each radar's tracker (a benchmark passes one that times it);
     ``max_unknown_sources``: radars not in ``radars`` tracked at most (``sources``);
-    ``radar_stage``: the radar side when it is not a ``RadarStage`` of this process."""
+    ``radar_stage``: the radar side when it is not a ``RadarStage`` of this process;
+    ``atmosphere``: QNH and ISA deviation of the Mode C conversion (ISA when None)."""
 
     def __init__(
         self,
@@ -135,6 +137,7 @@ class Chain:
         fixed_targets: FixedTargetConfig | None = None,
         max_unknown_sources: int = DEFAULT_MAX_UNKNOWN,
         radar_stage: RadarStages | None = None,
+        atmosphere: Atmosphere | None = None,
     ) -> None:
         self.infos = dict(radars)
         self.plane = plane
@@ -147,6 +150,7 @@ class Chain:
             time_sanity,
             self.fixed_targets,
             max_unknown_sources,
+            atmosphere=atmosphere,
         )
         self.central = CentralStage(radars, plane, fusion, bias, time_sanity)
         self.sources = self.central.sources
@@ -275,3 +279,15 @@ def system_plane(metadata: Mapping[str, Any], infos: Mapping[str, RadarInfo]) ->
     lat = float(np.mean([i.site.lat_deg for i in infos.values()]))
     lon = float(np.mean([i.site.lon_deg for i in infos.values()]))
     return SystemPlane(lat, lon)
+
+
+def recording_atmosphere(metadata: Mapping[str, Any]) -> Atmosphere:
+    """The scenario's atmosphere (QNH, temperature offset from ISA): the met report an
+    operator would configure for the Mode C conversion; ISA when it gives none."""
+    atmosphere = dict(metadata.get("scenario", {})).get("atmosphere")
+    if not isinstance(atmosphere, dict):
+        return Atmosphere()
+    return Atmosphere(
+        qnh_hpa=float(atmosphere.get("qnh_hpa", 1013.25)),
+        isa_deviation_k=float(atmosphere.get("temperature_offset_k", 0.0)),
+    )

@@ -35,7 +35,13 @@ import numpy.typing as npt
 from asterix.codec import Block, decode_blocks
 from asterix.plots import extract_plots
 from tracker_service.fixed_targets import FixedTargetConfig, FixedTargets, FixedTransponder
-from tracker_service.geodesy import HeightModel, RadarSite, SystemPlane, convert_plots
+from tracker_service.geodesy import (
+    Atmosphere,
+    HeightModel,
+    RadarSite,
+    SystemPlane,
+    convert_plots,
+)
 from tracker_service.ingest import PlotClock
 from tracker_service.sources import DEFAULT_MAX_UNKNOWN, SourceAdmission
 from tracker_service.stage_messages import RadarBatch
@@ -334,7 +340,7 @@ class RadarStage:
     numbers them); ``tracker``: ``TrackerConfig`` fields for every radar
     (``scan_period_s`` comes from each radar's period unless given); ``make_tracker``
     builds each radar's tracker; ``incarnation`` marks the batches of this start of the
-    stage."""
+    stage; ``atmosphere``: what turns Mode C into geometric heights (ISA when None)."""
 
     def __init__(
         self,
@@ -346,6 +352,7 @@ class RadarStage:
         fixed_targets: FixedTargetConfig | None = None,
         max_unknown_sources: int = DEFAULT_MAX_UNKNOWN,
         incarnation: int = 0,
+        atmosphere: Atmosphere | None = None,
     ) -> None:
         self.infos = dict(radars)
         self.plane = plane
@@ -363,7 +370,7 @@ class RadarStage:
             {source: info.time_base for source, info in self.infos.items()},
             {source: info.period_s for source, info in self.infos.items()},
         )
-        self._heights = HeightModel()
+        self._heights = HeightModel(atmosphere=atmosphere or Atmosphere())
         self.next_plot_id = 0
         """The stage's plots numbered in its order: in one process the system's numbers;
         the central stage renumbers those of stages in other processes."""

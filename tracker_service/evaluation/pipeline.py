@@ -32,11 +32,12 @@ from tracker_service.chain import (
     Chain,
     RadarInfo,
     radar_infos,
+    recording_atmosphere,
     source_order,
     system_plane,
 )
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig
-from tracker_service.geodesy import SystemPlane
+from tracker_service.geodesy import Atmosphere, SystemPlane
 from tracker_service.simulator.recording import Recording, read_recording
 from tracker_service.tracking import LocalTracker, TrackerConfig
 from tracker_service.validation import dataclass_kwargs
@@ -82,7 +83,10 @@ class EvaluationConfig:
     geoid_m, north_offset_deg, period_s, sigma_*). ``tracker``: ``TrackerConfig`` fields
     for every radar (``scan_period_s`` is taken from each radar's period unless given).
     ``association_gate_m``: how far the nearest aircraft may be for a track update whose
-    plot has no aircraft origin to be counted as that aircraft's.
+    plot has no aircraft origin to be counted as that aircraft's. ``atmosphere``: QNH and
+    ISA deviation of the Mode C conversion (the ``[atmosphere]`` table); None takes the
+    recording's own (its scenario's ``atmosphere``: the met report an operator would
+    configure, as the sites are what they would survey); ``Atmosphere()`` is ISA.
     """
 
     geoid_m: float = 0.0
@@ -92,13 +96,14 @@ class EvaluationConfig:
     min_identity_updates: int = 2
     fusion: FusionConfig = field(default_factory=FusionConfig)
     bias: BiasConfig = field(default_factory=BiasConfig)
+    atmosphere: Atmosphere | None = None
 
     @classmethod
     def from_mapping(cls, doc: Mapping[str, Any]) -> EvaluationConfig:
         """From a parsed TOML document: ``[evaluation]`` (geoid_m, association_gate_m,
         min_identity_updates), ``[tracker]``, ``[fusion]``, ``[bias]`` and ``[radars."25/11"]``
         tables."""
-        known = {"evaluation", "tracker", "fusion", "bias", "radars"}
+        known = {"evaluation", "tracker", "fusion", "bias", "radars", "atmosphere"}
         unknown = set(doc) - known
         if unknown:
             raise ValueError(f"unknown configuration tables {sorted(unknown)}; known: {known}")
@@ -110,7 +115,17 @@ class EvaluationConfig:
         fusion = FusionConfig(**dataclass_kwargs("fusion", doc.get("fusion", {}), FusionConfig))
         bias = BiasConfig(**dataclass_kwargs("bias", doc.get("bias", {}), BiasConfig))
         radars = {str(k): dict(v) for k, v in dict(doc.get("radars", {})).items()}
-        return cls(radars=radars, tracker=tracker, fusion=fusion, bias=bias, **evaluation)
+        atmosphere = None
+        if "atmosphere" in doc:
+            atmosphere = Atmosphere(**dataclass_kwargs("atmosphere", doc["atmosphere"], Atmosphere))
+        return cls(
+            radars=radars,
+            tracker=tracker,
+            fusion=fusion,
+            bias=bias,
+            atmosphere=atmosphere,
+            **evaluation,
+        )
 
 
 @dataclass
@@ -160,7 +175,16 @@ def run_pipeline(
     infos = radar_infos(recording.metadata, config.radars, config.geoid_m)
     plane = system_plane(recording.metadata, infos)
     truth_plots = _truth_plot_index(recording)
-    chain = Chain(infos, plane, config.tracker, make_tracker, config.fusion, config.bias)
+    atmosphere = config.atmosphere or recording_atmosphere(recording.metadata)
+    chain = Chain(
+        infos,
+        plane,
+        config.tracker,
+        make_tracker,
+        config.fusion,
+        config.bias,
+        atmosphere=atmosphere,
+    )
     system: list[npt.NDArray[Any]] = []
     sequences: dict[str, int] = defaultdict(int)
     updates: dict[str, list[npt.NDArray[Any]]] = defaultdict(list)

@@ -12,6 +12,7 @@ here imports it, so an error common to both cannot cancel in tests against simul
 truth.
 """
 
+from tracker_service.geodesy.atmosphere import Atmosphere
 from tracker_service.geodesy.convert import ConvertedPlots, convert_plots
 from tracker_service.geodesy.ellipsoid import (
     E2,
@@ -42,6 +43,7 @@ from tracker_service.geodesy.sites import RadarSite
 __all__ = [
     "E2",
     "A",
+    "Atmosphere",
     "ConvertedPlots",
     "CovarianceFrame",
     "CrossRange",

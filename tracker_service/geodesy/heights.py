@@ -4,9 +4,9 @@ Mode C is missing.
 Mode C reports pressure altitude: the height at which the standard atmosphere (ISA,
 ISO 2533) has the pressure the aircraft measures, referenced to 1013.25 hPa. It equals the
 height above mean sea level only in a standard atmosphere with a standard sea-level
-pressure. Correcting with the local QNH and temperature (from a met feed, or estimated
-against ADS-B geometric altitude) is a later refinement; until then the difference is
-part of the height sigma below.
+pressure. ``HeightModel`` converts it with the configured ``Atmosphere`` (QNH and ISA
+deviation, ``geodesy.atmosphere``); what that leaves unknown (a QNH a few hPa off, a
+temperature that is not the same everywhere) is part of the height sigma below.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.geodesy.atmosphere import STANDARD, Atmosphere
 from tracker_service.geodesy.ellipsoid import FloatArray, as_float
 
 FEET = 0.3048
@@ -43,9 +44,10 @@ def flight_level_to_height_m(flight_level: npt.ArrayLike, *, geometric: bool = T
 class HeightModel:
     """Height and height sigma of each plot, from Mode C or, without it, a stand-in.
 
-    - With Mode C: sigma = sqrt(mode_c_sigma_m^2 + (mode_c_relative_sigma H)^2). The
-      constant term covers the unknown QNH (about 8 m per hPa near the ground) and the
-      100 ft Gillham steps; the relative one the non-standard temperature (10 K off ISA
+    - With Mode C: the geometric height of its pressure altitude in ``atmosphere``, with
+      sigma = sqrt(mode_c_sigma_m^2 + (mode_c_relative_sigma H)^2). The constant term
+      covers an error of the configured QNH (about 8 m per hPa near the ground) and the
+      100 ft Gillham steps; the relative one a temperature off the configured one (10 K
       is 3.5 % of the height).
     - Without Mode C (missing, or invalid and garbled plots that the caller masked out as
       NaN): the track's last known height when the caller has one, with
@@ -60,6 +62,7 @@ class HeightModel:
     last_level_sigma_m: float = 300.0
     mode_c_sigma_m: float = 100.0
     mode_c_relative_sigma: float = 0.03
+    atmosphere: Atmosphere = STANDARD
 
     def heights(
         self,
@@ -72,7 +75,7 @@ class HeightModel:
         to (NaN where there is none).
         """
         fl = as_float(flight_level)
-        mode_c = flight_level_to_height_m(fl)
+        mode_c = self.atmosphere.flight_level_height_m(fl)
         mode_c_sigma = np.hypot(self.mode_c_sigma_m, self.mode_c_relative_sigma * mode_c)
         fallback = np.full_like(fl, self.assumed_height_m)
         fallback_sigma = np.full_like(fl, self.assumed_sigma_m)

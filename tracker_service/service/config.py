@@ -3,7 +3,8 @@
 Sections: ``[[radars]]`` (sites, accuracy, UDP inputs), ``[[adsb]]`` (ADS-B feeds),
 ``[system]`` (the system plane and the tracker's own SAC/SIC), ``[tracker]`` (fields of
 ``tracking.TrackerConfig``), ``[fusion]``, ``[bias]`` and ``[time_sanity]`` (free tables),
-``[fixed_targets]`` (fields of ``fixed_targets.FixedTargetConfig``), ``[zenoh]``,
+``[fixed_targets]`` (fields of ``fixed_targets.FixedTargetConfig``), ``[atmosphere]``
+(``geodesy.Atmosphere``: qnh_hpa, isa_deviation_k), ``[zenoh]``,
 ``[mcap]`` and ``[[asterix_udp]]``. Units are in the names, as in the scenario files.
 """
 
@@ -18,6 +19,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from tracker_service.fixed_targets import FixedTargetConfig
+from tracker_service.geodesy import Atmosphere
 from tracker_service.geodesy.plane import PlaneKind
 from tracker_service.outputs.asterix_udp import parse_destination
 from tracker_service.simulator.scenario import FieldMonitor
@@ -298,6 +300,9 @@ class ServiceConfig(_Strict):
     time_sanity: dict[str, Any] = {}
     """Fields of ``time_sanity.TimeSanityConfig`` (tolerances of the plots' times)."""
     fixed_targets: dict[str, Any] = {}
+    atmosphere: dict[str, Any] = {}
+    """QNH and ISA deviation of the Mode C conversion (``geodesy.Atmosphere``: qnh_hpa,
+    isa_deviation_k); ISA when empty."""
     zenoh: ZenohConfig = ZenohConfig()
     mcap: McapConfig = McapConfig()
     asterix_udp: list[AsterixUdpOutput] = []
@@ -320,6 +325,16 @@ class ServiceConfig(_Strict):
         # Its checks raise ValueError naming the setting; pydantic adds the table's name.
         FixedTargetConfig(**dataclass_kwargs("fixed_targets", table, FixedTargetConfig))
         return table
+
+    @field_validator("atmosphere")
+    @classmethod
+    def _atmosphere(cls, table: dict[str, Any]) -> dict[str, Any]:
+        Atmosphere(**dataclass_kwargs("atmosphere", table, Atmosphere))
+        return table
+
+    def atmosphere_config(self) -> Atmosphere:
+        """What turns Mode C into geometric heights: the ``[atmosphere]`` table."""
+        return Atmosphere(**dataclass_kwargs("atmosphere", self.atmosphere, Atmosphere))
 
     def fixed_target_config(self) -> FixedTargetConfig:
         """How the chain detects stationary transponders: the ``[fixed_targets]`` table."""

@@ -40,6 +40,7 @@ from tracker_service.chain import (
     RadarInfo,
     RadarStageFailed,
     RadarStages,
+    recording_atmosphere,
     rejections,
     source_order,
 )
@@ -201,6 +202,7 @@ def _chain_arguments(config: ServiceConfig) -> dict[str, Any]:
         ),
         "fixed_targets": config.fixed_target_config(),
         "max_unknown_sources": config.system.max_unknown_sources,
+        "atmosphere": config.atmosphere_config(),
     }
 
 
@@ -235,6 +237,7 @@ def build_radar_stage(config: ServiceConfig, incarnation: int = 0) -> RadarStage
         arguments["fixed_targets"],
         arguments["max_unknown_sources"],
         incarnation,
+        arguments["atmosphere"],
     )
 
 
@@ -272,7 +275,12 @@ def config_from_recording(metadata: Mapping[str, Any]) -> ServiceConfig:
             "lat": float(np.mean([r["lat"] for r in radars])),
             "lon": float(np.mean([r["lon"] for r in radars])),
         }
+    atmosphere = recording_atmosphere(metadata)
     doc = {
+        "atmosphere": {
+            "qnh_hpa": atmosphere.qnh_hpa,
+            "isa_deviation_k": atmosphere.isa_deviation_k,
+        },
         "radars": [{k: r[k] for k in keep if r.get(k) is not None} for r in radars],
         "adsb": adsb,
         "system": {

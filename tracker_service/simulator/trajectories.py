@@ -2,11 +2,14 @@
 
 Conventions (the radar and ADS-B models rely on them):
 
-* Heights. A flight level is pressure altitude, but the truth is geometric: an aircraft
-  at FL f flies at ``h_msl = f * 100 ft * 0.3048`` above mean sea level, the height of
-  FL f in the standard atmosphere. The radar model converts back to pressure altitude
-  with the scenario's (possibly non-standard) atmosphere, so Mode C then differs from the
-  flight plan exactly as it does in reality. Simple and consistent.
+* Heights. Aircraft fly on pressure levels, as their altimeters make them: a flight
+  plan's levels and climb rates are pressure altitude (FL f is f * 100 ft of it, a
+  climb's ``climb_fpm`` its rate, what the vertical speed indicator shows), integrated as
+  such, and the truth is the geometric height of that pressure altitude above MSL in the
+  scenario's atmosphere (``geometry.geometric_height_m``: QNH and temperature offset), its
+  vertical speed scaled by the same conversion. So Mode C reports the flight plan's level
+  in any atmosphere, and the geometric height differs from it as it does in reality (ISA
+  - 15 K puts FL350 about 600 m lower).
 * Speeds. There is no wind: speed = ground speed = true airspeed, and the heading is the
   track angle over ground (clockwise from true north). Speeds are the aircraft's speed at
   its own height: the step along the ellipsoid surface is shortened by R / (R + h), R the
@@ -42,7 +45,8 @@ import numpy as np
 import numpy.typing as npt
 from pyproj import Geod
 
-from tracker_service.simulator.scenario import Aircraft, Area, Scenario, Traffic
+from tracker_service.simulator.geometry import geometric_height_m
+from tracker_service.simulator.scenario import Aircraft, Area, Atmosphere, Scenario, Traffic
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -614,8 +618,9 @@ def _callsigns(rng: np.random.Generator, n: int, used: set[str]) -> list[str]:
 class _Integrator:
     """All aircraft flown together, step by step, each from its own current time."""
 
-    def __init__(self, start: _Start, segments: _Segments) -> None:
+    def __init__(self, start: _Start, segments: _Segments, atmosphere: Atmosphere) -> None:
         self.seg = segments
+        self.atmosphere = atmosphere
         self.t = start.t0.copy()  # each aircraft's own clock: where its state is
         self.lat = start.lat.copy()
         self.lon = start.lon.copy()
@@ -663,10 +668,11 @@ class _Integrator:
         new_speed = speed + sign * accel * ramp
         distance = speed * ramp + 0.5 * sign * accel * ramp**2 + new_speed * (step - ramp)
 
-        # Height: linear at the climb rate, levelling off exactly at the target.
+        # Height (pressure altitude): linear at the climb rate, levelling off exactly at the
+        # target.
         dh = np.nan_to_num(self.h_target[idx] - h)
         move = np.sign(dh) * np.minimum(self.climb[idx] * step, np.abs(dh))
-        h_mid = h + 0.5 * move
+        h_mid = self._geometric(h + 0.5 * move)
 
         # Turn: along the chord, half the heading change before it and half after.
         dpsi = self.omega[idx] * step
@@ -690,15 +696,23 @@ class _Integrator:
         # The geodesic continues at back azimuth + 180; the turn adds its second half.
         self.heading[idx] = (np.asarray(back) + 180.0 + half_deg) % 360.0
 
+    def _geometric(self, pressure_altitude_m: FloatArray) -> FloatArray:
+        """Geometric height above MSL of pressure altitudes (m) in the scenario's atmosphere."""
+        a = self.atmosphere
+        return geometric_height_m(pressure_altitude_m / FT, a.qnh_hpa, a.temperature_offset_k)
+
     def snapshot(self) -> State:
         """The state of every aircraft at its own clock (controls of the leg it is in)."""
         dh = np.nan_to_num(self.h_target - self.h)
-        vel_up = np.where(np.abs(dh) > 1e-9, np.sign(dh) * self.climb, 0.0)
+        h_msl = self._geometric(self.h)
+        # The geometric climb rate: the pressure-altitude rate times dh/dHp (about T/T_ISA).
+        scale = self._geometric(self.h + 0.5) - self._geometric(self.h - 0.5)
+        vel_up = np.where(np.abs(dh) > 1e-9, np.sign(dh) * self.climb * scale, 0.0)
         psi = np.radians(self.heading)
         return State(
             lat=self.lat.copy(),
             lon=self.lon.copy(),
-            h_msl=self.h.copy(),
+            h_msl=h_msl,
             vel_east=self.speed * np.sin(psi),
             vel_north=self.speed * np.cos(psi),
             vel_up=vel_up,
@@ -734,7 +748,7 @@ def build_truth(
     t0 = start.t0
     t1 = np.minimum(start.t1, float(duration_s))
 
-    flight = _Integrator(start, segments)
+    flight = _Integrator(start, segments, scenario.atmosphere)
     start_state = flight.snapshot()
     # Written column by column: measured faster than sample-major rows plus a transpose.
     stored = {name: np.full((n, n_samples), np.nan) for name in _FIELDS}
