@@ -95,8 +95,21 @@ class TrackerConfig:
     another clock, or back after an outage); the held plots are lost (counted)."""
     max_position_variance_m2: float = 4.0e6
     """A coasting track whose position variance (trace) exceeds this is deleted."""
-    q_vertical: float = 0.02
-    """White-noise intensity on the climb rate, FL^2/s^3."""
+    vertical_q: tuple[float, float, float] = (1e-5, 1e-4, 0.01)
+    """The vertical IMM's noise intensities (``tracking.vertical``): level (random walk of
+    the level, FL^2/s), steady climb or descent and vertical manoeuvre (on the climb
+    rate, FL^2/s^3: over a 10 s scan 60 and 600 ft/min of rate change)."""
+    vertical_sojourn_s: tuple[float, float, float] = (120.0, 60.0, 10.0)
+    """Mean time in each vertical model: levels and steady climbs last minutes, onsets and
+    level-offs seconds."""
+    vertical_initial_probabilities: tuple[float, float, float] = (0.6, 0.2, 0.2)
+    level_rate_variance: float = 1e-6
+    """(FL/s)^2 of the level model's zero rate (6 ft/min)."""
+    baro_rate_sigma_fpm: float = 150.0
+    """Sigma of BDS 6,0's barometric vertical rate (32 ft/min steps, the static port's lag
+    and noise)."""
+    inertial_rate_sigma_fpm: float = 80.0
+    """Sigma of BDS 6,0's inertial (baro-inertial) vertical rate."""
     initial_climb_variance: float = 1.0
     """(FL/s)^2: 1 FL/s is 6,000 ft/min, more than any airliner climbs."""
     fl_step_mode_s: float = 0.25
@@ -147,6 +160,11 @@ class TrackerConfig:
             raise ValueError("jpda_max_events and jpda_k_best must be >= 1")
         if not self.max_clock_jump_periods > 0 or self.clock_resync_batches < 1:
             raise ValueError("max_clock_jump_periods and clock_resync_batches must be positive")
+        for name in ("vertical_q", "vertical_sojourn_s", "vertical_initial_probabilities"):
+            if len(getattr(self, name)) != 3:
+                raise ValueError(f"{name} needs 3 entries (level, steady, manoeuvre)")
+        if min(self.vertical_sojourn_s) <= 0 or min(self.vertical_q) < 0:
+            raise ValueError("vertical_sojourn_s must be positive and vertical_q >= 0")
         if self.implementation not in ("compiled", "numpy"):
             raise ValueError(f"implementation {self.implementation!r}: use 'compiled' or 'numpy'")
 

@@ -311,72 +311,188 @@ class CompiledImm:
         return ImmUpdate(x, p, mu, xc, pc)
 
 
+@numba.njit(cache=True, inline="always")
+def _vertical_scalar(
+    x: FloatArray, p: FloatArray, z: float, r: float, c: int
+) -> float:  # pragma: no cover - compiled
+    """``vertical.scalar_update`` of one model's x (2,), P (2, 2) in place with a
+    measurement of component c; returns the log-likelihood."""
+    y = z - x[c]
+    s = p[c, c] + r
+    k0 = p[0, c] / s
+    k1 = p[1, c] / s
+    # (I - K H) P (I - K H)' + K r K', H = e_c.
+    i00 = 1.0 - (k0 if c == 0 else 0.0)
+    i01 = -(k0 if c == 1 else 0.0)
+    i10 = -(k1 if c == 0 else 0.0)
+    i11 = 1.0 - (k1 if c == 1 else 0.0)
+    a00 = i00 * p[0, 0] + i01 * p[1, 0]
+    a01 = i00 * p[0, 1] + i01 * p[1, 1]
+    a10 = i10 * p[0, 0] + i11 * p[1, 0]
+    a11 = i10 * p[0, 1] + i11 * p[1, 1]
+    n00 = a00 * i00 + a01 * i01 + r * k0 * k0
+    n01 = a00 * i10 + a01 * i11 + r * k0 * k1
+    n10 = a10 * i00 + a11 * i01 + r * k1 * k0
+    n11 = a10 * i10 + a11 * i11 + r * k1 * k1
+    p[0, 0], p[0, 1], p[1, 0], p[1, 1] = n00, n01, n10, n11
+    x[0] += k0 * y
+    x[1] += k1 * y
+    log_likelihood: float = -0.5 * (y * y / s + math.log(max(s, TINY)) + LOG_2PI)
+    return log_likelihood
+
+
 @numba.njit(cache=True)
 def vertical_update(
     rows: IntArray,
     t: FloatArray,
     z: FloatArray,
     var: FloatArray,
+    rate_z: FloatArray,
+    rate_var: FloatArray,
+    selected: FloatArray,
+    xv: FloatArray,
+    pvm: FloatArray,
+    muv: FloatArray,
     fl: FloatArray,
     rate: FloatArray,
     pv: FloatArray,
     t_fl: FloatArray,
     fl_ok: BoolArray,
     fl_rejects: IntArray,
-    q: float,
+    q: FloatArray,
+    sojourn: FloatArray,
+    mu_start: FloatArray,
     gate: float,
     max_rejects: int,
     initial_climb_variance: float,
+    level_rate_variance: float,
 ) -> None:  # pragma: no cover - compiled
     """``LocalTracker``'s vertical step of the tracks ``rows`` with their levels z (variance
-    var) at t, in place in the track table's columns: ``vertical.predict`` and
-    ``vertical.update`` (scalar Joseph form, gate), a rejected level leaving the old
-    state, and a (re)start after ``max_rejects`` rejections in a row or on the first
-    level. The numpy reference is the same step written with array operations
-    (``LocalTracker._update_vertical`` with ``implementation = "numpy"``)."""
+    var), downlinked rates (FL/s, NaN absent) and selected levels (NaN absent) at t, in
+    place in the track table's columns: the vertical IMM of ``vertical`` (mixing, the
+    level / steady / manoeuvre predictions, sequential scalar Joseph updates, model
+    probabilities, combination), a level outside the gate of the combined prediction
+    leaving the old state, and a (re)start after ``max_rejects`` rejections in a row or
+    on the first level. The numpy reference: ``LocalTracker._update_vertical`` with
+    ``implementation = "numpy"`` (``vertical.predict``, ``update``, ``start``)."""
+    m = 3
+    pi = np.empty((m, m))
+    c = np.empty(m)
+    w = np.empty((m, m))
+    xp = np.empty((m, 2))
+    pp = np.empty((m, 2, 2))
+    log_post = np.empty(m)
     for n in range(rows.shape[0]):
         row = rows[n]
-        dt = t[n] - t_fl[row]
-        tt = abs(dt)
-        f0, r0 = fl[row], rate[row]
-        p00_old, p01_old, p11_old = pv[row, 0, 0], pv[row, 0, 1], pv[row, 1, 1]
-        p00 = p00_old + 2.0 * dt * p01_old + dt * dt * p11_old + q * tt**3 / 3.0
-        p01 = p01_old + dt * p11_old + q * dt * tt / 2.0
-        p11 = p11_old + q * tt
-        fl_p = f0 + r0 * dt
-        r = var[n]
-        y = z[n] - fl_p
-        s = p00 + r
-        k0 = p00 / s
-        k1 = p01 / s
-        a00 = (1.0 - k0) * p00
-        a01 = (1.0 - k0) * p01
-        a10 = -k1 * p00 + p01
-        a11 = -k1 * p01 + p11
-        ok = y * y / s <= gate
-        start = not fl_ok[row]
-        rejects = 0 if ok else fl_rejects[row] + 1
-        if rejects >= max_rejects:
-            start = True
-        if start:
-            fl[row] = z[n]
-            rate[row] = 0.0
-            pv[row, 0, 0] = r
-            pv[row, 0, 1] = pv[row, 1, 0] = 0.0
-            pv[row, 1, 1] = initial_climb_variance
-            t_fl[row] = t[n]
-            fl_rejects[row] = 0
-        elif ok:
-            fl[row] = fl_p + k0 * y
-            rate[row] = r0 + k1 * y
-            pv[row, 0, 0] = a00 * (1.0 - k0) + r * k0 * k0
-            pv[row, 0, 1] = -a00 * k1 + a01 + r * k0 * k1
-            pv[row, 1, 0] = a10 * (1.0 - k0) + r * k1 * k0
-            pv[row, 1, 1] = -a10 * k1 + a11 + r * k1 * k1
-            t_fl[row] = t[n]
-            fl_rejects[row] = 0
+        has_rate = not math.isnan(rate_z[n])
+        restart = not fl_ok[row]
+        if not restart:
+            dt = t[n] - t_fl[row]
+            tt = abs(dt)
+            for i in range(m):
+                stay = math.exp(-tt / sojourn[i])
+                for j in range(m):
+                    pi[i, j] = stay if i == j else (1.0 - stay) / (m - 1)
+            for j in range(m):
+                total = 0.0
+                for i in range(m):
+                    total += pi[i, j] * muv[row, i]
+                c[j] = total
+                for i in range(m):
+                    w[i, j] = pi[i, j] * muv[row, i] / max(total, TINY)
+            for j in range(m):
+                x0 = 0.0
+                r0 = 0.0
+                for i in range(m):
+                    x0 += w[i, j] * xv[row, i, 0]
+                    r0 += w[i, j] * xv[row, i, 1]
+                p00 = p01 = p11 = 0.0
+                for i in range(m):
+                    d0 = xv[row, i, 0] - x0
+                    d1 = xv[row, i, 1] - r0
+                    p00 += w[i, j] * (pvm[row, i, 0, 0] + d0 * d0)
+                    p01 += w[i, j] * (pvm[row, i, 0, 1] + d0 * d1)
+                    p11 += w[i, j] * (pvm[row, i, 1, 1] + d1 * d1)
+                if j == 0:
+                    xp[j, 0] = x0
+                    xp[j, 1] = 0.0
+                    pp[j, 0, 0] = p00 + q[j] * tt
+                    pp[j, 0, 1] = pp[j, 1, 0] = 0.0
+                    pp[j, 1, 1] = level_rate_variance
+                    continue
+                level = x0 + r0 * dt
+                pp[j, 0, 0] = p00 + 2.0 * dt * p01 + dt * dt * p11 + q[j] * tt**3 / 3.0
+                pp[j, 0, 1] = pp[j, 1, 0] = p01 + dt * p11 + q[j] * dt * tt / 2.0
+                pp[j, 1, 1] = p11 + q[j] * tt
+                sel = selected[n]
+                if (sel - x0) * (level - sel) > 0.0:  # False for a NaN selected level
+                    xp[j, 0] = sel
+                    xp[j, 1] = 0.0
+                else:
+                    xp[j, 0] = level
+                    xp[j, 1] = r0
+            # The gate: the combined prediction's level.
+            xc = 0.0
+            for j in range(m):
+                xc += c[j] * xp[j, 0]
+            pc = 0.0
+            for j in range(m):
+                d0 = xp[j, 0] - xc
+                pc += c[j] * (pp[j, 0, 0] + d0 * d0)
+            y = z[n] - xc
+            if y * y / (pc + var[n]) > gate:
+                fl_rejects[row] += 1
+                if fl_rejects[row] < max_rejects:
+                    continue  # a garbled level: the old state stays, at its old time
+                restart = True
+        if restart:
+            for j in range(m):
+                xv[row, j, 0] = z[n]
+                xv[row, j, 1] = rate_z[n] if (has_rate and j > 0) else 0.0
+                pvm[row, j, 0, 0] = var[n]
+                pvm[row, j, 0, 1] = pvm[row, j, 1, 0] = 0.0
+                if j == 0:
+                    pvm[row, j, 1, 1] = level_rate_variance
+                else:
+                    pvm[row, j, 1, 1] = rate_var[n] if has_rate else initial_climb_variance
+                muv[row, j] = mu_start[j]
         else:
-            fl_rejects[row] = rejects
+            for j in range(m):
+                ll = _vertical_scalar(xp[j], pp[j], z[n], var[n], 0)
+                if has_rate:
+                    ll += _vertical_scalar(xp[j], pp[j], rate_z[n], rate_var[n], 1)
+                log_post[j] = math.log(max(c[j], TINY)) + ll
+            top = log_post.max()
+            total = 0.0
+            for j in range(m):
+                muv[row, j] = math.exp(log_post[j] - top)
+                total += muv[row, j]
+            for j in range(m):
+                muv[row, j] /= total
+                for a in range(2):
+                    xv[row, j, a] = xp[j, a]
+                    for b in range(2):
+                        pvm[row, j, a, b] = pp[j, a, b]
+        # The combination: the track's level, rate and their covariance.
+        f0 = 0.0
+        r0 = 0.0
+        for j in range(m):
+            f0 += muv[row, j] * xv[row, j, 0]
+            r0 += muv[row, j] * xv[row, j, 1]
+        p00 = p01 = p11 = 0.0
+        for j in range(m):
+            d0 = xv[row, j, 0] - f0
+            d1 = xv[row, j, 1] - r0
+            p00 += muv[row, j] * (pvm[row, j, 0, 0] + d0 * d0)
+            p01 += muv[row, j] * (pvm[row, j, 0, 1] + d0 * d1)
+            p11 += muv[row, j] * (pvm[row, j, 1, 1] + d1 * d1)
+        fl[row] = f0
+        rate[row] = r0
+        pv[row, 0, 0] = p00
+        pv[row, 0, 1] = pv[row, 1, 0] = p01
+        pv[row, 1, 1] = p11
+        t_fl[row] = t[n]
+        fl_rejects[row] = 0
         fl_ok[row] = True
 
 

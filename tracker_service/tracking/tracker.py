@@ -79,7 +79,10 @@ def _table_dtype(n_models: int) -> np.dtype[Any]:
             ("mode3a", np.int64),
             ("fl", np.float64),
             ("rate", np.float64),
-            ("Pv", np.float64, (2, 2)),
+            ("Pv", np.float64, (2, 2)),  # fl, rate, Pv: the vertical IMM's combination
+            ("xv", np.float64, (vertical.N_VERTICAL_MODELS, 2)),
+            ("Pvm", np.float64, (vertical.N_VERTICAL_MODELS, 2, 2)),
+            ("muv", np.float64, (vertical.N_VERTICAL_MODELS,)),
             ("t_fl", np.float64),
             ("fl_ok", np.bool_),
             ("fl_rejects", np.int64),
@@ -142,6 +145,9 @@ class LocalTracker:
         self.gate = Gate(self.config, self.models, self.imm)
         self.associator = make_associator(self.config)
         self._scan_tolerance_s = (1.0 + self.config.miss_tolerance) * self.config.scan_period_s
+        self._vertical_q = np.array(self.config.vertical_q, dtype=np.float64)
+        self._vertical_sojourn = np.array(self.config.vertical_sojourn_s, dtype=np.float64)
+        self._vertical_mu0 = np.array(self.config.vertical_initial_probabilities, dtype=np.float64)
 
     def _allocate(self, capacity: int) -> None:
         """(Re)allocate every field for ``capacity`` rows, keeping the live ones."""
@@ -386,7 +392,7 @@ class LocalTracker:
         return hist, address, mode3a
 
     def _update_vertical(self, ti: IntArray, p: PlotArrays) -> None:
-        """Vertical filter of the tracks ``ti`` with their plots ``p``."""
+        """Vertical IMM (``tracking.vertical``) of the tracks ``ti`` with their plots ``p``."""
         cfg = self.config
         cols = self._cols
         has = p.fl_valid & np.isfinite(p.flight_level)
@@ -394,51 +400,78 @@ class LocalTracker:
             return  # a primary-only batch: no vertical work at all
         if not has.all():
             ti, p = ti[has], p.take(has)
-        fl, t = p.flight_level, p.time
-        var = vertical.measurement_variance(fl, p.typ, cfg)
+        m = self._vertical_measurements(p)
         if self._compiled:
             kernels.vertical_update(
-                ti,
-                t,
-                fl,
-                var,
-                cols["fl"],
-                cols["rate"],
-                cols["Pv"],
-                cols["t_fl"],
-                cols["fl_ok"],
-                cols["fl_rejects"],
-                cfg.q_vertical,
-                cfg.fl_gate,
-                cfg.fl_max_rejects,
-                cfg.initial_climb_variance,
-            )
+                ti, m.time, m.level, m.level_variance, m.rate, m.rate_variance,
+                m.selected_level, cols["xv"], cols["Pvm"], cols["muv"], cols["fl"],
+                cols["rate"], cols["Pv"], cols["t_fl"], cols["fl_ok"], cols["fl_rejects"],
+                self._vertical_q, self._vertical_sojourn, self._vertical_mu0, cfg.fl_gate,
+                cfg.fl_max_rejects, cfg.initial_climb_variance, cfg.level_rate_variance,
+            )  # fmt: skip
             return
-        fl_old, rate_old, pv_old = cols["fl"][ti], cols["rate"][ti], cols["Pv"][ti]
+        old = vertical.VerticalState(cols["xv"][ti], cols["Pvm"][ti], cols["muv"][ti])
         t_fl = cols["t_fl"][ti]
-        start = ~cols["fl_ok"][ti]
-        fl_p, rate_p, pv_p = vertical.predict(fl_old, rate_old, pv_old, t - t_fl, cfg.q_vertical)
-        fl_u, rate_u, pv_u, ok = vertical.update(fl_p, rate_p, pv_p, fl, var, cfg.fl_gate)
-        if ok.all() and not start.any():
-            # Every level accepted by a running filter (the usual batch): no restart.
-            cols["fl"][ti], cols["rate"][ti], cols["Pv"][ti] = fl_u, rate_u, pv_u
-            cols["t_fl"][ti] = t
-            cols["fl_rejects"][ti] = 0
-            return
+        with np.errstate(over="ignore", invalid="ignore"):  # new rows: no state to predict
+            pred, _ = vertical.predict(old, m.time - t_fl, m.selected_level, cfg)
+            xc, pc = vertical.combine(pred)
+            y = m.level - xc[:, 0]
+            ok = y * y / (pc[:, 0, 0] + m.level_variance) <= cfg.fl_gate
+            updated, xu, pu = vertical.update(pred, m)
+        started = ~cols["fl_ok"][ti]
         rejects = np.where(ok, 0, cols["fl_rejects"][ti] + 1)
-        start |= rejects >= cfg.fl_max_rejects
-        fresh = np.zeros((fl.shape[0], 2, 2))
-        fresh[:, 0, 0] = var
-        fresh[:, 1, 1] = cfg.initial_climb_variance
+        restart = started | (rejects >= cfg.fl_max_rejects)
+        accepted = ok & ~started
+        fresh = vertical.start(m, cfg)
+        fresh_xc, fresh_pc = vertical.combine(fresh)
         # A rejected level (garbled Mode C) leaves the old state at its old time.
-        cols["fl"][ti] = np.where(start, fl, np.where(ok, fl_u, fl_old))
-        cols["rate"][ti] = np.where(start, 0.0, np.where(ok, rate_u, rate_old))
-        cols["Pv"][ti] = np.where(
-            start[:, None, None], fresh, np.where(ok[:, None, None], pv_u, pv_old)
+        for name, new, renewed in (
+            ("xv", fresh.x, updated.x),
+            ("Pvm", fresh.P, updated.P),
+            ("muv", fresh.mu, updated.mu),
+        ):
+            shape = (-1,) + (1,) * (new.ndim - 1)
+            cols[name][ti] = np.where(
+                restart.reshape(shape),
+                new,
+                np.where(accepted.reshape(shape), renewed, cols[name][ti]),
+            )
+        cols["fl"][ti] = np.where(
+            restart, fresh_xc[:, 0], np.where(accepted, xu[:, 0], cols["fl"][ti])
         )
-        cols["t_fl"][ti] = np.where(start | ok, t, t_fl)
-        cols["fl_rejects"][ti] = np.where(start, 0, rejects)
+        cols["rate"][ti] = np.where(
+            restart, fresh_xc[:, 1], np.where(accepted, xu[:, 1], cols["rate"][ti])
+        )
+        cols["Pv"][ti] = np.where(
+            restart[:, None, None],
+            fresh_pc,
+            np.where(accepted[:, None, None], pu, cols["Pv"][ti]),
+        )
+        renewed_rows = restart | accepted
+        cols["t_fl"][ti] = np.where(renewed_rows, m.time, t_fl)
+        cols["fl_rejects"][ti] = np.where(renewed_rows, 0, rejects)
         cols["fl_ok"][ti] = True
+
+    def _vertical_measurements(self, p: PlotArrays) -> vertical.VerticalMeasurements:
+        """The vertical measurements of plots with a valid level: the level, and the
+        downlinked rates and selected altitude where the plot columns exist."""
+        names = p.rows.dtype.names or ()
+
+        def column(name: str) -> FloatArray | None:
+            return np.asarray(p.rows[name], dtype=np.float64) if name in names else None
+
+        rate, rate_variance = vertical.rate_measurements(
+            column("baro_rate_fpm"), column("inertial_rate_fpm"), self.config, len(p)
+        )
+        selected_ft = column("selected_altitude_ft")
+        return vertical.VerticalMeasurements(
+            time=p.time,
+            level=p.flight_level,
+            level_variance=vertical.measurement_variance(p.flight_level, p.typ, self.config),
+            rate=rate,
+            rate_variance=rate_variance,
+            selected_level=np.full(len(p), np.nan) if selected_ft is None else selected_ft / 100.0,
+        )
 
     def _confirm(self, ti: IntArray, status: npt.NDArray[Any], hist: IntArray) -> None:
         """M of N, except for a tentative track that echoes a confirmed track that is
