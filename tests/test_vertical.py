@@ -190,3 +190,27 @@ def test_the_selected_altitude_stops_the_climb_at_it() -> None:
     # Below the selected level the climb goes on.
     on, _ = vertical.predict(state, np.array([30.0]), np.array([320.0]), CONFIG)
     np.testing.assert_array_equal(on.x, free.x)
+
+
+def test_vertical_metrics_score_steady_climbs_and_level_offs() -> None:
+    from tracker_service.evaluation.metrics import PlotOrigins, Truth
+    from tracker_service.evaluation.vertical_metrics import vertical_metrics
+    from tracker_service.tracking.tracker import track_update_dtype
+
+    times = np.arange(0.0, 301.0)
+    fl = 200.0 + (2000.0 / 6000.0) * np.clip(times - 60.0, 0.0, 120.0)  # FL200 -> FL240
+    zeros = np.zeros((times.size, 1))
+    truth = Truth(times, zeros, zeros, zeros + 200.0, zeros, fl[:, None])
+    t = np.arange(2.0, 300.0, 5.0)
+    # A track whose rate lags the truth by 10 s and reads 100 ft/min high in the climb.
+    lagged = np.interp(t - 10.0, times[:-1], np.diff(fl) * 6000.0)
+    updates = np.zeros(t.size, dtype=track_update_dtype(5))
+    updates["time"], updates["status"], updates["plot_id"] = t, 1, np.arange(t.size)
+    updates["climb_rate_fl_per_s"] = (lagged + np.where(lagged > 0, 100.0, 0.0)) / 6000.0
+    plots = np.zeros(t.size, dtype=[("plot_id", "i8"), ("kind", "i1"), ("aircraft", "i8")])
+    plots["plot_id"] = np.arange(t.size)
+    m = vertical_metrics(updates, PlotOrigins.from_plots(plots), truth)
+    assert m["climb_rate_rms_fpm_steady"] == pytest.approx(100.0)
+    assert m["steady_updates"] == 17  # 90 s to 175 s: 30 s after the onset, 5 s before the end
+    assert m["level_offs"] == 1
+    assert m["level_off_delay_mean_s"] == pytest.approx(12.0)  # the first update at t >= 190

@@ -19,7 +19,7 @@ import math
 import sys
 import tomllib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +43,7 @@ from tracker_service.evaluation.system_metrics import (
     system_metrics,
     truth_biases,
 )
+from tracker_service.evaluation.vertical_metrics import vertical_metrics
 from tracker_service.tracking import LocalTracker, TrackerConfig
 
 __all__ = ["Evaluation", "add_arguments", "evaluate", "main", "run"]
@@ -59,6 +60,8 @@ class Evaluation:
     local: dict[str, LocalMetrics]
     system: SystemEvaluation | None
     bias: dict[str, dict[str, dict[str, float | None]]]
+    vertical: dict[str, dict[str, float | int | None]] = field(default_factory=dict)
+    """Per radar, ``vertical_metrics.vertical_metrics``."""
 
     def as_json(self) -> dict[str, Any]:
         doc: dict[str, Any] = {
@@ -74,6 +77,8 @@ class Evaluation:
             doc["fusion"] = {"rms_ratio_to_best_local": self.system.rms_ratio_to_best_local}
         if self.bias:
             doc["bias"] = self.bias
+        if self.vertical:
+            doc["vertical"] = self.vertical
         return doc
 
 
@@ -122,7 +127,16 @@ def evaluate(
             end_time=float(every_plot["time"].max()),
         )
     bias = bias_metrics(result.bias, truth_biases(result.recording))
-    return Evaluation(result, truth, coverage, plots, local, system, bias)
+    vertical = {
+        source: vertical_metrics(
+            radar.updates,
+            PlotOrigins.from_plots(radar.plots),
+            truth,
+            gate_m=config.association_gate_m,
+        )
+        for source, radar in result.radars.items()
+    }
+    return Evaluation(result, truth, coverage, plots, local, system, bias, vertical)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
