@@ -456,21 +456,22 @@ class LocalTracker:
         """The vertical measurements of plots with a valid level: the level, and the
         downlinked rates and selected altitude where the plot columns exist."""
         names = p.rows.dtype.names or ()
-
-        def column(name: str) -> FloatArray | None:
-            return np.asarray(p.rows[name], dtype=np.float64) if name in names else None
-
+        level_variance = vertical.measurement_variance(p.flight_level, p.typ, self.config)
+        if "selected_altitude_ft" not in names:
+            # Plots without DAP columns: one NaN column stands for all three (read only).
+            absent = np.full(len(p), np.nan)
+            return vertical.VerticalMeasurements(
+                p.time, p.flight_level, level_variance, absent, absent, absent
+            )
         rate, rate_variance = vertical.rate_measurements(
-            column("baro_rate_fpm"), column("inertial_rate_fpm"), self.config, len(p)
+            np.asarray(p.rows["baro_rate_fpm"], dtype=np.float64),
+            np.asarray(p.rows["inertial_rate_fpm"], dtype=np.float64),
+            self.config,
+            len(p),
         )
-        selected_ft = column("selected_altitude_ft")
+        selected = np.asarray(p.rows["selected_altitude_ft"], dtype=np.float64) / 100.0
         return vertical.VerticalMeasurements(
-            time=p.time,
-            level=p.flight_level,
-            level_variance=vertical.measurement_variance(p.flight_level, p.typ, self.config),
-            rate=rate,
-            rate_variance=rate_variance,
-            selected_level=np.full(len(p), np.nan) if selected_ft is None else selected_ft / 100.0,
+            p.time, p.flight_level, level_variance, rate, rate_variance, selected
         )
 
     def _confirm(self, ti: IntArray, status: npt.NDArray[Any], hist: IntArray) -> None:
