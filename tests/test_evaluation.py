@@ -361,7 +361,10 @@ def test_evaluate_json_on_a_short_three_sites_run(
     assert main([str(three_sites), "--json"]) == 0
     out = capsys.readouterr().out
     doc = json.loads(out)
-    assert set(doc) == {"plots", "local", "system", "system_by_coverage", "fusion", "bias"}
+    assert set(doc) == {
+        "plots", "local", "system", "system_by_coverage", "fusion", "bias", "vertical"
+    }  # fmt: skip
+    assert set(doc["vertical"]) == {"25/11", "25/12", "25/13"}
     for bias in doc["bias"].values():
         assert set(bias) == {"range_offset_m", "range_gain", "azimuth_deg", "time_s"}
         for component in bias.values():
