@@ -65,7 +65,7 @@ def test_the_compiled_step_is_the_reference() -> None:
     selected = np.where(rng.random(k) < 0.5, level + climb * rng.uniform(0.0, 15.0, k), np.nan)
     m = _measurements(t, z, rate_fpm, selected)
     state = vertical.VerticalState(x, p, mu)
-    pred, _ = vertical.predict(state, dt, selected, CONFIG)
+    pred = vertical.predict(state, dt, selected, CONFIG)
     expected, xc, pc = vertical.update(pred, m)
     ok = np.ones(k, dtype=bool)
     got, fl, rate, pv = _compiled_step(state, t_fl, ok, m)
@@ -165,14 +165,14 @@ def test_a_downlinked_rate_announces_the_climb_before_the_levels() -> None:
         step = _measurements(
             np.array([T0 + 10.0 * k]), np.array([300.0]), np.array([0.0]), np.array([np.nan])
         )
-        pred, _ = vertical.predict(state, np.array([10.0]), step.selected_level, CONFIG)
+        pred = vertical.predict(state, np.array([10.0]), step.selected_level, CONFIG)
         state, _, _ = vertical.update(pred, step)
     assert state.mu[0, vertical.LEVEL] > 0.9
     for rate_fpm, expect_level in ((np.nan, True), (1500.0, False)):
         step = _measurements(
             np.array([T0 + 60.0]), np.array([300.0]), np.array([rate_fpm]), np.array([np.nan])
         )
-        pred, _ = vertical.predict(state, np.array([10.0]), step.selected_level, CONFIG)
+        pred = vertical.predict(state, np.array([10.0]), step.selected_level, CONFIG)
         after, xc, _ = vertical.update(pred, step)
         assert (after.mu[0, vertical.LEVEL] > 0.5) == expect_level
         if not expect_level:
@@ -182,13 +182,13 @@ def test_a_downlinked_rate_announces_the_climb_before_the_levels() -> None:
 def test_the_selected_altitude_stops_the_climb_at_it() -> None:
     m = _measurements(np.array([T0]), np.array([295.0]), np.array([2000.0]), np.array([np.nan]))
     state = vertical.start(m, CONFIG)
-    free, _ = vertical.predict(state, np.array([30.0]), np.array([np.nan]), CONFIG)
+    free = vertical.predict(state, np.array([30.0]), np.array([np.nan]), CONFIG)
     assert free.x[0, vertical.STEADY, 0] > 301.0  # through FL300 (mixed with the level model)
-    bound, _ = vertical.predict(state, np.array([30.0]), np.array([300.0]), CONFIG)
+    bound = vertical.predict(state, np.array([30.0]), np.array([300.0]), CONFIG)
     assert bound.x[0, vertical.STEADY, 0] == 300.0
     assert bound.x[0, vertical.STEADY, 1] == 0.0  # captured: level at the selected altitude
     # Below the selected level the climb goes on.
-    on, _ = vertical.predict(state, np.array([30.0]), np.array([320.0]), CONFIG)
+    on = vertical.predict(state, np.array([30.0]), np.array([320.0]), CONFIG)
     np.testing.assert_array_equal(on.x, free.x)
 
 

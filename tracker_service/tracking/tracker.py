@@ -413,7 +413,7 @@ class LocalTracker:
         old = vertical.VerticalState(cols["xv"][ti], cols["Pvm"][ti], cols["muv"][ti])
         t_fl = cols["t_fl"][ti]
         with np.errstate(over="ignore", invalid="ignore"):  # new rows: no state to predict
-            pred, _ = vertical.predict(old, m.time - t_fl, m.selected_level, cfg)
+            pred = vertical.predict(old, m.time - t_fl, m.selected_level, cfg)
             xc, pc = vertical.combine(pred)
             y = m.level - xc[:, 0]
             ok = y * y / (pc[:, 0, 0] + m.level_variance) <= cfg.fl_gate

@@ -125,10 +125,9 @@ def switching(dt: FloatArray, sojourn: FloatArray) -> FloatArray:
 
 def predict(
     state: VerticalState, dt: FloatArray, selected_level: FloatArray, config: TrackerConfig
-) -> tuple[VerticalState, FloatArray]:
-    """IMM mixing and each model's prediction over dt; also the predicted probabilities c.
-
-    Returns the per-model predictions (with c as their ``mu``) and c."""
+) -> VerticalState:
+    """IMM mixing and each model's prediction over dt: the per-model predictions, with
+    the predicted model probabilities c as their ``mu``."""
     q = np.asarray(config.vertical_q, dtype=np.float64)
     pi = switching(dt, np.asarray(config.vertical_sojourn_s, dtype=np.float64))
     # Sums over models written as loops in model order, as the compiled kernel adds them
@@ -159,7 +158,7 @@ def predict(
         crosses = (selected_level - x0[:, 0]) * (level - selected_level) > 0.0
         xp[:, j, 0] = np.where(crosses, selected_level, level)
         xp[:, j, 1] = np.where(crosses, 0.0, x0[:, 1])
-    return VerticalState(xp, pp, c), c
+    return VerticalState(xp, pp, c)
 
 
 def combine(state: VerticalState) -> tuple[FloatArray, FloatArray]:
