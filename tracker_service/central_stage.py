@@ -290,6 +290,8 @@ class CentralStage:
         if bias is not None and bias_cov is not None and not message.snapshot:
             extra = self._estimate_biases(index, message, batch, local, bias, bias_cov)
         system = self.fuser.process(index, local, batch, extra)
+        if self.adsb_source is not None:
+            self.adsb_source.check_radar(local, extra)
         self._mark_inconsistent(system)
         return BatchOutput(source, message.plots, local, system, report)
 

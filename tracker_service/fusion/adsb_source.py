@@ -30,17 +30,22 @@ track, never both. Where no radar tracks the address every report is fused. The 
 estimator's relative references (other radars' fused tracks) leave the ADS-B source out
 (``SystemTracker.references(..., sources=radars)``) for the same reason.
 
-Consistency: each report is compared, before it is fused, with the radars' confirmed
-local tracks of its address (their ML fusion at the report's time, residual biases
-included): a chi-square distance beyond ``INCONSISTENCY_GATE`` is a disagreement (a
-spoofed or faulty position, or a wrong address), and that report is not fused.
-``FLAG_AFTER`` disagreements in a row flag the address: its ADS-B track leaves fusion and
-every system track carrying the address is flagged (``adsb_inconsistent``, I062/080 AFF)
-until ``CLEAR_AFTER`` reports in a row agree again.
+Consistency: each confirmed radar local-track update from a plot with a Mode S address
+is compared with the ADS-B position of that address at the update's own time (the
+nearest report within ``MAX_GAP_S``, moved along its velocity: ``check_radar``), with the
+local track's covariance, its radar's residual bias and the report's own: a chi-square
+distance beyond ``INCONSISTENCY_GATE`` is a disagreement (a spoofed or faulty position,
+or a wrong address). Compared at the radar's time, a turn costs nothing (a radar track
+predicted to the report's time would lag hundreds of metres behind a turning aircraft
+after a 10 s scan). From a disagreement on, the address's reports are not fused;
+``FLAG_AFTER`` disagreements in a row flag it: its ADS-B track leaves fusion and every
+system track carrying the address is flagged (``adsb_inconsistent``, I062/080 AFF)
+until ``CLEAR_AFTER`` radar updates in a row agree again.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any
@@ -49,8 +54,6 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.adsb import AdsbReports
-from tracker_service.fusion.estimator_tracks import fuse_local_tracks
-from tracker_service.fusion.messages import MAX_SOURCES
 from tracker_service.fusion.tracker import SystemTracker
 from tracker_service.tracking.models import cv_transition
 from tracker_service.tracking.plots import PLOT_DTYPE, FloatArray, IntArray
@@ -80,6 +83,8 @@ INCONSISTENCY_GATE = 18.47
 4-dof gate value: on a 2-dof test a false alarm per report of 1e-4)."""
 FLAG_AFTER = 3
 CLEAR_AFTER = 3
+MAX_GAP_S = 1.5
+"""A radar update is compared with a report at most this far from it in time."""
 
 
 class ReportUse(IntEnum):
@@ -98,6 +103,8 @@ class AdsbFusionStats:
     references: int = 0
     repeated: int = 0
     inconsistent: int = 0
+    disagreements: int = 0
+    """Radar local-track updates that disagreed with their address's ADS-B."""
     moved_forward: int = 0
     flags_raised: int = 0
     flagged: set[int] = field(default_factory=set)
@@ -118,6 +125,10 @@ class _Track:
     passes: int = 0
     fl: float = np.nan
     mode3a: int = -1
+    history: deque[tuple[float, float, float, float, float, float, float]] = field(
+        default_factory=lambda: deque(maxlen=4)
+    )
+    """The latest reports (t, x, y, vx, vy, sigma, sigma_v), whatever became of them."""
 
 
 @dataclass(frozen=True)
@@ -144,8 +155,13 @@ def moved_forward(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Report positions moved ``dt`` >= 0 along their own velocity, and their covariance
     grown by the velocity's error and a manoeuvre of ``MANOEUVRE_M_S2`` over dt."""
-    grown = (sigma_v * dt) ** 2 + (0.5 * MANOEUVRE_M_S2 * dt * dt) ** 2
-    return x + vx * dt, y + vy * dt, R + grown[:, None, None] * np.eye(2)
+    return x + vx * dt, y + vy * dt, R + _growth(sigma_v, dt)[..., None, None] * np.eye(2)
+
+
+def _growth(sigma_v: Any, dt: Any) -> Any:
+    """The variance per axis a report moved by dt gains: its velocity's error and a
+    manoeuvre of ``MANOEUVRE_M_S2``."""
+    return (sigma_v * dt) ** 2 + (0.5 * MANOEUVRE_M_S2 * dt * dt) ** 2
 
 
 class AdsbSource:
@@ -181,6 +197,17 @@ class AdsbSource:
             if track is None:
                 track = self._tracks[address] = self._new_track(reports, k)
             track.last_seen = t
+            track.history.append(
+                (
+                    t,
+                    float(reports.x[k]),
+                    float(reports.y[k]),
+                    float(reports.vx[k]),
+                    float(reports.vy[k]),
+                    float(reports.sigma[k]),
+                    float(reports.sigma_v[k]),
+                )
+            )
             track.parity ^= 1
             if self.share_reference and address in tracked and track.parity == 0:
                 use[k] = ReportUse.REFERENCE
@@ -188,14 +215,15 @@ class AdsbSource:
             candidates.append(k)
         self.stats.repeated += int(np.count_nonzero(use == ReportUse.REPEATED))
         self.stats.references += int(np.count_nonzero(use == ReportUse.REFERENCE))
-        d2 = self._radar_distance(reports, np.array(candidates, dtype=np.int64), tracked)
         updates, plots = [], []
         next_id = first_plot_id
-        for k, distance in zip(candidates, d2.tolist(), strict=True):
-            track = self._tracks[int(reports.address[k])]
-            if not self._consistent(track, int(reports.address[k]), distance):
+        for k in candidates:
+            address = int(reports.address[k])
+            track = self._tracks[address]
+            if track.fails or address in self.stats.flagged:
                 use[k] = ReportUse.INCONSISTENT
-                if track.fed:
+                self.stats.inconsistent += 1
+                if track.fed and address in self.stats.flagged:
                     updates.append(self._deletion(track))
                 continue
             use[k] = ReportUse.FUSED
@@ -228,64 +256,57 @@ class AdsbSource:
         self._next_number += 1
         return track
 
-    def _radar_tracked(self) -> dict[int, IntArray]:
-        """The fuser's live, confirmed radar local tracks (rows) of each address."""
+    def _radar_tracked(self) -> set[int]:
+        """The addresses of the fuser's live, confirmed radar local tracks."""
         loc = self.fuser.state.local.used
-        rows = np.flatnonzero(
+        rows = (
             loc["alive"]
             & (loc["radar"] < self.index)
             & (loc["address"] >= 0)
             & (loc["status"] != TENTATIVE)
-            & np.isfinite(loc["t"])
         )
-        out: dict[int, list[int]] = {}
-        for row, address in zip(rows.tolist(), loc["address"][rows].tolist(), strict=True):
-            out.setdefault(address, []).append(row)
-        return {a: np.array(r, dtype=np.int64) for a, r in out.items()}
+        return set(loc["address"][rows].tolist())
 
-    def _radar_distance(
-        self, reports: AdsbReports, rows: IntArray, tracked: dict[int, IntArray]
-    ) -> FloatArray:
-        """The chi-square distance (2 dof) of each report from the ML fusion of the
-        radars' recent local tracks of its address at its time; NaN where none."""
-        state = self.fuser.state
-        d2 = np.full(rows.size, np.nan)
-        loc = state.local.rows
-        slots = np.full((rows.size, MAX_SOURCES), -1, dtype=np.int64)
-        for i, k in enumerate(rows.tolist()):
-            local = tracked.get(int(reports.address[k]))
-            if local is None:
+    def check_radar(self, updates: npt.NDArray[Any], extra: FloatArray | None) -> int:
+        """Compare a radar batch's confirmed local-track updates from a plot (bias-
+        corrected, ``extra`` their residual-bias covariance) with the ADS-B position of
+        their address at their time (module docstring); returns the disagreements."""
+        use = np.flatnonzero(
+            (updates["plot_id"] >= 0) & (updates["status"] == CONFIRMED) & (updates["address"] >= 0)
+        )
+        disagreements = 0
+        for k in use.tolist():
+            address = int(updates["address"][k])
+            track = self._tracks.get(address)
+            if track is None or not track.history:
                 continue
-            recent = local[reports.time[k] - loc["t_plot"][local] <= state.config.reference_age_s]
-            recent = recent[np.argsort(-loc["t_plot"][recent])][: state.config.max_sources]
-            slots[i, : recent.size] = recent
-        checked = np.flatnonzero(slots[:, 0] >= 0)
-        if checked.size == 0:
-            return d2
-        k = rows[checked]
-        x, p = fuse_local_tracks(state, slots[checked], reports.time[k])
-        d = np.column_stack([reports.x[k], reports.y[k]]) - x[:, :2]
-        s = p[:, :2, :2] + (reports.sigma[k] ** 2)[:, None, None] * np.eye(2)
-        d2[checked] = np.einsum("ka,ka->k", d, np.linalg.solve(s, d[..., None])[..., 0])
-        return d2
+            t = float(updates["time"][k])
+            t0, x0, y0, vx, vy, sigma, sigma_v = min(track.history, key=lambda r: abs(r[0] - t))
+            dt = t - t0
+            if abs(dt) > MAX_GAP_S:
+                continue
+            position = np.array([x0 + vx * dt, y0 + vy * dt])
+            r = np.eye(2) * (sigma**2 + _growth(sigma_v, abs(dt)))
+            p = np.asarray(updates["P"][k], dtype=np.float64).reshape(4, 4)[:2, :2]
+            s = p + r + (extra[k] if extra is not None else 0.0)
+            d = np.array([updates["x"][k], updates["y"][k]]) - position
+            d2 = float(d @ np.linalg.solve(s, d))
+            disagreements += int(not self._judge(track, address, d2))
+        return disagreements
 
-    def _consistent(self, track: _Track, address: int, d2: float) -> bool:
-        """The report may be fused: it agrees with the radars (or none tracks the
-        address) and its address is not flagged (module docstring)."""
+    def _judge(self, track: _Track, address: int, d2: float) -> bool:
+        """Count a radar comparison of the address; True when it agrees."""
         stats = self.stats
         if d2 > INCONSISTENCY_GATE:
             track.fails, track.passes = track.fails + 1, 0
-            stats.inconsistent += 1
+            stats.disagreements += 1
             if track.fails >= FLAG_AFTER and address not in stats.flagged:
                 stats.flagged.add(address)
                 stats.flags_raised += 1
             return False
         track.fails = 0
-        if address in stats.flagged:
-            track.passes += 1
-            if track.passes < CLEAR_AFTER:
-                stats.inconsistent += 1
-                return False
+        track.passes += 1
+        if address in stats.flagged and track.passes >= CLEAR_AFTER:
             stats.flagged.discard(address)
         return True
 
