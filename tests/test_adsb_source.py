@@ -113,9 +113,7 @@ def _reports(times: list[float], east_m: float = 0.0, address: int = ADDRESS) ->
     )
 
 
-def _radar_track(
-    fuser: SystemTracker, t: float, plot_id: int, number: int = 7
-) -> npt.NDArray[Any]:
+def _radar_track(fuser: SystemTracker, t: float, plot_id: int, number: int = 7) -> npt.NDArray[Any]:
     """A confirmed radar local track (radar 0) of ADDRESS at its true position at t."""
     u = np.zeros(1, dtype=track_update_dtype(fuser.models.n_models))
     u["track_number"], u["time"], u["status"] = number, t, CONFIRMED
