@@ -370,7 +370,7 @@ class AdsbSource:
         update["mode3a"] = track.mode3a
         update["address"] = int(reports.address[k])
         track.fed = True
-        plot = np.zeros((), dtype=PLOT_DTYPE)
+        plot = _blank_plot()
         px, py, pr = moved_forward(
             reports.x[k : k + 1],
             reports.y[k : k + 1],
@@ -429,3 +429,13 @@ def _predicted(x: FloatArray, p: FloatArray, dt: float) -> tuple[FloatArray, Flo
         ]
     )
     return f @ x, f @ p @ f.T + q
+
+
+def _blank_plot() -> Any:
+    """A plot row with every measurement absent (NaN floats): columns a radar plot may
+    carry and a report does not (Mode S DAPs, say) stay absent."""
+    plot = np.zeros((), dtype=PLOT_DTYPE)
+    for name in PLOT_DTYPE.names or ():
+        if PLOT_DTYPE[name].kind == "f" and PLOT_DTYPE[name].shape == ():
+            plot[name] = np.nan
+    return plot
