@@ -294,3 +294,18 @@ def test_scenario_adsb_only_tracks_and_spoof_flag(fused: Any) -> None:
     flagged_at = rows["time"][spoofed & rows["adsb_inconsistent"]].min()
     later = spoofed & (rows["time"] > flagged_at)
     assert not (later & (rows["radar"] == adsb) & rows["fresh"]).any()
+
+
+def test_chain_reports_what_became_of_each_cat021_record() -> None:
+    from tracker_service.chain import Chain, radar_infos, rejections, system_plane
+
+    infos = radar_infos({"radars": {"40/1": {"lat": 48.0, "lon": 17.0, "alt_m": 0.0}}})
+    chain = Chain(infos, system_plane({}, infos), fusion=FusionConfig(adsb="fuse"))
+    received = 1_780_300_800.0 + 36002.0
+    block = encode_block(21, [_record(), _record(), _record(**{"080": None})])
+    outputs = chain.feed(block, received)
+    assert [o.source for o in outputs] == ["40/50"]
+    assert chain.sources == ["40/1", "40/50"]  # the fuser's ADS-B source, named
+    # What status counts for the feed: a copy, and a record without address.
+    assert rejections(outputs[0].plots["use"]) == {"adsb_repeated": 1, "adsb_unfit": 1}
+    assert len(outputs[0].local) == 1
