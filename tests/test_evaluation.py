@@ -370,7 +370,8 @@ def test_evaluate_json_on_a_short_three_sites_run(
         for component in bias.values():
             assert set(component) == {"estimate", "truth", "sigma"}
     assert set(doc["plots"]) == set(doc["local"]) == {"25/11", "25/12", "25/13"}
-    assert set(doc["system_by_coverage"]) == {"multi", "single"}
+    # three_sites has an ADS-B station: ADS-B cover is coverage too.
+    assert set(doc["system_by_coverage"]) == {"multi", "single", "adsb_only", "radar_and_adsb"}
     for system in (doc["system"], *doc["system_by_coverage"].values()):
         assert set(summary_keys()) <= set(system)
     # Fused tracks of two or three radars beat the best single radar's.

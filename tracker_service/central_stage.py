@@ -17,6 +17,11 @@ their input (the one-process chain: as they come; over Zenoh: merged by receptio
 - feeds the bias estimator the batch's observations (other radars' fused tracks, field
   monitors, ADS-B), then the fuser.
 
+CAT021 datagrams (``feed_adsb``) are the bias estimator's absolute reference and, with
+``[fusion] adsb = "fuse"``, a source of the fuser of their own (``fusion.adsb_source``:
+one per-address track across every ground station, each report either fused or kept
+as a reference, never both).
+
 The correction is the one of the central stage's own moment, so the output depends only
 on the order the batches are taken in, not on when they crossed the network.
 """
@@ -31,7 +36,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.adsb import AdsbReference
+from tracker_service.adsb import ADSB_TYP, AdsbReference, AdsbReports, decode_reports
 from tracker_service.bias import (
     BiasConfig,
     BiasEstimator,
@@ -43,8 +48,17 @@ from tracker_service.bias import (
     make_observations,
 )
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, References, SystemTracker
+from tracker_service.fusion.adsb_source import AdsbSource, AdsbStep, ReportUse
 from tracker_service.geodesy import SystemPlane
-from tracker_service.radar_stage import CAT021, PlotUse, RadarInfo, blocks_of, source_order
+from tracker_service.radar_stage import (
+    CAT021,
+    KIND_UNKNOWN,
+    RAW_PLOT_DTYPE,
+    PlotUse,
+    RadarInfo,
+    blocks_of,
+    source_order,
+)
 from tracker_service.stage_messages import RadarBatch
 from tracker_service.time_sanity import TimeConsensus, TimeReport, TimeSanityConfig
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
@@ -57,6 +71,17 @@ BIAS_HISTORY_S = 10.0
 ABSOLUTE_ENOUGH = 100
 """ADS-B observations of a radar after which other radars' tracks no longer serve as its
 reference."""
+
+ADSB_PLOT_ID_BASE = 1 << 48
+"""ADS-B reports fused are numbered from here: apart from the radars' plot ids."""
+UNNAMED_ADSB_SOURCE = "0/0"
+"""The fuser's ADS-B source's name until a ground station is heard (then its SAC/SIC)."""
+_REPORT_USE = {
+    ReportUse.FUSED: PlotUse.TRACKED,
+    ReportUse.REFERENCE: PlotUse.ADSB_REFERENCE,
+    ReportUse.REPEATED: PlotUse.ADSB_REPEATED,
+    ReportUse.INCONSISTENT: PlotUse.ADSB_INCONSISTENT,
+}
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -108,18 +133,28 @@ class CentralStage:
         self.plane = plane
         self.sources = sorted(self.infos, key=source_order)
         self.fuser: SystemTracker | None = None
+        fuse_adsb = fusion is not None and fusion.adsb == "fuse"
+        self.fusion_sources = [*self.sources, *([UNNAMED_ADSB_SOURCE] if fuse_adsb else [])]
+        """The fuser's sources by index (``system["radar"]``): the radars, then ADS-B."""
         if fusion is not None and self.sources:
             longest = max(self.infos[s].period_s for s in self.sources)
             if fusion.longest_period_s < longest:
                 fusion = replace(fusion, longest_period_s=longest)
-            self.fuser = SystemTracker(len(self.sources), fusion)
+            self.fuser = SystemTracker(len(self.fusion_sources), fusion)
         self.bias: BiasEstimator | None = None
         # "off" with reference values still corrects (the true biases given, say).
         if bias is not None and (bias.method != "off" or bias.reference_radars) and self.sources:
             self.bias = make_bias_estimator(bias, len(self.sources))
+        self.adsb_source: AdsbSource | None = None
+        if self.fuser is not None and fuse_adsb:
+            self.adsb_source = AdsbSource(
+                self.fuser, len(self.sources), share_reference=self.bias is not None
+            )
+        self._next_adsb_plot_id = ADSB_PLOT_ID_BASE
         self.bias_history: list[tuple[float, str, FloatArray, FloatArray]] = []
         """(time, source, bias, covariance) of each radar every ``BIAS_HISTORY_S`` of data."""
-        self.adsb = AdsbReference(plane) if self.bias is not None else None
+        uses_reference = self.bias is not None and (fusion is None or fusion.adsb != "off")
+        self.adsb = AdsbReference(plane) if uses_reference else None
         self._absolute_references = np.zeros(len(self.sources), dtype=np.int64)
         self._geometry: dict[int, tuple[FloatArray, FloatArray]] | None = (
             {} if bias is not None and bias.method == "macro" else None
@@ -132,11 +167,48 @@ class CentralStage:
         self._highest_track: dict[str, int] = {}
         self._live_local: dict[str, dict[int, npt.NDArray[Any]]] = {}
 
-    def feed_adsb(self, payload: bytes, received: float) -> None:
-        """The CAT021 blocks of a datagram: the bias estimator's absolute reference."""
+    def feed_adsb(self, payload: bytes, received: float) -> list[BatchOutput]:
+        """The CAT021 blocks of a datagram: the bias estimator's absolute reference, and
+        with ``[fusion] adsb = "fuse"`` the fuser's ADS-B source (one output per block)."""
+        if self.adsb is None and self.adsb_source is None:
+            return []
+        outputs = []
+        for block in blocks_of(payload, CAT021):
+            reports = decode_reports(block, received, self.plane)
+            if self.adsb_source is None:
+                assert self.adsb is not None
+                self.adsb.rejected += reports.records - len(reports)
+                self.adsb.add(reports)
+                continue
+            outputs.append(self._fuse_adsb(reports))
+        return outputs
+
+    def _fuse_adsb(self, reports: AdsbReports) -> BatchOutput:
+        """One block's reports through the fuser's ADS-B source (``fusion.adsb_source``)."""
+        assert self.adsb_source is not None and self.fuser is not None
+        if reports.station and self.fusion_sources[-1] == UNNAMED_ADSB_SOURCE:
+            self.fusion_sources[-1] = reports.station
+        step = self.adsb_source.step(reports, self._next_adsb_plot_id)
+        self._next_adsb_plot_id += len(step.plots)
         if self.adsb is not None:
-            for block in blocks_of(payload, CAT021):
-                self.adsb.feed(block, received)
+            self.adsb.rejected += reports.records - len(reports)
+            self.adsb.add(reports.take(step.reference))
+        system = _NO_SYSTEM_ROWS
+        if len(step.updates):
+            system = self.fuser.process(self.adsb_source.index, step.updates, step.plots)
+            self._mark_inconsistent(system)
+        return BatchOutput(
+            reports.station or self.fusion_sources[-1],
+            _report_table(reports, step),
+            step.updates,
+            system,
+        )
+
+    def _mark_inconsistent(self, system: npt.NDArray[Any]) -> None:
+        """Flag the system rows of the addresses whose ADS-B disagrees with the radars."""
+        if self.adsb_source is not None and self.adsb_source.stats.flagged and len(system):
+            flagged = np.fromiter(self.adsb_source.stats.flagged, dtype=np.int64)
+            system["adsb_inconsistent"] = np.isin(system["address"], flagged)
 
     def bias_estimates(self) -> dict[str, tuple[FloatArray, FloatArray]]:
         """Each fused radar's current bias [range offset m, gain, azimuth rad, time s] and
@@ -218,6 +290,9 @@ class CentralStage:
         if bias is not None and bias_cov is not None and not message.snapshot:
             extra = self._estimate_biases(index, message, batch, local, bias, bias_cov)
         system = self.fuser.process(index, local, batch, extra)
+        if self.adsb_source is not None:
+            self.adsb_source.check_radar(local, extra)
+        self._mark_inconsistent(system)
         return BatchOutput(source, message.plots, local, system, report)
 
     def _renumber(self, message: RadarBatch) -> bool:
@@ -319,7 +394,10 @@ class CentralStage:
         record of each aircraft's radars is kept up to date either way."""
         assert self.fuser is not None
         first_id = int(table["plot_id"][0])
-        refs = self.fuser.references(radar, local, batch)
+        # ADS-B's local tracks are no relative reference: its reports are fused or are the
+        # absolute reference already (fusion/adsb_source.py: no double use).
+        n_radars = len(self.sources)
+        refs = self.fuser.references(radar, local, batch, sources=n_radars)
         if self._geometry is not None:
             self._remember_geometry(radar, refs, table["R"], c, first_id)
         usable = refs.others_valid & relative
@@ -328,7 +406,7 @@ class CentralStage:
         row = refs.plot_id[usable] - first_id
         rc = c[row].copy()
         rc[:, :, 3] = -refs.others_v[usable]
-        contributors = refs.radars_seen[usable]
+        contributors = refs.radars_seen[usable][:, :n_radars]
         contributor_r = contributor_c = None
         if self._geometry is not None:
             contributor_r, contributor_c = self._contributor_geometry(refs.system_number[usable])
@@ -414,3 +492,27 @@ class CentralStage:
             s, p = self.bias.correction(radar)
             self.bias_history.append((time, source, s, p))
             self._bias_recorded[source] = time
+
+
+def _report_table(reports: AdsbReports, step: AdsbStep) -> npt.NDArray[Any]:
+    """One ``RAW_PLOT_DTYPE`` row per CAT021 record of the block, in record order, with
+    what became of it (``use``); records unfit for use carry no position."""
+    table = np.zeros(reports.records, dtype=RAW_PLOT_DTYPE)
+    table["plot_id"] = -1
+    table["record"] = np.arange(reports.records)
+    for name in ("time", "x", "y", "rho_m", "theta_deg", "flight_level", "detection_time"):
+        table[name] = np.nan
+    table["typ"] = ADSB_TYP
+    table["address"] = table["mode3a"] = table["aircraft"] = -1
+    table["kind"] = KIND_UNKNOWN
+    table["use"] = PlotUse.ADSB_UNFIT
+    row = reports.record
+    table["plot_id"][row] = step.plot_id
+    table["time"][row] = reports.time
+    table["x"][row], table["y"][row] = reports.x, reports.y
+    table["R"][row] = (reports.sigma**2)[:, None, None] * np.eye(2)
+    table["flight_level"][row] = reports.flight_level
+    table["address"][row] = reports.address
+    table["mode3a"][row] = reports.mode3a
+    table["use"][row] = [_REPORT_USE[ReportUse(u)] for u in step.use.tolist()]
+    return table

@@ -153,7 +153,8 @@ class Chain:
             atmosphere=atmosphere,
         )
         self.central = CentralStage(radars, plane, fusion, bias, time_sanity)
-        self.sources = self.central.sources
+        self.sources = self.central.fusion_sources
+        """The fuser's sources by index: the radars in SAC/SIC order, then ADS-B when fused."""
         self._order = 0
 
     @property
@@ -196,8 +197,8 @@ class Chain:
         """Process one datagram received at ``received`` (POSIX s)."""
         order = self._order
         self._order += 1
-        self.central.feed_adsb(payload, received)
-        return [
+        adsb = self.central.feed_adsb(payload, received)
+        return adsb + [
             self.central.process(batch) for batch in self.radar_stage.feed(payload, received, order)
         ]
 

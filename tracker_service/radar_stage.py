@@ -128,6 +128,18 @@ class PlotUse(IntEnum):
     reference where its position is surveyed."""
     NO_POSITION = 7
     """No measured position (RHO or THETA absent: a CAT048 TYP 0 "no detection" record)."""
+    ADSB_REFERENCE = 8
+    """An ADS-B report kept as the bias estimator's absolute reference, so not fused
+    (``[fusion] adsb = "fuse"``: no report serves both; fusion/adsb_source.py)."""
+    ADSB_REPEATED = 9
+    """An ADS-B report no newer than its address's latest (another ground station's copy
+    of the same squitter, or one out of sequence): it adds nothing."""
+    ADSB_INCONSISTENT = 10
+    """An ADS-B position that disagrees with the radars' tracks of its address beyond the
+    gate (a spoofed or faulty transponder, a wrong address): flagged, not fused."""
+    ADSB_UNFIT = 11
+    """A CAT021 record without address, time or position, or with a position quality
+    (NACp, NIC or NUCp) worse than 1 NM."""
 
 
 def rejections(use: npt.NDArray[np.int8]) -> dict[str, int]:

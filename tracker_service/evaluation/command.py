@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from tracker_service.evaluation.adsb_cover import adsb_cover_from_recording
 from tracker_service.evaluation.metrics import (
     Coverage,
     LocalMetrics,
@@ -74,6 +75,10 @@ class Evaluation:
                 "multi": self.system.multi.as_json(),
                 "single": self.system.single.as_json(),
             }
+            for key in ("adsb_only", "radar_and_adsb"):
+                metrics = getattr(self.system, key)
+                if metrics is not None:
+                    doc["system_by_coverage"][key] = metrics.as_json()
             doc["fusion"] = {"rms_ratio_to_best_local": self.system.rms_ratio_to_best_local}
         if self.bias:
             doc["bias"] = self.bias
@@ -125,6 +130,7 @@ def evaluate(
             gate_m=config.association_gate_m,
             min_identity_updates=config.min_identity_updates,
             end_time=float(every_plot["time"].max()),
+            adsb=adsb_cover_from_recording(result.recording),
         )
     bias = bias_metrics(result.bias, truth_biases(result.recording))
     vertical = {

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.evaluation.adsb_cover import AdsbCover, split_by_adsb
 from tracker_service.evaluation.metrics import (
     Coverage,
     LocalMetrics,
@@ -135,6 +136,9 @@ class SystemEvaluation:
     rms_ratio_to_best_local: float | None
     rows: npt.NDArray[Any]
     """The system rows as track rows (``as_track_rows``), for the report."""
+    adsb_only: LocalMetrics | None = None
+    """In some ADS-B station's cover and no radar's (``adsb_cover``); None: no ADS-B."""
+    radar_and_adsb: LocalMetrics | None = None
 
 
 def _local_estimates(
@@ -194,6 +198,7 @@ def system_metrics(
     gate_m: float = 1000.0,
     min_identity_updates: int = 2,
     end_time: float | None = None,
+    adsb: AdsbCover | None = None,
 ) -> SystemEvaluation:
     """Every system-track metric (see the module docstring). ``origins``: the plot origins
     of every radar; ``locals_``: per radar its local-track updates and plot origins."""
@@ -243,7 +248,20 @@ def system_metrics(
             for source, (updates, plot_origins) in locals_.items()
         }
         ratio = _best_local_ratio(errors, counts >= 2, local_labels, truth)
-    return SystemEvaluation(overall, multi, single, ratio, rows)
+    by_adsb: list[LocalMetrics | None] = [None, None]
+    radar_grid = system_coverage(coverages)
+    if adsb is not None and radar_grid is not None:
+        in_adsb = np.zeros(len(rows), dtype=bool)
+        grid = adsb.on_grid(radar_grid)
+        times = np.asarray(rows["time"][labelled], dtype=np.float64)
+        in_adsb[labelled] = coverage_counts({"adsb": grid}, labels[labelled], times) > 0
+        for i, (cover, mask) in enumerate(
+            zip(split_by_adsb(radar_grid, grid), (row_counts == 0, row_counts >= 1), strict=True)
+        ):
+            by_adsb[i] = local_metrics(
+                rows, origins, truth, cover, evaluate_mask=mask & in_adsb, **options
+            )
+    return SystemEvaluation(overall, multi, single, ratio, rows, *by_adsb)
 
 
 def truth_biases(recording: Recording) -> dict[str, dict[str, float]]:

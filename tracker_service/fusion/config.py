@@ -9,6 +9,8 @@ from tracker_service.tracking.config import TrackerConfig
 
 Method = Literal["tracks", "plots"]
 METHODS: tuple[Method, ...] = ("tracks", "plots")
+AdsbMode = Literal["fuse", "reference", "off"]
+ADSB_MODES: tuple[AdsbMode, ...] = ("fuse", "reference", "off")
 
 
 @dataclass(frozen=True)
@@ -69,6 +71,12 @@ class FusionConfig:
     """"plots" method: a plot older than its system track by more than this is skipped."""
     max_sources: int = 8
     """Local tracks listed (and fused) per system track: the most recent ones."""
+    adsb: AdsbMode = "reference"
+    """What CAT021 reports are for: "fuse", a surveillance source of the fuser (system
+    tracks of ADS-B-only aircraft, flagged when inconsistent with the radars) and the
+    radars' absolute bias reference, no report both (fusion/adsb_source.py); "reference",
+    the bias reference only; "off", unused. "reference" by default: what the service did
+    before ADS-B was fused, so that configurations keep their results."""
     plot_filter: TrackerConfig = field(
         default_factory=lambda: TrackerConfig(mean_sojourn_s=(150.0, 20.0, 20.0, 20.0, 20.0))
     )
@@ -85,6 +93,8 @@ class FusionConfig:
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, not {self.method!r}")
+        if self.adsb not in ADSB_MODES:
+            raise ValueError(f"[fusion] adsb must be one of {ADSB_MODES}, not {self.adsb!r}")
         positive = ("gate", "q", "longest_period_s", "max_backward_s")
         for name in positive:
             if not getattr(self, name) > 0:

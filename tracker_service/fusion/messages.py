@@ -32,9 +32,11 @@ SYSTEM_UPDATE_DTYPE = np.dtype(
         ("local_radars", np.int16, (MAX_SOURCES,)),
         ("local_numbers", np.int64, (MAX_SOURCES,)),
         ("local_plot_ids", np.int64, (MAX_SOURCES,)),
+        ("adsb_inconsistent", np.bool_),
     ]
 )
 """The state [x, y, vx, vy] in the system plane with P the flattened 4x4; flight level NaN
 when unknown; radar: whose batch produced the row; plot_id: that radar's plot in the row
 (-1 none); address, mode3a -1 when unknown; the local tracks that fed the row (ARTAS's
-track-related information), most recent first, -1 in unused slots."""
+track-related information), most recent first, -1 in unused slots; adsb_inconsistent:
+the ADS-B reports of its address disagree with its radars (fusion/adsb_source.py)."""

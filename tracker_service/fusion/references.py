@@ -37,9 +37,14 @@ class References:
 
 
 def references(
-    state: FusionState, radar: int, updates: npt.NDArray[Any], p: PlotArrays
+    state: FusionState,
+    radar: int,
+    updates: npt.NDArray[Any],
+    p: PlotArrays,
+    sources: int | None = None,
 ) -> References:
-    """See ``SystemTracker.references``."""
+    """See ``SystemTracker.references``; only the local tracks of sources below
+    ``sources`` serve (None: all)."""
     with_plot = updates[updates["plot_id"] >= 0]
     rows = state.local.find(radar, with_plot, create=False)
     loc = state.local.rows
@@ -49,6 +54,8 @@ def references(
     at = positions(p.plot_id, with_plot["plot_id"])
     t = np.where(at >= 0, p.time[np.maximum(at, 0)], with_plot["time"])
     slots = state.local.slots(numbers, state.config.max_sources)
+    if sources is not None:
+        slots = compact_slots(slots, loc["radar"][np.maximum(slots, 0)] < sources)
     s = np.maximum(slots, 0)
     recent = (slots >= 0) & (t[:, None] - loc["t_plot"][s] <= state.config.reference_age_s)
     others = recent & (loc["radar"][s] != radar)

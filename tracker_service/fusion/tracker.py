@@ -136,13 +136,18 @@ class SystemTracker:
         return result
 
     def references(
-        self, radar: int, updates: npt.NDArray[Any], plots: PlotArrays | npt.NDArray[Any]
+        self,
+        radar: int,
+        updates: npt.NDArray[Any],
+        plots: PlotArrays | npt.NDArray[Any],
+        sources: int | None = None,
     ) -> References:
         """Predictions at each plot's time that the plot has not updated (call before
         ``process`` on the same batch): from the other radars' local tracks, and from all
-        local tracks of its system track (see ``References``)."""
+        local tracks of its system track (see ``References``); ``sources``: only the
+        sources below this index serve (the radars, not ADS-B: fusion/adsb_source.py)."""
         self._check_radar(radar)
-        return references(self.state, radar, updates, as_plot_arrays(plots))
+        return references(self.state, radar, updates, as_plot_arrays(plots), sources)
 
     def _associate(
         self, radar: int, touched: IntArray, has_plot: BoolArray, local_rows: IntArray

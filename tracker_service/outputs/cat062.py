@@ -152,7 +152,7 @@ class TrackColumns:
     callsign: list[str | None]
     address: list[str | None]
     status: list[tuple[int, ...]]
-    """The I080 flags of ``_STATUS_FLAGS``, then DUPM."""
+    """The I080 flags of ``_STATUS_FLAGS``, then AFF and DUPM."""
     ages: FloatArray
     """(N, 4): PSR, SSR, MDS, ES ages, capped."""
     flight_level: FloatArray
@@ -317,6 +317,7 @@ def _status_flags(m: Mapping[str, Any]) -> tuple[int, ...]:
         int(ages["ssr"] is None),
         int(ages["mode_s"] is None),
         int(ages["adsb"] is None),
+        int(m.get("adsb_inconsistent", False)),
         int(m["duplicate_address"]),
     )
 
@@ -372,7 +373,7 @@ def _aircraft_derived(address: str | None, callsign: str | None) -> dict[str, An
 
 def _status(flags: tuple[int, ...]) -> dict[str, int]:
     """I080 up to its fourth extent (CST), to the sixth when DUPM is set."""
-    mon, tse, tsb, cst, psr, ssr, mds, ads, dupm = flags
+    mon, tse, tsb, cst, psr, ssr, mds, ads, aff, dupm = flags
     status = {
         "MON": mon,
         "SPI": 0,
@@ -383,7 +384,7 @@ def _status(flags: tuple[int, ...]) -> dict[str, int]:
         "TSE": tse,
         "TSB": tsb,
         "FPC": 0,
-        "AFF": 0,
+        "AFF": aff,
         "STP": 0,
         # No complementary (e.g. flight-plan) service: every track is the background one.
         "KOS": 1,

@@ -18,6 +18,7 @@ from typing import Any, Literal, cast
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.adsb import ADSB_TYP
 from tracker_service.bias import ObservedFrom
 from tracker_service.fusion import COASTING, ENDED
 from tracker_service.geodesy import SystemPlane
@@ -52,6 +53,7 @@ LOCAL_STATUS: tuple[LocalStatus, ...] = ("tentative", "confirmed", "coasting", "
 _PSR_TYPES = frozenset((1, 3, 6, 7))
 _SSR_TYPES = frozenset((2, 3))
 _MODE_S_TYPES = frozenset((4, 5, 6, 7))
+_ADSB_TYPES = frozenset((ADSB_TYP,))
 
 
 def _none_if_nan(value: float) -> float | None:
@@ -305,6 +307,7 @@ class MessageMapper:
             rows["local_radars"].tolist(),
             rows["local_numbers"].tolist(),
             rows["local_plot_ids"].tolist(),
+            rows["adsb_inconsistent"].tolist(),
             lat.tolist(),
             ((lon + 180.0) % 360.0 - 180.0).tolist(),
             strict=True,
@@ -312,7 +315,8 @@ class MessageMapper:
         updates = []
         for k, row in enumerate(columns):
             (number, time, x, y, vx, vy, level, climb, status, fresh, radar, plot_id) = row[:12]
-            (address_raw, code_raw, n_sources, radars, numbers, plot_ids, lat_k, lon_k) = row[12:]
+            (address_raw, code_raw, n_sources, radars, numbers, plot_ids, adsb_flag) = row[12:19]
+            lat_k, lon_k = row[19:]
             previous = self._tracks.get(number)
             sensor_times = {} if previous is None else previous.sensor_times
             last_plot = None if previous is None else previous.last_plot
@@ -327,6 +331,7 @@ class MessageMapper:
                     ("psr", _PSR_TYPES),
                     ("ssr", _SSR_TYPES),
                     ("mode_s", _MODE_S_TYPES),
+                    ("adsb", _ADSB_TYPES),
                 ):
                     if typ in types:
                         sensor_times[sensor] = plot_time
@@ -335,8 +340,9 @@ class MessageMapper:
                     "time": plot_time,
                     "lat": p_lat,
                     "lon": p_lon,
-                    "range_m": rho,
-                    "azimuth_deg": theta,
+                    # An ADS-B report has no range and azimuth (NaN).
+                    "range_m": _none_if_nan(rho),
+                    "azimuth_deg": _none_if_nan(theta),
                 }
             track_sources = []
             for slot in range(n_sources):
@@ -388,6 +394,7 @@ class MessageMapper:
                 "last_plot": last_plot,
                 "ages": ages,
                 "duplicate_address": address is not None and bool(self._by_address.get(address)),
+                "adsb_inconsistent": bool(adsb_flag),
             }
             update = SystemUpdate(number, doc, system_json(doc))
             if status == ENDED:
@@ -468,6 +475,7 @@ class MessageMapper:
                 ("psr", _PSR_TYPES),
                 ("ssr", _SSR_TYPES),
                 ("mode_s", _MODE_S_TYPES),
+                ("adsb", _ADSB_TYPES),
             ):
                 if typ in types:
                     sensor_times[sensor] = float(plot["time"])
@@ -476,8 +484,8 @@ class MessageMapper:
                 time=float(plot["time"]),
                 lat=plot_position[0],
                 lon=plot_position[1],
-                range_m=float(plot["rho_m"]),
-                azimuth_deg=wrap_degrees(float(plot["theta_deg"])),
+                range_m=_none_if_nan(float(plot["rho_m"])),
+                azimuth_deg=_none_if_nan(wrap_degrees(float(plot["theta_deg"]))),
             )
         sources = []
         for slot in range(int(row["n_sources"])):
@@ -529,6 +537,7 @@ class MessageMapper:
                 None, **{k: max(time - t, 0.0) for k, t in sensor_times.items()}
             ),
             duplicate_address=address is not None and bool(self._by_address.get(address)),
+            adsb_inconsistent=bool(row["adsb_inconsistent"]),
         )
         if status == ENDED:
             self._tracks.pop(number, None)

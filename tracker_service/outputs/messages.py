@@ -149,6 +149,9 @@ class SystemTrackMessage(_Message):
     """Seconds since each sensor type last updated it."""
     duplicate_address: bool = False
     """Another live system track carries the same Mode S address."""
+    adsb_inconsistent: bool = False
+    """The ADS-B reports of its address disagree with its radars beyond the gate (a
+    spoofed or faulty transponder, a wrong address): not fused (CAT062 I080 AFF)."""
 
     @field_validator("covariance")
     @classmethod

@@ -88,6 +88,7 @@ SYSTEM_FIELDS = (
     "last_plot",
     "ages",
     "duplicate_address",
+    "adsb_inconsistent",
 )
 """The order ``system_json`` writes: ``SystemTrackMessage``'s (checked by a test)."""
 

@@ -19,6 +19,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from tracker_service.fixed_targets import FixedTargetConfig
+from tracker_service.fusion.config import FusionConfig
 from tracker_service.geodesy import Atmosphere
 from tracker_service.geodesy.plane import PlaneKind
 from tracker_service.outputs.asterix_udp import parse_destination
@@ -317,6 +318,13 @@ class ServiceConfig(_Strict):
             raise ValueError(
                 f"unknown tracker setting(s) {unknown}; allowed: {sorted(TRACKER_FIELDS)}"
             )
+        return table
+
+    @field_validator("fusion")
+    @classmethod
+    def _fusion(cls, table: dict[str, Any]) -> dict[str, Any]:
+        # FusionConfig's checks raise ValueError naming the setting (``[fusion] adsb``).
+        FusionConfig(**dataclass_kwargs("fusion", table, FusionConfig))
         return table
 
     @field_validator("fixed_targets")

@@ -501,6 +501,11 @@ class Outputs:
         plots = output.plots
         counters = self._radars[output.source]
         counters.last_reception = self._now
+        if output.source in self._adsb_feeds:
+            # Its reports are counted at reception (adsb_status); here, what fusion made
+            # of them: fused, kept as the bias reference, repeated, inconsistent, unfit.
+            counters.rejected.update(rejections(plots["use"]))
+            plots = plots[:0]
         self.counts.plots += len(plots)
         counters.plots += len(plots)
         if len(plots):
@@ -530,7 +535,7 @@ class Outputs:
             for sink in self.sinks:
                 sink.local_updates(output.source, local, self._now)
         if len(output.system):
-            self._emit_system(self.mapper.system_updates(output.system, plots, sources))
+            self._emit_system(self.mapper.system_updates(output.system, output.plots, sources))
 
     def _emit_system(self, updates: list[SystemUpdate]) -> None:
         if not updates:

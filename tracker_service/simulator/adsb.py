@@ -1,4 +1,5 @@
-"""ADS-B ground stations: CAT021 reports of equipped aircraft, a reference for biases.
+"""ADS-B ground stations: CAT021 reports of equipped aircraft (a surveillance source and a
+reference for biases); an aircraft's ``adsb_offset_nm`` spoofs its positions.
 
 ADS-B positions come from the aircraft's GNSS, so they carry no radar bias; their noise
 follows the navigation accuracy category (NACp: the 95 % horizontal error bound) and
@@ -60,8 +61,9 @@ def adsb_emissions(
             a = int(aircraft[j])
             identity = truth.identities[a]
             sigma = NACP_EPU_M[identity.nacp] * SIGMA_PER_EPU
-            lat = float(state.lat[j]) + rng.normal(0.0, sigma) / EARTH_M_PER_DEG
-            lon = float(state.lon[j]) + rng.normal(0.0, sigma) / (
+            east, north = identity.adsb_offset_m
+            lat = float(state.lat[j]) + (north + rng.normal(0.0, sigma)) / EARTH_M_PER_DEG
+            lon = float(state.lon[j]) + (east + rng.normal(0.0, sigma)) / (
                 EARTH_M_PER_DEG * np.cos(np.radians(float(state.lat[j])))
             )
             applicable = wrapped_time_of_day(start_tod + float(when[j]))

@@ -221,6 +221,10 @@ class Aircraft(_Strict):
     transponder: Literal["mode_s", "mode_ac", "none"] = "mode_s"
     adsb: bool = False
     nacp: Annotated[int, Field(ge=0, le=11)] = 9
+    adsb_offset_nm: Annotated[float, Field(ge=0.0, le=100.0)] = 0.0
+    """A spoofed or faulty ADS-B position: its reports this far from the true position
+    (the radars see it where it is), towards ``adsb_offset_bearing_deg``."""
+    adsb_offset_bearing_deg: Annotated[float, Field(ge=0.0, lt=360.0)] = 90.0
     start_s: Annotated[float, Field(ge=0.0)] = 0.0
     lat: Annotated[float, Field(ge=-90.0, le=90.0)]
     lon: Annotated[float, Field(ge=-180.0, le=180.0)]

@@ -46,7 +46,7 @@ import numpy.typing as npt
 from pyproj import Geod
 
 from tracker_service.simulator.geometry import geometric_height_m
-from tracker_service.simulator.scenario import Aircraft, Area, Atmosphere, Scenario, Traffic
+from tracker_service.simulator.scenario import NM, Aircraft, Area, Atmosphere, Scenario, Traffic
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -108,6 +108,8 @@ class Identity:
     """Initial Mode 3/A code."""
     code_changes: tuple[tuple[float, str], ...]
     """(scenario time s, new code), in time order."""
+    adsb_offset_m: tuple[float, float] = (0.0, 0.0)
+    """(east, north) offset of its ADS-B positions from the truth: a spoofed transponder."""
 
 
 @dataclass
@@ -326,6 +328,10 @@ def _explicit(aircraft: list[Aircraft]) -> tuple[list[Identity], _Start, _Segmen
             nacp=ac.nacp,
             mode3a=ac.mode3a,
             code_changes=tuple(sorted((c.at_s, c.mode3a) for c in ac.code_changes)),
+            adsb_offset_m=(
+                ac.adsb_offset_nm * NM * math.sin(math.radians(ac.adsb_offset_bearing_deg)),
+                ac.adsb_offset_nm * NM * math.cos(math.radians(ac.adsb_offset_bearing_deg)),
+            ),
         )
         for ac in aircraft
     ]
