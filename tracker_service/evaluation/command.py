@@ -19,12 +19,13 @@ import math
 import sys
 import tomllib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from tracker_service.evaluation.manoeuvres import ManoeuvreMetrics, manoeuvre_metrics
 from tracker_service.evaluation.metrics import (
     Coverage,
     LocalMetrics,
@@ -44,6 +45,7 @@ from tracker_service.evaluation.system_metrics import (
     truth_biases,
 )
 from tracker_service.tracking import LocalTracker, TrackerConfig
+from tracker_service.tracking.models import ModelSet
 
 __all__ = ["Evaluation", "add_arguments", "evaluate", "main", "run"]
 
@@ -59,6 +61,7 @@ class Evaluation:
     local: dict[str, LocalMetrics]
     system: SystemEvaluation | None
     bias: dict[str, dict[str, dict[str, float | None]]]
+    manoeuvres: dict[str, ManoeuvreMetrics] = field(default_factory=dict)
 
     def as_json(self) -> dict[str, Any]:
         doc: dict[str, Any] = {
@@ -74,6 +77,8 @@ class Evaluation:
             doc["fusion"] = {"rms_ratio_to_best_local": self.system.rms_ratio_to_best_local}
         if self.bias:
             doc["bias"] = self.bias
+        if self.manoeuvres:
+            doc["manoeuvres"] = {source: m.as_json() for source, m in self.manoeuvres.items()}
         return doc
 
 
@@ -105,6 +110,18 @@ def evaluate(
             min_identity_updates=config.min_identity_updates,
             end_time=end,
         )
+    manoeuvres = {
+        source: manoeuvre_metrics(
+            radar.updates,
+            PlotOrigins.from_plots(radar.plots),
+            truth,
+            local[source],
+            ModelSet.from_config(radar.tracker_config).turn_rates_rad_s,
+            radar.info.period_s,
+            config.association_gate_m,
+        )
+        for source, radar in result.radars.items()
+    }
     system = None
     if len(result.system):
         every_plot = np.concatenate([radar.plots for radar in result.radars.values()])
@@ -122,7 +139,7 @@ def evaluate(
             end_time=float(every_plot["time"].max()),
         )
     bias = bias_metrics(result.bias, truth_biases(result.recording))
-    return Evaluation(result, truth, coverage, plots, local, system, bias)
+    return Evaluation(result, truth, coverage, plots, local, system, bias, manoeuvres)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -22,6 +22,7 @@ from tracker_service.tracking.association import (
 )
 from tracker_service.tracking.clock import DataClock
 from tracker_service.tracking.config import TrackerConfig
+from tracker_service.tracking.daps import DapUpdate
 from tracker_service.tracking.initiate import TwoPointInitiator, two_point_state
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
@@ -119,6 +120,7 @@ class LocalTracker:
         self.config = config or TrackerConfig()
         self.models = ModelSet.from_config(self.config)
         self.imm = imm.make_imm(self.config.implementation, self.models)
+        self.daps = DapUpdate(self.config, self.models) if self.config.use_daps else None
         self._compiled = self.config.implementation == "compiled"
         self.stats = TrackerStats()
         self.initiator = TwoPointInitiator(self.config)
@@ -329,6 +331,8 @@ class LocalTracker:
         else:
             xc, pc = imm.combine(posterior.x, posterior.P, posterior.mu)
             step = imm.ImmUpdate(posterior.x, posterior.P, posterior.mu, xc, pc)
+        if self.daps is not None:
+            step = self.daps.apply(step, p)
         x_new, p_new, mu_new, xc, pc = step.x, step.P, step.mu, step.x_comb, step.P_comb
         if self._compiled:
             kernels.record_updates(
