@@ -19,7 +19,8 @@ Two steps, one on each side of the plot batch:
 The velocity's noise is honest about what the register is: ground speed to 2 kt steps
 (and the aircraft's own error), the track angle to 0.18 deg, and its age: a register the
 transponder updated up to ``dap_latency_s`` before the interrogation lags a turn by
-omega * age across the track (uniform age: variance (V omega tau)^2 / 3).
+omega * age across the track: the velocity is turned on by the reported turn over the
+mean age (tau / 2) and the rest counted as noise (uniform age: (V omega tau)^2 / 12).
 """
 
 from __future__ import annotations
@@ -105,8 +106,9 @@ def plot_daps(
     windy = np.abs(gs_kt - tas_kt) > MAX_WIND_KT  # NaN compares false
     rate_rad, roll_rate = _turn_rates(out["track_angle_rate_deg_s"], out["roll_deg"], gs_kt)
     disagree = np.abs(rate_rad - roll_rate) > np.radians(MAX_RATE_ROLL_DISAGREEMENT_DEG_S)
-    for name in ("ground_speed_kt", "roll_deg", "track_angle_rate_deg_s"):
-        out[name][windy | disagree] = np.nan
+    out["ground_speed_kt"][windy] = np.nan
+    out["roll_deg"][disagree] = np.nan
+    out["track_angle_rate_deg_s"][disagree] = np.nan
     implausible |= windy | disagree
     rate_rad, roll_rate = _turn_rates(out["track_angle_rate_deg_s"], out["roll_deg"], gs_kt)
     out["dap_turn_rate_rad_s"] = np.where(np.isfinite(rate_rad), rate_rad, roll_rate)
@@ -187,7 +189,10 @@ class DapUpdate:
         speed = np.hypot(vx, vy)
         omega = np.nan_to_num(p.rows["dap_turn_rate_rad_s"][rows])
         along = np.full(len(rows), noise.speed_sigma_m_s**2)
-        across = (speed * noise.track_sigma_rad) ** 2 + (speed * omega * noise.latency_s) ** 2 / 3.0
+        # The age, uniform over [0, latency], less its mean (``apply`` turns the velocity
+        # on by the mean): variance latency^2 / 12 of the turn's lag.
+        lag = speed * omega * noise.latency_s
+        across = (speed * noise.track_sigma_rad) ** 2 + lag**2 / 12.0
         ux = np.where(speed > 0, vx / np.maximum(speed, 1e-9), 1.0)
         uy = np.where(speed > 0, vy / np.maximum(speed, 1e-9), 0.0)
         r = np.empty((len(rows), 2, 2))
@@ -208,7 +213,7 @@ class DapUpdate:
         x, P, mu = x.copy(), P.copy(), mu.copy()
         rows = np.flatnonzero(has_v)
         if len(rows):
-            z = np.column_stack([p.rows["dap_vx"][rows], p.rows["dap_vy"][rows]])
+            z = aged_velocity(p, rows, self.noise.latency_s)
             r = self.velocity_covariance(p, rows)
             # Gate on the combined estimate: a velocity far from its track is another
             # aircraft's register (a shared address) or a fault, not a measurement.
@@ -235,6 +240,15 @@ class DapUpdate:
             self.counts.turn_evidence += len(w_rows)
         xc, pc = imm.combine(x, P, mu)
         return imm.ImmUpdate(x, P, mu, xc, pc)
+
+
+def aged_velocity(p: PlotArrays, rows: npt.NDArray[np.intp], latency_s: float) -> FloatArray:
+    """(k, 2): the DAP velocities turned on by the reported turn over the register's mean
+    age (half ``latency_s``): in a turn the register lags the aircraft by that much."""
+    vx, vy = p.rows["dap_vx"][rows], p.rows["dap_vy"][rows]
+    angle = np.nan_to_num(p.rows["dap_turn_rate_rad_s"][rows]) * (0.5 * latency_s)
+    c, s = np.cos(angle), np.sin(angle)
+    return np.column_stack([c * vx - s * vy, s * vx + c * vy])
 
 
 def velocity_update(
