@@ -42,7 +42,7 @@ never taken for a measurement. Make new rows with ``empty_plots`` (DAPs NaN)."""
 DAP_VELOCITY = 1
 DAP_TURN_RATE = 2
 
-PLOT_DTYPE = np.dtype(
+BASE_PLOT_DTYPE = np.dtype(
     [
         ("time", np.float64),
         ("x", np.float64),
@@ -55,6 +55,14 @@ PLOT_DTYPE = np.dtype(
         ("address", np.int64),
         ("typ", np.int64),
         ("plot_id", np.int64),
+    ]
+)
+"""The columns before the DAPs: rows built from these (``as_plot_arrays``) get the DAPs
+absent."""
+
+PLOT_DTYPE = np.dtype(
+    [
+        *((name, BASE_PLOT_DTYPE.fields[name][0]) for name in BASE_PLOT_DTYPE.names or ()),  # type: ignore[index]
         *((name, np.float64) for name in DAP_FIELDS),
         ("dap_flags", np.uint8),
     ]
