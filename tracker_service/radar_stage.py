@@ -43,6 +43,7 @@ from tracker_service.stage_messages import RadarBatch
 from tracker_service.time_sanity import TimeBase, TimeSanity, TimeSanityConfig
 from tracker_service.tracking import LocalTracker, TrackerConfig
 from tracker_service.tracking.daps import plot_daps
+from tracker_service.tracking.plots import PUBLISHED_DAP_FIELDS as DAP_NAMES
 from tracker_service.tracking.plots import empty_plots
 
 __all__ = [
@@ -99,6 +100,8 @@ RAW_PLOT_DTYPE = np.dtype(
         ("detection_time", np.float64),  # true time of detection, NaN when unknown
         ("use", np.int8),  # PlotUse: what the chain did with the plot
         ("implausible_daps", np.bool_),  # some Mode S DAP dropped as implausible (tracking.daps)
+        ("has_daps", np.bool_),  # the DAP columns below hold the plot's DAPs (NaN: absent)
+        *((name, np.float64) for name in DAP_NAMES),
     ]
 )
 """One converted plot of one radar, as received (before any bias correction), with room
@@ -236,7 +239,8 @@ def convert_batch(
     mode3a = np.asarray(raw["mode3a"], dtype=np.int64)
 
     batch = empty_plots(n)
-    implausible_daps = _fill_daps(batch, raw, plane, converted)
+    table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
+    implausible_daps = _fill_daps(batch, table, raw, plane, converted)
     batch["time"] = times
     batch["x"] = converted.x
     batch["y"] = converted.y
@@ -251,7 +255,6 @@ def convert_batch(
     batch["typ"] = raw["typ"]
     batch["plot_id"] = ids
 
-    table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
     table["plot_id"] = ids
     table["sequence"] = sequence
     table["record"] = np.arange(n)
@@ -283,11 +286,15 @@ def convert_batch(
 
 
 def _fill_daps(
-    batch: npt.NDArray[Any], raw: npt.NDArray[Any], plane: SystemPlane, converted: Any
+    batch: npt.NDArray[Any],
+    table: npt.NDArray[Any],
+    raw: npt.NDArray[Any],
+    plane: SystemPlane,
+    converted: Any,
 ) -> npt.NDArray[np.bool_]:
-    """The plots' Mode S DAPs into the tracker's batch (``tracking.daps.plot_daps``); per
-    plot, whether one was implausible. Batches without any DAP (CAT001, Mode A/C) cost
-    one look."""
+    """The plots' Mode S DAPs into the tracker's batch (``tracking.daps.plot_daps``) and
+    the plot table (for the outputs); per plot, whether one was implausible. Batches
+    without any DAP (CAT001, Mode A/C) cost one look."""
     names = raw.dtype.names or ()
     if not any(name in names and np.isfinite(raw[name]).any() for name in DAP_COLUMNS):
         return np.zeros(len(raw), dtype=bool)
@@ -296,6 +303,11 @@ def _fill_daps(
     )
     for name, values in columns.items():
         batch[name] = values
+    has = np.zeros(len(raw), dtype=bool)
+    for name in DAP_NAMES:
+        table[name] = columns[name]
+        has |= np.isfinite(columns[name])
+    table["has_daps"] = has
     return implausible
 
 

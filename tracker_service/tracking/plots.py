@@ -41,6 +41,20 @@ the plane ``dap_vx``, ``dap_vy`` (m/s) and the turn rate in the plane
 never taken for a measurement. Make new rows with ``empty_plots`` (DAPs NaN)."""
 DAP_VELOCITY = 1
 DAP_TURN_RATE = 2
+PUBLISHED_DAP_FIELDS = (
+    "magnetic_heading_deg",
+    "indicated_airspeed_kt",
+    "mach",
+    "selected_altitude_ft",
+    "baro_rate_fpm",
+    "inertial_rate_fpm",
+    "roll_deg",
+    "track_angle_rate_deg_s",
+    "true_track_deg",
+    "ground_speed_kt",
+)
+"""The DAPs the plot table carries on to the system-track messages and CAT062 I380
+(``outputs.messages.DapName``, in this order)."""
 
 BASE_PLOT_DTYPE = np.dtype(
     [
