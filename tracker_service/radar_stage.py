@@ -100,7 +100,7 @@ RAW_PLOT_DTYPE = np.dtype(
         ("detection_time", np.float64),  # true time of detection, NaN when unknown
         ("use", np.int8),  # PlotUse: what the chain did with the plot
         ("implausible_daps", np.bool_),  # some Mode S DAP dropped as implausible (tracking.daps)
-        ("has_daps", np.bool_),  # the DAP columns below hold the plot's DAPs (NaN: absent)
+        ("has_daps", np.bool_),  # the DAP columns below hold DAPs (then NaN: absent); else unset
         *((name, np.float64) for name in DAP_NAMES),
     ]
 )
