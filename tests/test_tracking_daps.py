@@ -134,7 +134,7 @@ def test_dap_step_gates_a_velocity_far_from_its_track_and_ignores_zero_rows() ->
     plots["dap_vx"] = [201.0, -200.0]  # the second flies the other way
     plots["dap_vy"] = 0.0
     out = step.apply(update, PlotArrays(plots))
-    assert step.counts.velocity_updates == 1 and step.counts.velocity_gated_out == 1
+    assert step.counts.dap_velocity_updates == 1 and step.counts.dap_velocity_gated_out == 1
     assert np.allclose(out.x[1], x[1])
     assert out.P_comb[0, 2, 2] < 5.0
 

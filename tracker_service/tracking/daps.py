@@ -26,7 +26,7 @@ mean age (tau / 2) and the rest counted as noise (uniform age: (V omega tau)^2 /
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -166,21 +166,31 @@ class DapNoise:
         )
 
 
-@dataclass
-class DapCounts:
-    velocity_updates: int = 0
-    turn_evidence: int = 0
-    velocity_gated_out: int = 0
+class DapCounts(Protocol):
+    """Where the DAP step counts (``tracker.TrackerStats``)."""
+
+    dap_velocity_updates: int
+    dap_turn_evidence: int
+    dap_velocity_gated_out: int
     """Velocities that disagreed with their track beyond ``dap_velocity_gate``: not used."""
+
+
+@dataclass
+class _Counts:
+    dap_velocity_updates: int = 0
+    dap_turn_evidence: int = 0
+    dap_velocity_gated_out: int = 0
 
 
 class DapUpdate:
     """The DAP step after the IMM's position update (module docstring)."""
 
-    def __init__(self, config: TrackerConfig, models: ModelSet) -> None:
+    def __init__(
+        self, config: TrackerConfig, models: ModelSet, counts: DapCounts | None = None
+    ) -> None:
         self.noise = DapNoise.from_config(config)
         self.turn_rates = models.turn_rates_rad_s
-        self.counts = DapCounts()
+        self.counts: DapCounts = _Counts() if counts is None else counts
 
     def velocity_covariance(self, p: PlotArrays, rows: npt.NDArray[np.intp]) -> FloatArray:
         """(k, 2, 2): along- and across-track variances turned onto the plane's axes."""
@@ -223,12 +233,12 @@ class DapUpdate:
             s_inv, _ = imm.inv2(pc[:, 2:, 2:] + r)
             nis = np.einsum("ka,kab,kb->k", y, s_inv, y)
             ok = nis <= self.noise.velocity_gate
-            self.counts.velocity_gated_out += int(np.count_nonzero(~ok))
+            self.counts.dap_velocity_gated_out += int(np.count_nonzero(~ok))
             rows, z, r = rows[ok], z[ok], r[ok]
         if len(rows):
             xv, pv, muv = velocity_update(x[rows], P[rows], mu[rows], z, r)
             x[rows], P[rows], mu[rows] = xv, pv, muv
-            self.counts.velocity_updates += len(rows)
+            self.counts.dap_velocity_updates += len(rows)
         w_rows = np.flatnonzero(has_w)
         if len(w_rows):
             mu[w_rows] = turn_evidence(
@@ -237,7 +247,7 @@ class DapUpdate:
                 self.turn_rates,
                 self.noise.turn_rate_sigma_rad_s,
             )
-            self.counts.turn_evidence += len(w_rows)
+            self.counts.dap_turn_evidence += len(w_rows)
         xc, pc = imm.combine(x, P, mu)
         return imm.ImmUpdate(x, P, mu, xc, pc)
 

@@ -110,6 +110,11 @@ class TrackerStats:
     clock_resyncs: int = 0
     """Times the clock followed a sustained jump of the radar's time."""
     last_clock_jump_s: float = 0.0
+    dap_velocity_updates: int = 0
+    """Updates that took their plot's BDS 5,0 velocity (``tracking.daps``)."""
+    dap_turn_evidence: int = 0
+    dap_velocity_gated_out: int = 0
+    """BDS 5,0 velocities too far from their track to be used."""
 
 
 class LocalTracker:
@@ -120,9 +125,11 @@ class LocalTracker:
         self.config = config or TrackerConfig()
         self.models = ModelSet.from_config(self.config)
         self.imm = imm.make_imm(self.config.implementation, self.models)
-        self.daps = DapUpdate(self.config, self.models) if self.config.use_daps else None
         self._compiled = self.config.implementation == "compiled"
         self.stats = TrackerStats()
+        self.daps = (
+            DapUpdate(self.config, self.models, self.stats) if self.config.use_daps else None
+        )
         self.initiator = TwoPointInitiator(self.config)
         self.output_dtype = track_update_dtype(self.models.n_models)
         self._table_dtype = _table_dtype(self.models.n_models)
