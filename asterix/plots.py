@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from asterix import spec
+from asterix import daps, spec
 from asterix.codec import DecodeError, codec
 from asterix.engine import (
     ICAO_CHARACTERS,
@@ -149,7 +149,7 @@ def _field(
 
 
 _FIELDS = {cat: tuple(_locate(cat, c) for c in columns) for cat, columns in COLUMNS.items()}
-_TEXT_ITEMS = {48: ("240", "RE")}  # callsign and extended range, read apart
+_TEXT_ITEMS = {48: ("240", "RE", "250")}  # callsign, extended range and DAPs, read apart
 _ITEMS = {
     cat: (*dict.fromkeys(c.item for c in columns), *_TEXT_ITEMS.get(cat, ()))
     for cat, columns in COLUMNS.items()
@@ -175,6 +175,7 @@ PLOT_DTYPE = np.dtype(
         *_column_dtypes(),
         ("callsign", "U8"),
         ("extended_range", np.bool_),
+        *((name, np.float64) for name in daps.DAP_COLUMNS),
     ]
 )
 
@@ -394,6 +395,7 @@ def _blank() -> Any:
 
 
 _BLANK = _blank()
+_FIRST_DAP_COLUMN = (PLOT_DTYPE.names or ()).index(daps.DAP_COLUMNS[0])
 _BLANK_VALUES = tuple(_BLANK.tolist())
 _ABSENT = {
     cat: [
@@ -443,6 +445,9 @@ def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) 
             plots[f.column.name] = _column(buf, starts[:, slots[f.column.item]], f)
         if "240" in slots:
             plots["callsign"] = _callsigns(buf, starts[:, slots["240"]])
+        if "250" in slots:
+            for name, values in daps.decode_columns(buf, starts[:, slots["250"]]).items():
+                plots[name] = values
     if "RE" in slots:
         _apply_extended_range(data, plots, starts[:, 0], starts[:, slots["RE"]])
     return plots
@@ -452,6 +457,7 @@ def _plots_by_record(cat: int, data: bytes, starts: list[list[int]]) -> Any:
     """The same columns as ``_column`` and ``_callsigns`` give, one record at a time."""
     callsign = _SLOTS[cat].get("240", -1)
     callsign_column = (PLOT_DTYPE.names or ()).index("callsign")
+    dap_slot = _SLOTS[cat].get("250", -1)
     out = []
     for row in starts:
         values = list(_BLANK_VALUES)
@@ -470,6 +476,8 @@ def _plots_by_record(cat: int, data: bytes, starts: list[list[int]]) -> Any:
         if callsign >= 0 and row[callsign] >= 0:
             at = row[callsign]
             values[callsign_column] = icao_text(int.from_bytes(data[at : at + 6]), 8)
+        if dap_slot >= 0 and row[dap_slot] >= 0:
+            daps.decode_record(data, row[dap_slot], values, _FIRST_DAP_COLUMN)
         out.append(tuple(values))
     return np.array(out, dtype=PLOT_DTYPE)
 

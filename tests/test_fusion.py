@@ -22,6 +22,7 @@ from tracker_service.fusion import (
     ml_fuse,
 )
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
+from tracker_service.tracking.plots import BASE_PLOT_DTYPE, as_plot_arrays
 
 T0 = 1.7e9
 DURATION = 300.0
@@ -104,7 +105,7 @@ def build(aircraft: list[Aircraft], radars: list[Radar], seed: int = 3) -> Scena
                 pid = len(owner)
                 owner[pid], truth_time[pid] = ai, t
                 rows.append((T0 + t, x, y, r, 330.0, True, a.mode3a, True, a.address, 2, pid))
-        plots = np.array(rows, dtype=PLOT_DTYPE)
+        plots = as_plot_arrays(np.array(rows, dtype=BASE_PLOT_DTYPE)).rows
         plots = plots[np.argsort(plots["time"], kind="stable")]
         sector = np.floor((plots["time"] - T0 - radar.phase) / (radar.period / SECTORS))
         cuts = np.flatnonzero(np.diff(sector)) + 1

@@ -96,7 +96,46 @@ def _track(draw: st.DrawFn) -> SystemTrackMessage:
             "adsb": draw(_optional_age),
         },
         duplicate_address=draw(st.booleans()),
+        daps=[
+            {"name": name, "value": draw(_num(*DAP_RANGES[name])), "age_s": draw(_num(0.0, 90.0))}
+            for name in DAP_RANGES
+            if draw(st.booleans())
+        ],
     )
+
+
+DAP_RANGES = {
+    "magnetic_heading_deg": (0.0, 359.99),
+    "indicated_airspeed_kt": (0.0, 500.0),
+    "mach": (0.0, 1.2),
+    "selected_altitude_ft": (0.0, 60_000.0),
+    "baro_rate_fpm": (-8000.0, 8000.0),
+    "inertial_rate_fpm": (-8000.0, 8000.0),
+    "roll_deg": (-60.0, 60.0),
+    "track_angle_rate_deg_s": (-8.0, 8.0),
+    "true_track_deg": (0.0, 359.99),
+    "ground_speed_kt": (0.0, 700.0),
+}
+"""Every DAP a system-track message may carry, over its plausible range."""
+
+
+def test_daps_reach_i380_and_their_ages_i295() -> None:
+    daps = [
+        {"name": "ground_speed_kt", "value": 450.0, "age_s": 2.5},
+        {"name": "roll_deg", "value": -20.0, "age_s": 2.5},
+        {"name": "track_angle_rate_deg_s", "value": -1.5, "age_s": 2.5},
+        {"name": "selected_altitude_ft", "value": 35_000.0, "age_s": 100.0},
+    ]
+    track = _plain(daps=daps)
+    data = encode_system_tracks([track], SYSTEM)
+    assert data == encode_system_tracks_generic([track], SYSTEM)
+    (record,) = [r for e in decode_blocks(data) if isinstance(e, Block) for r in e.records]
+    i380, i295 = record["380"], record["295"]
+    assert i380["GS"] == pytest.approx(450.0 / 3600.0, abs=2**-14)
+    assert i380["RAN"] == pytest.approx(-20.0, abs=0.01)
+    assert i380["TAR"]["TI"] == 1 and i380["TAR"]["ROT"] == pytest.approx(-1.5)
+    assert i380["SAL"]["ALT"] == pytest.approx(35_000.0, abs=25)
+    assert i295["GSP"] == pytest.approx(2.5) and i295["SAL"] == pytest.approx(63.75)
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -21,6 +21,7 @@ from tracker_service.outputs.mcap_log import McapLog, read_log_messages
 from tracker_service.outputs.mcap_sink import McapSink
 from tracker_service.outputs.messages import LocalTrackMessage, SystemTrackMessage
 from tracker_service.outputs.updates import LOCAL_FIELDS, SYSTEM_FIELDS
+from tracker_service.tracking.plots import PUBLISHED_DAP_FIELDS
 from tracker_service.tracking.tracker import track_update_dtype
 
 PLANE = SystemPlane(48.5, 11.0)
@@ -62,6 +63,12 @@ def _plots(rng: np.random.Generator, n: int, t: float, first_id: int) -> npt.NDA
     plots["typ"] = rng.integers(0, 8, n)
     plots["address"] = rng.integers(0, 40, n)
     plots["callsign"] = np.where(rng.random(n) < 0.5, "", "RYR1")
+    # Mode S DAPs on half the plots, each there or not: the messages keep each one's
+    # last value and age.
+    plots["has_daps"] = rng.random(n) < 0.5
+    for name in PUBLISHED_DAP_FIELDS:
+        there = plots["has_daps"] & (rng.random(n) < 0.7)
+        plots[name] = np.where(there, rng.uniform(0.0, 300.0, n), np.nan)
     return plots
 
 

@@ -16,6 +16,7 @@ from tracker_service.tracking import (
     LocalTracker,
     TrackerConfig,
 )
+from tracker_service.tracking.plots import BASE_PLOT_DTYPE, as_plot_arrays
 
 PERIOD = 5.0
 SECTORS = 16
@@ -130,7 +131,7 @@ def simulate(
             x, y = rng.uniform(-clutter_half_width, clutter_half_width, 2)
             t = k * PERIOD + _azimuth(x, y) / (2 * np.pi) * PERIOD
             add(t, x, y, -1, np.nan, -1, -1, 1)
-    plots = np.array(rows, dtype=PLOT_DTYPE)
+    plots = as_plot_arrays(np.array(rows, dtype=BASE_PLOT_DTYPE)).rows
     plots = plots[np.argsort(plots["time"], kind="stable")]
     sector = np.floor((plots["time"] - T0) / (PERIOD / SECTORS)).astype(int)
     cuts = np.flatnonzero(np.diff(sector)) + 1
@@ -298,13 +299,13 @@ def test_late_and_invalid_plots_are_handled() -> None:
     assert track.size == 1 and track["status"][0] == CONFIRMED
     last = float(track["t"][0]) - T0
     rng = np.random.default_rng(9)
-    late = np.zeros(3, dtype=PLOT_DTYPE)
+    late = np.zeros(3, dtype=BASE_PLOT_DTYPE)
     for i, (dt, pid) in enumerate(((-1.0, 1000), (-8.0, 1001), (0.5, 1002))):
         s = target.truth(last + dt)
         x, y, r = _plot(rng, s[0], s[1])
         late[i] = (T0 + last + dt, x, y, r, np.nan, False, -1, False, -1, 2, pid)
     late["x"][2] = np.nan  # an invalid plot
-    out = tracker.process(late)
+    out = tracker.process(as_plot_arrays(late))
     assert tracker.stats.invalid_plots == 1
     assert tracker.stats.late_plots_dropped == 1  # 8 s old: beyond the backward limit
     assert list(out["plot_id"][out["plot_id"] >= 0]) == [1000]  # 1 s late: predicted back

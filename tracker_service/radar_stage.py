@@ -33,6 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 from asterix.codec import Block, decode_blocks
+from asterix.daps import DAP_COLUMNS
 from asterix.plots import extract_plots
 from tracker_service.fixed_targets import FixedTargetConfig, FixedTargets, FixedTransponder
 from tracker_service.geodesy import (
@@ -46,7 +47,10 @@ from tracker_service.ingest import PlotClock
 from tracker_service.sources import DEFAULT_MAX_UNKNOWN, SourceAdmission
 from tracker_service.stage_messages import RadarBatch
 from tracker_service.time_sanity import TimeBase, TimeSanity, TimeSanityConfig
-from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
+from tracker_service.tracking import LocalTracker, TrackerConfig
+from tracker_service.tracking.daps import plot_daps
+from tracker_service.tracking.plots import PUBLISHED_DAP_FIELDS as DAP_NAMES
+from tracker_service.tracking.plots import empty_plots
 
 __all__ = [
     "KIND_UNKNOWN",
@@ -101,6 +105,9 @@ RAW_PLOT_DTYPE = np.dtype(
         ("aircraft", np.int64),  # origin aircraft index, -1 when none or unknown
         ("detection_time", np.float64),  # true time of detection, NaN when unknown
         ("use", np.int8),  # PlotUse: what the chain did with the plot
+        ("implausible_daps", np.bool_),  # some Mode S DAP dropped as implausible (tracking.daps)
+        ("has_daps", np.bool_),  # the DAP columns below hold DAPs (then NaN: absent); else unset
+        *((name, np.float64) for name in DAP_NAMES),
     ]
 )
 """One converted plot of one radar, as received (before any bias correction), with room
@@ -249,7 +256,9 @@ def convert_batch(
     ids = np.arange(first_id, first_id + n, dtype=np.int64)
     mode3a = np.asarray(raw["mode3a"], dtype=np.int64)
 
-    batch = np.zeros(n, dtype=PLOT_DTYPE)
+    batch = empty_plots(n)
+    table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
+    implausible_daps = _fill_daps(batch, table, raw, plane, converted)
     batch["time"] = times
     batch["x"] = converted.x
     batch["y"] = converted.y
@@ -264,7 +273,6 @@ def convert_batch(
     batch["typ"] = raw["typ"]
     batch["plot_id"] = ids
 
-    table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
     table["plot_id"] = ids
     table["sequence"] = sequence
     table["record"] = np.arange(n)
@@ -284,6 +292,7 @@ def convert_batch(
     table["kind"] = KIND_UNKNOWN
     table["aircraft"] = -1
     table["detection_time"] = np.nan
+    table["implausible_daps"] = implausible_daps
     table["use"] = np.select(
         [rab, np.asarray(raw["tst"]) == 1, np.asarray(raw["sim"]) == 1],
         [PlotUse.FIELD_MONITOR, PlotUse.TEST_TARGET, PlotUse.SIMULATED],
@@ -292,6 +301,32 @@ def convert_batch(
     table["use"][raw["track_report"] == 1] = PlotUse.RADAR_TRACK
     table["use"][~(np.isfinite(raw["rho"]) & np.isfinite(raw["theta"]))] = PlotUse.NO_POSITION
     return batch, table, c
+
+
+def _fill_daps(
+    batch: npt.NDArray[Any],
+    table: npt.NDArray[Any],
+    raw: npt.NDArray[Any],
+    plane: SystemPlane,
+    converted: Any,
+) -> npt.NDArray[np.bool_]:
+    """The plots' Mode S DAPs into the tracker's batch (``tracking.daps.plot_daps``) and
+    the plot table (for the outputs); per plot, whether one was implausible. Batches
+    without any DAP (CAT001, Mode A/C) cost one look."""
+    names = raw.dtype.names or ()
+    if not any(name in names and np.isfinite(raw[name]).any() for name in DAP_COLUMNS):
+        return np.zeros(len(raw), dtype=bool)
+    columns, implausible = plot_daps(
+        raw, plane, converted.lat_deg, converted.lon_deg, converted.height_m
+    )
+    for name, values in columns.items():
+        batch[name] = values
+    has = np.zeros(len(raw), dtype=bool)
+    for name in DAP_NAMES:
+        table[name] = columns[name]
+        has |= np.isfinite(columns[name])
+    table["has_daps"] = has
+    return implausible
 
 
 def local_jacobian(
@@ -540,7 +575,7 @@ class RadarStage:
             local["plot_id"] = np.arange(first_id, first_id + n)
             p = local["P"].reshape(-1, 4, 4)
             table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
-            tracked = np.zeros(n, dtype=PLOT_DTYPE)
+            tracked = empty_plots(n)
             for rows in (table, tracked):
                 rows["plot_id"] = local["plot_id"]
                 rows["time"] = local["time"]

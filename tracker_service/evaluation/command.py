@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from tracker_service.evaluation.adsb_cover import adsb_cover_from_recording
+from tracker_service.evaluation.manoeuvres import ManoeuvreMetrics, manoeuvre_metrics
 from tracker_service.evaluation.metrics import (
     Coverage,
     LocalMetrics,
@@ -46,6 +47,7 @@ from tracker_service.evaluation.system_metrics import (
 )
 from tracker_service.evaluation.vertical_metrics import vertical_metrics
 from tracker_service.tracking import LocalTracker, TrackerConfig
+from tracker_service.tracking.models import ModelSet
 
 __all__ = ["Evaluation", "add_arguments", "evaluate", "main", "run"]
 
@@ -63,6 +65,7 @@ class Evaluation:
     bias: dict[str, dict[str, dict[str, float | None]]]
     vertical: dict[str, dict[str, float | int | None]] = field(default_factory=dict)
     """Per radar, ``vertical_metrics.vertical_metrics``."""
+    manoeuvres: dict[str, ManoeuvreMetrics] = field(default_factory=dict)
 
     def as_json(self) -> dict[str, Any]:
         doc: dict[str, Any] = {
@@ -84,6 +87,8 @@ class Evaluation:
             doc["bias"] = self.bias
         if self.vertical:
             doc["vertical"] = self.vertical
+        if self.manoeuvres:
+            doc["manoeuvres"] = {source: m.as_json() for source, m in self.manoeuvres.items()}
         return doc
 
 
@@ -115,6 +120,18 @@ def evaluate(
             min_identity_updates=config.min_identity_updates,
             end_time=end,
         )
+    manoeuvres = {
+        source: manoeuvre_metrics(
+            radar.updates,
+            PlotOrigins.from_plots(radar.plots),
+            truth,
+            local[source],
+            ModelSet.from_config(radar.tracker_config).turn_rates_rad_s,
+            radar.info.period_s,
+            config.association_gate_m,
+        )
+        for source, radar in result.radars.items()
+    }
     system = None
     if len(result.system):
         every_plot = np.concatenate([radar.plots for radar in result.radars.values()])
@@ -142,7 +159,7 @@ def evaluate(
         )
         for source, radar in result.radars.items()
     }
-    return Evaluation(result, truth, coverage, plots, local, system, bias, vertical)
+    return Evaluation(result, truth, coverage, plots, local, system, bias, vertical, manoeuvres)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

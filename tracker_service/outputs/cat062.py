@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from dataclasses import field as dataclass_field
 from fractions import Fraction
 from functools import cache
 from typing import Any, Literal
@@ -168,6 +169,8 @@ class TrackColumns:
     sensor: list[tuple[int, int] | None]
     rho_nm: FloatArray
     theta_deg: FloatArray
+    daps: list[dict[str, tuple[float, float]]] = dataclass_field(default_factory=list)
+    """Per track, its Mode S DAPs by message name: (value, age s)."""
 
     def __len__(self) -> int:
         return len(self.number)
@@ -242,6 +245,7 @@ def track_columns(docs: Sequence[Mapping[str, Any]], config: SdpsIdentity) -> Tr
             AZIMUTH_LSB,
             65536,
         ),
+        daps=[{d["name"]: (d["value"], d["age_s"]) for d in m.get("daps", ())} for m in docs],
     )
 
 
@@ -340,8 +344,11 @@ def _record(c: TrackColumns, k: int, config: SdpsIdentity) -> dict[str, Any]:
         items["060"] = {"V": 0, "G": 0, "CH": int(c.mode3a_changed[k]), "MODE3A": mode3a}
     if callsign is not None:
         items["245"] = {"STI": 0, "CHR": callsign}
-    if address is not None or callsign is not None:
-        items["380"] = _aircraft_derived(address, callsign)
+    daps = c.daps[k] if c.daps else {}
+    if address is not None or callsign is not None or daps:
+        items["380"] = _aircraft_derived(address, callsign, daps)
+    if daps:
+        items["295"] = _dap_ages(daps)
     items["040"] = int(c.number[k])
     items["080"] = _status(c.status[k])
     ages = {n: float(a) for n, a in zip(_AGE_NAMES, c.ages[k], strict=True) if _present(a)}
@@ -365,10 +372,47 @@ def _record(c: TrackColumns, k: int, config: SdpsIdentity) -> dict[str, Any]:
     return items
 
 
-def _aircraft_derived(address: str | None, callsign: str | None) -> dict[str, Any]:
+def _aircraft_derived(
+    address: str | None, callsign: str | None, daps: Mapping[str, tuple[float, float]]
+) -> dict[str, Any]:
     # The spec prefers I380/ID to I245 for a downlinked callsign: send both.
     adr = {} if address is None else {"ADR": address}
-    return adr | ({} if callsign is None else {"ID": callsign})
+    out = adr | ({} if callsign is None else {"ID": callsign})
+    for name, (subfield, _, value_of) in _DAP_SUBFIELDS.items():
+        if name in daps:
+            out[subfield] = value_of(daps[name][0])
+    return out
+
+
+def _turn(rate_deg_s: float) -> dict[str, Any]:
+    # BDS 5,0 and I380/TAR both count a right turn positive; TI says which way.
+    straight = abs(rate_deg_s) < 0.125  # half the ROT step
+    return {"TI": 3 if straight else 2 if rate_deg_s > 0 else 1, "ROT": rate_deg_s}
+
+
+_DAP_SUBFIELDS: dict[str, tuple[str, str, Callable[[float], Any]]] = {
+    # message DAP name: (I380 subfield, I295 subfield, I380 value)
+    "magnetic_heading_deg": ("MHG", "MHG", lambda v: v % 360.0),
+    "indicated_airspeed_kt": ("IAR", "IAR", lambda v: v),
+    "mach": ("MAC", "MAC", lambda v: v),
+    "selected_altitude_ft": ("SAL", "SAL", lambda v: {"SAS": 0, "SRC": 0, "ALT": v}),
+    "baro_rate_fpm": ("BVR", "BVR", lambda v: v),
+    "inertial_rate_fpm": ("GVR", "GVR", lambda v: v),
+    "roll_deg": ("RAN", "RAN", lambda v: v),
+    "track_angle_rate_deg_s": ("TAR", "TAR", _turn),
+    "true_track_deg": ("TAN", "TAN", lambda v: v % 360.0),
+    "ground_speed_kt": ("GS", "GSP", lambda v: v / 3600.0),  # NM/s
+}
+"""The DAPs of the system-track messages in I380 and their ages in I295. The inertial
+vertical rate goes to GVR (geometric vertical rate): the nearest the item has."""
+
+
+def _dap_ages(daps: Mapping[str, tuple[float, float]]) -> dict[str, float]:
+    return {
+        age: min(daps[name][1], AGE_MAX_S)
+        for name, (_, age, _) in _DAP_SUBFIELDS.items()
+        if name in daps
+    }
 
 
 def _status(flags: tuple[int, ...]) -> dict[str, int]:
@@ -505,7 +549,7 @@ _Q340_POS = (_quantity("340", "POS", "RHO"), _quantity("340", "POS", "THETA"))
 _FSPEC_500 = _subfield_fspec("500", ("APC", "COV", "APW", "ATV"))
 _QNH_SET = int.from_bytes(_ITEM_ENCODERS["135"]({"QNH": 1, "CTB": 0.0}))
 _NUMBER_MAX = (1 << 16) - 1
-_LAYOUT_BITS = 13
+_LAYOUT_BITS = 13 + 10  # the last ones: which DAPs (``_DAP_SUBFIELDS``)
 """Mode 3/A, callsign, address, DUPM, the four ages, FL, altitude, climb, sensor, position."""
 
 
@@ -547,7 +591,16 @@ def _callsign_bytes(callsign: str) -> bytes:
 
 @cache
 def _aircraft_derived_bytes(address: str | None, callsign: str | None) -> bytes:
-    return _ITEM_ENCODERS["380"](_aircraft_derived(address, callsign))
+    return _ITEM_ENCODERS["380"](_aircraft_derived(address, callsign, {}))
+
+
+def _aircraft_derived_dap_bytes(
+    address: str | None, callsign: str | None, daps: Mapping[str, tuple[float, float]]
+) -> bytes:
+    """I380 with DAPs: their values change at every update, so no cache."""
+    if not daps:
+        return _aircraft_derived_bytes(address, callsign)
+    return _ITEM_ENCODERS["380"](_aircraft_derived(address, callsign, daps))
 
 
 @cache
@@ -578,6 +631,10 @@ def _layouts(c: TrackColumns) -> npt.NDArray[np.int64]:
         ~np.isnan(c.climb_rate_fpm),
         np.array([v is not None for v in c.sensor], dtype=bool),
         ~np.isnan(c.rho_nm) & ~np.isnan(c.theta_deg),
+        *(
+            np.array([name in d for d in c.daps] if c.daps else [False] * n, dtype=bool)
+            for name in _DAP_SUBFIELDS
+        ),
     ]
     assert len(bits) == _LAYOUT_BITS
     layout = np.zeros(n, dtype=np.int64)
@@ -611,7 +668,8 @@ def _layout_records(
     n = len(rows)
     has = [bool(key >> i & 1) for i in range(_LAYOUT_BITS)]
     has_mode3a, has_callsign, has_address, _, *has_ages = has[:8]
-    has_fl, has_alt, has_climb, has_sensor, has_pos = has[8:]
+    has_fl, has_alt, has_climb, has_sensor, has_pos = has[8:13]
+    has_daps = any(has[13:])
     source, service = _source_bytes(config)
     parts: dict[str, list[npt.NDArray[np.uint8]]] = {
         "010": [_constant(source, n)],
@@ -632,10 +690,16 @@ def _layout_records(
         ]
     if has_callsign:
         parts["245"] = [_each((_callsign_bytes(c.callsign[k]) for k in index), n)]
-    if has_address or has_callsign:
+    daps = c.daps if c.daps else [{}] * len(c)
+    if has_address or has_callsign or has_daps:
         parts["380"] = [
-            _each((_aircraft_derived_bytes(c.address[k], c.callsign[k]) for k in index), n)
+            _each(
+                (_aircraft_derived_dap_bytes(c.address[k], c.callsign[k], daps[k]) for k in index),
+                n,
+            )
         ]
+    if has_daps:
+        parts["295"] = [_each((_ITEM_ENCODERS["295"](_dap_ages(daps[k])) for k in index), n)]
     number = c.number[rows]
     if number.min() < 0 or number.max() > _NUMBER_MAX:
         raise _OutOfRange

@@ -23,8 +23,10 @@ from tracker_service.bias import ObservedFrom
 from tracker_service.fusion import COASTING, ENDED
 from tracker_service.geodesy import SystemPlane
 from tracker_service.outputs.messages import (
+    DAP_NAMES,
     BiasMessage,
     BiasSource,
+    DownlinkedParameter,
     Estimate,
     LastPlot,
     LocalTrackMessage,
@@ -90,6 +92,8 @@ class _SystemTrack:
     last: SystemTrackMessage | SystemUpdate
     last_plot: LastPlot | dict[str, Any] | None = None
     sensor_times: dict[str, float] = field(default_factory=dict)
+    daps: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """Each DAP's last value and the time of the plot that carried it."""
 
     @property
     def message(self) -> SystemTrackMessage:
@@ -116,6 +120,28 @@ def location_fix(message: SystemTrackMessage) -> LocationFix:
     return location_of(
         message.time, message.lat, message.lon, message.flight_level, message.covariance
     )
+
+
+def _remember_daps(
+    daps: dict[str, tuple[float, float]], plot: Any, time: float
+) -> dict[str, tuple[float, float]]:
+    """``daps`` (copied) with the DAPs of ``plot`` (a plot-table row) taken in."""
+    if "has_daps" not in (plot.dtype.names or ()) or not plot["has_daps"]:
+        return daps
+    daps = dict(daps)
+    for name in DAP_NAMES:
+        value = float(plot[name])
+        if math.isfinite(value):
+            daps[name] = (value, time)
+    return daps
+
+
+def _dap_docs(daps: dict[str, tuple[float, float]], time: float) -> list[dict[str, Any]]:
+    return [
+        {"name": name, "value": daps[name][0], "age_s": max(time - daps[name][1], 0.0)}
+        for name in DAP_NAMES
+        if name in daps
+    ]
 
 
 class MessageMapper:
@@ -319,6 +345,7 @@ class MessageMapper:
             lat_k, lon_k = row[19:]
             previous = self._tracks.get(number)
             sensor_times = {} if previous is None else previous.sensor_times
+            daps = {} if previous is None else previous.daps
             last_plot = None if previous is None else previous.last_plot
             if isinstance(last_plot, LastPlot):
                 last_plot = last_plot.model_dump()
@@ -327,6 +354,7 @@ class MessageMapper:
             if plot is not None and fresh:
                 plot_callsign = str(plot_callsigns[plot])
                 plot_time, typ, rho, theta, p_lat, p_lon = (c[plot] for c in plot_columns)
+                daps = _remember_daps(daps, plots[plot], plot_time)
                 for sensor, types in (
                     ("psr", _PSR_TYPES),
                     ("ssr", _SSR_TYPES),
@@ -395,12 +423,13 @@ class MessageMapper:
                 "ages": ages,
                 "duplicate_address": address is not None and bool(self._by_address.get(address)),
                 "adsb_inconsistent": bool(adsb_flag),
+                "daps": _dap_docs(daps, time),
             }
             update = SystemUpdate(number, doc, system_json(doc))
             if status == ENDED:
                 self._tracks.pop(number, None)
             else:
-                self._tracks[number] = _SystemTrack(update, last_plot, sensor_times)
+                self._tracks[number] = _SystemTrack(update, last_plot, sensor_times, daps)
                 if address is not None:
                     self._by_address[address].add(number)
             updates.append(update)
@@ -465,10 +494,12 @@ class MessageMapper:
         number, time = int(row["system_number"]), float(row["time"])
         previous = self._tracks.get(number)
         sensor_times = {} if previous is None else previous.sensor_times
+        daps = {} if previous is None else previous.daps
         last_plot = None if previous is None else previous.last_plot
         if isinstance(last_plot, dict):
             last_plot = LastPlot.model_construct(**last_plot)
         if plot is not None and plot_position is not None:
+            daps = _remember_daps(daps, plot, float(plot["time"]))
             radar = chain_sources[int(row["radar"])]
             typ = int(plot["typ"])
             for sensor, types in (
@@ -538,11 +569,12 @@ class MessageMapper:
             ),
             duplicate_address=address is not None and bool(self._by_address.get(address)),
             adsb_inconsistent=bool(row["adsb_inconsistent"]),
+            daps=[DownlinkedParameter.model_construct(**d) for d in _dap_docs(daps, time)],
         )
         if status == ENDED:
             self._tracks.pop(number, None)
         else:
-            self._tracks[number] = _SystemTrack(message, last_plot, sensor_times)
+            self._tracks[number] = _SystemTrack(message, last_plot, sensor_times, daps)
             if address is not None:
                 self._by_address[address].add(number)
         return message

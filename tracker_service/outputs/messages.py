@@ -80,6 +80,37 @@ class SensorAges(_Message):
     """ADS-B."""
 
 
+DapName = Literal[
+    "magnetic_heading_deg",
+    "indicated_airspeed_kt",
+    "mach",
+    "selected_altitude_ft",
+    "baro_rate_fpm",
+    "inertial_rate_fpm",
+    "roll_deg",
+    "track_angle_rate_deg_s",
+    "true_track_deg",
+    "ground_speed_kt",
+]
+DAP_NAMES: tuple[str, ...] = DapName.__args__  # type: ignore[attr-defined]
+
+
+class DownlinkedParameter(_Message):
+    """A Mode S downlinked aircraft parameter (DAP) of the track's aircraft, as its last
+    Mode S plot carrying it gave it (BDS 4,0, 5,0 or 6,0 in I048/250; plausible values
+    only, ``tracking.daps``)."""
+
+    name: DapName
+    """BDS 6,0 magnetic heading (deg), IAS (kt), Mach, barometric and inertial vertical
+    rates (ft/min); BDS 4,0 selected altitude (ft); BDS 5,0 roll (deg, right wing down
+    positive), track angle rate (deg/s, clockwise), true track angle (deg), ground speed
+    (kt)."""
+    value: float
+    """In the unit its name says."""
+    age_s: Seconds
+    """Seconds since the plot that carried it (CAT062 I295)."""
+
+
 Covariance = Annotated[
     list[list[float]],
     Field(
@@ -152,6 +183,9 @@ class SystemTrackMessage(_Message):
     adsb_inconsistent: bool = False
     """The ADS-B reports of its address disagree with its radars beyond the gate (a
     spoofed or faulty transponder, a wrong address): not fused (CAT062 I080 AFF)."""
+    daps: list[DownlinkedParameter] = []
+    """The aircraft's Mode S DAPs with their ages, in ``DAP_NAMES`` order (CAT062 I380
+    and I295)."""
 
     @field_validator("covariance")
     @classmethod

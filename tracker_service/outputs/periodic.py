@@ -112,6 +112,10 @@ def extrapolate_all(
                     "flight_level": flight_level,
                     "altitude_m": altitude,
                     "ages": aged,
+                    "daps": [
+                        d.model_copy(update={"age_s": max(d.age_s + step, 0.0)})
+                        for d in message.daps
+                    ],
                     "first": message.number in first,
                     "mode3a_changed": False,
                 }

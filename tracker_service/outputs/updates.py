@@ -21,6 +21,7 @@ from typing import Any
 from pydantic_core import to_json
 
 from tracker_service.outputs.messages import (
+    DownlinkedParameter,
     LastPlot,
     LocalTrackMessage,
     SensorAges,
@@ -89,6 +90,7 @@ SYSTEM_FIELDS = (
     "ages",
     "duplicate_address",
     "adsb_inconsistent",
+    "daps",
 )
 """The order ``system_json`` writes: ``SystemTrackMessage``'s (checked by a test)."""
 
@@ -117,6 +119,7 @@ def system_model(doc: Mapping[str, Any]) -> SystemTrackMessage:
                 "sources": [TrackSource.model_construct(**s) for s in doc["sources"]],
                 "last_plot": None if plot is None else LastPlot.model_construct(**plot),
                 "ages": SensorAges.model_construct(**doc["ages"]),
+                "daps": [DownlinkedParameter.model_construct(**d) for d in doc["daps"]],
             }
         )
     )

@@ -515,6 +515,8 @@ class Outputs:
                 counters.last_plot_time = float(timed.max())
                 counters.plot_delay = self._now - counters.last_plot_time
             counters.rejected.update(rejections(plots["use"]))
+            if "implausible_daps" in (plots.dtype.names or ()) and plots["implausible_daps"].any():
+                counters.rejected["implausible_daps"] += int(plots["implausible_daps"].sum())
             counters.test_targets.update(plots)
             if (plots["use"] == PlotUse.TRACKED).any():
                 last = counters.last_tracked_plot

@@ -389,7 +389,7 @@ class RadarModel:
             record["220"] = identity.address
             if identity.callsign:
                 record["240"] = identity.callsign.ljust(8)
-            record["250"] = [self._bds(scan, m, i, true_fl)]
+            record["250"] = self._bds(scan, a, t, m, i, true_fl)
             record["230"] = {
                 "COM": 1,
                 "STAT": 0,
@@ -416,37 +416,33 @@ class RadarModel:
             },
         )
 
-    def _bds(self, scan: int, m: dict[str, FloatArray], i: int, fl: float) -> dict[str, Any]:
-        """One Comm-B register per plot, in turn, as a radar's GICB extraction schedule."""
-        speed_kt = float(m["speed"][i]) / KT
-        heading = float(m["heading"][i])
-        register = scan % 3
-        if register == 0:
-            mb = encode_bds40(
-                selected_altitude_mcp_ft=round(fl) * 100,
-                baro_pressure_setting_mb=self.scenario.atmosphere.qnh_hpa,
-            )
-            bds1 = 4
-        elif register == 1:
-            mb = encode_bds50(
-                roll_deg=float(m["roll"][i]),
-                track_angle_deg=heading,
-                ground_speed_kt=min(speed_kt, 2046.0),
-                track_angle_rate_deg_s=float(m["turn_rate"][i]),
-                true_airspeed_kt=min(speed_kt, 2046.0),
-            )
-            bds1 = 5
+    def _bds(
+        self, scan: int, a: int, t: float, m: dict[str, FloatArray], i: int, fl: float
+    ) -> list[dict[str, Any]]:
+        """The Comm-B registers of one plot: one per plot in turn, as a radar's GICB
+        extraction schedule, or BDS 4,0, 5,0 and 6,0 every scan (``ehs_registers``). With
+        ``dap_max_age_s`` their contents are the aircraft's of a moment up to that long
+        before the detection, as transponders refresh their registers."""
+        age = self.radar.dap_max_age_s
+        state = None
+        if age > 0.0:
+            state = self.truth.state_at(np.array([a]), np.array([t - self.rng.uniform(0, age)]))
+            if not np.isfinite(state.roll_deg[0]):  # before the aircraft's first state
+                state = None
+        if state is not None:
+            v = {
+                "heading": float(state.heading_deg[0]),
+                "speed": float(state.ground_speed_mps[0]),
+                "roll": float(state.roll_deg[0]),
+                "turn_rate": float(state.turn_rate_deg_s[0]),
+                "vel_up": float(state.vel_up[0]),
+                "h_msl": float(state.h_msl[0]),
+            }
         else:
-            climb = float(m["vel_up"][i]) / FT * 60.0
-            mb = encode_bds60(
-                magnetic_heading_deg=heading,
-                indicated_airspeed_kt=min(_ias_kt(speed_kt, float(m["h_msl"][i])), 1023.0),
-                mach=min(_mach(speed_kt, float(m["h_msl"][i])), 4.0),
-                baro_vertical_rate_ft_min=climb,
-                inertial_vertical_rate_ft_min=climb,
-            )
-            bds1 = 6
-        return {"MBDATA": f"{mb:014X}", "BDS1": bds1, "BDS2": 0}
+            v = {k: float(m[k][i]) for k in ("heading", "speed", "roll", "turn_rate", "vel_up")}
+            v["h_msl"] = float(m["h_msl"][i])
+        registers = (0, 1, 2) if self.radar.ehs_registers == "every_scan" else (scan % 3,)
+        return [_register(r, v, fl, self.scenario.atmosphere.qnh_hpa) for r in registers]
 
     def _pathologies(self, plot: Plot, a: int, ssr: bool) -> list[Plot]:
         rng, p = self.rng, self.radar.pathologies
@@ -735,6 +731,35 @@ def wrapped_time_of_day(seconds: float) -> float:
 
 def _isa_temperature_k(h_m: float) -> float:
     return 288.15 - 0.0065 * min(h_m, 11000.0)
+
+
+def _register(register: int, v: dict[str, float], fl: float, qnh_hpa: float) -> dict[str, Any]:
+    """One I048/250 repetition: BDS 4,0 (register 0), 5,0 (1) or 6,0 (2) of the aircraft
+    state ``v`` (heading, speed, roll, turn_rate, vel_up, h_msl) at flight level ``fl``."""
+    speed_kt = v["speed"] / KT
+    heading = v["heading"]
+    if register == 0:
+        mb = encode_bds40(
+            selected_altitude_mcp_ft=round(fl) * 100, baro_pressure_setting_mb=qnh_hpa
+        )
+    elif register == 1:
+        mb = encode_bds50(
+            roll_deg=v["roll"],
+            track_angle_deg=heading,
+            ground_speed_kt=min(speed_kt, 2046.0),
+            track_angle_rate_deg_s=v["turn_rate"],
+            true_airspeed_kt=min(speed_kt, 2046.0),
+        )
+    else:
+        climb = v["vel_up"] / FT * 60.0
+        mb = encode_bds60(
+            magnetic_heading_deg=heading,
+            indicated_airspeed_kt=min(_ias_kt(speed_kt, v["h_msl"]), 1023.0),
+            mach=min(_mach(speed_kt, v["h_msl"]), 4.0),
+            baro_vertical_rate_ft_min=climb,
+            inertial_vertical_rate_ft_min=climb,
+        )
+    return {"MBDATA": f"{mb:014X}", "BDS1": 4 + register, "BDS2": 0}
 
 
 def _mach(speed_kt: float, h_m: float) -> float:

@@ -161,6 +161,12 @@ class Radar(_Station):
     field_monitor: FieldMonitor | None = None
     fixed_transponders: list[FixedTransponder] = []
     test_targets: list[TestTarget] = []
+    ehs_registers: Literal["rotating", "every_scan"] = "rotating"
+    """Mode S Comm-B registers in I048/250: one of BDS 4,0, 5,0, 6,0 per plot in turn
+    ("rotating"), or all three every scan, as enhanced-surveillance radars extract them."""
+    dap_max_age_s: Annotated[float, Field(ge=0.0, le=10.0)] = 0.0
+    """Register contents are the aircraft's of a moment drawn uniformly up to this long
+    before the detection (transponders refresh BDS 5,0/6,0 every 1.3 s at most)."""
     dual_lan: bool = False
     output: Output = Output()
     asterix: Literal["cat048", "cat001"] = "cat048"

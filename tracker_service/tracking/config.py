@@ -136,6 +136,21 @@ class TrackerConfig:
     plots + the miss) is at most this; beyond, ``jpda_k_best`` events are ranked."""
     jpda_k_best: int = 64
     """The most likely joint events (Murty's ranking) kept for a large cluster."""
+    use_daps: bool = True
+    """Mode S DAPs (BDS 5,0) in the horizontal filter: the velocity as a measurement and
+    the turn rate as evidence for the turn models (``tracking.daps``)."""
+    dap_speed_sigma_m_s: float = 1.0
+    """Along-track sigma of the BDS 5,0 velocity: 2 kt steps, the avionics' error and
+    speed changes over the register's age."""
+    dap_track_sigma_deg: float = 0.5
+    """Sigma of the true track angle (0.18 deg steps, heading/drift sources)."""
+    dap_latency_s: float = 1.3
+    """Oldest age of a register at its extraction (Doc 9871: BDS 5,0 refreshed every
+    1.3 s at most); in a turn it lags by the turn over its age."""
+    dap_turn_rate_sigma_deg_s: float = 0.5
+    """Sigma of the turn rate from the track angle rate or the roll angle."""
+    dap_velocity_gate: float = 13.82
+    """Chi-square (2 dof, 99.9 %) of the DAP velocity against its track: beyond, unused."""
     implementation: str = "compiled"
     """The code of the filters (the IMM, the vertical filter): "compiled"
     (``tracking.kernels``, numba) or "numpy" (the plain reference: ``tracking.imm`` and
@@ -165,6 +180,11 @@ class TrackerConfig:
                 raise ValueError(f"{name} needs 3 entries (level, steady, manoeuvre)")
         if min(self.vertical_sojourn_s) <= 0 or min(self.vertical_q) < 0:
             raise ValueError("vertical_sojourn_s must be positive and vertical_q >= 0")
+        if not isinstance(self.use_daps, bool):
+            raise ValueError(f"use_daps {self.use_daps!r}: use true or false")
+        for name in ("dap_speed_sigma_m_s", "dap_track_sigma_deg", "dap_turn_rate_sigma_deg_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
         if self.implementation not in ("compiled", "numpy"):
             raise ValueError(f"implementation {self.implementation!r}: use 'compiled' or 'numpy'")
 

@@ -13,7 +13,50 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
-PLOT_DTYPE = np.dtype(
+DAP_FIELDS = (
+    "roll_deg",
+    "true_track_deg",
+    "ground_speed_kt",
+    "track_angle_rate_deg_s",
+    "magnetic_heading_deg",
+    "indicated_airspeed_kt",
+    "mach",
+    "baro_rate_fpm",
+    "inertial_rate_fpm",
+    "selected_altitude_ft",
+    "dap_vx",
+    "dap_vy",
+    "dap_turn_rate_rad_s",
+)
+"""Mode S DAPs of each plot (``tracking.daps.plot_daps``), floats, NaN when absent or
+implausible: BDS 5,0 roll (deg, right wing down positive), true track angle (deg),
+ground speed (kt), track angle rate (deg/s, clockwise); BDS 6,0 magnetic heading (deg),
+IAS (kt), Mach, barometric and inertial vertical rates (ft/min); BDS 4,0 selected
+altitude (ft, MCP/FCU, else FMS); and what the tracker uses of BDS 5,0: the velocity in
+the plane ``dap_vx``, ``dap_vy`` (m/s) and the turn rate in the plane
+``dap_turn_rate_rad_s`` (counter-clockwise positive, as the IMM's turn models).
+
+``dap_flags`` says which of the last two the tracker may use (``DAP_VELOCITY``,
+``DAP_TURN_RATE`` bits): rows made with ``np.zeros`` have 0 there, so a zero velocity is
+never taken for a measurement. Make new rows with ``empty_plots`` (DAPs NaN)."""
+DAP_VELOCITY = 1
+DAP_TURN_RATE = 2
+PUBLISHED_DAP_FIELDS = (
+    "magnetic_heading_deg",
+    "indicated_airspeed_kt",
+    "mach",
+    "selected_altitude_ft",
+    "baro_rate_fpm",
+    "inertial_rate_fpm",
+    "roll_deg",
+    "track_angle_rate_deg_s",
+    "true_track_deg",
+    "ground_speed_kt",
+)
+"""The DAPs the plot table carries on to the system-track messages and CAT062 I380
+(``outputs.messages.DapName``, in this order)."""
+
+BASE_PLOT_DTYPE = np.dtype(
     [
         ("time", np.float64),
         ("x", np.float64),
@@ -26,6 +69,16 @@ PLOT_DTYPE = np.dtype(
         ("address", np.int64),
         ("typ", np.int64),
         ("plot_id", np.int64),
+    ]
+)
+"""The columns before the DAPs: rows built from these (``as_plot_arrays``) get the DAPs
+absent."""
+
+PLOT_DTYPE = np.dtype(
+    [
+        *((name, BASE_PLOT_DTYPE.fields[name][0]) for name in BASE_PLOT_DTYPE.names or ()),  # type: ignore[index]
+        *((name, np.float64) for name in DAP_FIELDS),
+        ("dap_flags", np.uint8),
     ]
 )
 """Structured-array form of the input, one row per plot (see ``PlotArrays``)."""
@@ -145,10 +198,19 @@ def as_plot_arrays(plots: PlotArrays | npt.NDArray[Any]) -> PlotArrays:
         return plots
     if plots.dtype == PLOT_DTYPE and plots.flags.c_contiguous:
         return PlotArrays(plots)
-    rows = np.zeros(plots.shape[0], dtype=PLOT_DTYPE)
+    rows = empty_plots(plots.shape[0])
     for name in PLOT_DTYPE.names or ():
-        rows[name] = plots[name].reshape(rows[name].shape)
+        if name in (plots.dtype.names or ()):
+            rows[name] = plots[name].reshape(rows[name].shape)
     return PlotArrays(rows)
+
+
+def empty_plots(n: int) -> npt.NDArray[Any]:
+    """``n`` zeroed ``PLOT_DTYPE`` rows with the DAP columns absent (NaN)."""
+    rows = np.zeros(n, dtype=PLOT_DTYPE)
+    for name in DAP_FIELDS:
+        rows[name] = np.nan
+    return rows
 
 
 def is_shared_code(code: IntArray) -> BoolArray:

@@ -22,6 +22,7 @@ from tracker_service.tracking.association import (
 )
 from tracker_service.tracking.clock import DataClock
 from tracker_service.tracking.config import TrackerConfig
+from tracker_service.tracking.daps import DapUpdate
 from tracker_service.tracking.initiate import TwoPointInitiator, two_point_state
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
@@ -112,6 +113,11 @@ class TrackerStats:
     clock_resyncs: int = 0
     """Times the clock followed a sustained jump of the radar's time."""
     last_clock_jump_s: float = 0.0
+    dap_velocity_updates: int = 0
+    """Updates that took their plot's BDS 5,0 velocity (``tracking.daps``)."""
+    dap_turn_evidence: int = 0
+    dap_velocity_gated_out: int = 0
+    """BDS 5,0 velocities too far from their track to be used."""
 
 
 class LocalTracker:
@@ -124,6 +130,9 @@ class LocalTracker:
         self.imm = imm.make_imm(self.config.implementation, self.models)
         self._compiled = self.config.implementation == "compiled"
         self.stats = TrackerStats()
+        self.daps = (
+            DapUpdate(self.config, self.models, self.stats) if self.config.use_daps else None
+        )
         self.initiator = TwoPointInitiator(self.config)
         self.output_dtype = track_update_dtype(self.models.n_models)
         self._table_dtype = _table_dtype(self.models.n_models)
@@ -335,6 +344,8 @@ class LocalTracker:
         else:
             xc, pc = imm.combine(posterior.x, posterior.P, posterior.mu)
             step = imm.ImmUpdate(posterior.x, posterior.P, posterior.mu, xc, pc)
+        if self.daps is not None:
+            step = self.daps.apply(step, p)
         x_new, p_new, mu_new, xc, pc = step.x, step.P, step.mu, step.x_comb, step.P_comb
         if self._compiled:
             kernels.record_updates(

@@ -1,0 +1,291 @@
+"""Mode S downlinked aircraft parameters (DAPs) in the horizontal tracker.
+
+Two steps, one on each side of the plot batch:
+
+- ``plot_daps`` (radar stage, at conversion): the decoded registers of each plot
+  (``asterix.daps`` columns) checked for plausibility (an implausible value is dropped,
+  NaN, and its plot counted, never trusted), and BDS 5,0 turned into what the filter
+  uses: the velocity over ground in the system plane (ground speed along the true track
+  angle, true north turned into the plane's grid north by the grid convergence and scaled
+  by the plane's scale factor: ``SystemPlane.jacobian``) and the turn rate in the plane's
+  sense (counter-clockwise positive, as the IMM's turn models): the track angle rate where
+  the aircraft reports it, else the coordinated-turn rate g tan(roll) / V.
+- ``DapUpdate`` (local tracker, after the position update): the velocity as a second,
+  sequential measurement of every model (H = [0 I2], Joseph form), whose likelihoods
+  update the model probabilities as the position's do, and the turn rate as evidence for
+  the turn models: model j's probability times N(omega_dap; omega_j, sigma_omega^2). A
+  roll or a track angle rate announces a turn one or two scans before the positions bend.
+
+The velocity's noise is honest about what the register is: ground speed to 2 kt steps
+(and the aircraft's own error), the track angle to 0.18 deg, and its age: a register the
+transponder updated up to ``dap_latency_s`` before the interrogation lags a turn by
+omega * age across the track: the velocity is turned on by the reported turn over the
+mean age (tau / 2) and the rest counted as noise (uniform age: (V omega tau)^2 / 12).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.geodesy.plane import SystemPlane
+from tracker_service.tracking import imm
+from tracker_service.tracking.config import KNOT_M_S, TrackerConfig
+from tracker_service.tracking.models import ModelSet
+from tracker_service.tracking.plots import (
+    DAP_TURN_RATE,
+    DAP_VELOCITY,
+    BoolArray,
+    FloatArray,
+    PlotArrays,
+)
+
+G0 = 9.80665
+FT_MIN_M_S = 0.3048 / 60.0
+
+_COPIED = (
+    "roll_deg",
+    "true_track_deg",
+    "ground_speed_kt",
+    "track_angle_rate_deg_s",
+    "magnetic_heading_deg",
+    "indicated_airspeed_kt",
+    "mach",
+    "baro_rate_fpm",
+    "inertial_rate_fpm",
+)
+
+# Plausible ranges of a civil aircraft's registers: beyond them the value is a wrong
+# register (BDS1/BDS2 mislabelled), a corrupted reply or a faulty avionics source.
+_LIMITS = {
+    "roll_deg": 60.0,  # |roll|: airliners bank 25-30 deg; Doc 9871 allows +-90
+    "ground_speed_kt": 700.0,
+    "track_angle_rate_deg_s": 8.0,  # |rate|: a rate-one turn is 3 deg/s
+    "indicated_airspeed_kt": 500.0,
+    "mach": 1.2,
+    "baro_rate_fpm": 8000.0,
+    "inertial_rate_fpm": 8000.0,
+    "selected_altitude_ft": 60000.0,
+}
+MAX_WIND_KT = 250.0
+"""|ground speed - true airspeed| beyond this is no wind but a wrong value."""
+MAX_RATE_ROLL_DISAGREEMENT_DEG_S = 2.0
+"""A track angle rate and a roll angle of one register that disagree by more than this
+(as a coordinated turn) say nothing reliable of the turn."""
+MIN_TURN_SPEED_KT = 60.0
+"""Below this the coordinated-turn rate from the roll is not used (g tan(roll) / V)."""
+
+
+def plot_daps(
+    raw: npt.NDArray[Any],
+    plane: SystemPlane,
+    lat_deg: FloatArray,
+    lon_deg: FloatArray,
+    height_m: FloatArray,
+) -> tuple[dict[str, npt.NDArray[Any]], BoolArray]:
+    """The DAP columns of one batch of plot rows (``asterix.plots`` rows with the
+    ``asterix.daps`` columns), ``dap_flags`` among them, and per plot whether some DAP
+    was implausible (dropped)."""
+    n = len(raw)
+    out = {name: np.array(raw[name], dtype=np.float64) for name in _COPIED}
+    mcp = np.asarray(raw["selected_altitude_mcp_ft"], dtype=np.float64)
+    out["selected_altitude_ft"] = np.where(
+        np.isfinite(mcp), mcp, np.asarray(raw["selected_altitude_fms_ft"], dtype=np.float64)
+    )
+    implausible = np.zeros(n, dtype=bool)
+    for name, limit in _LIMITS.items():
+        bad = np.abs(out[name]) > limit
+        if bad.any():
+            out[name][bad] = np.nan
+            implausible |= bad
+    gs_kt = out["ground_speed_kt"]
+    tas_kt = np.asarray(raw["true_airspeed_kt"], dtype=np.float64)
+    windy = np.abs(gs_kt - tas_kt) > MAX_WIND_KT  # NaN compares false
+    rate_rad, roll_rate = _turn_rates(out["track_angle_rate_deg_s"], out["roll_deg"], gs_kt)
+    disagree = np.abs(rate_rad - roll_rate) > np.radians(MAX_RATE_ROLL_DISAGREEMENT_DEG_S)
+    out["ground_speed_kt"][windy] = np.nan
+    out["roll_deg"][disagree] = np.nan
+    out["track_angle_rate_deg_s"][disagree] = np.nan
+    implausible |= windy | disagree
+    rate_rad, roll_rate = _turn_rates(out["track_angle_rate_deg_s"], out["roll_deg"], gs_kt)
+    out["dap_turn_rate_rad_s"] = np.where(np.isfinite(rate_rad), rate_rad, roll_rate)
+    speed = out["ground_speed_kt"] * KNOT_M_S
+    gs_kt = out["ground_speed_kt"]
+    vx = np.full(n, np.nan)
+    vy = np.full(n, np.nan)
+    track = out["true_track_deg"]
+    has = np.flatnonzero(np.isfinite(gs_kt) & np.isfinite(track))
+    if len(has):
+        psi = np.radians(track[has])
+        east, north = speed[has] * np.sin(psi), speed[has] * np.cos(psi)
+        jac = plane.jacobian(lat_deg[has], lon_deg[has], height_m[has])[..., :2]
+        vx[has] = jac[:, 0, 0] * east + jac[:, 0, 1] * north
+        vy[has] = jac[:, 1, 0] * east + jac[:, 1, 1] * north
+    out["dap_vx"], out["dap_vy"] = vx, vy
+    flags = np.where(np.isfinite(vx), DAP_VELOCITY, 0)
+    flags |= np.where(np.isfinite(out["dap_turn_rate_rad_s"]), DAP_TURN_RATE, 0)
+    out["dap_flags"] = flags.astype(np.uint8)
+    return out, implausible
+
+
+def _turn_rates(
+    rate_deg_s: FloatArray, roll_deg: FloatArray, gs_kt: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """The plane turn rates (rad/s, counter-clockwise) of a track angle rate and of a roll
+    angle (coordinated turn). BDS 5,0 angles are clockwise: a right turn, right wing
+    down, is positive."""
+    speed = gs_kt * KNOT_M_S
+    with np.errstate(divide="ignore", invalid="ignore"):
+        roll_rate = np.where(
+            gs_kt >= MIN_TURN_SPEED_KT, -G0 * np.tan(np.radians(roll_deg)) / speed, np.nan
+        )
+    return -np.radians(rate_deg_s), roll_rate
+
+
+@dataclass(frozen=True)
+class DapNoise:
+    """The measurement noise of the DAPs (``TrackerConfig`` ``dap_*`` fields)."""
+
+    speed_sigma_m_s: float
+    track_sigma_rad: float
+    latency_s: float
+    turn_rate_sigma_rad_s: float
+    velocity_gate: float
+
+    @staticmethod
+    def from_config(config: TrackerConfig) -> DapNoise:
+        return DapNoise(
+            speed_sigma_m_s=config.dap_speed_sigma_m_s,
+            track_sigma_rad=float(np.radians(config.dap_track_sigma_deg)),
+            latency_s=config.dap_latency_s,
+            turn_rate_sigma_rad_s=float(np.radians(config.dap_turn_rate_sigma_deg_s)),
+            velocity_gate=config.dap_velocity_gate,
+        )
+
+
+class DapCounts(Protocol):
+    """Where the DAP step counts (``tracker.TrackerStats``)."""
+
+    dap_velocity_updates: int
+    dap_turn_evidence: int
+    dap_velocity_gated_out: int
+    """Velocities that disagreed with their track beyond ``dap_velocity_gate``: not used."""
+
+
+@dataclass
+class _Counts:
+    dap_velocity_updates: int = 0
+    dap_turn_evidence: int = 0
+    dap_velocity_gated_out: int = 0
+
+
+class DapUpdate:
+    """The DAP step after the IMM's position update (module docstring)."""
+
+    def __init__(
+        self, config: TrackerConfig, models: ModelSet, counts: DapCounts | None = None
+    ) -> None:
+        self.noise = DapNoise.from_config(config)
+        self.turn_rates = models.turn_rates_rad_s
+        self.counts: DapCounts = _Counts() if counts is None else counts
+
+    def velocity_covariance(self, p: PlotArrays, rows: npt.NDArray[np.intp]) -> FloatArray:
+        """(k, 2, 2): along- and across-track variances turned onto the plane's axes."""
+        noise = self.noise
+        vx, vy = p.rows["dap_vx"][rows], p.rows["dap_vy"][rows]
+        speed = np.hypot(vx, vy)
+        omega = np.nan_to_num(p.rows["dap_turn_rate_rad_s"][rows])
+        along = np.full(len(rows), noise.speed_sigma_m_s**2)
+        # The age, uniform over [0, latency], less its mean (``apply`` turns the velocity
+        # on by the mean): variance latency^2 / 12 of the turn's lag.
+        lag = speed * omega * noise.latency_s
+        across = (speed * noise.track_sigma_rad) ** 2 + lag**2 / 12.0
+        ux = np.where(speed > 0, vx / np.maximum(speed, 1e-9), 1.0)
+        uy = np.where(speed > 0, vy / np.maximum(speed, 1e-9), 0.0)
+        r = np.empty((len(rows), 2, 2))
+        r[:, 0, 0] = along * ux * ux + across * uy * uy
+        r[:, 1, 1] = along * uy * uy + across * ux * ux
+        r[:, 0, 1] = r[:, 1, 0] = (along - across) * ux * uy
+        return r
+
+    def apply(self, step: imm.ImmUpdate, p: PlotArrays) -> imm.ImmUpdate:
+        """``step`` (the IMM after the position update of tracks whose plots are ``p``)
+        with each plot's DAPs applied; ``step`` itself when no plot has any."""
+        x, P, mu = step.x, step.P, step.mu
+        flags = p.rows["dap_flags"]
+        has_v = (flags & DAP_VELOCITY) != 0
+        has_w = (flags & DAP_TURN_RATE) != 0
+        if not (has_v.any() or has_w.any()):
+            return step
+        x, P, mu = x.copy(), P.copy(), mu.copy()
+        rows = np.flatnonzero(has_v)
+        if len(rows):
+            z = aged_velocity(p, rows, self.noise.latency_s)
+            r = self.velocity_covariance(p, rows)
+            # Gate on the combined estimate: a velocity far from its track is another
+            # aircraft's register (a shared address) or a fault, not a measurement.
+            xc = np.einsum("km,kma->ka", mu[rows], x[rows])
+            _, pc = imm.combine(x[rows], P[rows], mu[rows])
+            y = z - xc[:, 2:]
+            s_inv, _ = imm.inv2(pc[:, 2:, 2:] + r)
+            nis = np.einsum("ka,kab,kb->k", y, s_inv, y)
+            ok = nis <= self.noise.velocity_gate
+            self.counts.dap_velocity_gated_out += int(np.count_nonzero(~ok))
+            rows, z, r = rows[ok], z[ok], r[ok]
+        if len(rows):
+            xv, pv, muv = velocity_update(x[rows], P[rows], mu[rows], z, r)
+            x[rows], P[rows], mu[rows] = xv, pv, muv
+            self.counts.dap_velocity_updates += len(rows)
+        w_rows = np.flatnonzero(has_w)
+        if len(w_rows):
+            mu[w_rows] = turn_evidence(
+                mu[w_rows],
+                p.rows["dap_turn_rate_rad_s"][w_rows],
+                self.turn_rates,
+                self.noise.turn_rate_sigma_rad_s,
+            )
+            self.counts.dap_turn_evidence += len(w_rows)
+        xc, pc = imm.combine(x, P, mu)
+        return imm.ImmUpdate(x, P, mu, xc, pc)
+
+
+def aged_velocity(p: PlotArrays, rows: npt.NDArray[np.intp], latency_s: float) -> FloatArray:
+    """(k, 2): the DAP velocities turned on by the reported turn over the register's mean
+    age (half ``latency_s``): in a turn the register lags the aircraft by that much."""
+    vx, vy = p.rows["dap_vx"][rows], p.rows["dap_vy"][rows]
+    angle = np.nan_to_num(p.rows["dap_turn_rate_rad_s"][rows]) * (0.5 * latency_s)
+    c, s = np.cos(angle), np.sin(angle)
+    return np.column_stack([c * vx - s * vy, s * vx + c * vy])
+
+
+def velocity_update(
+    x: FloatArray, P: FloatArray, mu: FloatArray, z: FloatArray, R: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Every model updated with a velocity measurement z (k, 2), R (k, 2, 2): H = [0 I2],
+    Joseph form, and the model probabilities times each model's likelihood of it."""
+    y = z[:, None, :] - x[:, :, 2:]
+    s = P[:, :, 2:, 2:] + R[:, None]
+    s_inv, det = imm.inv2(s)
+    k_gain = P[:, :, :, 2:] @ s_inv
+    x_new = x + np.einsum("kmab,kmb->kma", k_gain, y)
+    ikh = np.broadcast_to(np.eye(4), P.shape).copy()
+    ikh[..., :, 2:] -= k_gain
+    p_new = ikh @ P @ np.swapaxes(ikh, -1, -2) + k_gain @ R[:, None] @ np.swapaxes(k_gain, -1, -2)
+    p_new = 0.5 * (p_new + np.swapaxes(p_new, -1, -2))
+    return x_new, p_new, imm.model_probabilities(mu, y, s_inv, det)
+
+
+def turn_evidence(
+    mu: FloatArray, omega: FloatArray, turn_rates: FloatArray, sigma: float
+) -> FloatArray:
+    """Model probabilities (k, M) times the likelihood of a reported turn rate omega (k,)
+    under each model's fixed rate, N(omega; omega_j, sigma^2), normalised."""
+    d = (omega[:, None] - turn_rates[None, :]) / sigma
+    log_post = np.log(np.maximum(mu, imm.TINY)) - 0.5 * d * d
+    log_post -= log_post.max(axis=1, keepdims=True)
+    out = np.exp(log_post)
+    out /= out.sum(axis=1, keepdims=True)
+    return np.asarray(out)
