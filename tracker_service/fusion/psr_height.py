@@ -39,6 +39,9 @@ from tracker_service.geodesy.unknown_height import HeightBand, feasible_band, he
 from tracker_service.tracking.plots import FloatArray, IntArray
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
 
+SHIFT_RATE_SMOOTHING = 0.5
+"""Weight of the newest plot pair in the shift's rate (plot noise moves the shift)."""
+
 __all__ = ["PsrHeightConfig", "PsrHeights", "RadarGeometry", "SystemHeight"]
 
 
@@ -104,6 +107,9 @@ class PsrHeights:
         self.systems: dict[int, SystemHeight] = {}
         self._last_plot: dict[tuple[int, int], tuple[FloatArray, float, int]] = {}
         """Per (radar, local track number): its last plot's J, height used, system."""
+        self._previous: dict[tuple[int, int], tuple[npt.NDArray[Any], FloatArray]] = {}
+        """Per (radar, local track number): its last plot (a table row) and the rate of
+        its shift (m/s, smoothed)."""
         self.measurements = 0
         self.rejected = 0
 
@@ -230,6 +236,15 @@ class PsrHeights:
             shift = xy[0] - np.array([plot["x"][0], plot["y"][0]])
             local["x"][k] += shift[0]
             local["y"][k] += shift[1]
+            key = (radar, int(local["track_number"][k]))
+            rate = self._shift_rate(radar, key, plot, shift, height)
+            local["vx"][k] += rate[0]
+            local["vy"][k] += rate[1]
+            # The rate is first order and lags the geometry: as uncertain as it is large
+            # (the local filter's velocity knows nothing of it).
+            p = local["P"][k].reshape(4, 4)
+            p[2:, 2:] += np.outer(rate, rate) + 0.25 * float(rate @ rate) * np.eye(2)
+            local["P"][k] = p.ravel()
             extra[k] = variance * np.outer(j[0], j[0])
             at = np.flatnonzero(tracked["plot_id"] == plot["plot_id"][0])
             if at.size:
@@ -238,7 +253,6 @@ class PsrHeights:
                 tracked["R"][at] = r[0]
             if entry is not None:
                 entry.jacobians[radar] = (j[0], time)
-            key = (radar, int(local["track_number"][k]))
             self._last_plot[key] = (j[0], float(plot["height_m"][0]), number)
         # Coasting updates (no plot): their last plot's shift at today's height.
         for k in np.flatnonzero(~with_plot).tolist():
@@ -254,4 +268,30 @@ class PsrHeights:
                     extra[k] = entry.variance_m2 * np.outer(j, j)
             if local["status"][k] == LOCAL_DELETED:
                 self._last_plot.pop(key, None)
+                self._previous.pop(key, None)
         return Reprojection(tracked, local, extra)
+
+    def _shift_rate(
+        self,
+        radar: int,
+        key: tuple[int, int],
+        plot: npt.NDArray[Any],
+        shift: FloatArray,
+        height: float,
+    ) -> FloatArray:
+        """How fast the re-projection's shift changes along the track (m/s): near the
+        radar the band's error changes by kilometres a minute, and the local track's
+        velocity carries that rate. The previous plot is re-projected at the same height
+        so that a new height estimate is not taken for motion."""
+        previous = self._previous.get(key)
+        rate = np.zeros(2) if previous is None else previous[1]
+        if previous is not None:
+            before = previous[0]
+            dt = float(plot["time"][0] - before["time"][0])
+            if dt > 0.5:
+                xy, _, _ = self._convert(radar, before, np.array([height]))
+                shift_before = xy[0] - np.array([before["x"][0], before["y"][0]])
+                raw = (shift - shift_before) / dt
+                rate = rate + SHIFT_RATE_SMOOTHING * (raw - rate)
+        self._previous[key] = (plot.copy(), rate)
+        return rate
