@@ -128,7 +128,7 @@ def test_height_from_a_primary_plot_against_a_radar_that_knows_it() -> None:
     truth_xy, truth_h = west + np.array([15e3, 15e3]), 9000.0
     for k in range(12):
         row = _plot_rows(WEST, truth_xy, truth_h, 100.0 + 5.0 * k)
-        heights.observe(0, row, _references(row, 7, truth_xy, np.eye(2) * 50.0**2))
+        heights.observe(0, row, row, _references(row, 7, truth_xy, np.eye(2) * 50.0**2))
     estimate = heights.estimate(7)
     assert estimate is not None
     height, sigma = estimate
@@ -161,7 +161,7 @@ def test_height_from_two_primary_radars_and_the_reprojection() -> None:
         last[radar] = np.array([moved.local["x"][0], moved.local["y"][0]])
         other = last.get(1 - radar)
         if other is not None:
-            heights.observe(radar, row, _references(row, 3, other, np.eye(2) * 60.0**2))
+            heights.observe(radar, row, row, _references(row, 3, other, np.eye(2) * 60.0**2))
     estimate = heights.estimate(3)
     assert estimate is not None
     height, sigma = estimate

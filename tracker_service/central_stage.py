@@ -254,7 +254,9 @@ class CentralStage:
         table = self.fuser.state.local
         rows = table.find(radar, local, create=False)
         systems = np.where(rows >= 0, table.rows["system"][np.maximum(rows, 0)], 0)
-        self.heights.observe(radar, message.plots, self.fuser.references(radar, local, batch))
+        self.heights.observe(
+            radar, message.plots, batch, self.fuser.references(radar, local, batch)
+        )
         moved = self.heights.reproject(radar, message.plots, batch, local, systems)
         return moved.local, moved.tracked, moved.extra
 

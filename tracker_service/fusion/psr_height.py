@@ -136,10 +136,11 @@ class PsrHeights:
         return entry
 
     def _convert(
-        self, radar: int, rows: npt.NDArray[Any], height: FloatArray
+        self, radar: int, rows: npt.NDArray[Any], height: FloatArray, jacobian: bool = True
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Plane xy (n, 2), noise-only R (n, 2, 2) and J (n, 2) of plot table rows at
-        the given heights, clipped to what each slant range allows."""
+        """Plane xy (n, 2), noise-only R (n, 2, 2) and J (n, 2; zeros unless
+        ``jacobian``) of plot table rows at the given heights, clipped to what each slant
+        range allows."""
         g = self.radars[radar]
         low, high = feasible_band(g.site, rows["rho_m"], g.band)
         height = np.clip(height, low, high)
@@ -154,41 +155,63 @@ class PsrHeights:
             np.where(psr, g.psr_sigma_range_m, g.sigma_range_m),
             np.where(psr, g.psr_sigma_azimuth_deg, g.sigma_azimuth_deg),
         )
-        j = height_jacobian(g.site, self.plane, rows["rho_m"], rows["theta_deg"], height)
+        j = (
+            height_jacobian(g.site, self.plane, rows["rho_m"], rows["theta_deg"], height)
+            if jacobian
+            else np.zeros((len(rows), 2))
+        )
         return np.column_stack([converted.x, converted.y]), converted.R, j
 
-    def observe(self, radar: int, table: npt.NDArray[Any], refs: References) -> None:
+    def observe(
+        self,
+        radar: int,
+        table: npt.NDArray[Any],
+        tracked: npt.NDArray[Any],
+        refs: References,
+    ) -> None:
         """Measure the heights of the system tracks of this batch's plots without a
-        height that other radars' tracks see (module docstring)."""
+        height that other radars' tracks see (module docstring). ``tracked``: the
+        batch's tracked plots, bias-corrected (the references are)."""
         if radar not in self.radars or not len(table):
             return
         first_id = int(table["plot_id"][0])
         row = refs.plot_id - first_id
         usable = refs.others_valid & (refs.system_number > 0)
         usable &= ~table["height_known"][row]
-        for k in np.flatnonzero(usable).tolist():
-            plot = table[row[k] : row[k] + 1]
-            number = int(refs.system_number[k])
-            entry = self._system(number, radar, float(plot["time"][0]))
-            xy, r, j = self._convert(radar, plot, np.array([entry.height_m]))
-            j_others = self._others_jacobian(entry, radar, float(plot["time"][0]))
+        picked = np.flatnonzero(usable)
+        if not picked.size:
+            return
+        plots = table[row[picked]]
+        entries = [
+            self._system(int(refs.system_number[k]), radar, float(t))
+            for k, t in zip(picked.tolist(), plots["time"].tolist(), strict=True)
+        ]
+        xy, r, j = self._convert(radar, plots, np.array([e.height_m for e in entries]))
+        # The bias correction the central stage applied to each plot.
+        at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
+        at = np.minimum(at, max(len(tracked) - 1, 0))
+        found = len(tracked) > 0
+        if found:
+            same = tracked["plot_id"][at] == plots["plot_id"]
+            xy[same, 0] += tracked["x"][at[same]] - plots["x"][same]
+            xy[same, 1] += tracked["y"][at[same]] - plots["y"][same]
+        band = self.radars[radar].band
+        for n, k in enumerate(picked.tolist()):
+            entry = entries[n]
+            j_others = self._others_jacobian(entry, radar, float(plots["time"][n]))
             # At H_hat the plot lies at truth + J_i (H_hat - H), the others' prediction
             # at truth + J_o (H_hat - H): y = (J_o - J_i)(H - H_hat) + noise.
-            g = j_others - j[0]
-            y = xy[0] - refs.others_xy[k]
-            noise = r[0] + refs.others_P[k]
-            s = entry.variance_m2 * np.outer(g, g) + noise
+            g = j_others - j[n]
+            y = xy[n] - refs.others_xy[k]
+            s = entry.variance_m2 * np.outer(g, g) + r[n] + refs.others_P[k]
             s_inv_y = np.linalg.solve(s, y)
             if float(y @ s_inv_y) > self.config.gate:
                 self.rejected += 1
                 continue
-            s_inv_g = np.linalg.solve(s, g)
             # y = g (H - H_hat) + n: the scalar Kalman update of H.
-            gain = entry.variance_m2 * s_inv_g
-            entry.height_m += float(gain @ y)
+            gain = entry.variance_m2 * np.linalg.solve(s, g)
+            entry.height_m = float(np.clip(entry.height_m + gain @ y, band.min_m, band.max_m))
             entry.variance_m2 = max(entry.variance_m2 * (1.0 - float(gain @ g)), 1.0)
-            band = self.radars[radar].band
-            entry.height_m = float(np.clip(entry.height_m, band.min_m, band.max_m))
             entry.measurements += 1
             self.measurements += 1
 
@@ -222,38 +245,9 @@ class PsrHeights:
         in_batch = with_plot & (row < len(table))
         unknown = in_batch.copy()
         unknown[in_batch] = ~table["height_known"][row[in_batch]]
-        for k in np.flatnonzero(unknown).tolist():
-            plot = table[row[k] : row[k] + 1]
-            time = float(plot["time"][0])
-            number = int(systems[k])
-            if number > 0:
-                entry = self._system(number, radar, time)
-                height, variance = entry.height_m, entry.variance_m2
-            else:
-                entry = None
-                height, variance = float(plot["height_m"][0]), float(plot["height_sigma_m"][0]) ** 2
-            xy, r, j = self._convert(radar, plot, np.array([height]))
-            shift = xy[0] - np.array([plot["x"][0], plot["y"][0]])
-            local["x"][k] += shift[0]
-            local["y"][k] += shift[1]
-            key = (radar, int(local["track_number"][k]))
-            rate = self._shift_rate(radar, key, plot, shift, height)
-            local["vx"][k] += rate[0]
-            local["vy"][k] += rate[1]
-            # The rate is first order and lags the geometry: as uncertain as it is large
-            # (the local filter's velocity knows nothing of it).
-            p = local["P"][k].reshape(4, 4)
-            p[2:, 2:] += np.outer(rate, rate) + 0.25 * float(rate @ rate) * np.eye(2)
-            local["P"][k] = p.ravel()
-            extra[k] = variance * np.outer(j[0], j[0])
-            at = np.flatnonzero(tracked["plot_id"] == plot["plot_id"][0])
-            if at.size:
-                tracked["x"][at] += shift[0]
-                tracked["y"][at] += shift[1]
-                tracked["R"][at] = r[0]
-            if entry is not None:
-                entry.jacobians[radar] = (j[0], time)
-            self._last_plot[key] = (j[0], float(plot["height_m"][0]), number)
+        picked = np.flatnonzero(unknown)
+        if picked.size:
+            self._move_plotted(radar, table[row[picked]], picked, tracked, local, systems, extra)
         # Coasting updates (no plot): their last plot's shift at today's height.
         for k in np.flatnonzero(~with_plot).tolist():
             key = (radar, int(local["track_number"][k]))
@@ -271,27 +265,87 @@ class PsrHeights:
                 self._previous.pop(key, None)
         return Reprojection(tracked, local, extra)
 
-    def _shift_rate(
+    def _move_plotted(
         self,
         radar: int,
-        key: tuple[int, int],
-        plot: npt.NDArray[Any],
+        plots: npt.NDArray[Any],
+        picked: IntArray,
+        tracked: npt.NDArray[Any],
+        local: npt.NDArray[Any],
+        systems: IntArray,
+        extra: FloatArray,
+    ) -> None:
+        """``reproject`` for the local updates ``picked`` with a plot without a height
+        (``plots``, theirs), in place."""
+        n = picked.size
+        height = plots["height_m"].copy()
+        variance = plots["height_sigma_m"] ** 2
+        entries: list[SystemHeight | None] = []
+        for m, k in enumerate(picked.tolist()):
+            number = int(systems[k])
+            entry = self._system(number, radar, float(plots["time"][m])) if number > 0 else None
+            if entry is not None:
+                height[m], variance[m] = entry.height_m, entry.variance_m2
+            entries.append(entry)
+        xy, r, j = self._convert(radar, plots, height)
+        shift = xy - np.column_stack([plots["x"], plots["y"]])
+        local["x"][picked] += shift[:, 0]
+        local["y"][picked] += shift[:, 1]
+        extra[picked] = variance[:, None, None] * j[:, :, None] * j[:, None, :]
+        keys = [(radar, int(t)) for t in local["track_number"][picked].tolist()]
+        rate = self._shift_rates(radar, keys, plots, shift, height)
+        local["vx"][picked] += rate[:, 0]
+        local["vy"][picked] += rate[:, 1]
+        # The rate is first order and lags the geometry: as uncertain as it is large
+        # (the local filter's velocity knows nothing of it).
+        p = local["P"][picked].reshape(n, 4, 4)
+        p[:, 2:, 2:] += rate[:, :, None] * rate[:, None, :] + 0.25 * np.einsum(
+            "ka,ka->k", rate, rate
+        )[:, None, None] * np.eye(2)
+        local["P"][picked] = p.reshape(n, 16)
+        at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
+        for m in range(n):
+            if at[m] < len(tracked) and tracked["plot_id"][at[m]] == plots["plot_id"][m]:
+                tracked["x"][at[m]] += shift[m, 0]
+                tracked["y"][at[m]] += shift[m, 1]
+                tracked["R"][at[m]] = r[m]
+            entry = entries[m]
+            time = float(plots["time"][m])
+            if entry is not None:
+                entry.jacobians[radar] = (j[m], time)
+            self._last_plot[keys[m]] = (j[m], float(plots["height_m"][m]), int(systems[picked[m]]))
+
+    def _shift_rates(
+        self,
+        radar: int,
+        keys: list[tuple[int, int]],
+        plots: npt.NDArray[Any],
         shift: FloatArray,
-        height: float,
+        height: FloatArray,
     ) -> FloatArray:
-        """How fast the re-projection's shift changes along the track (m/s): near the
-        radar the band's error changes by kilometres a minute, and the local track's
+        """How fast the re-projection's shift changes along each track (m/s, n x 2): near
+        the radar the band's error changes by kilometres a minute, and the local track's
         velocity carries that rate. The previous plot is re-projected at the same height
         so that a new height estimate is not taken for motion."""
-        previous = self._previous.get(key)
-        rate = np.zeros(2) if previous is None else previous[1]
-        if previous is not None:
-            before = previous[0]
-            dt = float(plot["time"][0] - before["time"][0])
-            if dt > 0.5:
-                xy, _, _ = self._convert(radar, before, np.array([height]))
-                shift_before = xy[0] - np.array([before["x"][0], before["y"][0]])
-                raw = (shift - shift_before) / dt
-                rate = rate + SHIFT_RATE_SMOOTHING * (raw - rate)
-        self._previous[key] = (plot.copy(), rate)
+        rate = np.zeros((len(keys), 2))
+        before_rows: list[npt.NDArray[Any]] = []
+        which: list[int] = []
+        for m, key in enumerate(keys):
+            previous = self._previous.get(key)
+            if previous is None:
+                continue
+            rate[m] = previous[1]
+            if float(plots["time"][m] - previous[0]["time"][0]) > 0.5:
+                before_rows.append(previous[0])
+                which.append(m)
+        if which:
+            before = np.concatenate(before_rows)
+            index = np.array(which)
+            xy, _, _ = self._convert(radar, before, height[index], jacobian=False)
+            shift_before = xy - np.column_stack([before["x"], before["y"]])
+            dt = (plots["time"][index] - before["time"])[:, None]
+            raw = (shift[index] - shift_before) / dt
+            rate[index] += SHIFT_RATE_SMOOTHING * (raw - rate[index])
+        for m, key in enumerate(keys):
+            self._previous[key] = (plots[m : m + 1].copy(), rate[m].copy())
         return rate
