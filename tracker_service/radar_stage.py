@@ -302,7 +302,12 @@ def convert_batch(
     table["height_known"] = ~unknown
     if unknown.any():
         table["height_jacobian"][unknown] = height_jacobian(
-            info.site, plane, rho_m[unknown], theta[unknown], height[unknown]
+            info.site,
+            plane,
+            rho_m[unknown],
+            theta[unknown],
+            height[unknown],
+            at=(converted.x[unknown], converted.y[unknown]),
         )
     table["use"][raw["track_report"] == 1] = PlotUse.RADAR_TRACK
     table["use"][~(np.isfinite(raw["rho"]) & np.isfinite(raw["theta"]))] = PlotUse.NO_POSITION

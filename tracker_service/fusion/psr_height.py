@@ -156,7 +156,14 @@ class PsrHeights:
             np.where(psr, g.psr_sigma_azimuth_deg, g.sigma_azimuth_deg),
         )
         j = (
-            height_jacobian(g.site, self.plane, rows["rho_m"], rows["theta_deg"], height)
+            height_jacobian(
+                g.site,
+                self.plane,
+                rows["rho_m"],
+                rows["theta_deg"],
+                height,
+                at=(converted.x, converted.y),
+            )
             if jacobian
             else np.zeros((len(rows), 2))
         )

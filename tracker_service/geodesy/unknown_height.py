@@ -129,11 +129,16 @@ def height_jacobian(
     rho_m: npt.ArrayLike,
     theta_deg: npt.ArrayLike,
     height_msl_m: npt.ArrayLike,
+    at: tuple[FloatArray, FloatArray] | None = None,
 ) -> FloatArray:
-    """(N, 2) d(x, y)/dH of plane positions (m per m of height), by central differences
-    of ``convert_plots``: the same conversion, so the same geometry and plane."""
+    """(N, 2) d(x, y)/dH of plane positions (m per m of height), by differences of
+    ``convert_plots`` (the same conversion, so the same geometry and plane): forward
+    from ``at``, the plane positions at ``height_msl_m`` when the caller has them (one
+    conversion; the curvature over the step is below a millimetre), else central."""
     step = JACOBIAN_STEP_M
     height = as_float(height_msl_m)
     up = convert_plots(site, plane, rho_m, theta_deg, height + step, 0.0, 0.0, 0.0)
+    if at is not None:
+        return np.column_stack([up.x - at[0], up.y - at[1]]) / step
     down = convert_plots(site, plane, rho_m, theta_deg, height - step, 0.0, 0.0, 0.0)
     return np.column_stack([up.x - down.x, up.y - down.y]) / (2.0 * step)
