@@ -49,6 +49,7 @@ from tracker_service.bias import (
 )
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, References, SystemTracker
 from tracker_service.fusion.adsb_source import AdsbSource, AdsbStep, ReportUse
+from tracker_service.fusion.psr_height import PsrHeights, RadarGeometry
 from tracker_service.geodesy import SystemPlane
 from tracker_service.radar_stage import (
     CAT021,
@@ -166,6 +167,24 @@ class CentralStage:
         """Per radar, its stage's incarnation and the offset added to its track numbers."""
         self._highest_track: dict[str, int] = {}
         self._live_local: dict[str, dict[int, npt.NDArray[Any]]] = {}
+        self.heights: PsrHeights | None = None
+        """Heights of aircraft without one (``fusion.psr_height``), with fusion."""
+        if self.fuser is not None:
+            self.heights = PsrHeights(
+                {
+                    k: RadarGeometry(
+                        info.site,
+                        info.height_band,
+                        info.sigma_range_m,
+                        info.sigma_azimuth_deg,
+                        info.psr_sigma_range_m,
+                        info.psr_sigma_azimuth_deg,
+                    )
+                    for k, source in enumerate(self.sources)
+                    if (info := self.infos[source]).surveyed
+                },
+                plane,
+            )
 
     def feed_adsb(self, payload: bytes, received: float) -> list[BatchOutput]:
         """The CAT021 blocks of a datagram: the bias estimator's absolute reference, and
@@ -286,14 +305,35 @@ class CentralStage:
         # A radar out of step with the others would be fused at the wrong time.
         if self.fuser is None or index is None or not len(local) or out_of_step is not None:
             return BatchOutput(source, message.plots, local, _NO_SYSTEM_ROWS, report)
+        height_extra = None
+        unknown_height = not message.plots["height_known"].all()
+        if self.heights is not None and unknown_height and not message.snapshot:
+            local, batch, height_extra = self._reproject_heights(index, message, batch, local)
         extra = None
         if bias is not None and bias_cov is not None and not message.snapshot:
             extra = self._estimate_biases(index, message, batch, local, bias, bias_cov)
+        if height_extra is not None:
+            extra = height_extra if extra is None else extra + height_extra
         system = self.fuser.process(index, local, batch, extra)
         if self.adsb_source is not None:
             self.adsb_source.check_radar(local, extra)
         self._mark_inconsistent(system)
         return BatchOutput(source, message.plots, local, system, report)
+
+    def _reproject_heights(
+        self, radar: int, message: RadarBatch, batch: npt.NDArray[Any], local: npt.NDArray[Any]
+    ) -> tuple[npt.NDArray[Any], npt.NDArray[Any], FloatArray]:
+        """Plots without a height and their local updates at their aircraft's estimated
+        height, and its uncertainty as a consider covariance (``fusion.psr_height``)."""
+        assert self.fuser is not None and self.heights is not None
+        table = self.fuser.state.local
+        rows = table.find(radar, local, create=False)
+        systems = np.where(rows >= 0, table.rows["system"][np.maximum(rows, 0)], 0)
+        self.heights.observe(
+            radar, message.plots, batch, self.fuser.references(radar, local, batch)
+        )
+        moved = self.heights.reproject(radar, message.plots, batch, local, systems)
+        return moved.local, moved.tracked, moved.extra
 
     def _renumber(self, message: RadarBatch) -> bool:
         """Plot ids for the system, in the order batches are taken; a restarted radar
@@ -400,7 +440,8 @@ class CentralStage:
         refs = self.fuser.references(radar, local, batch, sources=n_radars)
         if self._geometry is not None:
             self._remember_geometry(radar, refs, table["R"], c, first_id)
-        usable = refs.others_valid & relative
+        # A plot without a height is off by an error of its aircraft's, not its radar's.
+        usable = refs.others_valid & relative & table["height_known"][refs.plot_id - first_id]
         if not usable.any():
             return None
         row = refs.plot_id[usable] - first_id

@@ -43,6 +43,11 @@ from tracker_service.geodesy import (
     SystemPlane,
     convert_plots,
 )
+from tracker_service.geodesy.unknown_height import (
+    HeightBand,
+    height_jacobian,
+    unknown_height_prior,
+)
 from tracker_service.ingest import PlotClock
 from tracker_service.sources import DEFAULT_MAX_UNKNOWN, SourceAdmission
 from tracker_service.stage_messages import RadarBatch
@@ -108,6 +113,13 @@ RAW_PLOT_DTYPE = np.dtype(
         ("implausible_daps", np.bool_),  # some Mode S DAP dropped as implausible (tracking.daps)
         ("has_daps", np.bool_),  # the DAP columns below hold DAPs (then NaN: absent); else unset
         *((name, np.float64) for name in DAP_NAMES),
+        # The height the conversion used (m above MSL) and its sigma; without a usable
+        # one (geodesy.unknown_height) the band's equivalent height, height_known False,
+        # and d(x, y)/dH for the central stage's re-projection (0 where it is known).
+        ("height_m", np.float64),
+        ("height_sigma_m", np.float64),
+        ("height_known", np.bool_),
+        ("height_jacobian", np.float64, (2,)),
     ]
 )
 """One converted plot of one radar, as received (before any bias correction), with room
@@ -181,6 +193,8 @@ class RadarInfo:
     """False for a radar the configuration does not know (an assumed site)."""
     time_base: TimeBase = "data"
     """"reception": its plots' times re-based on reception (``time_sanity``)."""
+    height_band: HeightBand = field(default_factory=HeightBand)
+    """Where its plots without a usable height may be (``geodesy.unknown_height``)."""
 
 
 def source_order(source: str) -> tuple[int, ...]:
@@ -241,11 +255,23 @@ def convert_batch(
         known = np.isfinite(surveyed_height)
         height = np.where(known, surveyed_height, height)
         height_sigma = np.where(known, 0.0, height_sigma)
+    rho_m = np.asarray(raw["rho"], dtype=np.float64) * NM
+    theta = np.asarray(raw["theta"], dtype=np.float64)
+    # No usable height: the band's prior instead of a fixed level (geodesy.unknown_height).
+    unknown = ~fl_ok & np.isfinite(rho_m)
+    if info.field_monitor is not None:
+        unknown &= ~rab
+    if surveyed_height is not None:
+        unknown &= ~np.isfinite(surveyed_height)
+    if unknown.any():
+        height = np.array(height, dtype=np.float64)
+        height_sigma = np.array(height_sigma, dtype=np.float64)
+        height[unknown], height_sigma[unknown] = unknown_height_prior(
+            info.site, rho_m[unknown], info.height_band
+        )
     psr_only = raw["typ"] == 1
     sigma_rho = np.where(psr_only, info.psr_sigma_range_m, info.sigma_range_m)
     sigma_theta = np.where(psr_only, info.psr_sigma_azimuth_deg, info.sigma_azimuth_deg)
-    rho_m = np.asarray(raw["rho"], dtype=np.float64) * NM
-    theta = np.asarray(raw["theta"], dtype=np.float64)
     converted = convert_plots(
         info.site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
     )
@@ -298,6 +324,18 @@ def convert_batch(
         [PlotUse.FIELD_MONITOR, PlotUse.TEST_TARGET, PlotUse.SIMULATED],
         PlotUse.TRACKED,
     )
+    table["height_m"] = height
+    table["height_sigma_m"] = height_sigma
+    table["height_known"] = ~unknown
+    if unknown.any():
+        table["height_jacobian"][unknown] = height_jacobian(
+            info.site,
+            plane,
+            rho_m[unknown],
+            theta[unknown],
+            height[unknown],
+            at=(converted.x[unknown], converted.y[unknown]),
+        )
     table["use"][raw["track_report"] == 1] = PlotUse.RADAR_TRACK
     table["use"][~(np.isfinite(raw["rho"]) & np.isfinite(raw["theta"]))] = PlotUse.NO_POSITION
     return batch, table, c

@@ -1,0 +1,358 @@
+"""The height of aircraft without one (primary-only), estimated centrally, and the
+re-projection of their plots and local tracks with it.
+
+A plot without a usable height comes from the radar stage at the equivalent height of its
+radar's band (``geodesy.unknown_height``) with the height Jacobian J = d(x, y)/dH of its
+plane position. Its error from the unknown height is one per aircraft and radar, along
+that radar's line of sight: white noise it is not. Here, per system track:
+
+- the height H (m above MSL) is a scalar random walk (``PsrHeightConfig.q_m2_per_s``:
+  level changes) with prior the band's mean and variance (uniform);
+- a plot of radar i whose system track other radars also see (the fuser's references:
+  their local tracks predicted to the plot's time, ``fusion.references``) measures it:
+  re-projected at the current estimate, the plot lies off the others' prediction by
+  y = (J_o - J_i)(H - H_hat) + noise, J_o the others' height Jacobian (0 for a radar
+  that has the height from Mode C). Slant ranges from different sites agree in the
+  horizontal only at the right height; a single radar leaves H where the prior put it;
+- every plot and local update of the system track is re-projected exactly at H_hat
+  (``convert_plots`` from its slant range and azimuth), its covariance becomes the
+  measurement noise alone, and J J^T var(H) goes to the fuser as the error common to
+  that radar's plots of the aircraft (the ``extra`` consider term the residual biases
+  use: fusion/consider.py), which the association gate and the system covariance carry.
+
+A local track's update moves with its plot (the same shift); a coasting one with its
+last plot's Jacobian. The re-projection happens before fusion, after the bias
+correction: the two are first order in different parameters and add.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.fusion.references import References
+from tracker_service.geodesy import RadarSite, SystemPlane, convert_plots
+from tracker_service.geodesy.unknown_height import HeightBand, feasible_band, height_jacobian
+from tracker_service.tracking.plots import FloatArray, IntArray
+from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
+
+SHIFT_RATE_SMOOTHING = 0.5
+"""Weight of the newest plot pair in the shift's rate (plot noise moves the shift)."""
+
+__all__ = ["PsrHeightConfig", "PsrHeights", "RadarGeometry", "SystemHeight"]
+
+
+@dataclass(frozen=True)
+class PsrHeightConfig:
+    q_m2_per_s: float = 200.0
+    """Random-walk intensity of the height: 110 m of drift a minute (a slow climb)."""
+    gate: float = 13.82
+    """Chi-square (2 dof, 99.9 %) on a plot's residual to the others' prediction: beyond
+    it the pair is not one aircraft at any height, and the plot does not measure it."""
+    jacobian_age_s: float = 60.0
+    """Another radar's height Jacobian of the aircraft older than this is not used."""
+    stale_s: float = 120.0
+    """A system track's height untouched for this long belongs to a track that ended
+    (a live one has a plot within the fuser's silence, 3 x the longest period): a new
+    track under its reused number (after ``number_reuse_delay_s``, 300 s) starts afresh."""
+
+
+@dataclass(frozen=True)
+class RadarGeometry:
+    """What the re-projection needs of one radar: its site, band and plot sigmas."""
+
+    site: RadarSite
+    band: HeightBand
+    sigma_range_m: float
+    sigma_azimuth_deg: float
+    psr_sigma_range_m: float
+    psr_sigma_azimuth_deg: float
+
+
+@dataclass
+class SystemHeight:
+    height_m: float
+    variance_m2: float
+    time: float
+    measurements: int = 0
+    jacobians: dict[int, tuple[FloatArray, float]] = field(default_factory=dict)
+    """Per radar, its latest height Jacobian of this aircraft and when."""
+
+
+@dataclass(frozen=True)
+class Reprojection:
+    """A batch's tracked plots and local updates re-projected at their system tracks'
+    heights, and the consider covariance (n_local, 2, 2) of each local update."""
+
+    tracked: npt.NDArray[Any]
+    local: npt.NDArray[Any]
+    extra: FloatArray
+
+
+class PsrHeights:
+    """See the module docstring. ``radars``: per radar index, its geometry."""
+
+    def __init__(
+        self,
+        radars: dict[int, RadarGeometry],
+        plane: SystemPlane,
+        config: PsrHeightConfig | None = None,
+    ) -> None:
+        self.radars = radars
+        self.plane = plane
+        self.config = config or PsrHeightConfig()
+        self.systems: dict[int, SystemHeight] = {}
+        self._last_plot: dict[tuple[int, int], tuple[FloatArray, float, int]] = {}
+        """Per (radar, local track number): its last plot's J, height used, system."""
+        self._previous: dict[tuple[int, int], tuple[npt.NDArray[Any], FloatArray]] = {}
+        """Per (radar, local track number): its last plot (a table row) and the rate of
+        its shift (m/s, smoothed)."""
+        self.measurements = 0
+        self.rejected = 0
+
+    def estimate(self, system_number: int) -> tuple[float, float] | None:
+        """(height m above MSL, sigma m) of a system track's aircraft, if estimated from
+        several radars; None otherwise."""
+        entry = self.systems.get(system_number)
+        if entry is None or entry.measurements == 0:
+            return None
+        return entry.height_m, float(np.sqrt(entry.variance_m2))
+
+    def _system(self, number: int, radar: int, time: float) -> SystemHeight:
+        entry = self.systems.get(number)
+        band = self.radars[radar].band
+        prior = (band.max_m - band.min_m) ** 2 / 12.0
+        if entry is None or time - entry.time > self.config.stale_s:
+            entry = SystemHeight(0.5 * (band.min_m + band.max_m), prior, time)
+            self.systems[number] = entry
+        elif time > entry.time:
+            entry.variance_m2 = min(
+                entry.variance_m2 + self.config.q_m2_per_s * (time - entry.time), prior
+            )
+            entry.time = time
+        return entry
+
+    def _convert(
+        self, radar: int, rows: npt.NDArray[Any], height: FloatArray, jacobian: bool = True
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Plane xy (n, 2), noise-only R (n, 2, 2) and J (n, 2; zeros unless
+        ``jacobian``) of plot table rows at the given heights, clipped to what each slant
+        range allows."""
+        g = self.radars[radar]
+        low, high = feasible_band(g.site, rows["rho_m"], g.band)
+        height = np.clip(height, low, high)
+        psr = rows["typ"] == 1
+        converted = convert_plots(
+            g.site,
+            self.plane,
+            rows["rho_m"],
+            rows["theta_deg"],
+            height,
+            0.0,
+            np.where(psr, g.psr_sigma_range_m, g.sigma_range_m),
+            np.where(psr, g.psr_sigma_azimuth_deg, g.sigma_azimuth_deg),
+        )
+        j = (
+            height_jacobian(
+                g.site,
+                self.plane,
+                rows["rho_m"],
+                rows["theta_deg"],
+                height,
+                at=(converted.x, converted.y),
+            )
+            if jacobian
+            else np.zeros((len(rows), 2))
+        )
+        return np.column_stack([converted.x, converted.y]), converted.R, j
+
+    def observe(
+        self,
+        radar: int,
+        table: npt.NDArray[Any],
+        tracked: npt.NDArray[Any],
+        refs: References,
+    ) -> None:
+        """Measure the heights of the system tracks of this batch's plots without a
+        height that other radars' tracks see (module docstring). ``tracked``: the
+        batch's tracked plots, bias-corrected (the references are)."""
+        if radar not in self.radars or not len(table):
+            return
+        first_id = int(table["plot_id"][0])
+        row = refs.plot_id - first_id
+        usable = refs.others_valid & (refs.system_number > 0)
+        usable &= ~table["height_known"][row]
+        picked = np.flatnonzero(usable)
+        if not picked.size:
+            return
+        plots = table[row[picked]]
+        entries = [
+            self._system(int(refs.system_number[k]), radar, float(t))
+            for k, t in zip(picked.tolist(), plots["time"].tolist(), strict=True)
+        ]
+        xy, r, j = self._convert(radar, plots, np.array([e.height_m for e in entries]))
+        # The bias correction the central stage applied to each plot.
+        at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
+        at = np.minimum(at, max(len(tracked) - 1, 0))
+        found = len(tracked) > 0
+        if found:
+            same = tracked["plot_id"][at] == plots["plot_id"]
+            xy[same, 0] += tracked["x"][at[same]] - plots["x"][same]
+            xy[same, 1] += tracked["y"][at[same]] - plots["y"][same]
+        band = self.radars[radar].band
+        for n, k in enumerate(picked.tolist()):
+            entry = entries[n]
+            j_others = self._others_jacobian(entry, radar, float(plots["time"][n]))
+            # At H_hat the plot lies at truth + J_i (H_hat - H), the others' prediction
+            # at truth + J_o (H_hat - H): y = (J_o - J_i)(H - H_hat) + noise.
+            g = j_others - j[n]
+            y = xy[n] - refs.others_xy[k]
+            s = entry.variance_m2 * np.outer(g, g) + r[n] + refs.others_P[k]
+            s_inv_y = np.linalg.solve(s, y)
+            if float(y @ s_inv_y) > self.config.gate:
+                self.rejected += 1
+                continue
+            # y = g (H - H_hat) + n: the scalar Kalman update of H.
+            gain = entry.variance_m2 * np.linalg.solve(s, g)
+            entry.height_m = float(np.clip(entry.height_m + gain @ y, band.min_m, band.max_m))
+            entry.variance_m2 = max(entry.variance_m2 * (1.0 - float(gain @ g)), 1.0)
+            entry.measurements += 1
+            self.measurements += 1
+
+    def _others_jacobian(self, entry: SystemHeight, radar: int, time: float) -> FloatArray:
+        recent = [
+            j
+            for other, (j, t) in entry.jacobians.items()
+            if other != radar and time - t <= self.config.jacobian_age_s
+        ]
+        return np.mean(recent, axis=0) if recent else np.zeros(2)
+
+    def reproject(
+        self,
+        radar: int,
+        table: npt.NDArray[Any],
+        tracked: npt.NDArray[Any],
+        local: npt.NDArray[Any],
+        systems: IntArray,
+    ) -> Reprojection:
+        """The batch's tracked plots (``tracked``, bias-corrected, rows of ``table``'s
+        tracked plots by plot id) and local updates (``local``, bias-corrected; their
+        system tracks ``systems``, 0 for none) moved to their aircraft's height
+        (module docstring)."""
+        extra = np.zeros((len(local), 2, 2))
+        if radar not in self.radars or not len(local):
+            return Reprojection(tracked, local, extra)
+        tracked, local = tracked.copy(), local.copy()
+        first_id = int(table["plot_id"][0]) if len(table) else 0
+        with_plot = local["plot_id"] >= 0
+        row = np.where(with_plot, local["plot_id"] - first_id, 0)
+        in_batch = with_plot & (row < len(table))
+        unknown = in_batch.copy()
+        unknown[in_batch] = ~table["height_known"][row[in_batch]]
+        picked = np.flatnonzero(unknown)
+        if picked.size:
+            self._move_plotted(radar, table[row[picked]], picked, tracked, local, systems, extra)
+        # Coasting updates (no plot): their last plot's shift at today's height.
+        for k in np.flatnonzero(~with_plot).tolist():
+            key = (radar, int(local["track_number"][k]))
+            last = self._last_plot.get(key)
+            if last is not None:
+                j, used, number = last
+                entry = self.systems.get(number) if number > 0 else None
+                if entry is not None:
+                    shift = j * (entry.height_m - used)
+                    local["x"][k] += shift[0]
+                    local["y"][k] += shift[1]
+                    extra[k] = entry.variance_m2 * np.outer(j, j)
+            if local["status"][k] == LOCAL_DELETED:
+                self._last_plot.pop(key, None)
+                self._previous.pop(key, None)
+        return Reprojection(tracked, local, extra)
+
+    def _move_plotted(
+        self,
+        radar: int,
+        plots: npt.NDArray[Any],
+        picked: IntArray,
+        tracked: npt.NDArray[Any],
+        local: npt.NDArray[Any],
+        systems: IntArray,
+        extra: FloatArray,
+    ) -> None:
+        """``reproject`` for the local updates ``picked`` with a plot without a height
+        (``plots``, theirs), in place."""
+        n = picked.size
+        height = plots["height_m"].copy()
+        variance = plots["height_sigma_m"] ** 2
+        entries: list[SystemHeight | None] = []
+        for m, k in enumerate(picked.tolist()):
+            number = int(systems[k])
+            entry = self._system(number, radar, float(plots["time"][m])) if number > 0 else None
+            if entry is not None:
+                height[m], variance[m] = entry.height_m, entry.variance_m2
+            entries.append(entry)
+        xy, r, j = self._convert(radar, plots, height)
+        shift = xy - np.column_stack([plots["x"], plots["y"]])
+        local["x"][picked] += shift[:, 0]
+        local["y"][picked] += shift[:, 1]
+        extra[picked] = variance[:, None, None] * j[:, :, None] * j[:, None, :]
+        keys = [(radar, int(t)) for t in local["track_number"][picked].tolist()]
+        rate = self._shift_rates(radar, keys, plots, shift, height)
+        local["vx"][picked] += rate[:, 0]
+        local["vy"][picked] += rate[:, 1]
+        # The rate is first order and lags the geometry: as uncertain as it is large
+        # (the local filter's velocity knows nothing of it).
+        p = local["P"][picked].reshape(n, 4, 4)
+        p[:, 2:, 2:] += rate[:, :, None] * rate[:, None, :] + 0.25 * np.einsum(
+            "ka,ka->k", rate, rate
+        )[:, None, None] * np.eye(2)
+        local["P"][picked] = p.reshape(n, 16)
+        at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
+        for m in range(n):
+            if at[m] < len(tracked) and tracked["plot_id"][at[m]] == plots["plot_id"][m]:
+                tracked["x"][at[m]] += shift[m, 0]
+                tracked["y"][at[m]] += shift[m, 1]
+                tracked["R"][at[m]] = r[m]
+            entry = entries[m]
+            time = float(plots["time"][m])
+            if entry is not None:
+                entry.jacobians[radar] = (j[m], time)
+            self._last_plot[keys[m]] = (j[m], float(plots["height_m"][m]), int(systems[picked[m]]))
+
+    def _shift_rates(
+        self,
+        radar: int,
+        keys: list[tuple[int, int]],
+        plots: npt.NDArray[Any],
+        shift: FloatArray,
+        height: FloatArray,
+    ) -> FloatArray:
+        """How fast the re-projection's shift changes along each track (m/s, n x 2): near
+        the radar the band's error changes by kilometres a minute, and the local track's
+        velocity carries that rate. The previous plot is re-projected at the same height
+        so that a new height estimate is not taken for motion."""
+        rate = np.zeros((len(keys), 2))
+        before_rows: list[npt.NDArray[Any]] = []
+        which: list[int] = []
+        for m, key in enumerate(keys):
+            previous = self._previous.get(key)
+            if previous is None:
+                continue
+            rate[m] = previous[1]
+            if float(plots["time"][m] - previous[0]["time"][0]) > 0.5:
+                before_rows.append(previous[0])
+                which.append(m)
+        if which:
+            before = np.concatenate(before_rows)
+            index = np.array(which)
+            xy, _, _ = self._convert(radar, before, height[index], jacobian=False)
+            shift_before = xy - np.column_stack([before["x"], before["y"]])
+            dt = (plots["time"][index] - before["time"])[:, None]
+            raw = (shift[index] - shift_before) / dt
+            rate[index] += SHIFT_RATE_SMOOTHING * (raw - rate[index])
+        for m, key in enumerate(keys):
+            self._previous[key] = (plots[m : m + 1].copy(), rate[m].copy())
+        return rate
