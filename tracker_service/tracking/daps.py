@@ -36,8 +36,10 @@ from tracker_service.tracking import imm
 from tracker_service.tracking.config import KNOT_M_S, TrackerConfig
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
+    DAP_SELECTED_ALTITUDE,
     DAP_TURN_RATE,
     DAP_VELOCITY,
+    DAP_VERTICAL_RATE,
     BoolArray,
     FloatArray,
     PlotArrays,
@@ -127,6 +129,9 @@ def plot_daps(
     out["dap_vx"], out["dap_vy"] = vx, vy
     flags = np.where(np.isfinite(vx), DAP_VELOCITY, 0)
     flags |= np.where(np.isfinite(out["dap_turn_rate_rad_s"]), DAP_TURN_RATE, 0)
+    vertical_rate = np.isfinite(out["baro_rate_fpm"]) | np.isfinite(out["inertial_rate_fpm"])
+    flags |= np.where(vertical_rate, DAP_VERTICAL_RATE, 0)
+    flags |= np.where(np.isfinite(out["selected_altitude_ft"]), DAP_SELECTED_ALTITUDE, 0)
     out["dap_flags"] = flags.astype(np.uint8)
     return out, implausible
 

@@ -36,11 +36,14 @@ altitude (ft, MCP/FCU, else FMS); and what the tracker uses of BDS 5,0: the velo
 the plane ``dap_vx``, ``dap_vy`` (m/s) and the turn rate in the plane
 ``dap_turn_rate_rad_s`` (counter-clockwise positive, as the IMM's turn models).
 
-``dap_flags`` says which of the last two the tracker may use (``DAP_VELOCITY``,
-``DAP_TURN_RATE`` bits): rows made with ``np.zeros`` have 0 there, so a zero velocity is
+``dap_flags`` says which DAPs the tracker may use (``DAP_VELOCITY``, ``DAP_TURN_RATE``,
+``DAP_VERTICAL_RATE``: either vertical rate, ``DAP_SELECTED_ALTITUDE`` bits): rows made
+with ``np.zeros`` have 0 there, so a zero velocity, climb rate or selected altitude is
 never taken for a measurement. Make new rows with ``empty_plots`` (DAPs NaN)."""
 DAP_VELOCITY = 1
 DAP_TURN_RATE = 2
+DAP_VERTICAL_RATE = 4
+DAP_SELECTED_ALTITUDE = 8
 PUBLISHED_DAP_FIELDS = (
     "magnetic_heading_deg",
     "indicated_airspeed_kt",

@@ -26,6 +26,8 @@ from tracker_service.tracking.daps import DapUpdate
 from tracker_service.tracking.initiate import TwoPointInitiator, two_point_state
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
+    DAP_SELECTED_ALTITUDE,
+    DAP_VERTICAL_RATE,
     BoolArray,
     FloatArray,
     IntArray,
@@ -468,19 +470,24 @@ class LocalTracker:
         downlinked rates and selected altitude where the plot columns exist."""
         names = p.rows.dtype.names or ()
         level_variance = vertical.measurement_variance(p.flight_level, p.typ, self.config)
-        if "selected_altitude_ft" not in names:
+        if "selected_altitude_ft" not in names or not self.config.use_daps:
             # Plots without DAP columns: one NaN column stands for all three (read only).
             absent = np.full(len(p), np.nan)
             return vertical.VerticalMeasurements(
                 p.time, p.flight_level, level_variance, absent, absent, absent
             )
+        # Only what dap_flags vouches for: rows made with np.zeros hold 0 there.
+        flags = p.rows["dap_flags"]
+        has_rate = (flags & DAP_VERTICAL_RATE) != 0
         rate, rate_variance = vertical.rate_measurements(
-            np.asarray(p.rows["baro_rate_fpm"], dtype=np.float64),
-            np.asarray(p.rows["inertial_rate_fpm"], dtype=np.float64),
+            np.where(has_rate, p.rows["baro_rate_fpm"], np.nan),
+            np.where(has_rate, p.rows["inertial_rate_fpm"], np.nan),
             self.config,
             len(p),
         )
-        selected = np.asarray(p.rows["selected_altitude_ft"], dtype=np.float64) / 100.0
+        selected = np.where(
+            (flags & DAP_SELECTED_ALTITUDE) != 0, p.rows["selected_altitude_ft"] / 100.0, np.nan
+        )
         return vertical.VerticalMeasurements(
             p.time, p.flight_level, level_variance, rate, rate_variance, selected
         )
