@@ -14,7 +14,7 @@ The recording is read into memory before the clock starts.
 
     tracker-service simulate config/scenarios/scale.toml -o scale60.mcap --duration 60
     python benchmarks/bench_stages.py scale60.mcap [--seconds 30] [--repeats 1]
-        [--no-mcap] [--no-zenoh] [--json]
+        [--no-mcap] [--no-zenoh] [--fusion-implementation compiled|numpy] [--json]
 
 The stages and what each wraps:
 
@@ -164,11 +164,13 @@ def slice_of(path: str, seconds: float) -> tuple[Any, list[tuple[str, Datagram]]
 
 
 def run_once(
-    path: str, seconds: float, mcap: bool, use_zenoh: bool
+    path: str, seconds: float, mcap: bool, use_zenoh: bool, fusion_implementation: str
 ) -> tuple[dict[str, float], int, float, float]:
     """One replay of the slice: exclusive CPU seconds per stage (and "other"), plots,
     process CPU seconds and wall seconds."""
     replay, datagrams = slice_of(path, seconds)
+    fusion = {**replay.config.fusion, "implementation": fusion_implementation}
+    config = replay.config.model_copy(update={"fusion": fusion})
     clock = StageClock()
     with contextlib.ExitStack() as stack:
         publisher = None
@@ -181,7 +183,7 @@ def run_once(
             directory = stack.enter_context(tempfile.TemporaryDirectory(prefix="bench_stages"))
             log = stack.enter_context(contextlib.closing(McapLog(directory)))
         with instrumented(clock):
-            service = TrackerService(replay.config, publisher, log)
+            service = TrackerService(config, publisher, log)
             service.set_input_counters(replay.counters)
             cpu0, wall0 = time.process_time(), time.perf_counter()
             for name, datagram in datagrams:
@@ -202,11 +204,22 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--no-mcap", action="store_true")
     parser.add_argument("--no-zenoh", action="store_true")
+    parser.add_argument(
+        "--fusion-implementation", choices=("compiled", "numpy"), default="compiled"
+    )
     parser.add_argument("--json", action="store_true", help="the figures as JSON on stdout")
     args = parser.parse_args()
     runs = []
     for repeat in range(args.repeats):
-        runs.append(run_once(args.recording, args.seconds, not args.no_mcap, not args.no_zenoh))
+        runs.append(
+            run_once(
+                args.recording,
+                args.seconds,
+                not args.no_mcap,
+                not args.no_zenoh,
+                args.fusion_implementation,
+            )
+        )
         _, plots, cpu, wall = runs[-1]
         print(
             f"run {repeat + 1}: {plots} plots, {cpu:.1f} CPU s, {wall:.1f} s wall,"
@@ -223,6 +236,7 @@ def main() -> None:
             "recording": args.recording,
             "seconds": args.seconds,
             "repeats": args.repeats,
+            "fusion_implementation": args.fusion_implementation,
             "plots": plots,
             "cpu_s": cpu,
             "wall_s": wall,
@@ -235,7 +249,7 @@ def main() -> None:
     print(f"{Path(args.recording).name}: first {args.seconds:g} s, {plots:,} plots,")
     print(
         f"median of {args.repeats} run(s); outputs: mcap={not args.no_mcap}"
-        f" zenoh={not args.no_zenoh}"
+        f" zenoh={not args.no_zenoh}; fusion {args.fusion_implementation}"
     )
     print(f"{'stage':<20} {'CPU s':>8} {'us/plot':>9} {'share':>7}")
     for n in names:

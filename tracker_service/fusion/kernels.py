@@ -417,13 +417,7 @@ def fuse_local_tracks(
                     sigma[4 * i + a, 4 * i + b] = (1.0 - correlation) * own[i, a, b]
         if correlation > 0.0:
             for i in range(n):
-                w, v = np.linalg.eigh(own[i])
-                for a in range(4):
-                    for b in range(4):
-                        acc = 0.0
-                        for e in range(4):
-                            acc += v[a, e] * math.sqrt(max(w[e], 0.0)) * v[b, e]
-                        roots[i, a, b] = acc
+                _symmetric_sqrt4(own[i], roots[i])
             for i in range(n):
                 for j in range(n):
                     for a in range(4):
@@ -432,11 +426,12 @@ def fuse_local_tracks(
                             for e in range(4):
                                 acc += roots[i, a, e] * roots[j, b, e]
                             sigma[4 * i + a, 4 * j + b] += correlation * acc
+        block = np.empty((4, 4))
         for i in range(n):
             for j in range(n):
                 same_way = np.sign(dt[i]) == np.sign(dt[j])
                 overlap = min(abs(dt[i]), abs(dt[j])) if same_way else 0.0
-                block = np.zeros((4, 4))
+                block[:, :] = 0.0
                 _add_q(block, overlap, q)
                 if i == j:
                     for a in range(2):
@@ -445,29 +440,140 @@ def fuse_local_tracks(
                 for a in range(4):
                     for b in range(4):
                         sigma[4 * i + a, 4 * j + b] += block[a, b]
-        h = np.zeros((size, 4))
-        for i in range(n):
-            for a in range(4):
-                h[4 * i + a, a] = 1.0
-        gain = np.linalg.solve(sigma, h)
-        info = np.zeros((4, 4))
-        for i in range(n):
-            for a in range(4):
-                for b in range(4):
-                    info[a, b] += gain[4 * i + a, b]
-        p = np.linalg.inv(info)
-        weighted = np.zeros(4)
-        for row in range(size):
-            for a in range(4):
-                weighted[a] += gain[row, a] * states[row // 4, row % 4]
-        for a in range(4):
-            acc = 0.0
-            for b in range(4):
-                acc += 0.5 * (p[a, b] + p[b, a]) * weighted[b]
-            out_x[r, a] = acc
-            for b in range(4):
-                out_p[r, a, b] = 0.5 * (p[a, b] + p[b, a])
+        _ml_solve(sigma, states[:n].copy().reshape(size), out_x[r], out_p[r])
     return out_x, out_p
+
+
+@numba.njit(cache=True)
+def _symmetric_sqrt4(a: FloatArray, root: FloatArray) -> None:  # pragma: no cover - compiled
+    """``ml.symmetric_sqrt`` of one symmetric 4x4 into root: cyclic Jacobi rotations to
+    the eigenvectors (to rounding: the root is unique, whatever the method), negative
+    eigenvalues of rounding clipped to 0."""
+    m = a.copy()
+    v = np.eye(4)
+    scale = 0.0
+    for i in range(4):
+        for j in range(4):
+            scale += m[i, j] * m[i, j]
+    for _ in range(60):
+        off = 0.0
+        for i in range(4):
+            for j in range(i + 1, 4):
+                off += m[i, j] * m[i, j]
+        if off <= 1e-36 * scale:
+            break
+        for p_ in range(3):
+            for q_ in range(p_ + 1, 4):
+                apq = m[p_, q_]
+                if apq == 0.0:
+                    continue
+                theta = (m[q_, q_] - m[p_, p_]) / (2.0 * apq)
+                t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                if theta < 0.0:
+                    t = -t
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for e in range(4):
+                    mep, meq = m[e, p_], m[e, q_]
+                    m[e, p_] = c * mep - s * meq
+                    m[e, q_] = s * mep + c * meq
+                for e in range(4):
+                    mpe, mqe = m[p_, e], m[q_, e]
+                    m[p_, e] = c * mpe - s * mqe
+                    m[q_, e] = s * mpe + c * mqe
+                for e in range(4):
+                    vep, veq = v[e, p_], v[e, q_]
+                    v[e, p_] = c * vep - s * veq
+                    v[e, q_] = s * vep + c * veq
+    for a_ in range(4):
+        for b in range(4):
+            acc = 0.0
+            for e in range(4):
+                acc += v[a_, e] * math.sqrt(max(m[e, e], 0.0)) * v[b, e]
+            root[a_, b] = acc
+
+
+@numba.njit(cache=True)
+def _ml_solve(
+    sigma: FloatArray, z: FloatArray, x: FloatArray, p: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """``ml.ml_fuse``'s estimate from the joint covariance sigma (4n, 4n) of the stacked
+    estimates z (4n,): P = (H^T sigma^-1 H)^-1, x = P H^T sigma^-1 z, H the stacked
+    identities; by a Cholesky factor sigma = L L^T (Y = L^-1 H, info = Y^T Y), and by
+    LAPACK's LU, as the reference, when sigma is not numerically positive definite."""
+    size = sigma.shape[0]
+    low = np.zeros((size, size))
+    for j in range(size):
+        acc = sigma[j, j]
+        for e in range(j):
+            acc -= low[j, e] * low[j, e]
+        if not acc > 0.0:
+            _ml_solve_lu(sigma, z, x, p)
+            return
+        low[j, j] = math.sqrt(acc)
+        for i in range(j + 1, size):
+            acc = sigma[i, j]
+            for e in range(j):
+                acc -= low[i, e] * low[j, e]
+            low[i, j] = acc / low[j, j]
+    y = np.zeros((size, 4))
+    wz = np.empty(size)
+    for i in range(size):
+        for b in range(4):
+            acc = 1.0 if i % 4 == b else 0.0
+            for e in range(i):
+                acc -= low[i, e] * y[e, b]
+            y[i, b] = acc / low[i, i]
+        acc = z[i]
+        for e in range(i):
+            acc -= low[i, e] * wz[e]
+        wz[i] = acc / low[i, i]
+    info = np.zeros((4, 4))
+    weighted = np.zeros(4)
+    for a in range(4):
+        for i in range(size):
+            weighted[a] += y[i, a] * wz[i]
+        for b in range(4):
+            acc = 0.0
+            for i in range(size):
+                acc += y[i, a] * y[i, b]
+            info[a, b] = acc
+    _finish(np.linalg.inv(info), weighted, x, p)
+
+
+@numba.njit(cache=True)
+def _ml_solve_lu(
+    sigma: FloatArray, z: FloatArray, x: FloatArray, p: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """``_ml_solve`` as the reference computes it (LU solve of sigma against H)."""
+    size = sigma.shape[0]
+    h = np.zeros((size, 4))
+    for i in range(size):
+        h[i, i % 4] = 1.0
+    gain = np.linalg.solve(sigma, h)
+    info = np.zeros((4, 4))
+    weighted = np.zeros(4)
+    for i in range(size):
+        for a in range(4):
+            weighted[a] += gain[i, a] * z[i]
+            for b in range(4):
+                info[a, b] += gain[i, b] if i % 4 == a else 0.0
+    _finish(np.linalg.inv(info), weighted, x, p)
+
+
+@numba.njit(cache=True, inline="always")
+def _finish(
+    inverse: FloatArray, weighted: FloatArray, x: FloatArray, p: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """P symmetrised, then x = P (H^T sigma^-1 z), as ``ml.ml_fuse``."""
+    for a in range(4):
+        for b in range(4):
+            p[a, b] = 0.5 * (inverse[a, b] + inverse[b, a])
+    for a in range(4):
+        acc = 0.0
+        for b in range(4):
+            acc += p[a, b] * weighted[b]
+        x[a] = acc
 
 
 class ModelConstants:
