@@ -17,9 +17,11 @@ to each radar's bias (M, L, 4, 2), probabilities (M,); the measurement is the po
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
+import numpy.typing as npt
 
 from tracker_service.tracking.kernels import _combine_row, _transition
 from tracker_service.tracking.models import ModelSet
@@ -563,7 +565,7 @@ def _ml_solve_lu(
 
 @numba.njit(cache=True, inline="always")
 def _finish(
-    inverse: FloatArray, weighted: FloatArray, x: FloatArray, p: FloatArray
+    inverse: npt.NDArray[Any], weighted: FloatArray, x: FloatArray, p: FloatArray
 ) -> None:  # pragma: no cover - compiled
     """P symmetrised, then x = P (H^T sigma^-1 z), as ``ml.ml_fuse``."""
     for a in range(4):
