@@ -19,6 +19,7 @@ from tests.test_tracking_kernels import TOLERANCE, close
 from tracker_service.fusion import FusionConfig, SystemTracker, consider, estimator_plots
 from tracker_service.fusion.estimator_tracks import fuse_local_tracks
 from tracker_service.fusion.state import FusionState
+from tracker_service.fusion.table import LocalTrackTable
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import PlotArrays, as_plot_arrays
@@ -200,3 +201,21 @@ def test_compiled_and_numpy_fusers_give_the_same_rows(method: str) -> None:
         else:
             np.testing.assert_array_equal(a[name], b[name], err_msg=name)
     assert fusers["numpy"].stats == fusers["compiled"].stats
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=0, max_value=60), max_sources=st.integers(1, 8))
+def test_slots_are_the_references(seed: int, k: int, max_sources: int) -> None:
+    """The same rows, in the same order: most recent plot first, ties in row order (plot
+    times drawn from few values), dead rows and other system tracks left out."""
+    rng = np.random.default_rng(seed)
+    tables = [LocalTrackTable(5, compiled=flag) for flag in (False, True)]
+    rows = tables[0].find(0, _local_updates(rng, k), create=True)
+    loc = tables[0].rows
+    loc["system"][rows] = rng.integers(0, 12, k)
+    loc["alive"][rows] = rng.random(k) < 0.8
+    loc["t_plot"][rows] = rng.choice([-np.inf, 1.0, 2.0, 3.0], k)
+    tables[1].rows, tables[1].n = loc, tables[0].n
+    numbers = rng.integers(1, 14, int(rng.integers(0, 20)))
+    want, got = (table.slots(numbers, max_sources) for table in tables)
+    np.testing.assert_array_equal(want, got)

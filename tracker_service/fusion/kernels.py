@@ -578,6 +578,50 @@ def _finish(
         x[a] = acc
 
 
+@numba.njit(cache=True)
+def slots_of(
+    numbers: IntArray,
+    system: IntArray,
+    alive: npt.NDArray[np.bool_],
+    t_plot: FloatArray,
+    max_sources: int,
+    width: int,
+) -> IntArray:  # pragma: no cover - compiled
+    """``table.LocalTrackTable.slots``: the alive local rows feeding each system track of
+    ``numbers`` (which may repeat), most recent plot first (ties in row order), at most
+    ``max_sources``, -1 padding to ``width``; one pass over the table."""
+    size = 1
+    for n in numbers:
+        size = max(size, n + 1)
+    wanted = np.zeros(size, dtype=np.bool_)
+    for n in numbers:
+        wanted[n] = True
+    count = np.zeros(size + 1, dtype=np.int64)
+    for r in range(system.size):
+        g = system[r]
+        if alive[r] and 0 <= g < size and wanted[g]:
+            count[g + 1] += 1
+    start = np.cumsum(count)
+    fill = start[:-1].copy()
+    rows = np.empty(start[-1], dtype=np.int64)
+    for r in range(system.size):
+        g = system[r]
+        if alive[r] and 0 <= g < size and wanted[g]:
+            # Insertion by descending t_plot, after the equal ones: a stable sort.
+            at = fill[g]
+            while at > start[g] and t_plot[rows[at - 1]] < t_plot[r]:
+                rows[at] = rows[at - 1]
+                at -= 1
+            rows[at] = r
+            fill[g] += 1
+    out = np.full((numbers.size, width), -1, dtype=np.int64)
+    for i in range(numbers.size):
+        g = numbers[i]
+        for j in range(min(max_sources, start[g + 1] - start[g])):
+            out[i, j] = rows[start[g] + j]
+    return out
+
+
 class ModelConstants:
     """The plot filter's model constants as the kernels take them (contiguous float64)."""
 

@@ -70,5 +70,5 @@ class FusionState:
         return float(np.abs(self.models.turn_rates_rad_s).max())
 
     def __post_init__(self) -> None:
-        self.local = LocalTrackTable(self.models.n_models)
+        self.local = LocalTrackTable(self.models.n_models, compiled=self.compiled)
         self.sys = new_system_table(self.models.n_models, self.n_radars)
