@@ -40,7 +40,15 @@ def combined_prediction(
 
         sys, c = state.sys, state.model_constants
         return kernels.consider_predict(
-            sys["mx"], sys["mP"], sys["mM"], sys["mu"], numbers, dt, c.omega, c.q, c.sojourn
+            sys["mx"],
+            sys["mP"],
+            sys["mM"],
+            sys["mu"],
+            np.ascontiguousarray(numbers, dtype=np.int64),
+            np.ascontiguousarray(dt, dtype=np.float64),
+            c.omega,
+            c.q,
+            c.sojourn,
         )
     pred = predict(state, numbers, dt)
     return pred.imm.x_comb, pred.imm.P_comb, pred.M_comb
@@ -147,6 +155,7 @@ def _filter_round(
         from tracker_service.fusion.kernels import filter_round
 
         c = state.model_constants
+        # Contiguous float64 and int64 whatever the plots' layout: one compiled signature.
         filter_round(
             sys["mx"],
             sys["mP"],
@@ -157,10 +166,10 @@ def _filter_round(
             sys["M"],
             sys["B"],
             sys["t"],
-            numbers,
-            p.time,
-            z,
-            p.R,
+            np.ascontiguousarray(numbers, dtype=np.int64),
+            np.ascontiguousarray(p.time, dtype=np.float64),
+            z.astype(np.float64, copy=False),
+            np.ascontiguousarray(p.R, dtype=np.float64),
             radar,
             c.omega,
             c.q,
