@@ -10,13 +10,16 @@ The fuser gets exactly what ``Chain`` gives it per batch: ``references`` (the bi
 observations' reference), then ``process`` with a residual-bias covariance per update.
 The first two periods of the longest radar (system tracks being created) are not timed.
 
-Each size is run --repeats times, interleaved; medians are printed with the ratio of the
-cost per update to the smallest size. --baseline REV times the fuser of git revision REV
+Each size is run --repeats times, interleaved, with each ``FusionConfig.implementation``
+asked for ("compiled": fusion/kernels.py; "numpy": the reference); medians are printed with
+the ratio of the cost per update to the smallest size, and the speed-up of the compiled
+fuser over the numpy one. The first run of each is a warm-up (numba loads or compiles its
+kernels), not timed. --baseline REV times the fuser of git revision REV
 (its fusion/tracker.py, e.g. the monolithic one before the split) on the same batches,
 side by side, for an old/new ratio.
 
     python benchmarks/bench_fusion.py [--sizes 200 1000 4000] [--duration 60] [--repeats 3]
-        [--method plots] [--baseline 06133d7]
+        [--method plots] [--implementations compiled numpy] [--baseline 06133d7]
 """
 
 from __future__ import annotations
@@ -173,18 +176,32 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=60.0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--method", choices=("plots", "tracks"), default="plots")
+    parser.add_argument(
+        "--implementations", nargs="+", choices=("compiled", "numpy"), default=["compiled", "numpy"]
+    )
     parser.add_argument("--baseline", help="git revision whose fusion/tracker.py to compare")
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args()
-    config = FusionConfig(method=args.method, longest_period_s=12.0)
-    fusers: dict[str, type[SystemTracker]] = {"new": SystemTracker}
+    fusers: dict[str, tuple[type[SystemTracker], FusionConfig]] = {
+        impl: (
+            SystemTracker,
+            FusionConfig(method=args.method, longest_period_s=12.0, implementation=impl),
+        )
+        for impl in args.implementations
+    }
     if args.baseline:
-        fusers = {f"old ({args.baseline})": load_baseline(args.baseline), **fusers}
+        old = (
+            load_baseline(args.baseline),
+            FusionConfig(method=args.method, longest_period_s=12.0),
+        )
+        fusers = {f"old ({args.baseline})": old, **fusers}
     data = {n: traffic(n, args.duration, args.seed) for n in args.sizes}
+    for cls, config in fusers.values():  # warm-up: numba's kernels loaded (or compiled)
+        time_fuser(cls, traffic(50, 30.0, args.seed), config)
     results: dict[tuple[str, int], list[Timing]] = {}
     for _ in range(args.repeats):
         for n in args.sizes:
-            for name, cls in fusers.items():
+            for name, (cls, config) in fusers.items():
                 results.setdefault((name, n), []).append(time_fuser(cls, data[n], config))
     print(
         f"method {args.method}, {args.duration:.0f} s of traffic, {args.repeats} repeats (medians)"
@@ -207,12 +224,14 @@ def main() -> None:
                 f"{name:16s} {n:8d} {runs[0].system_tracks:11d} {upd:8d} {upd / proc:14,.0f}"
                 f" {refs / upd * 1e6:12.1f} {upd / both:11,.0f} {per:7.1f} {per / base[name]:5.2f}"
             )
-    if args.baseline:
-        old = next(iter(fusers))
-        for n in args.sizes:
-            t_old = statistics.median(r.process_s + r.references_s for r in results[(old, n)])
-            t_new = statistics.median(r.process_s + r.references_s for r in results[("new", n)])
-            print(f"speed-up new/old at {n} aircraft: {t_old / t_new:.2f}x")
+    for n in args.sizes if "compiled" in fusers else []:
+        cost = {
+            name: statistics.median(r.process_s + r.references_s for r in results[(name, n)])
+            for name in fusers
+        }
+        for name in (other for other in fusers if other != "compiled"):
+            speed_up = cost[name] / cost["compiled"]
+            print(f"speed-up compiled/{name} at {n} aircraft: {speed_up:.2f}x")
 
 
 if __name__ == "__main__":

@@ -10,24 +10,25 @@ message building excludes the sink calls). The sinks run in their output threads
 (``outputs.sink.QueuedSink``): their time is their thread's own. "other" is the
 process's CPU time (``time.process_time``, every thread, Zenoh's own threads included)
 minus the stages: the service's glue, the duplicate filter, queues, Zenoh internals.
-The recording is read into memory before the clock starts.
+The recording is read into memory before the clock starts. A first, untimed run over its
+first 2 s loads (or compiles) the numba kernels of the tracker and the fuser.
 
     tracker-service simulate config/scenarios/scale.toml -o scale60.mcap --duration 60
     python benchmarks/bench_stages.py scale60.mcap [--seconds 30] [--repeats 1]
-        [--no-mcap] [--no-zenoh] [--json]
+        [--no-mcap] [--no-zenoh] [--fusion-implementation compiled|numpy] [--json]
 
 The stages and what each wraps:
 
 | stage | wrapped |
 |---|---|
-| decode | ``asterix.plots.extract_plots`` and the service messages' ``decode_blocks`` (chain) |
-| clock + conversion | ``chain.convert_batch`` (plot clock, geodesy), time sanity, fixed targets |
+| decode | ``extract_plots`` and the service messages' ``decode_blocks`` (radar stage) |
+| clock + conversion | ``convert_batch`` (plot clock, geodesy), time sanity, fixed targets |
 | local tracking | ``LocalTracker.process`` |
-| bias | ``Chain._estimate_biases`` (observations, the estimator's update) |
+| bias | ``CentralStage._estimate_biases`` (observations, the estimator's update) |
 | bias references | ``SystemTracker.references`` (the fuser's references for the bias) |
 | fusion | ``SystemTracker.process`` |
 | messages | ``Outputs.batch``, ``publish_cat062`` and the periodic messages, less the rest |
-| CAT062 | ``encode_system_tracks`` and ``encode_cat065`` |
+| CAT062 | ``encode_system_documents`` and ``encode_cat065`` |
 | MCAP | ``McapSink``'s calls (the log's writer thread) |
 | Zenoh | ``ZenohSink``'s calls (the publisher's thread) |
 """
@@ -48,13 +49,14 @@ from pathlib import Path
 from typing import Any
 
 from asterix.containers import Datagram
-from tracker_service import chain as chain_module
-from tracker_service.chain import Chain
+from tracker_service import radar_stage as radar_stage_module
+from tracker_service.central_stage import CentralStage
 from tracker_service.fusion import SystemTracker
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.mcap_sink import McapSink
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_sink import ZenohSink
+from tracker_service.radar_stage import RadarStage
 from tracker_service.service import core as core_module
 from tracker_service.service.core import Outputs, TrackerService
 from tracker_service.service.replay import open_replay
@@ -110,13 +112,13 @@ class StageClock:
 def instrumented(clock: StageClock) -> Iterator[None]:
     """Every stage's entry point wrapped for the duration (restored afterwards)."""
     targets: list[tuple[object, str, str]] = [
-        (chain_module, "extract_plots", "decode"),
-        (chain_module, "decode_blocks", "decode"),
-        (chain_module, "convert_batch", "clock + conversion"),
+        (radar_stage_module, "extract_plots", "decode"),
+        (radar_stage_module, "decode_blocks", "decode"),
+        (radar_stage_module, "convert_batch", "clock + conversion"),
         (TimeSanity, "check", "clock + conversion"),
-        (Chain, "_fixed_transponders", "clock + conversion"),
+        (RadarStage, "_fixed_transponders", "clock + conversion"),
         (LocalTracker, "process", "local tracking"),
-        (Chain, "_estimate_biases", "bias"),
+        (CentralStage, "_estimate_biases", "bias"),
         (SystemTracker, "references", "bias references"),
         (SystemTracker, "process", "fusion"),
         (Outputs, "batch", "messages"),
@@ -124,7 +126,7 @@ def instrumented(clock: StageClock) -> Iterator[None]:
         (Outputs, "publish_bias", "messages"),
         (Outputs, "publish_status", "messages"),
         (Outputs, "close", "messages"),
-        (core_module, "encode_system_tracks", "CAT062"),
+        (core_module, "encode_system_documents", "CAT062"),
         (core_module, "encode_cat065", "CAT062"),
     ]
     targets += [(McapSink, call, "MCAP") for call in SINK_CALLS]
@@ -164,11 +166,13 @@ def slice_of(path: str, seconds: float) -> tuple[Any, list[tuple[str, Datagram]]
 
 
 def run_once(
-    path: str, seconds: float, mcap: bool, use_zenoh: bool
+    path: str, seconds: float, mcap: bool, use_zenoh: bool, fusion_implementation: str
 ) -> tuple[dict[str, float], int, float, float]:
     """One replay of the slice: exclusive CPU seconds per stage (and "other"), plots,
     process CPU seconds and wall seconds."""
     replay, datagrams = slice_of(path, seconds)
+    fusion = {**replay.config.fusion, "implementation": fusion_implementation}
+    config = replay.config.model_copy(update={"fusion": fusion})
     clock = StageClock()
     with contextlib.ExitStack() as stack:
         publisher = None
@@ -181,7 +185,7 @@ def run_once(
             directory = stack.enter_context(tempfile.TemporaryDirectory(prefix="bench_stages"))
             log = stack.enter_context(contextlib.closing(McapLog(directory)))
         with instrumented(clock):
-            service = TrackerService(replay.config, publisher, log)
+            service = TrackerService(config, publisher, log)
             service.set_input_counters(replay.counters)
             cpu0, wall0 = time.process_time(), time.perf_counter()
             for name, datagram in datagrams:
@@ -202,11 +206,24 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--no-mcap", action="store_true")
     parser.add_argument("--no-zenoh", action="store_true")
+    parser.add_argument(
+        "--fusion-implementation", choices=("compiled", "numpy"), default="compiled"
+    )
     parser.add_argument("--json", action="store_true", help="the figures as JSON on stdout")
     args = parser.parse_args()
+    options = (not args.no_mcap, not args.no_zenoh, args.fusion_implementation)
+    run_once(args.recording, min(2.0, args.seconds), *options)  # numba's kernels loaded
     runs = []
     for repeat in range(args.repeats):
-        runs.append(run_once(args.recording, args.seconds, not args.no_mcap, not args.no_zenoh))
+        runs.append(
+            run_once(
+                args.recording,
+                args.seconds,
+                not args.no_mcap,
+                not args.no_zenoh,
+                args.fusion_implementation,
+            )
+        )
         _, plots, cpu, wall = runs[-1]
         print(
             f"run {repeat + 1}: {plots} plots, {cpu:.1f} CPU s, {wall:.1f} s wall,"
@@ -223,6 +240,7 @@ def main() -> None:
             "recording": args.recording,
             "seconds": args.seconds,
             "repeats": args.repeats,
+            "fusion_implementation": args.fusion_implementation,
             "plots": plots,
             "cpu_s": cpu,
             "wall_s": wall,
@@ -235,7 +253,7 @@ def main() -> None:
     print(f"{Path(args.recording).name}: first {args.seconds:g} s, {plots:,} plots,")
     print(
         f"median of {args.repeats} run(s); outputs: mcap={not args.no_mcap}"
-        f" zenoh={not args.no_zenoh}"
+        f" zenoh={not args.no_zenoh}; fusion {args.fusion_implementation}"
     )
     print(f"{'stage':<20} {'CPU s':>8} {'us/plot':>9} {'share':>7}")
     for n in names:

@@ -77,6 +77,10 @@ class FusionConfig:
     radars' absolute bias reference, no report both (fusion/adsb_source.py); "reference",
     the bias reference only; "off", unused. "reference" by default: what the service did
     before ADS-B was fused, so that configurations keep their results."""
+    implementation: str = "compiled"
+    """The plot filter's and the ML fusion's arithmetic: "compiled" (``fusion/kernels.py``,
+    numba) or "numpy" (the reference: ``consider.py``, ``ml.py``); the same figures to
+    1e-9 (tests/test_fusion_kernels.py)."""
     plot_filter: TrackerConfig = field(
         default_factory=lambda: TrackerConfig(mean_sojourn_s=(150.0, 20.0, 20.0, 20.0, 20.0))
     )
@@ -108,6 +112,8 @@ class FusionConfig:
                 raise ValueError(f"{name} must be >= 0, not {getattr(self, name)!r}")
         if not 0.0 <= self.correlation < 1.0:
             raise ValueError(f"correlation must be in [0, 1), not {self.correlation!r}")
+        if self.implementation not in ("compiled", "numpy"):
+            raise ValueError(f"implementation {self.implementation!r}: use 'compiled' or 'numpy'")
         if self.merge_after < 1:
             raise ValueError(f"merge_after must be >= 1, not {self.merge_after!r}")
         if self.reassociate_after < 1:

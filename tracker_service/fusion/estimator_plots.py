@@ -31,6 +31,29 @@ def predict(state: FusionState, numbers: IntArray, dt: FloatArray) -> consider.C
     )
 
 
+def combined_prediction(
+    state: FusionState, numbers: IntArray, dt: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``predict``'s combined state, noise covariance and sensitivities (k, radars, 4, 2)."""
+    if state.compiled:
+        from tracker_service.fusion import kernels  # numba only when compiled
+
+        sys, c = state.sys, state.model_constants
+        return kernels.consider_predict(
+            sys["mx"],
+            sys["mP"],
+            sys["mM"],
+            sys["mu"],
+            np.ascontiguousarray(numbers, dtype=np.int64),
+            np.ascontiguousarray(dt, dtype=np.float64),
+            c.omega,
+            c.q,
+            c.sojourn,
+        )
+    pred = predict(state, numbers, dt)
+    return pred.imm.x_comb, pred.imm.P_comb, pred.M_comb
+
+
 class PlotFilterEstimator:
     founder_carries_bias = True
 
@@ -39,8 +62,7 @@ class PlotFilterEstimator:
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """By the IMM, which follows a turn the local track's IMM follows (a constant-
         velocity prediction cut aircraft that turned out of their system tracks)."""
-        pred = predict(state, numbers, dt)
-        return pred.imm.x_comb, pred.imm.P_comb, pred.M_comb
+        return combined_prediction(state, numbers, dt)
 
     def coarse_state(self, state: FusionState, numbers: IntArray) -> tuple[FloatArray, FloatArray]:
         sys = state.sys
@@ -83,13 +105,18 @@ class PlotFilterEstimator:
         latest: npt.NDArray[Any],
     ) -> tuple[FloatArray, FloatArray]:
         sys = state.sys
-        pred = predict(state, numbers, t - sys["t"][numbers])
-        x, p = pred.imm.x_comb.copy(), pred.imm.P_comb.copy()
+        x, p, m_comb = combined_prediction(state, numbers, t - sys["t"][numbers])
+        x, p = x.copy(), p.copy()
         solo = sys["solo"][numbers]  # its founder's update (``_follow_founder``)
         v = latest[solo]
         x[solo] = np.column_stack([v["x"], v["y"], v["vx"], v["vy"]])
         p[solo] = v["P"].reshape(-1, 4, 4)
-        p += consider.bias_share(pred.M_comb, sys["B"][numbers])
+        if state.compiled:
+            from tracker_service.fusion.kernels import bias_share
+
+            p += bias_share(m_comb, sys["B"][numbers])
+        else:
+            p += consider.bias_share(m_comb, sys["B"][numbers])
         return x, p
 
 
@@ -123,8 +150,33 @@ def _filter_round(
     if numbers.size == 0:
         return
     sys["B"][numbers, radar] = extra
-    pred = predict(state, numbers, dt)
     z = np.column_stack([p.x, p.y])
+    if state.compiled:
+        from tracker_service.fusion.kernels import filter_round
+
+        c = state.model_constants
+        # Contiguous float64 and int64 whatever the plots' layout: one compiled signature.
+        filter_round(
+            sys["mx"],
+            sys["mP"],
+            sys["mM"],
+            sys["mu"],
+            sys["x"],
+            sys["P"],
+            sys["M"],
+            sys["B"],
+            sys["t"],
+            np.ascontiguousarray(numbers, dtype=np.int64),
+            np.ascontiguousarray(p.time, dtype=np.float64),
+            z.astype(np.float64, copy=False),
+            np.ascontiguousarray(p.R, dtype=np.float64),
+            radar,
+            c.omega,
+            c.q,
+            c.sojourn,
+        )
+        return
+    pred = predict(state, numbers, dt)
     x, pm, mm, mu = consider.update(pred, z, p.R, radar, sys["B"][numbers])
     xc, pc = imm.combine(x, pm, mu)
     sys["mx"][numbers], sys["mP"][numbers], sys["mM"][numbers] = x, pm, mm

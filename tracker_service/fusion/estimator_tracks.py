@@ -22,6 +22,12 @@ def fuse_local_tracks(
     """ML fusion at times t (k,) of the local tracks in ``slots`` (valid first);
     rows without any source get NaN."""
     cfg, loc = state.config, state.local.rows
+    if state.compiled:
+        from tracker_service.fusion.kernels import fuse_local_tracks as compiled
+
+        return compiled(
+            slots, t, loc["t"], loc["x"], loc["P"], loc["extra"], cfg.q, cfg.correlation
+        )
     k = slots.shape[0]
     x = np.full((k, 4), np.nan)
     p = np.full((k, 4, 4), np.nan)

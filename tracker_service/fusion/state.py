@@ -5,7 +5,8 @@ is a module of functions over a ``FusionState``."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from functools import cached_property
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -13,6 +14,9 @@ import numpy.typing as npt
 from tracker_service.fusion.config import FusionConfig
 from tracker_service.fusion.table import LocalTrackTable, new_system_table
 from tracker_service.tracking.models import ModelSet
+
+if TYPE_CHECKING:
+    from tracker_service.fusion.kernels import ModelConstants
 
 
 @dataclass
@@ -49,10 +53,22 @@ class FusionState:
     """Consecutive joint gate passes of each pair of system tracks (track life's merge)."""
 
     @property
+    def compiled(self) -> bool:
+        """The compiled kernels (``fusion/kernels.py``) rather than the numpy reference."""
+        return self.config.implementation == "compiled"
+
+    @cached_property
+    def model_constants(self) -> ModelConstants:
+        """The plot filter's models as the kernels take them (numba imported on first use)."""
+        from tracker_service.fusion.kernels import ModelConstants
+
+        return ModelConstants(self.models)
+
+    @property
     def turn_max(self) -> float:
         """The largest turn rate (rad/s) of the system tracks' models."""
         return float(np.abs(self.models.turn_rates_rad_s).max())
 
     def __post_init__(self) -> None:
-        self.local = LocalTrackTable(self.models.n_models)
+        self.local = LocalTrackTable(self.models.n_models, compiled=self.compiled)
         self.sys = new_system_table(self.models.n_models, self.n_radars)

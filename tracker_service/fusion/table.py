@@ -84,8 +84,10 @@ class LocalTrackTable:
     once deleted). ``rows`` may be replaced when it grows: read it afresh, never keep it
     across a call that may create rows."""
 
-    def __init__(self, n_models: int) -> None:
+    def __init__(self, n_models: int, compiled: bool = False) -> None:
         self.n_models = n_models
+        self.compiled = compiled
+        """``slots`` by its compiled kernel (``fusion/kernels.py``): the same rows."""
         self.rows: npt.NDArray[Any] = np.zeros(64, dtype=local_dtype(n_models))
         self.n = 0
         self._index_keys = np.zeros(0, dtype=np.int64)
@@ -196,6 +198,12 @@ class LocalTrackTable:
         most recent plot first, at most ``max_sources``, -1 padding: (k, MAX_SOURCES)."""
         loc = self.used
         k = numbers.size
+        if self.compiled:
+            from tracker_service.fusion.kernels import slots_of
+
+            return slots_of(
+                numbers, loc["system"], loc["alive"], loc["t_plot"], max_sources, MAX_SOURCES
+            )
         slots = np.full((k, MAX_SOURCES), -1, dtype=np.int64)
         unique, inverse = np.unique(numbers, return_inverse=True)
         feeding = np.flatnonzero(loc["alive"] & np.isin(loc["system"], unique))

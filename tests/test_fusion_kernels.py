@@ -1,0 +1,221 @@
+"""The compiled fusion kernels (``fusion.kernels``) against the numpy reference (``consider``,
+``ml``, ``estimator_tracks``) to 1e-9: each kernel through its call site on random system
+and local tables (hypothesis-drawn sizes, seeds, radars, steps backwards and forwards), and
+two fusers, one of each implementation, side by side on three radars' traffic."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tests.test_fusion import AIRCRAFT, RADARS, build
+from tests.test_tracking_kernels import TOLERANCE, close
+from tracker_service.fusion import FusionConfig, SystemTracker, consider, estimator_plots
+from tracker_service.fusion.estimator_tracks import fuse_local_tracks
+from tracker_service.fusion.state import FusionState
+from tracker_service.fusion.table import LocalTrackTable
+from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
+from tracker_service.tracking.models import ModelSet
+from tracker_service.tracking.plots import PlotArrays, as_plot_arrays
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def _spd(rng: np.random.Generator, shape: tuple[int, ...], scale: FloatArray) -> FloatArray:
+    d = scale.shape[0]
+    a = rng.normal(0.0, 1.0, (*shape, d, d)) * scale[:, None]
+    return np.asarray(a @ np.swapaxes(a, -1, -2) + np.diag(scale**2) * 0.01)
+
+
+def _states(seed: int, n_radars: int, k: int) -> tuple[FusionState, FusionState, Any]:
+    """Two fusion states, compiled and numpy, with the same random system tracks 1..k and
+    local tracks 0..k-1 (metres and m/s as the fuser holds them)."""
+    rng = np.random.default_rng(seed)
+    models = ModelSet.from_config(FusionConfig().plot_filter)
+    states = [
+        FusionState(FusionConfig(implementation=impl), n_radars, models)
+        for impl in ("compiled", "numpy")
+    ]
+    m = states[0].models.n_models
+    sys = states[0].sys
+    n = np.arange(1, k + 1)
+    sys["alive"][n] = True
+    sys["t"][n] = rng.uniform(0.0, 10.0, k)
+    centre = rng.uniform(-3e5, 3e5, (k, 1, 2))
+    sys["mx"][n, :, :2] = centre + rng.normal(0, 200, (k, m, 2))
+    sys["mx"][n, :, 2:] = rng.uniform(-250, 250, (k, 1, 2)) + rng.normal(0, 10, (k, m, 2))
+    sys["mP"][n] = _spd(rng, (k, m), np.array([300.0, 300.0, 20.0, 20.0]))
+    sys["mu"][n] = rng.dirichlet(np.full(m, 0.5), k)
+    sys["mM"][n] = rng.normal(0.0, 0.5, (k, m, n_radars, 4, 2))
+    sys["B"][n] = _spd(rng, (k, n_radars), np.array([60.0, 60.0]))
+    local = states[0].local
+    rows = local.find(0, _local_updates(rng, k), create=True)
+    local.rows["t"][rows] = rng.uniform(-5.0, 15.0, k)
+    local.rows["x"][rows] = np.column_stack(
+        [rng.uniform(-3e5, 3e5, (k, 2)), rng.uniform(-250, 250, (k, 2))]
+    )
+    local.rows["P"][rows] = _spd(rng, (k,), np.array([100.0, 100.0, 8.0, 8.0]))
+    local.rows["extra"][rows] = _spd(rng, (k,), np.array([40.0, 40.0]))
+    states[1].sys[...] = sys
+    states[1].local = local  # read only by the ML fusion
+    return states[0], states[1], rng
+
+
+def _local_updates(rng: np.random.Generator, k: int) -> npt.NDArray[Any]:
+    u = np.zeros(k, dtype=LocalTracker().output_dtype)
+    u["track_number"] = np.arange(1, k + 1)
+    u["plot_id"] = -1
+    return u
+
+
+def _plots(rng: np.random.Generator, state: FusionState, numbers: Any) -> PlotArrays:
+    p = np.zeros(numbers.size, dtype=PLOT_DTYPE)
+    sys = state.sys
+    p["time"] = sys["t"][numbers] + rng.uniform(-4.0, 12.0, numbers.size)
+    p["x"], p["y"] = (sys["x"][numbers, :2] + rng.normal(0, 300, (numbers.size, 2))).T
+    p["R"] = _spd(rng, (numbers.size,), np.array([150.0, 150.0]))
+    return as_plot_arrays(p)
+
+
+SIZES = st.integers(min_value=1, max_value=40)
+SEEDS = st.integers(min_value=0, max_value=2**32 - 1)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=SIZES, n_radars=st.integers(min_value=1, max_value=5))
+def test_consider_prediction_and_bias_share(seed: int, k: int, n_radars: int) -> None:
+    compiled, reference, rng = _states(seed, n_radars, k)
+    numbers = rng.permutation(np.arange(1, k + 1))
+    dt = rng.uniform(-5.0, 15.0, k)
+    got = estimator_plots.combined_prediction(compiled, numbers, dt)
+    want = estimator_plots.combined_prediction(reference, numbers, dt)
+    for a, b in zip(want, got, strict=True):
+        close(a, b)
+    from tracker_service.fusion.kernels import bias_share
+
+    b = compiled.sys["B"][numbers]
+    close(consider.bias_share(want[2], b), bias_share(got[2], b))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=SIZES, n_radars=st.integers(min_value=1, max_value=5), data=st.data())
+def test_filter_round_updates_the_table_in_place_as_the_reference(
+    seed: int, k: int, n_radars: int, data: st.DataObject
+) -> None:
+    compiled, reference, rng = _states(seed, n_radars, k)
+    radar = data.draw(st.integers(min_value=0, max_value=n_radars - 1))
+    numbers = rng.permutation(np.arange(1, k + 1))[: max(1, k // 2)]
+    plots = _plots(rng, compiled, numbers)
+    extra = _spd(rng, (numbers.size,), np.array([50.0, 50.0]))
+    for state in (compiled, reference):
+        estimator_plots._filter_round(state, radar, numbers, plots, extra)
+    assert compiled.stats.late_plots_skipped == reference.stats.late_plots_skipped
+    for name in ("mx", "mP", "mM", "mu", "x", "P", "M", "B", "t"):
+        close_per_track(reference.sys[name], compiled.sys[name], name)
+
+
+def close_per_track(reference: FloatArray, compiled: FloatArray, name: str) -> None:
+    """Equal to 1e-9 of each track's scale: covariances (..., 4, 4) in units of their
+    diagonal's standard deviations (correlation units), states' positions and velocities
+    apart, anything else (vectors) relative to the track's largest entry of the field (an entry
+    far smaller than the others it is computed from is as exact as they are, not more)."""
+    if reference.size == 0:
+        return
+    if name in ("P", "mP"):
+        sd = np.sqrt(np.abs(np.diagonal(reference, axis1=-2, axis2=-1)))
+        scale = np.maximum(sd[..., :, None] * sd[..., None, :], 1e-300)
+    elif name in ("x", "mx"):
+        scale = np.zeros(reference.shape)
+        for part in (slice(0, 2), slice(2, 4)):
+            top = np.abs(reference[..., part]).max(axis=-1, keepdims=True)
+            scale[..., part] = np.maximum(top, 1e-300)
+    else:
+        flat = np.abs(reference).reshape(reference.shape[0], -1).max(axis=1)
+        scale = np.maximum(flat, 1e-300).reshape((-1,) + (1,) * (reference.ndim - 1))
+    np.testing.assert_array_less(np.abs(compiled - reference) / scale, TOLERANCE, err_msg=name)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=SIZES, correlation=st.sampled_from([0.0, 0.3, 0.9]))
+def test_ml_fusion_of_local_tracks(seed: int, k: int, correlation: float) -> None:
+    compiled, reference, rng = _states(seed, 1, k)
+    for state in (compiled, reference):
+        state.config = dataclasses.replace(state.config, correlation=correlation)
+    # Rows of 0..8 distinct sources, valid first; some rows with none (NaN).
+    slots = np.full((k, 8), -1, dtype=np.int64)
+    for row in range(k):
+        n = int(rng.integers(0, min(8, k) + 1))
+        slots[row, :n] = rng.choice(k, n, replace=False)
+    t = rng.uniform(-5.0, 20.0, k)
+    want = fuse_local_tracks(reference, slots, t)
+    got = fuse_local_tracks(compiled, slots, t)
+    for name, a, b in zip(("x", "P"), want, got, strict=True):
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+        fused = (slots >= 0).any(axis=1)
+        assert not np.isnan(a[fused]).any()
+        close_per_track(a[fused], b[fused], name)
+
+
+@pytest.mark.parametrize("method", ["plots", "tracks"])
+def test_compiled_and_numpy_fusers_give_the_same_rows(method: str) -> None:
+    """Three radars' local tracks of six aircraft (crossings, a turn, a shared code, a
+    handover), with a residual-bias covariance per update: the same rows, the same
+    references and the same counts from both implementations."""
+    scenario = build(AIRCRAFT, RADARS)
+    trackers = [LocalTracker(TrackerConfig(scan_period_s=r.period)) for r in RADARS]
+    fusers = {
+        impl: SystemTracker(3, FusionConfig(method=method, implementation=impl))
+        for impl in ("compiled", "numpy")
+    }
+    rows: dict[str, list[npt.NDArray[Any]]] = {impl: [] for impl in fusers}
+    for ri, plots in scenario.batches[: len(scenario.batches) // 2]:
+        updates = trackers[ri].process(plots)
+        extra = np.broadcast_to(np.diag([40.0**2, 25.0**2]), (len(updates), 2, 2)).copy()
+        refs = {impl: f.references(ri, updates, plots) for impl, f in fusers.items()}
+        for name in ("others_xy", "others_P", "others_v", "all_xy", "all_P"):
+            a, b = getattr(refs["numpy"], name), getattr(refs["compiled"], name)
+            np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+            valid = ~np.isnan(a).any(axis=tuple(range(1, a.ndim)))
+            close_per_track(a[valid], b[valid], name[-1])  # "P", or vectors by their size
+        for impl, f in fusers.items():
+            rows[impl].append(f.process(ri, updates, plots, extra))
+    a, b = np.concatenate(rows["numpy"]), np.concatenate(rows["compiled"])
+    assert len(a) > 400
+    for name in a.dtype.names or ():
+        if name == "P":
+            close_per_track(a[name].reshape(-1, 4, 4), b[name].reshape(-1, 4, 4), name)
+        elif name in ("x", "y", "vx", "vy"):  # as vectors: position, velocity
+            pair = ("x", "y") if name in ("x", "y") else ("vx", "vy")
+            ref = np.column_stack([a[pair[0]], a[pair[1]]])
+            close_per_track(ref, np.column_stack([b[pair[0]], b[pair[1]]]), "vector")
+        elif a.dtype[name].kind == "f":
+            np.testing.assert_array_equal(np.isnan(a[name]), np.isnan(b[name]))
+            finite = ~np.isnan(a[name])
+            close(a[name][finite], b[name][finite])
+        else:
+            np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    assert fusers["numpy"].stats == fusers["compiled"].stats
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=0, max_value=60), max_sources=st.integers(1, 8))
+def test_slots_are_the_references(seed: int, k: int, max_sources: int) -> None:
+    """The same rows, in the same order: most recent plot first, ties in row order (plot
+    times drawn from few values), dead rows and other system tracks left out."""
+    rng = np.random.default_rng(seed)
+    tables = [LocalTrackTable(5, compiled=flag) for flag in (False, True)]
+    rows = tables[0].find(0, _local_updates(rng, k), create=True)
+    loc = tables[0].rows
+    loc["system"][rows] = rng.integers(0, 12, k)
+    loc["alive"][rows] = rng.random(k) < 0.8
+    loc["t_plot"][rows] = rng.choice([-np.inf, 1.0, 2.0, 3.0], k)
+    tables[1].rows, tables[1].n = loc, tables[0].n
+    numbers = rng.integers(1, 14, int(rng.integers(0, 20)))
+    want, got = (table.slots(numbers, max_sources) for table in tables)
+    np.testing.assert_array_equal(want, got)
