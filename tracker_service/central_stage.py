@@ -119,6 +119,8 @@ class CentralStage:
             self.bias = make_bias_estimator(bias, len(self.sources))
         self.bias_history: list[tuple[float, str, FloatArray, FloatArray]] = []
         """(time, source, bias, covariance) of each radar every ``BIAS_HISTORY_S`` of data."""
+        self.clock_history: list[tuple[float, str, FloatArray, FloatArray]] = []
+        """(time, source, extra clock states, covariance) beside ``bias_history``."""
         self.adsb = AdsbReference(plane) if self.bias is not None else None
         self._absolute_references = np.zeros(len(self.sources), dtype=np.int64)
         self._geometry: dict[int, tuple[FloatArray, FloatArray]] | None = (
@@ -144,6 +146,14 @@ class CentralStage:
         if self.bias is None:
             return {}
         return {source: self.bias.correction(k) for k, source in enumerate(self.sources)}
+
+    def clock_estimates(self) -> dict[str, tuple[FloatArray, FloatArray]]:
+        """Each fused radar's extra clock states [drift s/s, drift rate s/s^2] (as many as
+        ``BiasConfig.clock_states`` - 1) and their covariance; empty without bias
+        estimation."""
+        if self.bias is None:
+            return {}
+        return {source: self.bias.clock_correction(k) for k, source in enumerate(self.sources)}
 
     def bias_observed_from(self) -> dict[str, ObservedFrom]:
         """Each fused radar's sources of each bias component (``BiasEstimates``); empty
@@ -413,4 +423,5 @@ class CentralStage:
         if time - last >= BIAS_HISTORY_S:
             s, p = self.bias.correction(radar)
             self.bias_history.append((time, source, s, p))
+            self.clock_history.append((time, source, *self.bias.clock_correction(radar)))
             self._bias_recorded[source] = time

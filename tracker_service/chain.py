@@ -188,6 +188,15 @@ class Chain:
     def bias_history(self) -> list[tuple[float, str, FloatArray, FloatArray]]:
         return self.central.bias_history
 
+    @property
+    def clock_history(self) -> list[tuple[float, str, FloatArray, FloatArray]]:
+        return self.central.clock_history
+
+    def clock_estimates(self) -> dict[str, tuple[FloatArray, FloatArray]]:
+        """Each fused radar's clock drift (and drift rate) and covariance (``BiasConfig
+        .clock_states``); empty without bias estimation."""
+        return self.central.clock_estimates()
+
     def feed(self, payload: bytes, received: float) -> list[BatchOutput]:
         """Process one datagram received at ``received`` (POSIX s)."""
         order = self._order

@@ -40,6 +40,7 @@ from tracker_service.evaluation.pipeline import EvaluationConfig, PipelineResult
 from tracker_service.evaluation.system_metrics import (
     SystemEvaluation,
     bias_metrics,
+    clock_metrics,
     system_metrics,
     truth_biases,
 )
@@ -121,7 +122,10 @@ def evaluate(
             min_identity_updates=config.min_identity_updates,
             end_time=float(every_plot["time"].max()),
         )
-    bias = bias_metrics(result.bias, truth_biases(result.recording))
+    true_biases = truth_biases(result.recording)
+    bias = bias_metrics(result.bias, true_biases)
+    for source, entries in clock_metrics(result.clock, result.clock_history, true_biases).items():
+        bias.setdefault(source, {}).update(entries)
     return Evaluation(result, truth, coverage, plots, local, system, bias)
 
 
