@@ -72,7 +72,12 @@ class Evaluation:
                 "multi": self.system.multi.as_json(),
                 "single": self.system.single.as_json(),
             }
-            doc["fusion"] = {"rms_ratio_to_best_local": self.system.rms_ratio_to_best_local}
+            doc["fusion"] = {
+                "rms_ratio_to_best_local": self.system.rms_ratio_to_best_local,
+                "rms_ratio_to_best_local_own_updates": (
+                    self.system.rms_ratio_to_best_local_own_updates
+                ),
+            }
         if self.bias:
             doc["bias"] = self.bias
         return doc

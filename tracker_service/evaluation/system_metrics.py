@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.evaluation.metrics import (
+    UPDATE_INTERVAL_S,
     Coverage,
     LocalMetrics,
     PlotOrigins,
@@ -112,14 +113,18 @@ def coverage_counts(
 
 
 def system_coverage(
-    coverages: Mapping[str, Coverage], least: int = 1, most: int | None = None
+    coverages: Mapping[str, Coverage],
+    least: int = 1,
+    most: int | None = None,
+    period_s: float | None = None,
 ) -> Coverage | None:
     """The system's intervals (see the module docstring), holding the aircraft seen by
-    ``least`` to ``most`` radars."""
+    ``least`` to ``most`` radars; intervals of ``period_s`` instead of the longest
+    radar period when given."""
     scanning = [c for c in coverages.values() if len(c.times)]
     if not scanning:
         return None
-    period = max(c.period_s for c in scanning)
+    period = period_s if period_s is not None else max(c.period_s for c in scanning)
     start = min(float(c.times[0]) for c in scanning)
     end = max(float(c.times[-1]) + c.period_s for c in scanning)
     starts = np.arange(start, end - period + 1e-9, period)
@@ -142,6 +147,9 @@ class SystemEvaluation:
     single: LocalMetrics
     rms_ratio_to_best_local: float | None
     rows: npt.NDArray[Any]
+    rms_ratio_to_best_local_own_updates: float | None = None
+    """As ``rms_ratio_to_best_local``, the best local track scored at its own updates from a
+    plot (over the same aircraft and span) instead of extrapolated to the system's."""
     """The system rows as track rows (``as_track_rows``), for the report."""
 
 
@@ -163,19 +171,42 @@ def _local_estimates(
     return r["x"] + r["vx"] * dt, r["y"] + r["vy"] * dt, ok
 
 
+def _own_update_errors(
+    local: npt.NDArray[Any], labels: IntArray, aircraft: int, t0: float, t1: float, truth: Truth
+) -> FloatArray:
+    """Squared position errors of a radar's confirmed updates from a plot of ``aircraft``
+    in [t0, t1], at their own times."""
+    sel = (
+        (labels == aircraft)
+        & (local["status"] == CONFIRMED)
+        & (local["plot_id"] >= 0)
+        & (local["time"] >= t0)
+        & (local["time"] <= t1)
+    )
+    rows = local[sel]
+    tx, ty, *_ = truth.at(np.full(len(rows), aircraft, dtype=np.int64), rows["time"])
+    sq = (rows["x"] - tx) ** 2 + (rows["y"] - ty) ** 2
+    return np.asarray(sq[np.isfinite(sq)], dtype=np.float64)
+
+
 def _best_local_ratio(
     errors: Any,
     multi: BoolArray,
     locals_: Mapping[str, tuple[npt.NDArray[Any], IntArray, float]],
     truth: Truth,
-) -> float | None:
-    system_sq = 0.0
-    local_sq = 0.0
+) -> tuple[float | None, float | None]:
+    """``rms_ratio_to_best_local`` and ``rms_ratio_to_best_local_own_updates`` (module
+    docstring): per aircraft the best radar among those that count for it, by the RMS of
+    its local tracks extrapolated to the system's moments, and by the RMS at its own
+    updates over the span of those moments."""
+    system_sq = local_sq = 0.0
+    system_sq_own = local_sq_own = 0.0
     for aircraft in np.unique(errors.aircraft[multi]).tolist():
         sel = multi & (errors.aircraft == aircraft)
         times = errors.time[sel]
         tx, ty, *_ = truth.at(np.full(len(times), aircraft, dtype=np.int64), times)
         best: tuple[float, BoolArray] | None = None
+        best_own: float | None = None
         for rows, labels, period in locals_.values():
             x, y, ok = _local_estimates(rows, labels, aircraft, times, period)
             ok &= np.isfinite(tx) & np.isfinite(x) & np.isfinite(errors.dx[sel])
@@ -184,12 +215,25 @@ def _best_local_ratio(
             rms = float(np.sqrt(np.mean((x[ok] - tx[ok]) ** 2 + (y[ok] - ty[ok]) ** 2)))
             if best is None or rms < best[0]:
                 best = (rms, ok)
+            own = _own_update_errors(
+                rows, labels, aircraft, float(times.min()), float(times.max()), truth
+            )
+            if own.size:
+                own_rms = float(np.sqrt(np.mean(own)))
+                best_own = own_rms if best_own is None else min(best_own, own_rms)
         if best is None:
             continue
         rms, ok = best
         system_sq += float(np.sum(errors.dx[sel][ok] ** 2 + errors.dy[sel][ok] ** 2))
         local_sq += rms**2 * np.count_nonzero(ok)
-    return float(np.sqrt(system_sq / local_sq)) if local_sq > 0 else None
+        if best_own is not None:
+            # The system at the same moments as the extrapolated ratio's.
+            system_sq_own += float(np.sum(errors.dx[sel][ok] ** 2 + errors.dy[sel][ok] ** 2))
+            local_sq_own += best_own**2 * np.count_nonzero(ok)
+    return (
+        float(np.sqrt(system_sq / local_sq)) if local_sq > 0 else None,
+        float(np.sqrt(system_sq_own / local_sq_own)) if local_sq_own > 0 else None,
+    )
 
 
 def system_metrics(
@@ -211,7 +255,14 @@ def system_metrics(
         "min_identity_updates": min_identity_updates,
         "end_time": end_time,
     }
-    overall = local_metrics(rows, origins, truth, system_coverage(coverages), **options)
+    overall = local_metrics(
+        rows,
+        origins,
+        truth,
+        system_coverage(coverages),
+        fixed_interval_coverage=system_coverage(coverages, period_s=UPDATE_INTERVAL_S),
+        **options,
+    )
     errors = overall.errors
     if errors is None or len(errors.time) == 0:
         counts = np.zeros(0, dtype=np.int64)
@@ -230,6 +281,7 @@ def system_metrics(
         truth,
         system_coverage(coverages, least=2),
         evaluate_mask=row_counts >= 2,
+        fixed_interval_coverage=system_coverage(coverages, least=2, period_s=UPDATE_INTERVAL_S),
         **options,
     )
     single = local_metrics(
@@ -238,9 +290,12 @@ def system_metrics(
         truth,
         system_coverage(coverages, least=1, most=1),
         evaluate_mask=row_counts == 1,
+        fixed_interval_coverage=system_coverage(
+            coverages, least=1, most=1, period_s=UPDATE_INTERVAL_S
+        ),
         **options,
     )
-    ratio = None
+    ratio = ratio_own = None
     if errors is not None and len(errors.time):
         local_labels = {
             source: (
@@ -250,8 +305,8 @@ def system_metrics(
             )
             for source, (updates, plot_origins) in locals_.items()
         }
-        ratio = _best_local_ratio(errors, counts >= 2, local_labels, truth)
-    return SystemEvaluation(overall, multi, single, ratio, rows)
+        ratio, ratio_own = _best_local_ratio(errors, counts >= 2, local_labels, truth)
+    return SystemEvaluation(overall, multi, single, ratio, rows, ratio_own)
 
 
 def truth_biases(recording: Recording) -> dict[str, dict[str, float]]:
