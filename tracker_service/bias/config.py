@@ -55,8 +55,9 @@ class BiasConfig:
     ``walk_sigma_time_s``; 2 adds the drift (the offset grows by drift x dt); 3 adds the
     drift rate. Each state's process noise is its walk variance times the time step
     (Q = Q0 dt)."""
-    prior_sigma_drift_s_per_h: float = 0.1
-    """Prior sigma of a radar clock's drift: 0.1 s/h is 28 ppm, a free-running crystal."""
+    prior_sigma_drift_s_per_h: float = 1.0
+    """Prior sigma of a radar clock's drift: 1 s/h is 278 ppm, wide beside a free-running
+    crystal's tens of ppm, so that the prior does not hold a bad clock back."""
     prior_sigma_drift_rate_s_per_h2: float = 0.1
     walk_sigma_drift_s_per_h: float = 1e-4
     """Random walk of the drift, s/h per sqrt(s): 6 ms/h in an hour."""

@@ -75,7 +75,7 @@ class MacroBiasFilter(BiasFilterBase):
             H = -e[i] @ P[:nb]
             G = P[:, block] @ C.T + H.T
             HC = H[:, block] @ C.T
-            S = target_p[i] - H @ e[i].T + C @ P[block, block] @ C.T + HC + HC.T + obs.R[i]
+            S = target_p[i] - H[:, :nb] @ e[i].T + C @ P[block, block] @ C.T + HC + HC.T + obs.R[i]
             nu = nu_base[i] - C @ s[block]
             accepted[i] = split_update(s, P, G, S, nu, free, self.config.outlier_gate)
         self.count(obs.radar, accepted)
