@@ -141,11 +141,20 @@ class CentralStage:
                 self.adsb.feed(block, received)
 
     def bias_estimates(self) -> dict[str, tuple[FloatArray, FloatArray]]:
-        """Each fused radar's current bias [range offset m, gain, azimuth rad, time s] and
-        its covariance; empty without bias estimation."""
+        """Each fused radar's current bias [range offset m, gain, azimuth rad, time s],
+        then its clock's drift s/s and drift rate s/s^2 as ``BiasConfig.clock_states``
+        has them, and the covariance of the biases and of the clock states (block
+        diagonal: what the messages publish); empty without bias estimation."""
         if self.bias is None:
             return {}
-        return {source: self.bias.correction(k) for k, source in enumerate(self.sources)}
+        out = {}
+        for k, source in enumerate(self.sources):
+            (s, p), (c, pc) = self.bias.correction(k), self.bias.clock_correction(k)
+            covariance = np.zeros((len(s) + len(c),) * 2)
+            covariance[: len(s), : len(s)] = p
+            covariance[len(s) :, len(s) :] = pc
+            out[source] = (np.concatenate([s, c]), covariance)
+        return out
 
     def clock_estimates(self) -> dict[str, tuple[FloatArray, FloatArray]]:
         """Each fused radar's extra clock states [drift s/s, drift rate s/s^2] (as many as

@@ -207,8 +207,9 @@ class Chain:
         ]
 
     def bias_estimates(self) -> dict[str, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]]:
-        """Each fused radar's current bias [range offset m, gain, azimuth rad, time s] and
-        its covariance; empty without bias estimation."""
+        """Each fused radar's current bias [range offset m, gain, azimuth rad, time s] (then
+        its clock's drift and drift rate, ``BiasConfig.clock_states``) and its covariance;
+        empty without bias estimation."""
         return self.central.bias_estimates()
 
     def bias_observed_from(self) -> dict[str, ObservedFrom]:

@@ -24,10 +24,18 @@ Metric definitions (per radar, ``LocalMetrics``):
   position RMS is the radial sqrt(mean(dx^2 + dy^2)), so position^2 = along^2 +
   across^2; along-track is the error along the true velocity. Velocity RMS is the
   radial one too. Flight level RMS (ft) over updates with a flight level.
+  ``position_p95_m`` and ``position_max_m``: the 95th percentile and the largest of the
+  same radial errors.
+- Coasting: the confirmed or coasting updates without a fresh plot (a track's own
+  prediction, published all the same; rule 2 labels them) are scored apart
+  (``coasting_updates``, ``coasting_position_rms_m``) and together with the plot updates
+  (``position_rms_with_coasting_m``, ``..._p95_...``, ``..._max_...``): the error a user of
+  every published update sees.
 - NEES: e^T P^-1 e of the horizontal position (dof 2, ``nees_mean``) and of the whole
   state [x, y, vx, vy] (dof 4, ``nees_state_mean``); averaged first within each antenna
   period of the radar, then over those periods (a time average, as over Monte Carlo
-  runs, so that busy scans do not weigh more).
+  runs, so that busy scans do not weigh more). Target window ``NEES_WINDOW``: 0.8-1.25
+  x dof (``nees_in_window``).
 - Probability of update (ESASSP): the radar's antenna periods are the intervals
   [t_scan, t_scan + period) of ``/truth/coverage``; an interval with the aircraft in
   coverage counts as updated when a confirmed update from a plot of that aircraft falls
@@ -36,6 +44,10 @@ Metric definitions (per radar, ``LocalMetrics``):
   never initiated counts all its intervals as misses. Intervals that end after the
   radar's last plot are left out (the recording stops mid-scan).
   ``probability_of_update_with_initiation`` counts every interval.
+  ``update_interval_s`` is the interval ``probability_of_update`` used (the radar's period;
+  the system's: its slowest radar's); ``probability_of_update_10s`` counts the same way
+  over 10 s intervals (the ESASSP target's), the aircraft in coverage in an interval when
+  it is in coverage at its middle.
 - Tracks per aircraft: per stretch of coverage that holds at least one confirmed
   update of the aircraft, the number of distinct tracks with an identity run of that
   aircraft in the stretch; averaged over those stretches.

@@ -12,7 +12,18 @@ coverage, the system position error RMS divided by the RMS, at the same moments,
 aircraft's best local track (per aircraft the radar whose local tracks, extrapolated
 to those moments from their latest confirmed update, have the smallest RMS; a radar
 counts for an aircraft when it has a local estimate at most one of its periods old at
-nine in ten of the moments).
+nine in ten of the moments). ``rms_ratio_to_best_local_own_updates``: the same system
+errors over the same local RMS taken at that radar's own confirmed updates from a plot
+over the span of those moments (not extrapolated: the local track at its best, so the
+larger of the two ratios).
+
+Coasting updates, the 95th percentile and maximum error, and the probability of update
+over 10 s beside the slowest radar's period: ``metrics`` module docstring.
+
+Clock (``clock_metrics``, under each radar's "bias" with ``[bias] clock_states`` 2 or 3):
+``time_drift_s_per_h`` (and ``time_drift_rate_s_per_h2``) estimate, truth (the slope and
+curvature of the radar's true time offsets over the recording) and sigma at the end, and
+``converged_after_s``.
 
 Bias errors: per radar each estimated component at the end of the recording against
 the simulator's ``/truth/biases`` (measured minus true, range gain dimensionless).
@@ -394,8 +405,9 @@ def bias_metrics(
     scale = np.array([1.0, 1.0, np.degrees(1.0), 1.0])
     out: dict[str, dict[str, dict[str, float | None]]] = {}
     for source, (state, covariance) in estimates.items():
-        values = np.asarray(state, dtype=np.float64) * scale
-        sigmas = np.sqrt(np.clip(np.diag(covariance), 0.0, None)) * scale
+        # The 4 biases; a clock's drift after them is ``clock_metrics``'.
+        values = np.asarray(state, dtype=np.float64)[:4] * scale
+        sigmas = np.sqrt(np.clip(np.diag(covariance)[:4], 0.0, None)) * scale
         true = truth.get(source, {})
         out[source] = {
             name: {
