@@ -7,6 +7,7 @@ import pytest
 
 from tracker_service.bias import (
     BiasConfig,
+    BiasEstimator,
     ObservationKind,
     make_bias_estimator,
     make_observations,
@@ -17,7 +18,9 @@ DRIFT_S_PER_H = 1.0
 OFFSET_S = 0.1
 
 
-def _feed(method: str, states: int, seed: int, *, kind: int = ObservationKind.ADSB) -> object:
+def _feed(
+    method: str, states: int, seed: int, *, kind: int = ObservationKind.ADSB
+) -> BiasEstimator:
     """One radar seeing 20 ADS-B-referenced aircraft every 5 s for 10 minutes, its clock
     drifting; plots of 10 m noise (the time offset per plot: 10 m over 250 m/s)."""
     rng = np.random.default_rng(seed)
@@ -53,7 +56,7 @@ def _feed(method: str, states: int, seed: int, *, kind: int = ObservationKind.AD
 @pytest.mark.parametrize("states", [2, 3])
 def test_drift_estimated_within_ten_percent_in_ten_minutes(states: int) -> None:
     estimator = _feed("separated", states, seed=1)
-    estimates = estimator.estimates()  # type: ignore[attr-defined]
+    estimates = estimator.estimates()
     drift = estimates.clock[0, 0] * 3600.0
     sigma = np.sqrt(estimates.clock_P[0, 0, 0]) * 3600.0
     assert estimates.clock.shape == (1, states - 1)
@@ -66,21 +69,21 @@ def test_drift_estimated_within_ten_percent_in_ten_minutes(states: int) -> None:
 def test_the_three_variants_agree_on_one_radar() -> None:
     """One radar, fixed references only: the macro and coupled filters reduce to the
     separated one's algebra (batch information form against one plot at a time)."""
-    results = [_feed(method, 3, seed=2).estimates() for method in ("separated", "macro", "coupled")]  # type: ignore[attr-defined]
+    results = [_feed(method, 3, seed=2).estimates() for method in ("separated", "macro", "coupled")]
     for other in results[1:]:
         np.testing.assert_allclose(other.clock, results[0].clock, rtol=1e-6, atol=1e-12)
         np.testing.assert_allclose(other.s, results[0].s, rtol=1e-6, atol=1e-9)
 
 
 def test_one_state_clock_has_no_drift() -> None:
-    estimates = _feed("separated", 1, seed=3).estimates()  # type: ignore[attr-defined]
+    estimates = _feed("separated", 1, seed=3).estimates()
     assert estimates.clock.shape == (1, 0)
     # A random walk lags a drifting clock: the offset trails the truth.
     assert estimates.s[0, 3] < OFFSET_S + DRIFT_S_PER_H * 595.0 / 3600.0
 
 
 def test_traffic_alone_leaves_the_separated_clock_at_its_prior() -> None:
-    estimates = _feed("separated", 2, seed=4, kind=ObservationKind.AIRCRAFT).estimates()  # type: ignore[attr-defined]
+    estimates = _feed("separated", 2, seed=4, kind=ObservationKind.AIRCRAFT).estimates()
     assert not estimates.estimated[0, 3]
     assert estimates.clock[0, 0] == 0.0
     assert np.sqrt(estimates.clock_P[0, 0, 0]) * 3600.0 == pytest.approx(1.0)
