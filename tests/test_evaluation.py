@@ -18,7 +18,9 @@ from tracker_service.evaluation.metrics import (
     Truth,
     associate_updates,
     local_metrics,
+    nees_in_window,
     plot_metrics,
+    resampled,
     summary_keys,
     truth_from_recording,
 )
@@ -412,3 +414,62 @@ def test_evaluate_refuses_what_is_not_a_recording(tmp_path: Path) -> None:
     bogus = tmp_path / "x.mcap"
     bogus.write_bytes(b"not mcap")
     assert main([str(bogus), "--json"]) == 2
+
+
+# --- issue 14: coasting, tails, probability of update over 10 s ---------------------------
+
+
+def test_coasting_updates_are_scored_beside_the_plot_updates() -> None:
+    truth = straight_truth()
+    plotted = make_updates(truth, 1, 0, np.arange(0, 300, PERIOD), 0, offset=(30.0, 40.0))
+    # Every fourth update coasts (no plot), 300 m off: the track's own prediction.
+    coasting = np.arange(len(plotted)) % 4 == 3
+    plotted["plot_id"][coasting] = -1
+    plotted["x"][coasting] += 300.0 - 30.0
+    plotted["y"][coasting] -= 40.0
+    origins = origins_for(plotted[~coasting], 0, KIND_AIRCRAFT)
+    m = local_metrics(plotted, origins, truth, scans(300, {0}))
+    assert m.position_rms_m == pytest.approx(50.0)
+    assert m.coasting_updates == int(coasting.sum())
+    assert m.coasting_position_rms_m == pytest.approx(300.0)
+    n_plot, n_coast = int((~coasting).sum()), int(coasting.sum())
+    expected = np.sqrt((n_plot * 50.0**2 + n_coast * 300.0**2) / (n_plot + n_coast))
+    assert m.position_rms_with_coasting_m == pytest.approx(expected)
+    assert m.position_max_with_coasting_m == pytest.approx(300.0)
+    assert m.position_max_m == pytest.approx(50.0)
+
+
+def test_p95_and_maximum_follow_the_tail() -> None:
+    truth = straight_truth()
+    updates = make_updates(truth, 1, 0, np.arange(0.0, 100.0, 1.0), 0)
+    errors = np.arange(1.0, 101.0)  # 1 .. 100 m along x
+    updates["x"] += errors
+    m = local_metrics(updates, origins_for(updates, 0, KIND_AIRCRAFT), truth, scans(100, {0}))
+    assert m.position_max_m == pytest.approx(100.0)
+    assert m.position_p95_m == pytest.approx(np.percentile(errors, 95.0))
+
+
+def test_probability_of_update_over_ten_seconds_beside_the_period() -> None:
+    """A 12 s radar updating every scan but with every fifth scan missed: over its own
+    period 4 in 5 intervals are updated; 10 s intervals see fewer updated, since some fall
+    between two plots 24 s apart."""
+    truth = straight_truth(duration=600.0)
+    period = 12.0
+    times = np.arange(0.0, 600.0, period)
+    hit = np.arange(len(times)) % 5 != 4
+    updates = make_updates(truth, 1, 0, times[hit] + 1.0, 0)
+    coverage = Coverage(times, [frozenset({0})] * len(times), period)
+    m = local_metrics(updates, origins_for(updates, 0, KIND_AIRCRAFT), truth, coverage)
+    assert m.update_interval_s == period
+    assert m.probability_of_update == pytest.approx(0.8, abs=0.02)
+    assert m.probability_of_update_10s is not None
+    assert m.probability_of_update_10s < m.probability_of_update
+    tenths = resampled(coverage, 10.0)
+    assert tenths.period_s == 10.0 and np.allclose(np.diff(tenths.times), 10.0)
+    assert all(0 in inside for inside in tenths.aircraft)
+
+
+def test_nees_window_is_issue_14s() -> None:
+    assert nees_in_window(2.0, 2) and nees_in_window(1.6, 2) and nees_in_window(2.5, 2)
+    assert not nees_in_window(1.59, 2) and not nees_in_window(2.51, 2)
+    assert not nees_in_window(None, 2)

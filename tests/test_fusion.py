@@ -12,6 +12,7 @@ import numpy.typing as npt
 import pytest
 
 from tests.test_tracking import State, flight, wandering
+from tracker_service.evaluation.metrics import nees_in_window
 from tracker_service.fusion import (
     COASTING,
     CONFIRMED,
@@ -297,13 +298,18 @@ def wander() -> Scenario:
     return build(WANDERING, [Radar(r.site, r.period, r.phase) for r in RADARS])
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue 14's NEES window 0.8-1.25 x dof: the default method measures 1.51 for dof 2 "
+    "here (under-confident, as on three_sites); docs/fusion.md 'Evaluation'",
+)
 def test_default_method_is_consistent(
     scenario: Scenario, runs: dict[str, Run], wander: Scenario
 ) -> None:
     _, nees, _ = _errors(scenario, runs[FusionConfig().method].rows)
-    assert 1.4 <= nees.mean() <= 2.8
+    assert nees_in_window(float(nees.mean()), 2)
     _, nees, _ = _errors(wander, run(wander, FusionConfig()).rows, WANDERING)
-    assert 1.4 <= nees.mean() <= 2.8
+    assert nees_in_window(float(nees.mean()), 2)
 
 
 def test_correlation_makes_track_fusion_honest(wander: Scenario) -> None:

@@ -154,6 +154,8 @@ class CentralStage:
         self._next_adsb_plot_id = ADSB_PLOT_ID_BASE
         self.bias_history: list[tuple[float, str, FloatArray, FloatArray]] = []
         """(time, source, bias, covariance) of each radar every ``BIAS_HISTORY_S`` of data."""
+        self.clock_history: list[tuple[float, str, FloatArray, FloatArray]] = []
+        """(time, source, extra clock states, covariance) beside ``bias_history``."""
         uses_reference = self.bias is not None and (fusion is None or fusion.adsb != "off")
         self.adsb = AdsbReference(plane) if uses_reference else None
         self._absolute_references = np.zeros(len(self.sources), dtype=np.int64)
@@ -230,11 +232,28 @@ class CentralStage:
             system["adsb_inconsistent"] = np.isin(system["address"], flagged)
 
     def bias_estimates(self) -> dict[str, tuple[FloatArray, FloatArray]]:
-        """Each fused radar's current bias [range offset m, gain, azimuth rad, time s] and
-        its covariance; empty without bias estimation."""
+        """Each fused radar's current bias [range offset m, gain, azimuth rad, time s],
+        then its clock's drift s/s and drift rate s/s^2 as ``BiasConfig.clock_states``
+        has them, and the covariance of the biases and of the clock states (block
+        diagonal: what the messages publish); empty without bias estimation."""
         if self.bias is None:
             return {}
-        return {source: self.bias.correction(k) for k, source in enumerate(self.sources)}
+        out = {}
+        for k, source in enumerate(self.sources):
+            (s, p), (c, pc) = self.bias.correction(k), self.bias.clock_correction(k)
+            covariance = np.zeros((len(s) + len(c),) * 2)
+            covariance[: len(s), : len(s)] = p
+            covariance[len(s) :, len(s) :] = pc
+            out[source] = (np.concatenate([s, c]), covariance)
+        return out
+
+    def clock_estimates(self) -> dict[str, tuple[FloatArray, FloatArray]]:
+        """Each fused radar's extra clock states [drift s/s, drift rate s/s^2] (as many as
+        ``BiasConfig.clock_states`` - 1) and their covariance; empty without bias
+        estimation."""
+        if self.bias is None:
+            return {}
+        return {source: self.bias.clock_correction(k) for k, source in enumerate(self.sources)}
 
     def bias_observed_from(self) -> dict[str, ObservedFrom]:
         """Each fused radar's sources of each bias component (``BiasEstimates``); empty
@@ -532,6 +551,7 @@ class CentralStage:
         if time - last >= BIAS_HISTORY_S:
             s, p = self.bias.correction(radar)
             self.bias_history.append((time, source, s, p))
+            self.clock_history.append((time, source, *self.bias.clock_correction(radar)))
             self._bias_recorded[source] = time
 
 

@@ -193,6 +193,15 @@ class Chain:
     def bias_history(self) -> list[tuple[float, str, FloatArray, FloatArray]]:
         return self.central.bias_history
 
+    @property
+    def clock_history(self) -> list[tuple[float, str, FloatArray, FloatArray]]:
+        return self.central.clock_history
+
+    def clock_estimates(self) -> dict[str, tuple[FloatArray, FloatArray]]:
+        """Each fused radar's clock drift (and drift rate) and covariance (``BiasConfig
+        .clock_states``); empty without bias estimation."""
+        return self.central.clock_estimates()
+
     def feed(self, payload: bytes, received: float) -> list[BatchOutput]:
         """Process one datagram received at ``received`` (POSIX s)."""
         order = self._order
@@ -203,8 +212,9 @@ class Chain:
         ]
 
     def bias_estimates(self) -> dict[str, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]]:
-        """Each fused radar's current bias [range offset m, gain, azimuth rad, time s] and
-        its covariance; empty without bias estimation."""
+        """Each fused radar's current bias [range offset m, gain, azimuth rad, time s] (then
+        its clock's drift and drift rate, ``BiasConfig.clock_states``) and its covariance;
+        empty without bias estimation."""
         return self.central.bias_estimates()
 
     def bias_observed_from(self) -> dict[str, ObservedFrom]:

@@ -10,11 +10,13 @@ so they keep their prior.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, replace
-from typing import Protocol
+from dataclasses import dataclass, field, replace
+from typing import Any, Protocol
 
 import numpy as np
+import numpy.typing as npt
 
+from tracker_service.bias.clock import ClockModel
 from tracker_service.bias.config import N_BIAS, TIME, BiasConfig
 from tracker_service.bias.observations import BiasObservations, ObservationKind
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
@@ -48,6 +50,10 @@ class BiasEstimates:
     estimated: BoolArray
     reference: BoolArray
     observed_from: tuple[ObservedFrom, ...]
+    clock: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    """Per radar the extra clock states (L, clock_states - 1): drift s/s, drift rate s/s^2."""
+    clock_P: FloatArray = field(default_factory=lambda: np.zeros((0, 0, 0)))
+    """Their covariance (L, clock_states - 1, clock_states - 1)."""
 
     def sigma(self) -> FloatArray:
         """1-sigma of each component (L,4)."""
@@ -60,6 +66,8 @@ class BiasEstimator(Protocol):
     def estimates(self) -> BiasEstimates: ...
 
     def correction(self, radar: int) -> tuple[FloatArray, FloatArray]: ...
+
+    def clock_correction(self, radar: int) -> tuple[FloatArray, FloatArray]: ...
 
 
 def split_update(
@@ -130,13 +138,49 @@ class BiasFilterBase(ABC):
         # that the coupled filter's covariance lost positive-definiteness after ~400 plots.
         self.scale = config.prior_sigma()
         self._walk_var = (config.walk_sigma() / self.scale) ** 2
+        self.clock = ClockModel(config)
+        self.n_state = N_BIAS + self.clock.n_extra
+        """States per radar: the 4 biases, then the extra clock states (``bias.clock``)."""
 
     def prior(self) -> tuple[FloatArray, FloatArray]:
-        """Joint prior of all radars' scaled biases: (4L,) and (4L, 4L); references exact."""
-        s = (self.reference_value / self.scale).reshape(-1)
-        var = np.ones(self.n_radars * N_BIAS)
-        var[np.repeat(self.is_reference, N_BIAS)] = 0.0
+        """Joint prior of all radars' scaled biases, then their extra clock states:
+        (nL,) and (nL, nL), n = ``n_state``; references exact (their clocks too)."""
+        extra = self.clock.n_extra * self.n_radars
+        s = np.concatenate([(self.reference_value / self.scale).reshape(-1), np.zeros(extra)])
+        var = np.ones(len(s))
+        var[: N_BIAS * self.n_radars][np.repeat(self.is_reference, N_BIAS)] = 0.0
+        var[N_BIAS * self.n_radars :][np.repeat(self.is_reference, self.clock.n_extra)] = 0.0
         return s, np.diag(var)
+
+    def state_free(self) -> BoolArray:
+        """``free`` per radar over its biases and extra clock states (L, n_state): the
+        clock states are free with the time offset."""
+        free = self.free()
+        return np.concatenate([free, np.repeat(free[:, TIME:], self.clock.n_extra, axis=1)], 1)
+
+    def state_walk_rate(self) -> FloatArray:
+        """``walk_rate`` per radar over its biases and extra clock states (L, n_state)."""
+        clock = np.where(self.free()[:, TIME, None], self.clock.walk_var[None, :], 0.0)
+        return np.concatenate([self.walk_rate(), clock], axis=1)
+
+    def joint_free(self) -> BoolArray:
+        """``state_free`` in the layout of ``prior``."""
+        return _joint_layout(self.state_free())
+
+    def joint_walk_rate(self) -> FloatArray:
+        """``state_walk_rate`` in the layout of ``prior``."""
+        return _joint_layout(self.state_walk_rate())
+
+    def predict_joint(self, x: FloatArray, P: FloatArray, dt: float, bias_start: int = 0) -> None:
+        """The joint state of ``prior`` (placed from ``bias_start`` in x and P) over dt:
+        the walks, then the clock transition of the radars whose time is estimated."""
+        if dt == 0.0:
+            return
+        n = self.n_state * self.n_radars
+        index = np.arange(bias_start, bias_start + n)
+        P[index, index] += self.joint_walk_rate() * abs(dt)
+        offset, extra = self.clock.indices(self.n_radars, bias_start)
+        self.clock.predict(x, P, dt, offset, extra, self.free()[:, TIME])
 
     def free(self) -> BoolArray:
         """Which components (L,4) the data seen so far make observable.
@@ -225,7 +269,10 @@ class BiasFilterBase(ABC):
 
     def estimates(self) -> BiasEstimates:
         s, P = self._unscaled()
+        clock, clock_P = self._clock_unscaled()
         return BiasEstimates(
+            clock=clock,
+            clock_P=clock_P,
             s=s,
             P=P,
             n_used=self.n_used.copy(),
@@ -240,6 +287,17 @@ class BiasFilterBase(ABC):
         s, P = self._unscaled()
         return s[radar], P[radar]
 
+    def clock_correction(self, radar: int) -> tuple[FloatArray, FloatArray]:
+        """The radar's extra clock states (clock_states - 1,) [drift s/s, drift rate
+        s/s^2] and their covariance."""
+        clock, clock_P = self._clock_unscaled()
+        return clock[radar], clock_P[radar]
+
+    def _clock_unscaled(self) -> tuple[FloatArray, FloatArray]:
+        c, P = self.clock_state()
+        scale = self.clock.scale
+        return c * scale, P * scale[:, None] * scale[None, :]
+
     def _unscaled(self) -> tuple[FloatArray, FloatArray]:
         s, P = self.bias_state()
         return s * self.scale, P * self.scale[:, None] * self.scale[None, :]
@@ -252,11 +310,32 @@ class BiasFilterBase(ABC):
     def bias_state(self) -> tuple[FloatArray, FloatArray]:
         """Per-radar scaled bias (L,4) and its covariance (L,4,4), views allowed."""
 
+    @abstractmethod
+    def clock_state(self) -> tuple[FloatArray, FloatArray]:
+        """Per-radar scaled extra clock states (L,E) and their covariance (L,E,E)."""
 
-def joint_blocks(s: FloatArray, P: FloatArray, n_radars: int) -> tuple[FloatArray, FloatArray]:
-    """Per-radar (L,4) and (L,4,4) views of a joint bias vector (4L,) and covariance."""
-    idx = np.arange(n_radars * N_BIAS).reshape(n_radars, N_BIAS)
-    return s.reshape(n_radars, N_BIAS), P[idx[:, :, None], idx[:, None, :]]
+
+def _joint_layout(per_radar: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """(L, n_state) per-radar values as the joint state of ``prior`` lays them out: every
+    radar's 4 biases, then every radar's extra clock states."""
+    return np.concatenate([per_radar[:, :N_BIAS].reshape(-1), per_radar[:, N_BIAS:].reshape(-1)])
+
+
+def joint_blocks(
+    s: FloatArray, P: FloatArray, n_radars: int, size: int = N_BIAS, start: int = 0
+) -> tuple[FloatArray, FloatArray]:
+    """Per-radar (L,size) and (L,size,size) blocks of a joint vector whose radars' blocks
+    of ``size`` start at ``start`` (the biases: 4 from 0; the extra clock states after
+    them)."""
+    idx = start + np.arange(n_radars * size).reshape(n_radars, size)
+    return s[idx], P[idx[:, :, None], idx[:, None, :]]
+
+
+def joint_clock_blocks(
+    base: BiasFilterBase, s: FloatArray, P: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """The extra clock states' blocks of ``base``'s joint state (``prior``'s layout)."""
+    return joint_blocks(s, P, base.n_radars, base.clock.n_extra, N_BIAS * base.n_radars)
 
 
 class OffEstimator(BiasFilterBase):
@@ -274,3 +353,6 @@ class OffEstimator(BiasFilterBase):
 
     def bias_state(self) -> tuple[FloatArray, FloatArray]:
         return joint_blocks(self._s, self._P, self.n_radars)
+
+    def clock_state(self) -> tuple[FloatArray, FloatArray]:
+        return joint_clock_blocks(self, self._s, self._P)

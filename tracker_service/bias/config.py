@@ -21,6 +21,10 @@ TIME = 3
 COMPONENTS = ("range_offset_m", "range_gain", "azimuth_offset_rad", "time_offset_s")
 
 METHODS = ("separated", "macro", "coupled", "off")
+CLOCK_STATES = (1, 2, 3)
+"""Time-error states per radar: 1 the offset alone (a random walk), 2 offset and drift,
+3 offset, drift and drift rate (DOMAIN.md section 6, the UWB thesis's clock filter)."""
+SECONDS_PER_HOUR = 3600.0
 TIME_MODES = ("auto", "yes", "no")
 
 
@@ -46,6 +50,18 @@ class BiasConfig:
     walk_sigma_gain: float = 1e-7
     walk_sigma_azimuth_deg: float = 1e-5
     walk_sigma_time_s: float = 1e-4
+    clock_states: int = 1
+    """Time-error states per radar (``CLOCK_STATES``): 1 the offset as a random walk of
+    ``walk_sigma_time_s``; 2 adds the drift (the offset grows by drift x dt); 3 adds the
+    drift rate. Each state's process noise is its walk variance times the time step
+    (Q = Q0 dt)."""
+    prior_sigma_drift_s_per_h: float = 1.0
+    """Prior sigma of a radar clock's drift: 1 s/h is 278 ppm, wide beside a free-running
+    crystal's tens of ppm, so that the prior does not hold a bad clock back."""
+    prior_sigma_drift_rate_s_per_h2: float = 0.1
+    walk_sigma_drift_s_per_h: float = 1e-4
+    """Random walk of the drift, s/h per sqrt(s): 6 ms/h in an hour."""
+    walk_sigma_drift_rate_s_per_h2: float = 1e-4
     estimate_time: str = "auto"
     """"auto": estimate the time offsets once an ADS-B observation has been seen or a reference
     radar pins the clock (the common offset of all radars is not observable from radars
@@ -73,7 +89,14 @@ class BiasConfig:
             raise ValueError(
                 f"estimate_time: {self.estimate_time!r} is not one of {', '.join(TIME_MODES)}"
             )
+        if self.clock_states not in CLOCK_STATES or isinstance(self.clock_states, bool):
+            raise ValueError(
+                f"clock_states: {self.clock_states!r} is not one of 1 (offset), 2 (offset, "
+                "drift) or 3 (offset, drift, drift rate)"
+            )
         positive = (
+            "prior_sigma_drift_s_per_h",
+            "prior_sigma_drift_rate_s_per_h2",
             "prior_sigma_range_m",
             "prior_sigma_gain",
             "prior_sigma_azimuth_deg",
@@ -83,6 +106,8 @@ class BiasConfig:
             "coupled_timeout_s",
         )
         non_negative = (
+            "walk_sigma_drift_s_per_h",
+            "walk_sigma_drift_rate_s_per_h2",
             "walk_sigma_range_m",
             "walk_sigma_gain",
             "walk_sigma_azimuth_deg",
@@ -124,6 +149,25 @@ class BiasConfig:
             self.walk_sigma_gain,
             self.walk_sigma_azimuth_deg,
             self.walk_sigma_time_s,
+        )
+
+    def clock_prior_sigma(self) -> FloatArray:
+        """Prior sigma of the extra clock states (clock_states - 1,): drift in s/s, drift
+        rate in s/s^2."""
+        return np.array(
+            [
+                self.prior_sigma_drift_s_per_h / SECONDS_PER_HOUR,
+                self.prior_sigma_drift_rate_s_per_h2 / SECONDS_PER_HOUR**2,
+            ][: self.clock_states - 1]
+        )
+
+    def clock_walk_sigma(self) -> FloatArray:
+        """Random-walk sigma per sqrt(s) of the extra clock states, SI (clock_states - 1,)."""
+        return np.array(
+            [
+                self.walk_sigma_drift_s_per_h / SECONDS_PER_HOUR,
+                self.walk_sigma_drift_rate_s_per_h2 / SECONDS_PER_HOUR**2,
+            ][: self.clock_states - 1]
         )
 
     def reference_bias(self, n_radars: int) -> tuple[BoolArray, FloatArray]:

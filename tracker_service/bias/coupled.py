@@ -12,7 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker_service.bias.common import BiasFilterBase, joint_blocks, split_update
+from tracker_service.bias.common import (
+    BiasFilterBase,
+    joint_blocks,
+    joint_clock_blocks,
+    split_update,
+)
 from tracker_service.bias.config import N_BIAS, BiasConfig
 from tracker_service.bias.observations import BiasObservations, ObservationKind
 from tracker_service.tracking.plots import FloatArray, IntArray
@@ -25,7 +30,7 @@ class CoupledSizeError(ValueError):
 class CoupledBiasFilter(BiasFilterBase):
     def __init__(self, config: BiasConfig, n_radars: int) -> None:
         super().__init__(config, n_radars)
-        self._n_bias = n_radars * N_BIAS
+        self._n_bias = n_radars * self.n_state
         if self._n_bias > config.max_coupled_states:
             raise CoupledSizeError(
                 f"coupled filter: {n_radars} radars need {self._n_bias} states, above "
@@ -42,20 +47,21 @@ class CoupledBiasFilter(BiasFilterBase):
         return len(self._slot)
 
     def bias_state(self) -> tuple[FloatArray, FloatArray]:
-        nb = self._n_bias
-        return joint_blocks(self._x[:nb], self._P[:nb, :nb], self.n_radars)
+        return joint_blocks(self._x, self._P, self.n_radars)
+
+    def clock_state(self) -> tuple[FloatArray, FloatArray]:
+        return joint_clock_blocks(self, self._x, self._P)
 
     def _process(self, obs: BiasObservations) -> None:
         self._drop_silent(float(obs.time[0]))
-        free_bias = self.free().reshape(-1)
-        rate = self.walk_rate().reshape(-1)
+        free_bias = self.joint_free()
         counted = np.ones(len(obs), dtype=bool)
         accepted = np.zeros(len(obs), dtype=bool)
         traffic = (obs.kind == ObservationKind.AIRCRAFT) & (obs.group >= 0)
         gate = self.config.outlier_gate
         for i in range(len(obs)):
             t = float(obs.time[i])
-            self._predict(t, rate)
+            self._predict(t)
             radar = int(obs.radar[i])
             block = slice(N_BIAS * radar, N_BIAS * (radar + 1))
             C = obs.C[i]
@@ -83,7 +89,7 @@ class CoupledBiasFilter(BiasFilterBase):
                 self._last[int(obs.group[i])] = t
         self.count(obs.radar[counted], accepted[counted])
 
-    def _predict(self, t: float, rate: FloatArray) -> None:
+    def _predict(self, t: float) -> None:
         if not np.isfinite(self._time):
             self._time = t
         dt = t - self._time
@@ -100,8 +106,7 @@ class CoupledBiasFilter(BiasFilterBase):
         P[pos, vel] += q * h**2 / 2.0
         P[vel, pos] += q * h**2 / 2.0
         P[vel, vel] += q * h
-        bias = np.arange(self._n_bias)
-        P[bias, bias] += rate * h
+        self.predict_joint(self._x, self._P, dt)
 
     def _add(self, group: int, obs: BiasObservations, i: int) -> None:
         """A new aircraft from its first plot: position y - C s, whose error -C (s_hat - s)

@@ -15,7 +15,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker_service.bias.common import BiasFilterBase, joint_blocks, split_update
+from tracker_service.bias.common import (
+    BiasFilterBase,
+    joint_blocks,
+    joint_clock_blocks,
+    split_update,
+)
 from tracker_service.bias.config import N_BIAS, BiasConfig
 from tracker_service.bias.observations import (
     BiasObservations,
@@ -45,10 +50,12 @@ class MacroBiasFilter(BiasFilterBase):
     def bias_state(self) -> tuple[FloatArray, FloatArray]:
         return joint_blocks(self._s, self._P, self.n_radars)
 
+    def clock_state(self) -> tuple[FloatArray, FloatArray]:
+        return joint_clock_blocks(self, self._s, self._P)
+
     def _process(self, obs: BiasObservations) -> None:
-        free = self.free().reshape(-1)
-        rate = self.walk_rate().reshape(-1)
-        diag = np.diag_indices_from(self._P)
+        free = self.joint_free()
+        nb = N_BIAS * self.n_radars
         if not free.any():
             return
         traffic = (obs.kind == ObservationKind.AIRCRAFT)[:, None]
@@ -61,14 +68,14 @@ class MacroBiasFilter(BiasFilterBase):
         for i in range(len(obs)):
             t = float(obs.time[i])
             if np.isfinite(self._time):
-                P[diag] += rate * (t - self._time)
+                self.predict_joint(s, P, t - self._time)
             self._time = t
             block = slice(N_BIAS * obs.radar[i], N_BIAS * (obs.radar[i] + 1))
             C = obs.C[i]
-            H = -e[i] @ P
+            H = -e[i] @ P[:nb]
             G = P[:, block] @ C.T + H.T
             HC = H[:, block] @ C.T
-            S = target_p[i] - H @ e[i].T + C @ P[block, block] @ C.T + HC + HC.T + obs.R[i]
+            S = target_p[i] - H[:, :nb] @ e[i].T + C @ P[block, block] @ C.T + HC + HC.T + obs.R[i]
             nu = nu_base[i] - C @ s[block]
             accepted[i] = split_update(s, P, G, S, nu, free, self.config.outlier_gate)
         self.count(obs.radar, accepted)

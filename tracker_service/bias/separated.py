@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker_service.bias.common import BiasFilterBase, information_update, joint_blocks
-from tracker_service.bias.config import TIME, BiasConfig
+from tracker_service.bias.common import BiasFilterBase, information_update
+from tracker_service.bias.config import N_BIAS, TIME, BiasConfig
 from tracker_service.bias.observations import BiasObservations, ObservationKind
 from tracker_service.tracking.plots import BoolArray, FloatArray
 
@@ -27,14 +27,27 @@ class SeparatedBiasFilter(BiasFilterBase):
 
     def __init__(self, config: BiasConfig, n_radars: int) -> None:
         super().__init__(config, n_radars)
+        # Per radar its 4 biases, then its extra clock states (``bias.clock``).
         s, P = self.prior()
-        blocks = joint_blocks(s, P, n_radars)
-        self._s = blocks[0].copy()
-        self._P = blocks[1].copy()
+        nb, n = N_BIAS * n_radars, self.n_state
+        extra = self.clock.n_extra
+        self._s = np.zeros((n_radars, n))
+        self._P = np.zeros((n_radars, n, n))
+        self._s[:, :N_BIAS] = s[:nb].reshape(n_radars, N_BIAS)
+        self._s[:, N_BIAS:] = s[nb:].reshape(n_radars, extra)
+        variance = np.diag(P)
+        self._P[:, np.arange(N_BIAS), np.arange(N_BIAS)] = variance[:nb].reshape(n_radars, N_BIAS)
+        self._P[:, np.arange(N_BIAS, n), np.arange(N_BIAS, n)] = variance[nb:].reshape(
+            n_radars, extra
+        )
         self._time = np.full(n_radars, np.nan)
+        self._offset, self._extra = self.clock.indices(1)
 
     def bias_state(self) -> tuple[FloatArray, FloatArray]:
-        return self._s, self._P
+        return self._s[:, :N_BIAS], self._P[:, :N_BIAS, :N_BIAS]
+
+    def clock_state(self) -> tuple[FloatArray, FloatArray]:
+        return self._s[:, N_BIAS:], self._P[:, N_BIAS:, N_BIAS:]
 
     def free(self) -> BoolArray:
         """As the base, but a radar's time offset only once it has its own clock reference.
@@ -50,25 +63,34 @@ class SeparatedBiasFilter(BiasFilterBase):
         return free
 
     def _process(self, obs: BiasObservations) -> None:
-        free = self.free()
+        free = self.state_free()
+        walk = self.state_walk_rate()
         for radar in np.unique(obs.radar):
-            self._update_radar(int(radar), obs.subset(obs.radar == radar), free[radar])
+            r = int(radar)
+            self._update_radar(r, obs.subset(obs.radar == radar), free[r], walk[r])
 
-    def _update_radar(self, radar: int, obs: BiasObservations, free: BoolArray) -> None:
+    def _update_radar(
+        self, radar: int, obs: BiasObservations, free: BoolArray, walk: FloatArray
+    ) -> None:
         end = float(obs.time[-1])
         if np.isfinite(self._time[radar]):
-            self._P[radar] += np.diag(self.walk_rate()[radar] * (end - self._time[radar]))
+            dt = end - self._time[radar]
+            self._P[radar] += np.diag(walk * abs(dt))
+            s, P, moving = self._s[radar], self._P[radar], free[TIME : TIME + 1]
+            self.clock.predict(s, P, dt, self._offset, self._extra, moving)
         self._time[radar] = end
         traffic = obs.kind == ObservationKind.AIRCRAFT
         no_time = free.copy()
         no_time[TIME] = False
+        no_time[N_BIAS:] = False
         for rows, mask in ((~traffic, free), (traffic, no_time)):
             if mask.any() and rows.any():
                 self._batch(radar, obs.subset(rows), mask)
 
     def _batch(self, radar: int, obs: BiasObservations, free: BoolArray) -> None:
         s, P = self._s[radar], self._P[radar]
-        C = obs.C
+        # The extra clock states enter no plot: zero columns.
+        C = np.concatenate([obs.C, np.zeros((len(obs), 2, self.clock.n_extra))], axis=2)
         nu = obs.y - obs.reference_xy - C @ s
         noise = obs.R + obs.reference_P
         S = noise + C @ P @ C.mT

@@ -42,6 +42,7 @@ from tracker_service.evaluation.pipeline import EvaluationConfig, PipelineResult
 from tracker_service.evaluation.system_metrics import (
     SystemEvaluation,
     bias_metrics,
+    clock_metrics,
     system_metrics,
     truth_biases,
 )
@@ -82,7 +83,12 @@ class Evaluation:
                 metrics = getattr(self.system, key)
                 if metrics is not None:
                     doc["system_by_coverage"][key] = metrics.as_json()
-            doc["fusion"] = {"rms_ratio_to_best_local": self.system.rms_ratio_to_best_local}
+            doc["fusion"] = {
+                "rms_ratio_to_best_local": self.system.rms_ratio_to_best_local,
+                "rms_ratio_to_best_local_own_updates": (
+                    self.system.rms_ratio_to_best_local_own_updates
+                ),
+            }
         if self.bias:
             doc["bias"] = self.bias
         if self.vertical:
@@ -149,7 +155,10 @@ def evaluate(
             end_time=float(every_plot["time"].max()),
             adsb=adsb_cover_from_recording(result.recording),
         )
-    bias = bias_metrics(result.bias, truth_biases(result.recording))
+    true_biases = truth_biases(result.recording)
+    bias = bias_metrics(result.bias, true_biases)
+    for source, entries in clock_metrics(result.clock, result.clock_history, true_biases).items():
+        bias.setdefault(source, {}).update(entries)
     vertical = {
         source: vertical_metrics(
             radar.updates,

@@ -24,10 +24,18 @@ Metric definitions (per radar, ``LocalMetrics``):
   position RMS is the radial sqrt(mean(dx^2 + dy^2)), so position^2 = along^2 +
   across^2; along-track is the error along the true velocity. Velocity RMS is the
   radial one too. Flight level RMS (ft) over updates with a flight level.
+  ``position_p95_m`` and ``position_max_m``: the 95th percentile and the largest of the
+  same radial errors.
+- Coasting: the confirmed or coasting updates without a fresh plot (a track's own
+  prediction, published all the same; rule 2 labels them) are scored apart
+  (``coasting_updates``, ``coasting_position_rms_m``) and together with the plot updates
+  (``position_rms_with_coasting_m``, ``..._p95_...``, ``..._max_...``): the error a user of
+  every published update sees.
 - NEES: e^T P^-1 e of the horizontal position (dof 2, ``nees_mean``) and of the whole
   state [x, y, vx, vy] (dof 4, ``nees_state_mean``); averaged first within each antenna
   period of the radar, then over those periods (a time average, as over Monte Carlo
-  runs, so that busy scans do not weigh more).
+  runs, so that busy scans do not weigh more). Target window ``NEES_WINDOW``: 0.8-1.25
+  x dof (``nees_in_window``).
 - Probability of update (ESASSP): the radar's antenna periods are the intervals
   [t_scan, t_scan + period) of ``/truth/coverage``; an interval with the aircraft in
   coverage counts as updated when a confirmed update from a plot of that aircraft falls
@@ -36,6 +44,10 @@ Metric definitions (per radar, ``LocalMetrics``):
   never initiated counts all its intervals as misses. Intervals that end after the
   radar's last plot are left out (the recording stops mid-scan).
   ``probability_of_update_with_initiation`` counts every interval.
+  ``update_interval_s`` is the interval ``probability_of_update`` used (the radar's period;
+  the system's: its slowest radar's); ``probability_of_update_10s`` counts the same way
+  over 10 s intervals (the ESASSP target's), the aircraft in coverage in an interval when
+  it is in coverage at its middle.
 - Tracks per aircraft: per stretch of coverage that holds at least one confirmed
   update of the aircraft, the number of distinct tracks with an identity run of that
   aircraft in the stretch; averaged over those stretches.
@@ -62,7 +74,7 @@ from tracker_service.evaluation.pipeline import (
 )
 from tracker_service.geodesy import SystemPlane
 from tracker_service.simulator.recording import Recording
-from tracker_service.tracking import CONFIRMED
+from tracker_service.tracking import COASTING, CONFIRMED
 
 __all__ = [
     "FIELD_MONITOR",
@@ -87,6 +99,16 @@ BoolArray = npt.NDArray[np.bool_]
 NO_AIRCRAFT = -1
 FIELD_MONITOR = -2
 FEET_PER_FL = 100.0
+UPDATE_INTERVAL_S = 10.0
+"""The probability-of-update target's interval (ESASSP: 10 s), beside the radar's (or the
+system's slowest radar's) own period."""
+NEES_WINDOW = (0.8, 1.25)
+"""The time-averaged NEES target, as multiples of its degrees of freedom (issue 14)."""
+
+
+def nees_in_window(mean: float | None, dof: int) -> bool:
+    """Whether a time-averaged NEES lies in ``NEES_WINDOW`` x dof."""
+    return mean is not None and NEES_WINDOW[0] * dof <= mean <= NEES_WINDOW[1] * dof
 
 
 # --- truth ---------------------------------------------------------------------------------
@@ -385,6 +407,15 @@ class LocalMetrics:
     false_track_max_scans: float
     confirmed_tracks: int
     evaluated_updates: int
+    position_p95_m: float | None = None
+    position_max_m: float | None = None
+    coasting_updates: int = 0
+    coasting_position_rms_m: float | None = None
+    position_rms_with_coasting_m: float | None = None
+    position_p95_with_coasting_m: float | None = None
+    position_max_with_coasting_m: float | None = None
+    probability_of_update_10s: float | None = None
+    update_interval_s: float | None = None
     errors: UpdateErrors | None = field(default=None, repr=False)
 
     def as_json(self) -> dict[str, Any]:
@@ -412,6 +443,31 @@ class PlotMetrics:
 def _rms(values: FloatArray) -> float | None:
     values = values[np.isfinite(values)]
     return float(np.sqrt(np.mean(values**2))) if values.size else None
+
+
+def _percentile(values: FloatArray, q: float) -> float | None:
+    values = values[np.isfinite(values)]
+    return float(np.percentile(values, q)) if values.size else None
+
+
+def _maximum(values: FloatArray) -> float | None:
+    values = values[np.isfinite(values)]
+    return float(values.max()) if values.size else None
+
+
+def resampled(coverage: Coverage, period_s: float) -> Coverage:
+    """``coverage`` over intervals of ``period_s`` from its first scan: an aircraft is in an
+    interval when it is in the scan that holds the interval's middle (the rule of the
+    system's intervals, ``system_metrics.system_coverage``)."""
+    if not len(coverage.times):
+        return Coverage(coverage.times, [], period_s)
+    end = float(coverage.times[-1]) + coverage.period_s
+    starts = np.arange(float(coverage.times[0]), end - period_s + 1e-9, period_s)
+    scan = np.searchsorted(coverage.times, starts + period_s / 2, side="right") - 1
+    inside = (scan >= 0) & (starts + period_s / 2 < coverage.times[scan] + coverage.period_s)
+    empty: frozenset[int] = frozenset()
+    sets = [coverage.aircraft[int(k)] if ok else empty for k, ok in zip(scan, inside, strict=True)]
+    return Coverage(starts, sets, period_s)
 
 
 def _time_average(times: FloatArray, values: FloatArray, period_s: float) -> float | None:
@@ -456,6 +512,66 @@ def _stretches(coverage: Coverage) -> dict[int, list[tuple[int, int]]]:
     return out
 
 
+@dataclass(frozen=True)
+class _TrackRuns:
+    confirmed: set[int]
+    runs: dict[int, list[IdentityRun]]
+
+
+def _coverage_metrics(
+    coverage: Coverage,
+    cf_label: IntArray,
+    cf_time: FloatArray,
+    last: float,
+    tracks_of: _TrackRuns,
+) -> tuple[float | None, float | None, float | None, float | None]:
+    """Probability of update (without and with initiation), tracks per aircraft and
+    initiation delay over ``coverage``'s intervals, from the confirmed updates from a plot
+    (labels and times)."""
+    period = coverage.period_s
+    scan_of = np.searchsorted(coverage.times, cf_time, side="right") - 1
+    in_period = (scan_of >= 0) & (cf_time < coverage.times[np.maximum(scan_of, 0)] + period)
+    hit = set(zip(cf_label[in_period].tolist(), scan_of[in_period].tolist(), strict=True))
+    first_confirmed: dict[int, list[float]] = {}
+    for lab, t in zip(cf_label.tolist(), cf_time.tolist(), strict=True):
+        first_confirmed.setdefault(lab, []).append(t)
+    complete = coverage.times + period <= last + 1e-9
+    expected = updated = expected_all = updated_all = 0
+    delays: list[float] = []
+    counts: list[int] = []
+    for aircraft, spans in _stretches(coverage).items():
+        times_a = np.array(sorted(first_confirmed.get(aircraft, [])))
+        for k0, k1 in spans:
+            t0 = float(coverage.times[k0])
+            t1 = float(coverage.times[k1]) + period
+            in_stretch = times_a[(times_a >= t0) & (times_a < t1)]
+            ks = [k for k in range(k0, k1 + 1) if complete[k]]
+            got = [(aircraft, k) in hit for k in ks]
+            expected_all += len(ks)
+            updated_all += sum(got)
+            if in_stretch.size == 0:
+                expected += len(ks)
+                continue
+            start = float(in_stretch[0])
+            delays.append(start - t0)
+            after = [g for k, g in zip(ks, got, strict=True) if coverage.times[k] + period > start]
+            expected += len(after)
+            updated += sum(after)
+            tracks = {
+                r.track
+                for number in tracks_of.confirmed
+                for r in tracks_of.runs.get(number, [])
+                if r.aircraft == aircraft and r.end >= t0 and r.start < t1
+            }
+            counts.append(max(len(tracks), 1))
+    return (
+        updated / expected if expected else None,
+        updated_all / expected_all if expected_all else None,
+        float(np.mean(counts)) if counts else None,
+        float(np.mean(delays)) if delays else None,
+    )
+
+
 def local_metrics(
     updates: npt.NDArray[Any],
     origins: PlotOrigins,
@@ -466,10 +582,14 @@ def local_metrics(
     min_identity_updates: int = 2,
     end_time: float | None = None,
     evaluate_mask: BoolArray | None = None,
+    update_interval_s: float | None = UPDATE_INTERVAL_S,
+    fixed_interval_coverage: Coverage | None = None,
 ) -> LocalMetrics:
     """Every local-track metric of one radar (see the module docstring).
     ``evaluate_mask``: the rows whose errors count (all by default); the probability of
-    update and the tracks per aircraft follow ``coverage`` alone."""
+    update and the tracks per aircraft follow ``coverage`` alone.
+    ``probability_of_update_10s`` is counted over ``fixed_interval_coverage``, by default
+    ``coverage`` resampled to intervals of ``update_interval_s``."""
     period = coverage.period_s if coverage is not None else 5.0
     labels = associate_updates(updates, origins, truth, gate_m)
     status = updates["status"]
@@ -479,6 +599,15 @@ def local_metrics(
     if evaluate_mask is not None:
         counted &= evaluate_mask
     evaluated = np.flatnonzero(counted)
+    # Coasting updates (coasting, or confirmed without a fresh plot: the track's own
+    # prediction, published all the same; system and local status numbers agree) keep the
+    # label of their last plot; scored beside the plot updates.
+    coasting = ((status == COASTING) | (status == CONFIRMED)) & ~fresh & (labels >= 0)
+    if evaluate_mask is not None:
+        coasting &= evaluate_mask
+    coast = updates[coasting]
+    cx, cy, *_ = truth.at(labels[coasting], coast["time"])
+    coast_error = np.hypot(coast["x"] - cx, coast["y"] - cy)
     u = updates[evaluated]
     a = labels[evaluated]
     tx, ty, tvx, tvy, tfl = truth.at(a, u["time"])
@@ -528,56 +657,21 @@ def local_metrics(
             false_max_scans = max(false_max_scans, float(life))
 
     # Coverage: probability of update, tracks per aircraft, initiation delay.
-    pu: float | None = None
-    pu_all: float | None = None
-    tpa: float | None = None
-    delay: float | None = None
+    pu = pu_all = tpa = delay = pu_fixed = None
     if coverage is not None and len(coverage.times):
         last = end_time if end_time is not None else float(np.max(updates["time"], initial=0.0))
         cf = np.flatnonzero(confirmed_fresh & (labels >= 0))
-        cf_label, cf_time = labels[cf], updates["time"][cf]
-        scan_of = np.searchsorted(coverage.times, cf_time, side="right") - 1
-        in_period = (scan_of >= 0) & (cf_time < coverage.times[np.maximum(scan_of, 0)] + period)
-        hit = set(zip(cf_label[in_period].tolist(), scan_of[in_period].tolist(), strict=True))
-        first_confirmed: dict[int, list[float]] = {}
-        for lab, t in zip(cf_label.tolist(), cf_time.tolist(), strict=True):
-            first_confirmed.setdefault(lab, []).append(t)
-        complete = coverage.times + period <= last + 1e-9
-        expected = updated = expected_all = updated_all = 0
-        delays: list[float] = []
-        counts: list[int] = []
-        for aircraft, spans in _stretches(coverage).items():
-            times_a = np.array(sorted(first_confirmed.get(aircraft, [])))
-            for k0, k1 in spans:
-                t0 = float(coverage.times[k0])
-                t1 = float(coverage.times[k1]) + period
-                in_stretch = times_a[(times_a >= t0) & (times_a < t1)]
-                ks = [k for k in range(k0, k1 + 1) if complete[k]]
-                got = [(aircraft, k) in hit for k in ks]
-                expected_all += len(ks)
-                updated_all += sum(got)
-                if in_stretch.size == 0:
-                    expected += len(ks)
-                    continue
-                start = float(in_stretch[0])
-                delays.append(start - t0)
-                after = [
-                    g for k, g in zip(ks, got, strict=True) if coverage.times[k] + period > start
-                ]
-                expected += len(after)
-                updated += sum(after)
-                tracks = {
-                    r.track
-                    for number in confirmed_numbers
-                    for r in runs.get(number, [])
-                    if r.aircraft == aircraft and r.end >= t0 and r.start < t1
-                }
-                counts.append(max(len(tracks), 1))
-        pu = updated / expected if expected else None
-        pu_all = updated_all / expected_all if expected_all else None
-        tpa = float(np.mean(counts)) if counts else None
-        delay = float(np.mean(delays)) if delays else None
+        cf_label = labels[cf]
+        cf_time = np.asarray(updates["time"][cf], dtype=np.float64)
+        tracks_of = _TrackRuns(confirmed_numbers, runs)
+        pu, pu_all, tpa, delay = _coverage_metrics(coverage, cf_label, cf_time, last, tracks_of)
+        fixed = fixed_interval_coverage
+        if fixed is None and update_interval_s is not None:
+            fixed = resampled(coverage, update_interval_s)
+        if fixed is not None and len(fixed.times):
+            pu_fixed = _coverage_metrics(fixed, cf_label, cf_time, last, tracks_of)[0]
 
+    with_coasting = np.concatenate([np.hypot(dx, dy), coast_error])
     return LocalMetrics(
         position_rms_m=_rms(np.hypot(dx, dy)),
         along_track_rms_m=_rms(along),
@@ -597,6 +691,15 @@ def local_metrics(
         false_track_max_scans=false_max_scans,
         confirmed_tracks=len(confirmed_numbers),
         evaluated_updates=int(evaluated.size),
+        position_p95_m=_percentile(np.hypot(dx, dy), 95.0),
+        position_max_m=_maximum(np.hypot(dx, dy)),
+        coasting_updates=int(np.count_nonzero(coasting)),
+        coasting_position_rms_m=_rms(coast_error),
+        position_rms_with_coasting_m=_rms(with_coasting),
+        position_p95_with_coasting_m=_percentile(with_coasting, 95.0),
+        position_max_with_coasting_m=_maximum(with_coasting),
+        probability_of_update_10s=pu_fixed,
+        update_interval_s=period if coverage is not None else None,
         errors=errors,
     )
 

@@ -152,6 +152,14 @@ class PipelineResult:
     bias: dict[str, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]]
     """Each radar's bias estimate and covariance at the end (empty when not estimated)."""
     bias_history: list[tuple[float, str, npt.NDArray[np.float64], npt.NDArray[np.float64]]]
+    clock: dict[str, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]] = field(
+        default_factory=dict
+    )
+    """Each radar's extra clock states [drift s/s, drift rate s/s^2] and covariance at the end
+    (``BiasConfig.clock_states`` - 1 of them; empty when not estimated)."""
+    clock_history: list[tuple[float, str, npt.NDArray[np.float64], npt.NDArray[np.float64]]] = (
+        field(default_factory=list)
+    )
 
 
 def _truth_plot_index(recording: Recording) -> dict[tuple[str, int], list[dict[str, Any]]]:
@@ -252,4 +260,6 @@ def run_pipeline(
         chain.sources,
         chain.bias_estimates(),
         chain.bias_history,
+        chain.clock_estimates(),
+        chain.clock_history,
     )

@@ -455,21 +455,23 @@ class MessageMapper:
     ) -> list[BiasMessage]:
         """Each radar's estimate; a component is observable when something observes it
         (``observed_from``: other radars' traffic, a reference radar, a field monitor,
-        ADS-B), whatever its sigma says."""
+        ADS-B), whatever its sigma says. A state beyond the 4 biases is the clock's drift
+        (s/s) and then its rate (s/s^2), observable with the time offset."""
         messages = []
         for source, (bias, covariance) in estimates.items():
             sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0))
             sources = observed_from.get(source, ((),) * 4)
-            scale = (1.0, 1.0, math.degrees(1.0), 1.0)
+            scale = (1.0, 1.0, math.degrees(1.0), 1.0, 3600.0, 3600.0**2)
             values = [
                 Estimate(
                     estimate=float(bias[i]) * scale[i],
                     sigma=float(sigma[i]) * scale[i],
-                    observable=bool(sources[i]),
-                    observed_from=[cast(BiasSource, name) for name in sources[i]],
+                    observable=bool(sources[min(i, 3)]),
+                    observed_from=[cast(BiasSource, name) for name in sources[min(i, 3)]],
                 )
-                for i in range(4)
+                for i in range(len(bias))
             ]
+            clock: list[Estimate | None] = [*values[4:], None, None]
             messages.append(
                 BiasMessage(
                     radar=source,
@@ -478,6 +480,8 @@ class MessageMapper:
                     range_gain=values[1],
                     azimuth_deg=values[2],
                     time_s=values[3],
+                    time_drift_s_per_h=clock[0],
+                    time_drift_rate_s_per_h2=clock[1],
                 )
             )
         return messages

@@ -304,6 +304,11 @@ class BiasMessage(_Message):
     """Azimuth offset, degrees: theta_measured = theta + offset."""
     time_s: Estimate
     """Time-stamping offset, s: the radar's time of measurement minus the true time."""
+    time_drift_s_per_h: Estimate | None = None
+    """The clock's drift, s/h: how fast ``time_s`` grows (with ``[bias] clock_states`` 2 or
+    3; absent with the offset alone). Observable with the time offset."""
+    time_drift_rate_s_per_h2: Estimate | None = None
+    """The drift's rate, s/h^2 (``clock_states`` 3)."""
 
 
 class RadarTestTarget(_Message):
