@@ -364,7 +364,8 @@ def test_evaluate_json_on_a_short_three_sites_run(
     out = capsys.readouterr().out
     doc = json.loads(out)
     assert set(doc) == {
-        "plots", "local", "system", "system_by_coverage", "fusion", "bias", "vertical"
+        "plots", "local", "system", "system_by_coverage", "fusion", "bias", "vertical",
+        "manoeuvres",
     }  # fmt: skip
     assert set(doc["vertical"]) == {"25/11", "25/12", "25/13"}
     for bias in doc["bias"].values():
