@@ -132,8 +132,11 @@ class TrackerConfig:
     mht_ambiguity_llr: float = 6.9
     """A cluster of free tracks is branched when its second best assignment is within
     this log-likelihood ratio of the best (6.9: 1 in 1,000)."""
-    mht_prune_llr: float = 9.2
-    """Hypotheses further than this below the best are dropped (9.2: 1 in 10,000)."""
+    mht_prune_llr: float = 6.9
+    """Hypotheses further than this below the best are dropped. As the ambiguity test's:
+    a cluster whose alternatives are all that far behind has nothing left to defer and
+    dissolves (with 9.2, a track's "missed its plot, the plot was clutter" stayed within
+    reach after every scan, and no cluster ever ended)."""
     mht_max_cluster_tracks: int = 6
     """A component of more tracks is left to GNN: the cost of branching stays bounded."""
     implementation: str = "compiled"

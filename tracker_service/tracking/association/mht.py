@@ -264,11 +264,11 @@ class MultipleHypothesisTracking:
         revised: list[Branch] = []
         for comp in sorted(branching):
             comp_rows = np.flatnonzero(label[:n] == comp)
-            members = set(comp_rows.tolist())
+            members = set(numbers[comp_rows].tolist())
             if comp_rows.size > self.config.mht_max_cluster_tracks:
                 # Too large to branch: its clusters end on their best hypotheses (what
                 # the table holds already) and GNN takes the component.
-                self.clusters = [c for c in self.clusters if row_of[c.numbers[0]] not in members]
+                self.clusters = [c for c in self.clusters if c.numbers[0] not in members]
                 gnn_pairs = np.union1d(gnn_pairs, np.flatnonzero(np.isin(pairs.track, comp_rows)))
                 continue
             gnn_pairs = gnn_pairs[~np.isin(pairs.track[gnn_pairs], comp_rows)]
@@ -359,9 +359,9 @@ class MultipleHypothesisTracking:
         """One cluster of the tracks ``comp_rows``: the clusters among them merged (the
         product of their hypotheses, the best kept), the free tracks joining with one
         root branch each (their table state); the roots' gated plots."""
-        members = set(comp_rows.tolist())
-        merging = [c for c in self.clusters if row_of[c.numbers[0]] in members]
-        self.clusters = [c for c in self.clusters if row_of[c.numbers[0]] not in members]
+        members = set(cols["number"][comp_rows].tolist())
+        merging = [c for c in self.clusters if c.numbers[0] in members]
+        self.clusters = [c for c in self.clusters if c.numbers[0] not in members]
         limit = self.config.mht_max_hypotheses
         numbers: list[int] = []
         hypotheses = [Hypothesis(0.0, ())]
