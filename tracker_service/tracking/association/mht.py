@@ -235,17 +235,22 @@ class MultipleHypothesisTracking:
                 idx = order[bounds[k] : bounds[k + 1]]
                 if idx.size:
                     leaf_cands[id(b)] = _Candidates(leaf_pairs.plot[idx], leaf_score[idx], 0, idx)
+        cluster_links = 0
         for c in self.clusters:
             rows = np.array([row_of[num] for num in c.numbers], dtype=np.int64)
             t_parts.append(rows[:1].repeat(rows.size - 1))
             p_parts.append(rows[1:])
+            cluster_links += rows.size - 1
         t_all, p_all = np.concatenate(t_parts), np.concatenate(p_parts)
         size = n + len(p)
         graph = coo_matrix((np.ones(t_all.size), (t_all, p_all)), shape=(size, size))
         _, label = connected_components(graph, directed=False)
 
-        # Components to branch: those holding a cluster, and the ambiguous free ones.
-        branching = set(label[list(row_of.values())].tolist())
+        # Components to branch: those holding a cluster with plots in this batch, and
+        # the ambiguous free ones.
+        with_plots = np.zeros(size, dtype=bool)
+        with_plots[label[t_all[: t_all.size - cluster_links]]] = True
+        branching = {c for c in label[list(row_of.values())].tolist() if with_plots[c]}
         free_idx = np.flatnonzero(free)
         comp_of_pair = label[pairs.track[free_idx]]
         shared = np.bincount(comp_of_pair, minlength=size)[comp_of_pair] > 1
@@ -255,23 +260,25 @@ class MultipleHypothesisTracking:
             members = free_idx[comp_of_pair == comp]
             if self._ambiguous(pairs.track[members], pairs.plot[members], score[members]):
                 branching.add(comp)
-
-        gnn_pairs = free_idx
+        tracks_in = np.bincount(label[:n], minlength=size)
+        too_large = [c for c in branching if tracks_in[c] > self.config.mht_max_cluster_tracks]
+        stepped = sorted(branching.difference(too_large))
+        if too_large:
+            # Too large to branch: its clusters end on their best hypotheses (what the
+            # table holds already) and GNN takes the component.
+            ending = set(numbers[np.isin(label[:n], too_large)].tolist())
+            self.clusters = [c for c in self.clusters if c.numbers[0] not in ending]
+        row_comp = label[:n][pairs.track]
+        gnn_pairs = np.flatnonzero(
+            (free & ~np.isin(row_comp, stepped)) | np.isin(row_comp, too_large)
+        )
         rows_out: list[int] = []
         plots_out: list[int] = []
         detected: list[Branch] = []
         revised_rows: list[int] = []
         revised: list[Branch] = []
-        for comp in sorted(branching):
+        for comp in stepped:
             comp_rows = np.flatnonzero(label[:n] == comp)
-            members = set(numbers[comp_rows].tolist())
-            if comp_rows.size > self.config.mht_max_cluster_tracks:
-                # Too large to branch: its clusters end on their best hypotheses (what
-                # the table holds already) and GNN takes the component.
-                self.clusters = [c for c in self.clusters if c.numbers[0] not in members]
-                gnn_pairs = np.union1d(gnn_pairs, np.flatnonzero(np.isin(pairs.track, comp_rows)))
-                continue
-            gnn_pairs = gnn_pairs[~np.isin(pairs.track[gnn_pairs], comp_rows)]
             cluster, root_cands = self._gather(comp_rows, row_of, cols, pairs, score)
             cands = {**leaf_cands, **root_cands}
             for number, leaf, plot in self._step(cluster, p, imm_filter, pairs, leaf_pairs, cands):
