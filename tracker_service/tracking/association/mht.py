@@ -207,6 +207,12 @@ class MultipleHypothesisTracking:
     ) -> HypothesisDecision:
         numbers = cols["number"][:n]
         row_of = self._forget_deleted(numbers)
+        if not self.clusters and _all_lone(pairs, n, len(p)):
+            # The usual batch: no cluster, no plot or track with a second candidate.
+            everything = np.arange(len(pairs))
+            return HypothesisDecision(
+                everything, self.associate(pairs).pair, _EMPTY, _EMPTY, [], _EMPTY, []
+            )
         clustered = np.zeros(n, dtype=bool)
         clustered[list(row_of.values())] = True
         free = ~clustered[pairs.track]
@@ -534,6 +540,13 @@ class MultipleHypothesisTracking:
         """A cluster with one hypothesis left has nothing to defer: it dissolves."""
         if len(cluster.hypotheses) > 1 and len(cluster.numbers) > 0:
             self.clusters.append(cluster)
+
+
+def _all_lone(pairs: GatedPairs, n_tracks: int, n_plots: int) -> bool:
+    """Whether every pair's track and plot have no other candidate."""
+    tracks = np.bincount(pairs.track, minlength=n_tracks)
+    plots = np.bincount(pairs.plot, minlength=n_plots)
+    return bool(tracks.max() <= 1 and plots.max() <= 1)
 
 
 def _branch_columns(branches: list[Branch]) -> dict[str, npt.NDArray[Any]]:
