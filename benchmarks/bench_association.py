@@ -10,7 +10,8 @@ the rate is per encounter and radar (local) or per encounter (system).
 
     python benchmarks/bench_association.py --seeds 20 [--first-seed 1] [--associators gnn jpda]
         [--tma tma.mcap] [--three-sites three_sites.mcap] [--json out.json]
-    python benchmarks/bench_association.py --summarise a.json b.json   (seeds run apart)
+    python benchmarks/bench_association.py --summarise a.json b.json   (seeds run apart;
+        the associators of one seed may come from different files: joined by seed)
 
 CPU per plot is the process time spent in ``LocalTracker.process`` (process time, not
 wall time: the benchmark machine is shared) over the plots fed.
@@ -247,6 +248,18 @@ def summarise(seeds: list[dict[str, Any]], associators: list[str]) -> str:
     return "\n".join(lines)
 
 
+def merged_seeds(paths: list[Path], associators: list[str]) -> list[dict[str, Any]]:
+    """The seeds of several --json files, the associators of one seed run apart joined
+    by its number; only the seeds every associator ran (so the comparison is paired)."""
+    by_seed: dict[int, dict[str, Any]] = defaultdict(dict)
+    for path in paths:
+        for entry in json.loads(path.read_text())["seeds"]:
+            by_seed[entry["seed"]].update(entry)
+    kept = sorted(s for s, e in by_seed.items() if all(a in e for a in associators))
+    print(f"seeds {kept}\n")
+    return [by_seed[s] for s in kept]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
@@ -263,14 +276,13 @@ def main() -> None:
     )
     args = parser.parse_args()
     if args.summarise:
-        seeds = [s for f in args.summarise for s in json.loads(f.read_text())["seeds"]]
-        print(summarise(seeds, args.associators))
+        print(summarise(merged_seeds(args.summarise, args.associators), args.associators))
         return
     doc: dict[str, Any] = {"seeds": []}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             started = time.perf_counter()
-            doc["seeds"].append(encounter_seed(seed, args.associators, Path(tmp)))
+            doc["seeds"].append({"seed": seed, **encounter_seed(seed, args.associators, Path(tmp))})
             print(f"seed {seed}: {time.perf_counter() - started:.0f} s", flush=True)
             if args.json:
                 args.json.write_text(json.dumps(doc, indent=1))

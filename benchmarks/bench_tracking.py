@@ -17,6 +17,12 @@ then fed to fresh trackers of each implementation, --repeats times interleaved; 
 `process` is timed.
 
     python benchmarks/bench_tracking.py --recording tma.mcap
+
+--associations (``TrackerConfig.association``, default gnn) times the associators side by
+side the same way (issue 13: JPDA at most 2x and MHT at most 5x GNN's cost per plot on
+`tma`, still flat with traffic):
+
+    python benchmarks/bench_tracking.py --implementations compiled --associations gnn jpda mht
 """
 
 from __future__ import annotations
@@ -74,8 +80,13 @@ def sector_batches(targets: int, scans: int, seed: int) -> list[np.ndarray]:
     return batches
 
 
-def run_once(batches: list[np.ndarray], warm_up: int, implementation: str) -> tuple[float, int]:
-    tracker = LocalTracker(TrackerConfig(scan_period_s=PERIOD_S, implementation=implementation))
+def run_once(
+    batches: list[np.ndarray], warm_up: int, implementation: str, association: str = "gnn"
+) -> tuple[float, int]:
+    config = TrackerConfig(
+        scan_period_s=PERIOD_S, implementation=implementation, association=association
+    )
+    tracker = LocalTracker(config)
     for batch in batches[:warm_up]:
         tracker.process(batch)
     timed = batches[warm_up:]
@@ -97,7 +108,9 @@ class RecordingTracker(LocalTracker):
         return super().process(plots)
 
 
-def bench_recording(path: str, implementations: list[str], repeats: int) -> None:
+def bench_recording(
+    path: str, implementations: list[str], repeats: int, associations: list[str]
+) -> None:
     trackers: dict[str, RecordingTracker] = {}
 
     def make(source: str, config: TrackerConfig) -> LocalTracker:
@@ -106,37 +119,42 @@ def bench_recording(path: str, implementations: list[str], repeats: int) -> None
 
     result = run_pipeline(path, make_tracker=make)
     seconds: dict[tuple[str, str], list[float]] = {}
+    variants = [f"{i}/{a}" for i in implementations for a in associations]
     for _ in range(repeats):
-        for implementation in implementations:
+        for variant in variants:
+            implementation, association = variant.split("/")
             for source, recorded in trackers.items():
-                config = replace(recorded.config, implementation=implementation)
+                config = replace(
+                    recorded.config, implementation=implementation, association=association
+                )
                 tracker = LocalTracker(config)
                 started = time.process_time()
                 for batch in recorded.batches:
                     tracker.process(batch)
                 elapsed = time.process_time() - started
-                seconds.setdefault((implementation, source), []).append(elapsed)
+                seconds.setdefault((variant, source), []).append(elapsed)
     print(f"{path}: median of {repeats}")
     print(
-        f"{'implementation':>14} {'radar':>7} {'period s':>9} {'plots':>8} {'plots/batch':>12}"
+        f"{'implementation':>18} {'radar':>7} {'period s':>9} {'plots':>8} {'plots/batch':>12}"
         f" {'us/batch':>9} {'plots/s':>10}"
     )
-    for implementation in implementations:
+    for variant in variants:
         total_plots, total_seconds = 0, 0.0
         for source, run in result.radars.items():
             batches = trackers[source].batches
             plots = sum(len(b) for b in batches)
-            elapsed = statistics.median(seconds[implementation, source])
+            elapsed = statistics.median(seconds[variant, source])
             total_plots += plots
             total_seconds += elapsed
             print(
-                f"{implementation:>14} {source:>7} {run.info.period_s:>9.1f} {plots:>8} "
+                f"{variant:>18} {source:>7} {run.info.period_s:>9.1f} {plots:>8} "
                 f"{plots / len(batches):>12.1f} {elapsed / len(batches) * 1e6:>9.0f} "
                 f"{plots / elapsed:>10,.0f}"
             )
         print(
-            f"{implementation:>14} {'all':>7} {'':>9} {total_plots:>8} {'':>12} {'':>9}"
+            f"{variant:>18} {'all':>7} {'':>9} {total_plots:>8} {'':>12} {'':>9}"
             f" {total_plots / total_seconds:>10,.0f}"
+            f" ({total_seconds / total_plots * 1e6:.1f} us/plot)"
         )
 
 
@@ -149,32 +167,35 @@ def main() -> None:
     parser.add_argument(
         "--implementations", nargs="+", default=["compiled", "numpy"], help="TrackerConfig"
     )
+    parser.add_argument("--associations", nargs="+", default=["gnn"], help="TrackerConfig")
     args = parser.parse_args()
     # Loads (or compiles, after an install) the kernels before any clock runs.
     run_once(sector_batches(20, 8, seed=0), 0, "compiled")
     if args.recording:
-        bench_recording(args.recording, args.implementations, args.repeats)
+        bench_recording(args.recording, args.implementations, args.repeats, args.associations)
         return
     data = {n: sector_batches(n, args.scans, seed=n) for n in args.sizes}
     seconds: dict[tuple[str, int], list[float]] = {}
     plots: dict[int, int] = {}
+    variants = [f"{i}/{a}" for i in args.implementations for a in args.associations]
     for _ in range(args.repeats):
-        for implementation in args.implementations:
+        for variant in variants:
+            implementation, association = variant.split("/")
             for n in args.sizes:
-                elapsed, count = run_once(data[n], 5 * SECTORS, implementation)
-                seconds.setdefault((implementation, n), []).append(elapsed)
+                elapsed, count = run_once(data[n], 5 * SECTORS, implementation, association)
+                seconds.setdefault((variant, n), []).append(elapsed)
                 plots[n] = count
     print(f"median of {args.repeats}")
     print(
-        f"{'implementation':>14} {'aircraft':>9} {'plots/s':>10} {'us/plot':>9} {'cost ratio':>11}"
+        f"{'implementation':>18} {'aircraft':>9} {'plots/s':>10} {'us/plot':>9} {'cost ratio':>11}"
     )
-    for implementation in args.implementations:
+    for variant in variants:
         base = None
         for n in args.sizes:
-            per_plot = statistics.median(seconds[implementation, n]) / plots[n]
+            per_plot = statistics.median(seconds[variant, n]) / plots[n]
             base = base or per_plot
             print(
-                f"{implementation:>14} {n:>9} {1 / per_plot:>10,.0f} {per_plot * 1e6:>9.1f}"
+                f"{variant:>18} {n:>9} {1 / per_plot:>10,.0f} {per_plot * 1e6:>9.1f}"
                 f" {per_plot / base:>11.2f}"
             )
 

@@ -26,8 +26,10 @@ JPDA = TrackerConfig(scan_period_s=PERIOD, association="jpda")
 def test_the_associator_is_chosen_by_name_and_a_wrong_name_says_which_exist() -> None:
     assert isinstance(make_associator(TrackerConfig()), GlobalNearestNeighbour)
     assert isinstance(make_associator(JPDA), JointProbabilisticDataAssociation)
-    with pytest.raises(ValueError, match=r"association: 'mht' is not one of \['gnn', 'jpda'\]"):
-        TrackerConfig(association="mht")
+    with pytest.raises(
+        ValueError, match=r"association: 'pmht' is not one of \['gnn', 'jpda', 'mht'\]"
+    ):
+        TrackerConfig(association="pmht")
 
 
 def _marginals_by_brute_force(ratio: np.ndarray, log_miss: float) -> np.ndarray:

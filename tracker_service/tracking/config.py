@@ -9,7 +9,7 @@ KNOT_M_S = 1852.0 / 3600.0
 SHARED_MODE3A_CODES = (0o7000, 0o2000, 0o1200)
 """Conspicuity and VFR codes worn by many aircraft at once: a match proves nothing."""
 
-ASSOCIATION_METHODS = ("gnn", "jpda")
+ASSOCIATION_METHODS = ("gnn", "jpda", "mht")
 """The associators of ``tracking.association``, by the name ``association`` takes."""
 
 
@@ -124,7 +124,8 @@ class TrackerConfig:
     """How gated plots go to tracks (``tracking.association``): "gnn", global nearest
     neighbour, one plot per track, the right choice where aircraft are well apart;
     "jpda", joint probabilistic association without coalescence, for closely spaced
-    targets without distinct identities (docs/association.md)."""
+    targets without distinct identities; "mht", track-oriented multiple hypotheses on
+    the ambiguous clusters and GNN elsewhere (docs/association.md)."""
     detection_probability: float = 0.9
     """Pd of the JPDA likelihood: the prior that a track's own plot is in this batch."""
     clutter_density_per_km2: float = 0.01
@@ -151,6 +152,21 @@ class TrackerConfig:
     """Sigma of the turn rate from the track angle rate or the roll angle."""
     dap_velocity_gate: float = 13.82
     """Chi-square (2 dof, 99.9 %) of the DAP velocity against its track: beyond, unused."""
+    mht_n_scan: int = 3
+    """MHT's N-scan pruning: a choice older than N - 1/2 antenna periods is fixed to the
+    best hypothesis's (N >= 2: each choice is deferred by at least one scan)."""
+    mht_max_hypotheses: int = 12
+    """Global hypotheses kept per MHT cluster (and Murty's k per parent)."""
+    mht_ambiguity_llr: float = 6.9
+    """A cluster of free tracks is branched when its second best assignment is within
+    this log-likelihood ratio of the best (6.9: 1 in 1,000)."""
+    mht_prune_llr: float = 6.9
+    """Hypotheses further than this below the best are dropped. As the ambiguity test's:
+    a cluster whose alternatives are all that far behind has nothing left to defer and
+    dissolves (with 9.2, a track's "missed its plot, the plot was clutter" stayed within
+    reach after every scan, and no cluster ever ended)."""
+    mht_max_cluster_tracks: int = 6
+    """A component of more tracks is left to GNN: the cost of branching stays bounded."""
     implementation: str = "compiled"
     """The code of the filters (the IMM, the vertical filter): "compiled"
     (``tracking.kernels``, numba) or "numpy" (the plain reference: ``tracking.imm`` and
@@ -173,6 +189,12 @@ class TrackerConfig:
             raise ValueError("need 0 < detection_probability < 1 and clutter_density_per_km2 > 0")
         if self.jpda_max_events < 1 or self.jpda_k_best < 1:
             raise ValueError("jpda_max_events and jpda_k_best must be >= 1")
+        if self.mht_n_scan < 2 or self.mht_max_hypotheses < 2 or self.mht_max_cluster_tracks < 1:
+            raise ValueError(
+                "need mht_n_scan >= 2, mht_max_hypotheses >= 2, mht_max_cluster_tracks >= 1"
+            )
+        if not 0 < self.mht_ambiguity_llr <= self.mht_prune_llr:
+            raise ValueError("need 0 < mht_ambiguity_llr <= mht_prune_llr")
         if not self.max_clock_jump_periods > 0 or self.clock_resync_batches < 1:
             raise ValueError("max_clock_jump_periods and clock_resync_batches must be positive")
         for name in ("vertical_q", "vertical_sojourn_s", "vertical_initial_probabilities"):

@@ -16,10 +16,13 @@ import numpy.typing as npt
 from tracker_service.tracking import imm, kernels, vertical
 from tracker_service.tracking.association import (
     Gate,
+    GatedPairs,
+    MultipleHypothesisTracking,
     WeightedUpdate,
     make_associator,
     weighted_update,
 )
+from tracker_service.tracking.association.mht import Branch, branch_states
 from tracker_service.tracking.clock import DataClock
 from tracker_service.tracking.config import TrackerConfig
 from tracker_service.tracking.daps import DapUpdate
@@ -303,6 +306,8 @@ class LocalTracker:
         if pairs is None:
             self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
             return used, blocked, updated
+        if isinstance(self.associator, MultipleHypothesisTracking):
+            return self._associate_hypotheses(p, pairs, too_old, rows, used, blocked, updated)
         weighted = self.associator.associate(pairs)
         if weighted.is_hard:
             # One plot per track (GNN): the plain IMM update.
@@ -328,21 +333,72 @@ class LocalTracker:
         rows.append(self._apply(tracks, p.take(plot_index), pairs.pred.take(sel), posterior))
         return used, blocked, updated
 
+    def _associate_hypotheses(
+        self,
+        p: PlotArrays,
+        pairs: GatedPairs,
+        too_old: BoolArray,
+        rows: list[npt.NDArray[Any]],
+        used: BoolArray,
+        blocked: BoolArray,
+        updated: BoolArray,
+    ) -> tuple[BoolArray, BoolArray, BoolArray]:
+        """MHT: GNN's assignment outside the ambiguous clusters, the best global
+        hypothesis's leaves inside them; the tracks a later batch revised take their
+        branch's state (published with their next update)."""
+        assert isinstance(self.associator, MultipleHypothesisTracking)
+        cols = self._cols
+        decision = self.associator.decide(self.gate, self.imm, cols, self._n, p, pairs)
+        gnn, hard = decision.gnn, decision.hard
+        # As GNN: a plot in a confirmed track's gate starts no track; in a cluster, the
+        # plots the best hypothesis leaves are clutter or new aircraft.
+        blocked[pairs.plot[gnn][cols["status"][pairs.track[gnn]] == CONFIRMED]] = True
+        if decision.revised_rows.size:
+            self._revise(decision.revised_rows, decision.revised)
+        tracks = np.concatenate([pairs.track[hard], decision.rows])
+        plot_index = np.concatenate([pairs.plot[hard], decision.plots])
+        used[plot_index] = True
+        updated[tracks] = True
+        self.stats.plots_associated += int(tracks.size)
+        if hard.size:
+            rows.append(
+                self._apply(pairs.track[hard], p.take(pairs.plot[hard]), pairs.pred.take(hard))
+            )
+        if decision.rows.size:
+            step = branch_states(decision.detected)
+            rows.append(self._apply(decision.rows, p.take(decision.plots), None, step))
+        self.stats.late_plots_dropped += int(np.count_nonzero(too_old & ~used))
+        return used, blocked, updated
+
+    def _revise(self, ti: IntArray, leaves: list[Branch]) -> None:
+        """A revision: the tracks ``ti`` take the states of their branches in the new best
+        hypothesis (the hit history and the vertical filter stay as published)."""
+        cols = self._cols
+        step = branch_states(leaves)
+        cols["x"][ti], cols["P"][ti], cols["mu"][ti] = step.x, step.P, step.mu
+        cols["xc"][ti], cols["Pc"][ti] = step.x_comb, step.P_comb
+        cols["t"][ti] = [b.t for b in leaves]
+        cols["address"][ti] = [b.address for b in leaves]
+        cols["mode3a"][ti] = [b.mode3a for b in leaves]
+
     def _apply(
         self,
         ti: IntArray,
         p: PlotArrays,
-        pred: imm.ImmPrediction,
-        posterior: WeightedUpdate | None = None,
+        pred: imm.ImmPrediction | None,
+        posterior: WeightedUpdate | imm.ImmUpdate | None = None,
     ) -> npt.NDArray[Any]:
         """Update the tracks ``ti`` with their plots ``p`` (or, weighted over several
-        plots, to ``posterior``: ``p`` is then each track's most likely plot); their
-        output rows."""
+        plots, to ``posterior``: ``p`` is then each track's most likely plot; or to an
+        update already made, MHT's branches); their output rows."""
         cfg = self.config
         cols = self._cols
         time = p.time
         if posterior is None:
+            assert pred is not None
             step = self.imm.update(pred, np.column_stack([p.x, p.y]), p.R)
+        elif isinstance(posterior, imm.ImmUpdate):
+            step = posterior
         else:
             xc, pc = imm.combine(posterior.x, posterior.P, posterior.mu)
             step = imm.ImmUpdate(posterior.x, posterior.P, posterior.mu, xc, pc)

@@ -5,7 +5,9 @@ name in the configuration (``TrackerConfig.association``), one update path.
   Soup's hypothesiser);
 - an ``Associator`` (Stone Soup's data associator) turns them into weighted pairs:
   ``gnn`` (global nearest neighbour, weight 1) or ``jpda`` (joint probabilistic data
-  association without coalescence, JPDA*);
+  association without coalescence, JPDA*) or ``mht`` (track-oriented multiple
+  hypotheses on the ambiguous clusters, GNN elsewhere: it keeps hypotheses across
+  batches, so the tracker calls its ``decide``);
 - ``update``: the IMM update of each track from its weighted pairs.
 """
 
@@ -15,12 +17,14 @@ from tracker_service.tracking.association.base import Associator, WeightedPairs
 from tracker_service.tracking.association.gate import Gate, GatedPairs, GateResult
 from tracker_service.tracking.association.gnn import GlobalNearestNeighbour
 from tracker_service.tracking.association.jpda import JointProbabilisticDataAssociation
+from tracker_service.tracking.association.mht import MultipleHypothesisTracking
 from tracker_service.tracking.association.update import WeightedUpdate, weighted_update
 from tracker_service.tracking.config import ASSOCIATION_METHODS, TrackerConfig
 
 _METHODS: dict[str, Callable[[TrackerConfig], Associator]] = {
     "gnn": GlobalNearestNeighbour,
     "jpda": JointProbabilisticDataAssociation,
+    "mht": MultipleHypothesisTracking,
 }
 assert set(_METHODS) == set(ASSOCIATION_METHODS)
 
@@ -37,6 +41,7 @@ __all__ = [
     "GatedPairs",
     "GlobalNearestNeighbour",
     "JointProbabilisticDataAssociation",
+    "MultipleHypothesisTracking",
     "WeightedPairs",
     "WeightedUpdate",
     "make_associator",
