@@ -7,6 +7,7 @@ updated and the tracks aged; the only Python loops run over the IMM's models.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,11 +17,17 @@ import numpy.typing as npt
 from tracker_service.tracking import imm, kernels, vertical
 from tracker_service.tracking.association import (
     Gate,
+    GatedPairs,
     WeightedUpdate,
     make_associator,
     weighted_update,
 )
 from tracker_service.tracking.clock import DataClock
+from tracker_service.tracking.clutter import (
+    make_clutter_map,
+    primary_seed_takes_reply,
+    secondary_reply,
+)
 from tracker_service.tracking.config import TrackerConfig
 from tracker_service.tracking.initiate import TwoPointInitiator, two_point_state
 from tracker_service.tracking.models import ModelSet
@@ -85,6 +92,8 @@ def _table_dtype(n_models: int) -> np.dtype[Any]:
             ("fl_rejects", np.int64),
             # Before this time no further scan can count as missed (see _age).
             ("due", np.float64),
+            ("dense_seed", np.bool_),  # seeded in a dense clutter cell: more hits to confirm
+            ("secondary", np.bool_),  # some plot of the track had a secondary reply
         ]
     )
 
@@ -138,7 +147,12 @@ class LocalTracker:
         self._held: list[PlotArrays] = []
         """The out-of-line plots of the current run of batches, counted when dropped."""
         self._now = -np.inf
-        self._hist_mask = (1 << self.config.confirm_n) - 1
+        self.clutter = make_clutter_map(self.config)
+        """The radar's clutter map (``tracking.clutter``), None when configured off."""
+        extra = self.config.clutter_extra_hits if self.clutter is not None else 0
+        self._hist_mask = (1 << (self.config.confirm_n + extra)) - 1
+        self._window_mask = (1 << self.config.confirm_n) - 1
+        self._dense_window_mask = self._hist_mask
         self.gate = Gate(self.config, self.models, self.imm)
         self.associator = make_associator(self.config)
         self._scan_tolerance_s = (1.0 + self.config.miss_tolerance) * self.config.scan_period_s
@@ -258,6 +272,7 @@ class LocalTracker:
         rows: list[npt.NDArray[Any]] = []
 
         used, blocked, updated = self._associate(p, rows)
+        self._learn_clutter(p, rows)
         # A copy: the initiator keeps plots across batches, never the caller's array.
         first, second = self.initiator.pair(p.take(~used & ~blocked), now)
         if len(second):
@@ -283,6 +298,8 @@ class LocalTracker:
         too_old = gated.too_old
         blocked |= too_old
         pairs = gated.pairs
+        if pairs is not None:
+            pairs = self._screen(pairs, p)
         if pairs is None:
             self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
             return used, blocked, updated
@@ -310,6 +327,34 @@ class LocalTracker:
         self.stats.plots_associated += int(tracks.size)
         rows.append(self._apply(tracks, p.take(plot_index), pairs.pred.take(sel), posterior))
         return used, blocked, updated
+
+    def _screen(self, pairs: GatedPairs, p: PlotArrays) -> GatedPairs | None:
+        """The gated pairs an associator may weigh, with the clutter map's density at their
+        plots: a tentative track seeded only by primary plots takes no plot with a
+        secondary reply (``clutter.primary_seed_takes_reply``)."""
+        cols = self._cols
+        t, j = pairs.track, pairs.plot
+        refused = (cols["status"][t] == TENTATIVE) & primary_seed_takes_reply(
+            cols["secondary"][t], secondary_reply(p.typ[j], p.address[j], p.mode3a[j])
+        )
+        if refused.any():
+            if refused.all():
+                return None
+            pairs = pairs.take(np.flatnonzero(~refused))
+        if self.clutter is not None:
+            j = pairs.plot
+            pairs = dataclasses.replace(
+                pairs, clutter_density=self.clutter.density_per_m2(p.x[j], p.y[j])
+            )
+        return pairs
+
+    def _learn_clutter(self, p: PlotArrays, rows: list[npt.NDArray[Any]]) -> None:
+        """Teach the clutter map the batch's plots that no confirmed track took."""
+        if self.clutter is None:
+            return
+        taken = [r["plot_id"][r["status"] == CONFIRMED] for r in rows]
+        free = ~np.isin(p.plot_id, np.concatenate(taken)) if taken else slice(None)
+        self.clutter.learn(p.x[free], p.y[free], p.time[free])
 
     def _apply(
         self,
@@ -342,6 +387,7 @@ class LocalTracker:
         else:
             hist, address, mode3a = self._record_updates(ti, p, step)
         self._update_vertical(ti, p)
+        cols["secondary"][ti] |= secondary_reply(p.typ, p.address, p.mode3a)
         status = cols["status"][ti]
         self._confirm(ti, status, hist)  # after every other field is written
         # A confirmed track without any secondary reply that has slowed to clutter speed
@@ -447,12 +493,15 @@ class LocalTracker:
         (clutter), and for a track surely faster than ``max_speed_m_s``. ``ti``: the
         tracks to confirm, every field but ``status`` already written; ``status``: theirs
         (changed in place)."""
+        cols = self._cols
+        dense = cols["dense_seed"][ti]
+        extra = self.config.clutter_extra_hits
+        hits = np.bitwise_count(hist & np.where(dense, self._dense_window_mask, self._window_mask))
         candidates = np.flatnonzero(
-            (status == TENTATIVE) & (np.bitwise_count(hist) >= self.config.confirm_m)
+            (status == TENTATIVE) & (hits >= self.config.confirm_m + np.where(dense, extra, 0))
         )
         if candidates.size == 0:
             return
-        cols = self._cols
         n = self._n
         live = np.flatnonzero(
             (cols["status"][:n] == CONFIRMED)
@@ -545,6 +594,14 @@ class LocalTracker:
         cols["t_fl"][new] = 0.0
         cols["fl_ok"][new] = False
         cols["fl_rejects"][new] = 0
+        cols["secondary"][new] = secondary_reply(
+            first.typ, first.address, first.mode3a
+        ) | secondary_reply(second.typ, second.address, second.mode3a)
+        cols["dense_seed"][new] = (
+            False
+            if self.clutter is None
+            else self.clutter.dense(first.x, first.y) | self.clutter.dense(second.x, second.y)
+        )
         self._update_vertical(new, first)
         self._update_vertical(new, second)
         self.stats.tracks_initiated += k
