@@ -45,8 +45,9 @@ def test_the_map_learns_a_persistent_source_and_forgets_it() -> None:
     # 21.3 km at 75.5 degrees: the middle of a cell (a source on a cell's edge would
     # share its plots between two cells).
     bearing = math.radians(75.5)
-    source = np.array([1000.0 + 21.3e3 * math.sin(bearing)]), np.array(
-        [-2000.0 + 21.3e3 * math.cos(bearing)]
+    source = (
+        np.array([1000.0 + 21.3e3 * math.sin(bearing)]),
+        np.array([-2000.0 + 21.3e3 * math.cos(bearing)]),
     )
     elsewhere = np.array([1000.0 - 20e3]), np.array([-2000.0 + 5e3])
     rng = np.random.default_rng(3)
@@ -69,14 +70,15 @@ def test_the_map_learns_a_persistent_source_and_forgets_it() -> None:
 
 def _persistent_source_with_a_mover(extra_hits: int) -> list[npt.NDArray[np.void]]:
     """A persistent clutter point at 30 km for 60 scans, then a primary-only target (a
-    primary-only aircraft, 150 m/s) setting off from it."""
+    primary-only aircraft, 150 m/s) setting off from it across the beam (into another
+    azimuth cell each scan: a track stuck in a dense cell is held tentative)."""
     rng = np.random.default_rng(5)
     rows = []
     for k in range(80):
         t = T0 + k * PERIOD
         rows.append(_plot(t, 30e3 + rng.normal(0, 30), rng.normal(0, 30)))
         if k >= 60:
-            rows.append(_plot(t + 0.01, 30e3 + 150.0 * (t - T0 - 60 * PERIOD), 0.0))
+            rows.append(_plot(t + 0.01, 30e3, 150.0 * (t - T0 - 60 * PERIOD)))
     return _batches(rows)
 
 
@@ -161,3 +163,22 @@ def test_a_clutter_seeded_tentative_track_never_takes_an_aircrafts_identity(
     assert len(confirmed) == 1  # the aircraft's own track, from its first plots on
     own = out[(out["track_number"] == confirmed[0]) & (out["plot_id"] >= 0)]
     assert set(own["plot_id"].tolist()) <= aircraft_plot
+
+
+@pytest.mark.parametrize("association", ["gnn", "jpda"])
+def test_a_fast_seed_on_a_persistent_source_is_never_confirmed(association: str) -> None:
+    """The `tma` false track: a plot far from a persistent source and the source's next
+    plot seed a fast track (300 m/s) whose velocity then decays for minutes while the
+    source keeps it alive; the map knows the source's cell."""
+    tracker = LocalTracker(TrackerConfig(scan_period_s=PERIOD, association=association))
+    assert tracker.clutter is not None
+    source = np.array([30e3]), np.array([200.0])  # the middle of an azimuth cell
+    for k in range(60):
+        tracker.clutter.learn(*source, np.array([T0 + k * PERIOD]))
+    rng = np.random.default_rng(9)
+    rows = [_plot(T0 + 60 * PERIOD, 30e3 - 1200.0, 200.0)]
+    for k in range(61, 100):
+        rows.append(_plot(T0 + k * PERIOD, *(c[0] + rng.normal(0, 30) for c in source)))
+    out = np.concatenate([tracker.process(b) for b in _batches(rows)])
+    assert np.count_nonzero(out["plot_id"] >= 0) > 30  # the seed did become a track
+    assert not np.any(out["status"] == CONFIRMED)

@@ -94,6 +94,7 @@ def _table_dtype(n_models: int) -> np.dtype[Any]:
             ("due", np.float64),
             ("dense_seed", np.bool_),  # seeded in a dense clutter cell: more hits to confirm
             ("secondary", np.bool_),  # some plot of the track had a secondary reply
+            ("clutter_cell", np.int64),  # the clutter map's cell of the latest plot
         ]
     )
 
@@ -348,6 +349,20 @@ class LocalTracker:
             )
         return pairs
 
+    def _in_clutter(self, ti: IntArray, p: PlotArrays) -> BoolArray:
+        """Which tracks ``ti`` got their plot ``p`` in a dense clutter cell, the cell of
+        their previous plot too; every track's cell recorded. A primary-only track stuck
+        there is held tentative: the plots of a persistent source keep a track alive
+        whose first velocity, made of a plot near the site (ground range uncertain by
+        kilometres) and the source, decays for minutes (tma: one lived 90 scans), while
+        an aircraft crosses a 1 NM by 1 degree cell in a few scans."""
+        if self.clutter is None:
+            return np.zeros(ti.shape, dtype=bool)
+        cell = self.clutter.cells(p.x, p.y)
+        stuck = (cell == self._cols["clutter_cell"][ti]) & self.clutter.dense(p.x, p.y)
+        self._cols["clutter_cell"][ti] = cell
+        return np.asarray(stuck)
+
     def _learn_clutter(self, p: PlotArrays, rows: list[npt.NDArray[Any]]) -> None:
         """Teach the clutter map the batch's plots that no confirmed track took."""
         if self.clutter is None:
@@ -393,9 +408,10 @@ class LocalTracker:
         # A confirmed track without any secondary reply that has slowed to clutter speed
         # goes back to tentative: its first, noisy velocity may have passed the speed test.
         primary_only = (address < 0) & (mode3a < 0)
+        stuck = self._in_clutter(ti, p)
         if primary_only.any():
             speed = np.hypot(xc[:, 2], xc[:, 3])
-            slow = primary_only & (speed < cfg.min_confirm_speed_psr_only_m_s)
+            slow = primary_only & ((speed < cfg.min_confirm_speed_psr_only_m_s) | stuck)
             status[slow & (status == CONFIRMED)] = TENTATIVE
         cols["status"][ti] = status
         return self._rows(ti, time, status, p.plot_id, mu_new, xc, pc)
@@ -597,6 +613,9 @@ class LocalTracker:
         cols["secondary"][new] = secondary_reply(
             first.typ, first.address, first.mode3a
         ) | secondary_reply(second.typ, second.address, second.mode3a)
+        cols["clutter_cell"][new] = (
+            -1 if self.clutter is None else self.clutter.cells(second.x, second.y)
+        )
         cols["dense_seed"][new] = (
             False
             if self.clutter is None
