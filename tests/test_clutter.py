@@ -182,3 +182,24 @@ def test_a_fast_seed_on_a_persistent_source_is_never_confirmed(association: str)
     out = np.concatenate([tracker.process(b) for b in _batches(rows)])
     assert np.count_nonzero(out["plot_id"] >= 0) > 30  # the seed did become a track
     assert not np.any(out["status"] == CONFIRMED)
+
+
+def test_a_plot_a_track_takes_in_good_part_starts_no_track() -> None:
+    """JPDA: two plots around one primary-only track's prediction (a second aircraft
+    joining it, or a split) are both in its mixture; neither waits for initiation."""
+    tracker = LocalTracker(TrackerConfig(scan_period_s=PERIOD, association="jpda"))
+    rows = [_plot(T0 + k * PERIOD, 30e3 + 200.0 * k * PERIOD, 10e3) for k in range(10)]
+    t = T0 + 10 * PERIOD
+    x = 30e3 + 200.0 * 10 * PERIOD
+    rows += [_plot(t, x, 10e3 - 90.0), _plot(t + 0.01, x, 10e3 + 90.0)]
+    batches = _batches(rows)
+    out = np.concatenate([tracker.process(b) for b in batches])
+    assert np.any(out["status"] == CONFIRMED)
+    last = batches[-1]["plot_id"]
+    assert len(last) == 2
+    assert not np.isin(tracker.initiator.pending.plot_id, last).any()
+    # The first plots of a target of its own, far from every track, do wait.
+    lone = np.array([_plot(t + PERIOD, 60e3, -20e3)], dtype=PLOT_DTYPE)
+    lone["plot_id"] = 999
+    tracker.process(lone)
+    assert 999 in tracker.initiator.pending.plot_id

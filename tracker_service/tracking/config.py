@@ -118,6 +118,11 @@ class TrackerConfig:
     """Density of plots that are nobody's (clutter, new targets) in the JPDA likelihood:
     a plot at the edge of a 100 m gate is as likely a track's as clutter's at about
     0.01 per km^2, so a lone good pair keeps nearly all its weight."""
+    initiation_max_weight: float = 0.2
+    """With weighted association (JPDA), a plot that some track takes with at least this
+    weight is that track's (in its mixture) and starts no track: the third aircraft of
+    three abreast 1 km apart, whose plots a neighbour's mixture takes with a few per
+    cent, still does."""
     jpda_max_events: int = 5000
     """A cluster is enumerated exactly when the product of its tracks' options (gated
     plots + the miss) is at most this; beyond, ``jpda_k_best`` events are ranked."""

@@ -313,6 +313,11 @@ class LocalTracker:
             used[plot_index] = True
         else:
             posterior = weighted_update(pairs, weighted, np.column_stack([p.x, p.y]), p.R)
+            # Nor does a plot that a track's mixture takes in good part: left to the
+            # initiator, it pairs with the next scan's left-over plot of the other
+            # aircraft (the swaps of primary-only encounters, docs/association.md).
+            shared = weighted.weight >= self.config.initiation_max_weight
+            blocked[pairs.plot[weighted.pair[shared]]] = True
             sel = posterior.reported
             tracks, plot_index = posterior.track, pairs.plot[sel]
             # A plot goes to initiation unless it is a track's most likely plot: blocking
