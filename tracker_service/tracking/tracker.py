@@ -369,11 +369,15 @@ class LocalTracker:
         return np.asarray(stuck)
 
     def _learn_clutter(self, p: PlotArrays, rows: list[npt.NDArray[Any]]) -> None:
-        """Teach the clutter map the batch's plots that no confirmed track took."""
+        """Teach the clutter map the batch's plots that no confirmed track took, and the
+        primary-only plots: a clutter track confirmed before the map knew its cell
+        (early in a run) would otherwise hide its source from the map for good, while
+        a primary-only aircraft adds one plot to each cell it crosses."""
         if self.clutter is None:
             return
         taken = [r["plot_id"][r["status"] == CONFIRMED] for r in rows]
-        free = ~np.isin(p.plot_id, np.concatenate(taken)) if taken else slice(None)
+        free = ~np.isin(p.plot_id, np.concatenate(taken)) if taken else np.ones(len(p), bool)
+        free |= ~secondary_reply(p.typ, p.address, p.mode3a)
         self.clutter.learn(p.x[free], p.y[free], p.time[free])
 
     def _apply(
@@ -544,6 +548,10 @@ class LocalTracker:
         speed_sigma = np.sqrt(np.einsum("ni,nij,nj->n", direction, pv, direction))
         lowest = speed - CONFIRM_SPEED_SIGMAS * speed_sigma
         slow = primary_only & (lowest < self.config.min_confirm_speed_psr_only_m_s)
+        if self.clutter is not None:
+            # Nor a primary-only track in a dense clutter cell: a persistent source
+            # repeats its plots there, evidence of nothing (``_in_clutter``).
+            slow |= primary_only & self.clutter.dense(xc[:, 0], xc[:, 1])
         # Nor is a track confirmed that is surely faster than any aircraft.
         impossible = lowest > self.config.max_speed_m_s
         confirmed = candidates[~clash & ~slow & ~impossible]
