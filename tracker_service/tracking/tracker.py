@@ -348,10 +348,14 @@ class LocalTracker:
                 return None
             pairs = pairs.take(np.flatnonzero(~refused))
         if self.clutter is not None:
+            # Clutter has no secondary reply: against a plot with one, the density of
+            # others is the floor (new targets), whatever the cell (tma seed 2: an
+            # aircraft's plots weighed against a dense cell lost their track).
             j = pairs.plot
-            pairs = dataclasses.replace(
-                pairs, clutter_density=self.clutter.density_per_m2(p.x[j], p.y[j])
-            )
+            density = self.clutter.density_per_m2(p.x[j], p.y[j])
+            reply = secondary_reply(p.typ[j], p.address[j], p.mode3a[j])
+            floor = self.config.clutter_density_per_km2 * 1e-6
+            pairs = dataclasses.replace(pairs, clutter_density=np.where(reply, floor, density))
         return pairs
 
     def _in_clutter(self, ti: IntArray, p: PlotArrays) -> BoolArray:
