@@ -516,14 +516,18 @@ class RadarStage:
             period = self.clock.antenna_period(sac, sic) or 5.0  # from its north markers
             info = RadarInfo(source, site, period, 50.0, 0.07, 50.0, 0.07, surveyed=False)
             plane = SystemPlane(site.lat_deg, site.lon_deg, plane.kind)
-        overrides = {"scan_period_s": info.period_s, **self._tracker_overrides}
+        site_xy = np.array(
+            plane.from_geodetic(info.site.lat_deg, info.site.lon_deg, info.site.alt_m), dtype=float
+        )
+        overrides = {
+            "scan_period_s": info.period_s,
+            "clutter_origin_m": (float(site_xy[0]), float(site_xy[1])),
+            **self._tracker_overrides,
+        }
         config = TrackerConfig(**overrides)
         index = self.sources.index(source) if info.surveyed else None
         fixed = FixedTargets(
             info.site, plane, info.period_s, info.fixed_transponders, self.fixed_targets
-        )
-        site_xy = np.array(
-            plane.from_geodetic(info.site.lat_deg, info.site.lon_deg, info.site.alt_m), dtype=float
         )
         tracker = self._make_tracker(source, config)
         state = RadarState(info, plane, config, tracker, index, fixed, site_xy)

@@ -27,17 +27,38 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     # Only confirmed local tracks feed system tracks: one that its tracker took back
     # to tentative (a slow primary-only track: clutter) leaves its system track.
     demoted = live[(loc["system"][live] > 0) & (loc["status"][live] == LOCAL_TENTATIVE)]
-    loc["system"][demoted] = 0
+    _leave(state, demoted)
     live = live[loc["status"][live] != LOCAL_TENTATIVE]
     held = live[loc["system"][live] > 0]
     d2 = distance(state, estimator, held, loc["system"][held])
     fails = np.where(d2 <= cfg.gate, 0, loc["fails"][held] + 1)
     loc["fails"][held] = fails
-    lost = held[fails >= cfg.reassociate_after]
-    loc["system"][lost] = 0
-    loc["fails"][lost] = 0
+    inconsistent = _consistency(state, held, d2)
+    lost = held[(fails >= cfg.reassociate_after) | inconsistent]
+    _leave(state, lost)
     state.stats.reassociations += int(lost.size)
     return live
+
+
+def _consistency(state: FusionState, held: IntArray, d2: FloatArray) -> BoolArray:
+    """The consistency test of the local tracks ``held`` in their system tracks, given
+    this update's distances: which fail it (see ``FusionConfig.reassociate_kappa``)."""
+    cfg, loc = state.config, state.local.rows
+    n = loc["nis_n"][held] + 1
+    mean = loc["nis_mean"][held]
+    mean += (d2 - mean) / np.minimum(n, cfg.reassociate_window)
+    loc["nis_n"][held], loc["nis_mean"][held] = n, mean
+    dof = 4
+    return np.asarray((n >= cfg.reassociate_window) & (mean > cfg.reassociate_kappa * dof))
+
+
+def _leave(state: FusionState, rows: IntArray) -> None:
+    """The local tracks ``rows`` leave their system tracks, their tests restarted."""
+    loc = state.local.rows
+    loc["system"][rows] = 0
+    loc["fails"][rows] = 0
+    loc["nis_n"][rows] = 0
+    loc["nis_mean"][rows] = 0.0
 
 
 def assign(

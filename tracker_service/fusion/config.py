@@ -57,6 +57,15 @@ class FusionConfig:
     to ``references``; None: 2 x ``longest_period_s``."""
     reassociate_after: int = 3
     """Consecutive gate failures after which a local track leaves its system track."""
+    reassociate_kappa: float = 3.0
+    """The consistency test of a local track in its system track: once the running mean
+    of its 4-dof distance over ``reassociate_window`` updates exceeds kappa times the dof
+    (the literature's trigger, kappa 2-5), it leaves the system track and is associated
+    again. It catches a wrongly joined local track that stays inside the gate but
+    consistently off (an aircraft 1 km abeam), which the gate's failures never do."""
+    reassociate_window: int = 5
+    """Updates of the consistency test's mean (the first ones a running mean, then an
+    exponential one of this length); the test waits until it is full."""
     found_delay_s: float | None = None
     """How long a confirmed local track whose address or Mode 3/A code a live system track
     carries waits to join it before founding its own; None: 2 x ``longest_period_s``."""
@@ -116,6 +125,11 @@ class FusionConfig:
             raise ValueError(f"implementation {self.implementation!r}: use 'compiled' or 'numpy'")
         if self.merge_after < 1:
             raise ValueError(f"merge_after must be >= 1, not {self.merge_after!r}")
+        if self.reassociate_kappa <= 0 or self.reassociate_window < 1:
+            raise ValueError(
+                "reassociate_kappa must be > 0 (2-5) and reassociate_window >= 1, not "
+                f"{self.reassociate_kappa!r}, {self.reassociate_window!r}"
+            )
         if self.reassociate_after < 1:
             raise ValueError(f"reassociate_after must be >= 1, not {self.reassociate_after!r}")
         if self.number_reuse_delay_s < 0:

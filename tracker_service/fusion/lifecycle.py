@@ -79,6 +79,7 @@ def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -
     sys["mu"][numbers] = np.where(known[:, None], mu, state.models.initial_probabilities)
     loc["system"][founders] = numbers
     loc["fails"][founders] = 0
+    loc["nis_n"][founders] = 0
     loc["t_founder"][founders] = np.nan
     state.stats.system_tracks_created += int(numbers.size)
     return numbers
@@ -97,6 +98,7 @@ def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> 
     loc["system"][joined] = target
     state.sys["solo"][target] = False
     loc["fails"][joined] = 0
+    loc["nis_n"][joined] = 0  # the consistency test starts again (associate._consistency)
     loc["t_founder"][joined] = np.nan
     state.sys["t_plot"][target] = np.maximum(state.sys["t_plot"][target], loc["t_plot"][joined])
 

@@ -42,6 +42,8 @@ def local_dtype(n_models: int) -> np.dtype[Any]:
             ("address", np.int64),
             ("mode3a", np.int64),
             ("fails", np.int64),
+            ("nis_mean", np.float64),  # consistency test: mean distance to its system track
+            ("nis_n", np.int64),  # updates in that mean since it joined
             ("t_founder", np.float64),  # first time it could have founded a system track
             ("mu", np.float64, (n_models,)),  # its model probabilities (0: not known)
         ]

@@ -132,6 +132,11 @@ class TrackerConfig:
     """Density of plots that are nobody's (clutter, new targets) in the JPDA likelihood:
     a plot at the edge of a 100 m gate is as likely a track's as clutter's at about
     0.01 per km^2, so a lone good pair keeps nearly all its weight."""
+    initiation_max_weight: float = 0.2
+    """With weighted association (JPDA), a plot that some track takes with at least this
+    weight is that track's (in its mixture) and starts no track: the third aircraft of
+    three abreast 1 km apart, whose plots a neighbour's mixture takes with a few per
+    cent, still does."""
     jpda_max_events: int = 5000
     """A cluster is enumerated exactly when the product of its tracks' options (gated
     plots + the miss) is at most this; beyond, ``jpda_k_best`` events are ranked."""
@@ -167,6 +172,29 @@ class TrackerConfig:
     reach after every scan, and no cluster ever ended)."""
     mht_max_cluster_tracks: int = 6
     """A component of more tracks is left to GNN: the cost of branching stays bounded."""
+    clutter_map: bool = True
+    """Learn a clutter map (``tracking.clutter``) from the plots of no confirmed track:
+    tracks seeded in its dense cells need ``clutter_extra_hits`` more hits to be
+    confirmed, and JPDA weighs each pair against its cell's density."""
+    clutter_origin_m: tuple[float, float] = (0.0, 0.0)
+    """The radar's site in the system plane: the centre of the map's cells (the radar
+    stage sets it from the radar's configured site)."""
+    clutter_range_cell_m: float = 1852.0
+    clutter_azimuth_cell_deg: float = 1.0
+    """1 NM by 1 degree: about the extent of one persistent clutter source, and a cell
+    an aircraft crosses in a few scans, so that it adds little to any one cell."""
+    clutter_max_range_m: float = 600_000.0
+    clutter_time_constant_s: float = 300.0
+    """Memory of the map: long against a scan, so that a persistent source counts as
+    such after a minute, short against the hours over which clutter changes (weather,
+    anaprop)."""
+    clutter_dense_per_scan: float = 0.2
+    """A cell holding more plots of no confirmed track per scan than this is dense: a
+    persistent source (seen in most scans) is well above it; random clutter and aircraft
+    crossing the cell, far below."""
+    clutter_extra_hits: int = 3
+    """Extra hits (in a window as much longer) a track seeded in a dense cell needs to be
+    confirmed: 3 of 4 becomes 6 of 7."""
     implementation: str = "compiled"
     """The code of the filters (the IMM, the vertical filter): "compiled"
     (``tracking.kernels``, numba) or "numpy" (the plain reference: ``tracking.imm`` and
@@ -207,6 +235,18 @@ class TrackerConfig:
         for name in ("dap_speed_sigma_m_s", "dap_track_sigma_deg", "dap_turn_rate_sigma_deg_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
+        if not 0 <= self.clutter_extra_hits <= 32 - self.confirm_n:
+            raise ValueError(f"clutter_extra_hits must be in [0, {32 - self.confirm_n}]")
+        if (
+            min(
+                self.clutter_range_cell_m,
+                self.clutter_azimuth_cell_deg,
+                self.clutter_max_range_m,
+                self.clutter_time_constant_s,
+            )
+            <= 0
+        ):
+            raise ValueError("the clutter map's cells, range and time constant must be positive")
         if self.implementation not in ("compiled", "numpy"):
             raise ValueError(f"implementation {self.implementation!r}: use 'compiled' or 'numpy'")
 

@@ -7,6 +7,7 @@ updated and the tracks aged; the only Python loops run over the IMM's models.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,6 +25,11 @@ from tracker_service.tracking.association import (
 )
 from tracker_service.tracking.association.mht import Branch, branch_states
 from tracker_service.tracking.clock import DataClock
+from tracker_service.tracking.clutter import (
+    make_clutter_map,
+    primary_seed_takes_reply,
+    secondary_reply,
+)
 from tracker_service.tracking.config import TrackerConfig
 from tracker_service.tracking.daps import DapUpdate
 from tracker_service.tracking.initiate import TwoPointInitiator, two_point_state
@@ -94,6 +100,9 @@ def _table_dtype(n_models: int) -> np.dtype[Any]:
             ("fl_rejects", np.int64),
             # Before this time no further scan can count as missed (see _age).
             ("due", np.float64),
+            ("dense_seed", np.bool_),  # seeded in a dense clutter cell: more hits to confirm
+            ("secondary", np.bool_),  # some plot of the track had a secondary reply
+            ("clutter_cell", np.int64),  # the clutter map's cell of the latest plot
         ]
     )
 
@@ -155,9 +164,16 @@ class LocalTracker:
         self._held: list[PlotArrays] = []
         """The out-of-line plots of the current run of batches, counted when dropped."""
         self._now = -np.inf
-        self._hist_mask = (1 << self.config.confirm_n) - 1
+        self.clutter = make_clutter_map(self.config)
+        """The radar's clutter map (``tracking.clutter``), None when configured off."""
+        extra = self.config.clutter_extra_hits if self.clutter is not None else 0
+        self._hist_mask = (1 << (self.config.confirm_n + extra)) - 1
+        self._window_mask = (1 << self.config.confirm_n) - 1
+        self._dense_window_mask = self._hist_mask
         self.gate = Gate(self.config, self.models, self.imm)
         self.associator = make_associator(self.config)
+        if self.clutter is not None and isinstance(self.associator, MultipleHypothesisTracking):
+            self.associator.clutter_density = self._clutter_density
         self._scan_tolerance_s = (1.0 + self.config.miss_tolerance) * self.config.scan_period_s
         self._vertical_q = np.array(self.config.vertical_q, dtype=np.float64)
         self._vertical_sojourn = np.array(self.config.vertical_sojourn_s, dtype=np.float64)
@@ -278,6 +294,7 @@ class LocalTracker:
         rows: list[npt.NDArray[Any]] = []
 
         used, blocked, updated = self._associate(p, rows)
+        self._learn_clutter(p, rows)
         # A copy: the initiator keeps plots across batches, never the caller's array.
         first, second = self.initiator.pair(p.take(~used & ~blocked), now)
         if len(second):
@@ -303,6 +320,8 @@ class LocalTracker:
         too_old = gated.too_old
         blocked |= too_old
         pairs = gated.pairs
+        if pairs is not None:
+            pairs = self._screen(pairs, p)
         if pairs is None:
             self.stats.late_plots_dropped += int(np.count_nonzero(too_old))
             return used, blocked, updated
@@ -317,6 +336,11 @@ class LocalTracker:
             used[plot_index] = True
         else:
             posterior = weighted_update(pairs, weighted, np.column_stack([p.x, p.y]), p.R)
+            # Nor does a plot that a track's mixture takes in good part: left to the
+            # initiator, it pairs with the next scan's left-over plot of the other
+            # aircraft (the swaps of primary-only encounters, docs/association.md).
+            shared = weighted.weight >= self.config.initiation_max_weight
+            blocked[pairs.plot[weighted.pair[shared]]] = True
             sel = posterior.reported
             tracks, plot_index = posterior.track, pairs.plot[sel]
             # A plot goes to initiation unless it is a track's most likely plot: blocking
@@ -380,6 +404,60 @@ class LocalTracker:
         cols["t"][ti] = [b.t for b in leaves]
         cols["address"][ti] = [b.address for b in leaves]
         cols["mode3a"][ti] = [b.mode3a for b in leaves]
+    def _screen(self, pairs: GatedPairs, p: PlotArrays) -> GatedPairs | None:
+        """The gated pairs an associator may weigh, with the clutter map's density at their
+        plots: a tentative track seeded only by primary plots takes no plot with a
+        secondary reply (``clutter.primary_seed_takes_reply``)."""
+        cols = self._cols
+        t, j = pairs.track, pairs.plot
+        refused = (cols["status"][t] == TENTATIVE) & primary_seed_takes_reply(
+            cols["secondary"][t], secondary_reply(p.typ[j], p.address[j], p.mode3a[j])
+        )
+        if refused.any():
+            if refused.all():
+                return None
+            pairs = pairs.take(np.flatnonzero(~refused))
+        if self.clutter is not None:
+            density = self._clutter_density(p.take(pairs.plot))
+            pairs = dataclasses.replace(pairs, clutter_density=density)
+        return pairs
+
+    def _clutter_density(self, p: PlotArrays) -> FloatArray:
+        """The clutter map's density (per m^2) at each plot, for JPDA's and MHT's
+        likelihoods. Clutter has no secondary reply: against a plot with one, the density
+        of others is the floor (new targets), whatever the cell (tma seed 2: an aircraft's
+        plots weighed against a dense cell lost their track)."""
+        assert self.clutter is not None
+        density = self.clutter.density_per_m2(p.x, p.y)
+        reply = secondary_reply(p.typ, p.address, p.mode3a)
+        floor = self.config.clutter_density_per_km2 * 1e-6
+        return np.asarray(np.where(reply, floor, density), dtype=np.float64)
+
+    def _in_clutter(self, ti: IntArray, p: PlotArrays) -> BoolArray:
+        """Which tracks ``ti`` got their plot ``p`` in a dense clutter cell, the cell of
+        their previous plot too; every track's cell recorded. A primary-only track stuck
+        there is held tentative: the plots of a persistent source keep a track alive
+        whose first velocity, made of a plot near the site (ground range uncertain by
+        kilometres) and the source, decays for minutes (tma: one lived 90 scans), while
+        an aircraft crosses a 1 NM by 1 degree cell in a few scans."""
+        if self.clutter is None:
+            return np.zeros(ti.shape, dtype=bool)
+        cell = self.clutter.cells(p.x, p.y)
+        stuck = (cell == self._cols["clutter_cell"][ti]) & self.clutter.dense(p.x, p.y)
+        self._cols["clutter_cell"][ti] = cell
+        return np.asarray(stuck)
+
+    def _learn_clutter(self, p: PlotArrays, rows: list[npt.NDArray[Any]]) -> None:
+        """Teach the clutter map the batch's plots that no confirmed track took, and the
+        primary-only plots: a clutter track confirmed before the map knew its cell
+        (early in a run) would otherwise hide its source from the map for good, while
+        a primary-only aircraft adds one plot to each cell it crosses."""
+        if self.clutter is None:
+            return
+        taken = [r["plot_id"][r["status"] == CONFIRMED] for r in rows]
+        free = ~np.isin(p.plot_id, np.concatenate(taken)) if taken else np.ones(len(p), bool)
+        free |= ~secondary_reply(p.typ, p.address, p.mode3a)
+        self.clutter.learn(p.x[free], p.y[free], p.time[free])
 
     def _apply(
         self,
@@ -417,14 +495,16 @@ class LocalTracker:
         else:
             hist, address, mode3a = self._record_updates(ti, p, step)
         self._update_vertical(ti, p)
+        cols["secondary"][ti] |= secondary_reply(p.typ, p.address, p.mode3a)
         status = cols["status"][ti]
         self._confirm(ti, status, hist)  # after every other field is written
         # A confirmed track without any secondary reply that has slowed to clutter speed
         # goes back to tentative: its first, noisy velocity may have passed the speed test.
         primary_only = (address < 0) & (mode3a < 0)
+        stuck = self._in_clutter(ti, p)
         if primary_only.any():
             speed = np.hypot(xc[:, 2], xc[:, 3])
-            slow = primary_only & (speed < cfg.min_confirm_speed_psr_only_m_s)
+            slow = primary_only & ((speed < cfg.min_confirm_speed_psr_only_m_s) | stuck)
             status[slow & (status == CONFIRMED)] = TENTATIVE
         cols["status"][ti] = status
         return self._rows(ti, time, status, p.plot_id, mu_new, xc, pc)
@@ -555,12 +635,15 @@ class LocalTracker:
         (clutter), and for a track surely faster than ``max_speed_m_s``. ``ti``: the
         tracks to confirm, every field but ``status`` already written; ``status``: theirs
         (changed in place)."""
+        cols = self._cols
+        dense = cols["dense_seed"][ti]
+        extra = self.config.clutter_extra_hits
+        hits = np.bitwise_count(hist & np.where(dense, self._dense_window_mask, self._window_mask))
         candidates = np.flatnonzero(
-            (status == TENTATIVE) & (np.bitwise_count(hist) >= self.config.confirm_m)
+            (status == TENTATIVE) & (hits >= self.config.confirm_m + np.where(dense, extra, 0))
         )
         if candidates.size == 0:
             return
-        cols = self._cols
         n = self._n
         live = np.flatnonzero(
             (cols["status"][:n] == CONFIRMED)
@@ -582,6 +665,10 @@ class LocalTracker:
         speed_sigma = np.sqrt(np.einsum("ni,nij,nj->n", direction, pv, direction))
         lowest = speed - CONFIRM_SPEED_SIGMAS * speed_sigma
         slow = primary_only & (lowest < self.config.min_confirm_speed_psr_only_m_s)
+        if self.clutter is not None:
+            # Nor a primary-only track in a dense clutter cell: a persistent source
+            # repeats its plots there, evidence of nothing (``_in_clutter``).
+            slow |= primary_only & self.clutter.dense(xc[:, 0], xc[:, 1])
         # Nor is a track confirmed that is surely faster than any aircraft.
         impossible = lowest > self.config.max_speed_m_s
         confirmed = candidates[~clash & ~slow & ~impossible]
@@ -653,6 +740,17 @@ class LocalTracker:
         cols["t_fl"][new] = 0.0
         cols["fl_ok"][new] = False
         cols["fl_rejects"][new] = 0
+        cols["secondary"][new] = secondary_reply(
+            first.typ, first.address, first.mode3a
+        ) | secondary_reply(second.typ, second.address, second.mode3a)
+        cols["clutter_cell"][new] = (
+            -1 if self.clutter is None else self.clutter.cells(second.x, second.y)
+        )
+        cols["dense_seed"][new] = (
+            False
+            if self.clutter is None
+            else self.clutter.dense(first.x, first.y) | self.clutter.dense(second.x, second.y)
+        )
         self._update_vertical(new, first)
         self._update_vertical(new, second)
         self.stats.tracks_initiated += k

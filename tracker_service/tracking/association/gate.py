@@ -45,9 +45,25 @@ class GatedPairs:
     log_det: FloatArray
     identity_cost: FloatArray
     pred: imm.ImmPrediction
+    clutter_density: FloatArray | None = None
+    """The density (per m^2 and scan) of plots that are nobody's at each pair's plot, from
+    the radar's clutter map (``tracking.clutter``); None: the configured constant."""
 
     def __len__(self) -> int:
         return int(self.track.size)
+
+    def take(self, index: IntArray) -> GatedPairs:
+        """The pairs ``index`` (indices or a mask)."""
+        density = self.clutter_density
+        return GatedPairs(
+            track=self.track[index],
+            plot=self.plot[index],
+            nis=self.nis[index],
+            log_det=self.log_det[index],
+            identity_cost=self.identity_cost[index],
+            pred=self.pred.take(index),
+            clutter_density=None if density is None else density[index],
+        )
 
     @property
     def cost(self) -> FloatArray:

@@ -3,7 +3,8 @@
 Over each cluster of tracks that share gated plots, the feasible joint events (each plot
 to at most one track or to clutter, each track at most one plot) are weighted by the
 product of their pairs' likelihood ratios against clutter (Pd times the Gaussian density
-of the innovation times the identity ratio, over the clutter density) and 1 - Pd for each
+of the innovation times the identity ratio, over the clutter density: the clutter map's at
+the plot, or the configured constant) and 1 - Pd for each
 missed track, then normalised; a pair's weight is the sum over the events holding it.
 
 Coalescence: two tracks close together, each with its plot, get from plain JPDA the two
@@ -45,10 +46,16 @@ class JointProbabilisticDataAssociation:
         self.config = config
         pd = config.detection_probability
         self.log_miss = math.log(1.0 - pd)
+        self.log_pd = math.log(pd)
         self.log_pd_over_clutter = math.log(pd) - math.log(config.clutter_density_per_km2 * 1e-6)
 
     def associate(self, pairs: GatedPairs) -> WeightedPairs:
-        score = pairs.log_likelihood + self.log_pd_over_clutter
+        if pairs.clutter_density is None:
+            score = pairs.log_likelihood + self.log_pd_over_clutter
+        else:
+            # The clutter map's density at each plot: a plot in a dense cell is more
+            # likely nobody's, and weighs less for any track.
+            score = pairs.log_likelihood + self.log_pd - np.log(pairs.clutter_density)
         _, t_idx = np.unique(pairs.track, return_inverse=True)
         _, p_idx = np.unique(pairs.plot, return_inverse=True)
         nt, npl = int(t_idx.max()) + 1, int(p_idx.max()) + 1
