@@ -404,6 +404,7 @@ class LocalTracker:
         cols["t"][ti] = [b.t for b in leaves]
         cols["address"][ti] = [b.address for b in leaves]
         cols["mode3a"][ti] = [b.mode3a for b in leaves]
+
     def _screen(self, pairs: GatedPairs, p: PlotArrays) -> GatedPairs | None:
         """The gated pairs an associator may weigh, with the clutter map's density at their
         plots: a tentative track seeded only by primary plots takes no plot with a
