@@ -257,7 +257,7 @@ def test_canal_a_cat001_radar(assessed: Callable[[Path], Assessed]) -> None:
     targets_seen, as they share the code) are kept out from their first plot and publish no
     track (issue 10 finding 4). A lone radar's system tracks follow its local tracks, so
     both sets have the same per-code figures: code 5001, flying FL 120-180 with no plot gap
-    over 12 s for 22 minutes, gets 13 tracks (23 breaks in all). The recording runs once
+    over 12 s for 22 minutes, gets 13 tracks (24 breaks in all). The recording runs once
     for the module (``assessed``): about 130 s of CPU, nearly all in the chain (one plot
     per CAT001 datagram)."""
     result, doc = _with_plots(assessed, _recording("reader_network/canalA.gps"))
@@ -282,7 +282,9 @@ def test_canal_a_cat001_radar(assessed: Callable[[Path], Assessed]) -> None:
         codes = m["per_mode3a"]
         assert codes["identities"] == 134, name
         assert codes["tracks_per_identity"] < 1.8, name  # 1.72, local and system
-        assert codes["breaks"] <= 23, name  # 23, local and system
+        # 24, local and system: 23 before the height band of plots without Mode C
+        # (geodesy.unknown_height) inflated their covariance along the range.
+        assert codes["breaks"] <= 24, name
         assert m["speed_kt"]["max"] < 650, name  # 603 kt
         assert m["jump_m"]["over_1_nm"] == 0, name  # largest 0.79 NM
         assert m["nis"]["share_over_99"] < 0.01, name

@@ -49,11 +49,6 @@ def test_three_sites_targets_met(three_sites: dict[str, dict[str, Any]]) -> None
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 14's NEES window 0.8-1.25 x dof: 25/12's local tracks measure 1.599 for dof "
-    "2 (under-confident by a hair; 25/11 and 25/13 are inside); docs/fusion.md 'Evaluation'",
-)
 def test_three_sites_local_nees_in_the_window(three_sites: dict[str, dict[str, Any]]) -> None:
     for radar, local in three_sites["local"].items():
         assert nees_in_window(local["nees_mean"], local["nees_dof"]), radar

@@ -49,7 +49,10 @@ def _consistency(state: FusionState, held: IntArray, d2: FloatArray) -> BoolArra
     mean += (d2 - mean) / np.minimum(n, cfg.reassociate_window)
     loc["nis_n"][held], loc["nis_mean"][held] = n, mean
     dof = 4
-    return np.asarray((n >= cfg.reassociate_window) & (mean > cfg.reassociate_kappa * dof))
+    # A system track its founding local track alone has fed follows that track: there is
+    # nothing to be inconsistent with (a lone radar's tracks, canalA).
+    solo = state.sys["solo"][loc["system"][held]]
+    return np.asarray((n >= cfg.reassociate_window) & (mean > cfg.reassociate_kappa * dof) & ~solo)
 
 
 def _leave(state: FusionState, rows: IntArray) -> None:

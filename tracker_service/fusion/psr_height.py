@@ -262,7 +262,7 @@ class PsrHeights:
             if last is not None:
                 j, used, number = last
                 entry = self.systems.get(number) if number > 0 else None
-                if entry is not None:
+                if entry is not None and entry.measurements > 0:
                     shift = j * (entry.height_m - used)
                     local["x"][k] += shift[0]
                     local["y"][k] += shift[1]
@@ -291,16 +291,26 @@ class PsrHeights:
         for m, k in enumerate(picked.tolist()):
             number = int(systems[k])
             entry = self._system(number, radar, float(plots["time"][m])) if number > 0 else None
-            if entry is not None:
+            # Until another radar has measured it, the estimate is the band's prior: the
+            # plot stays where its radar stage put it (the band's equivalent height; a
+            # lone radar's system tracks follow its local tracks, canalA).
+            if entry is not None and entry.measurements > 0:
                 height[m], variance[m] = entry.height_m, entry.variance_m2
             entries.append(entry)
+        measured = np.array([e is not None and e.measurements > 0 for e in entries], dtype=bool)
         xy, r, j = self._convert(radar, plots, height)
         shift = xy - np.column_stack([plots["x"], plots["y"]])
+        shift[~measured] = 0.0
         local["x"][picked] += shift[:, 0]
         local["y"][picked] += shift[:, 1]
-        extra[picked] = variance[:, None, None] * j[:, :, None] * j[:, None, :]
+        # The height's error as a consider term only where the estimate is the system's:
+        # before, the band's spread is in the plot's own covariance already.
+        extra[picked] = np.where(measured, variance, 0.0)[:, None, None] * (
+            j[:, :, None] * j[:, None, :]
+        )
         keys = [(radar, int(t)) for t in local["track_number"][picked].tolist()]
-        rate = self._shift_rates(radar, keys, plots, shift, height)
+        # Unmeasured, the plot is not moved, and neither is its velocity.
+        rate = self._shift_rates(radar, keys, plots, shift, height) * measured[:, None]
         local["vx"][picked] += rate[:, 0]
         local["vy"][picked] += rate[:, 1]
         # The rate is first order and lags the geometry: as uncertain as it is large
@@ -312,7 +322,8 @@ class PsrHeights:
         local["P"][picked] = p.reshape(n, 16)
         at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
         for m in range(n):
-            if at[m] < len(tracked) and tracked["plot_id"][at[m]] == plots["plot_id"][m]:
+            found = at[m] < len(tracked) and tracked["plot_id"][at[m]] == plots["plot_id"][m]
+            if found and measured[m]:
                 tracked["x"][at[m]] += shift[m, 0]
                 tracked["y"][at[m]] += shift[m, 1]
                 tracked["R"][at[m]] = r[m]

@@ -142,9 +142,13 @@ class TrackerConfig:
     plots + the miss) is at most this; beyond, ``jpda_k_best`` events are ranked."""
     jpda_k_best: int = 64
     """The most likely joint events (Murty's ranking) kept for a large cluster."""
-    use_daps: bool = True
+    use_daps: bool = False
     """Mode S DAPs (BDS 5,0) in the horizontal filter: the velocity as a measurement and
-    the turn rate as evidence for the turn models (``tracking.daps``)."""
+    the turn rate as evidence for the turn models (``tracking.daps``), and the BDS 6,0
+    vertical rates and BDS 4,0 selected altitude in the vertical one. Off by default for
+    now: on three_sites they cut the local RMS by a third but add local tracks (25/12:
+    1.051 tracks per aircraft against 1.026 without, over the 1.05 target), not yet
+    understood; docs/tracking.md "Mode S DAPs"."""
     dap_speed_sigma_m_s: float = 1.0
     """Along-track sigma of the BDS 5,0 velocity: 2 kt steps, the avionics' error and
     speed changes over the register's age."""
