@@ -11,9 +11,10 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from tracker_service.tracking import CONFIRMED, PLOT_DTYPE, LocalTracker, TrackerConfig
+from tracker_service.tracking import CONFIRMED, LocalTracker, TrackerConfig
 from tracker_service.tracking.association import GatedPairs, JointProbabilisticDataAssociation
 from tracker_service.tracking.clutter import make_clutter_map
+from tracker_service.tracking.plots import BASE_PLOT_DTYPE
 
 PERIOD = 4.0
 T0 = 1.7e9
@@ -30,7 +31,7 @@ def _plot(t: float, x: float, y: float, address: int = -1, code: int = -1) -> tu
 
 def _batches(rows: list[tuple], period: float = PERIOD) -> list[npt.NDArray[np.void]]:
     """One batch per scan, plots in time order, numbered."""
-    plots = np.array(rows, dtype=PLOT_DTYPE)
+    plots = np.array(rows, dtype=BASE_PLOT_DTYPE)
     plots = plots[np.argsort(plots["time"], kind="stable")]
     plots["plot_id"] = np.arange(len(plots))
     scan = np.floor((plots["time"] - T0) / period).astype(int)
@@ -199,7 +200,7 @@ def test_a_plot_a_track_takes_in_good_part_starts_no_track() -> None:
     assert len(last) == 2
     assert not np.isin(tracker.initiator.pending.plot_id, last).any()
     # The first plots of a target of its own, far from every track, do wait.
-    lone = np.array([_plot(t + PERIOD, 60e3, -20e3)], dtype=PLOT_DTYPE)
+    lone = np.array([_plot(t + PERIOD, 60e3, -20e3)], dtype=BASE_PLOT_DTYPE)
     lone["plot_id"] = 999
     tracker.process(lone)
     assert 999 in tracker.initiator.pending.plot_id

@@ -8,8 +8,9 @@ import numpy.typing as npt
 import pytest
 
 from tests.test_tracking import PERIOD, T0, Target, run, simulate, straight
-from tracker_service.tracking import CONFIRMED, PLOT_DTYPE, LocalTracker, TrackerConfig
+from tracker_service.tracking import CONFIRMED, LocalTracker, TrackerConfig
 from tracker_service.tracking.association import MultipleHypothesisTracking
+from tracker_service.tracking.plots import BASE_PLOT_DTYPE
 
 MHT = TrackerConfig(scan_period_s=PERIOD, association="mht")
 SIGMA = 100.0
@@ -24,7 +25,7 @@ def _scan(k: int, offsets: list[float], first_id: int) -> npt.NDArray[np.void]:
          np.nan, False, -1, False, -1, 1, first_id + i)
         for i, dy in enumerate(offsets)
     ]  # fmt: skip
-    return np.array(rows, dtype=PLOT_DTYPE)
+    return np.array(rows, dtype=BASE_PLOT_DTYPE)
 
 
 def _sidestep() -> list[npt.NDArray[np.void]]:
