@@ -23,30 +23,17 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.tracking.kernels import _combine_row, _transition
+from tracker_service.tracking.kernels import (
+    _combine_row,
+    _transition,
+    add_white_acceleration_q,
+    propagate,
+)
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import FloatArray, IntArray
 
 LOG_2PI = math.log(2.0 * math.pi)
 TINY = 1e-300
-
-
-@numba.njit(cache=True, inline="always")
-def _add_q(p: FloatArray, t: float, q: float) -> None:  # pragma: no cover - compiled
-    """p (4, 4) += the white-acceleration Q(|t|) (``models.white_acceleration_q``)."""
-    t = abs(t)
-    t2 = t * t
-    q_pos = q * t2 * t / 3.0
-    q_cross = q * t2 / 2.0
-    q_vel = q * t
-    p[0, 0] += q_pos
-    p[1, 1] += q_pos
-    p[0, 2] += q_cross
-    p[2, 0] += q_cross
-    p[1, 3] += q_cross
-    p[3, 1] += q_cross
-    p[2, 2] += q_vel
-    p[3, 3] += q_vel
 
 
 @numba.njit(cache=True)
@@ -119,24 +106,8 @@ def _predict_track(
                     m0[sensor, a, 0] += wij * mM[n, i, sensor, a, 0]
                     m0[sensor, a, 1] += wij * mM[n, i, sensor, a, 1]
         _transition(step, omega[j], f)
-        for a in range(4):
-            acc = 0.0
-            for b in range(4):
-                acc += f[a, b] * x0[b]
-            xp[r, j, a] = acc
-        for a in range(4):
-            for b in range(4):
-                acc = 0.0
-                for e in range(4):
-                    acc += f[a, e] * p0[e, b]
-                fp[a, b] = acc
-        for a in range(4):
-            for b in range(4):
-                acc = 0.0
-                for e in range(4):
-                    acc += fp[a, e] * f[b, e]
-                pp[r, j, a, b] = acc
-        _add_q(pp[r, j], step, q[j])
+        propagate(f, x0, p0, fp, xp[r, j], pp[r, j])
+        add_white_acceleration_q(pp[r, j], step, q[j])
         for sensor in range(n_radars):
             for a in range(4):
                 for b in range(2):
@@ -394,23 +365,7 @@ def fuse_local_tracks(
             f[:, :] = 0.0
             f[0, 0] = f[1, 1] = f[2, 2] = f[3, 3] = 1.0
             f[0, 2] = f[1, 3] = step
-            for a in range(4):
-                acc = 0.0
-                for b in range(4):
-                    acc += f[a, b] * loc_x[s, b]
-                states[i, a] = acc
-            for a in range(4):
-                for b in range(4):
-                    acc = 0.0
-                    for e in range(4):
-                        acc += f[a, e] * loc_P[s, e, b]
-                    fp[a, b] = acc
-            for a in range(4):
-                for b in range(4):
-                    acc = 0.0
-                    for e in range(4):
-                        acc += fp[a, e] * f[b, e]
-                    own[i, a, b] = acc
+            propagate(f, loc_x[s], loc_P[s], fp, states[i], own[i])
         size = 4 * n
         sigma = np.zeros((size, size))
         for i in range(n):
@@ -434,7 +389,7 @@ def fuse_local_tracks(
                 same_way = np.sign(dt[i]) == np.sign(dt[j])
                 overlap = min(abs(dt[i]), abs(dt[j])) if same_way else 0.0
                 block[:, :] = 0.0
-                _add_q(block, overlap, q)
+                add_white_acceleration_q(block, overlap, q)
                 if i == j:
                     for a in range(2):
                         for b in range(2):

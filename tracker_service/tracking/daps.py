@@ -36,6 +36,7 @@ from tracker_service.tracking import imm
 from tracker_service.tracking.config import KNOT_M_S, TrackerConfig
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
+    DAP_FIELDS,
     DAP_SELECTED_ALTITUDE,
     DAP_TURN_RATE,
     DAP_VELOCITY,
@@ -48,17 +49,10 @@ from tracker_service.tracking.plots import (
 G0 = 9.80665
 FT_MIN_M_S = 0.3048 / 60.0
 
-_COPIED = (
-    "roll_deg",
-    "true_track_deg",
-    "ground_speed_kt",
-    "track_angle_rate_deg_s",
-    "magnetic_heading_deg",
-    "indicated_airspeed_kt",
-    "mach",
-    "baro_rate_fpm",
-    "inertial_rate_fpm",
-)
+_DERIVED = ("selected_altitude_ft", "dap_vx", "dap_vy", "dap_turn_rate_rad_s")
+"""The DAP columns ``plot_daps`` makes (MCP else FMS altitude; the plane velocity and
+turn rate); the others are copied from the decoded registers as they are."""
+_COPIED = tuple(name for name in DAP_FIELDS if name not in _DERIVED)
 
 # Plausible ranges of a civil aircraft's registers: beyond them the value is a wrong
 # register (BDS1/BDS2 mislabelled), a corrupted reply or a faulty avionics source.

@@ -49,6 +49,49 @@ def _transition(dt: float, omega: float, f: FloatArray) -> None:  # pragma: no c
     f[3, 2] = s
 
 
+@numba.njit(cache=True, inline="always")
+def propagate(
+    f: FloatArray, x0: FloatArray, p0: FloatArray, fp: FloatArray, x: FloatArray, p: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """x = F x0 and p = F p0 F^T of a 4-state (``fp``: scratch for F p0), written in
+    place; shared by the local tracker's and the fuser's kernels."""
+    for a in range(4):
+        acc = 0.0
+        for b in range(4):
+            acc += f[a, b] * x0[b]
+        x[a] = acc
+    for a in range(4):
+        for b in range(4):
+            acc = 0.0
+            for e in range(4):
+                acc += f[a, e] * p0[e, b]
+            fp[a, b] = acc
+    for a in range(4):
+        for b in range(4):
+            acc = 0.0
+            for e in range(4):
+                acc += fp[a, e] * f[b, e]
+            p[a, b] = acc
+
+
+@numba.njit(cache=True, inline="always")
+def add_white_acceleration_q(p: FloatArray, t: float, q: float) -> None:  # pragma: no cover
+    """p (4, 4) += the white-acceleration Q(|t|) (``models.white_acceleration_q``)."""
+    t = abs(t)
+    t2 = t * t
+    q_pos = q * t2 * t / 3.0
+    q_cross = q * t2 / 2.0
+    q_vel = q * t
+    p[0, 0] += q_pos
+    p[1, 1] += q_pos
+    p[0, 2] += q_cross
+    p[2, 0] += q_cross
+    p[1, 3] += q_cross
+    p[3, 1] += q_cross
+    p[2, 2] += q_vel
+    p[3, 3] += q_vel
+
+
 @numba.njit(cache=True)
 def imm_predict(
     x: FloatArray,
@@ -96,7 +139,6 @@ def imm_predict(
             denominator = max(total, TINY)
             for i in range(m):
                 w[i, j] = pi[i, j] * mu[r, i] / denominator
-        t2 = t * t
         for j in range(m):
             # Mixed initial condition of model j (imm.mix_and_move).
             for a in range(4):
@@ -115,36 +157,8 @@ def imm_predict(
                     for b in range(4):
                         p0[a, b] += wij * P[r, i, a, b] + wij * d[a] * d[b]
             _transition(step, omega[j], f)
-            for a in range(4):
-                acc = 0.0
-                for b in range(4):
-                    acc += f[a, b] * x0[b]
-                xp[r, j, a] = acc
-            for a in range(4):
-                for b in range(4):
-                    acc = 0.0
-                    for e in range(4):
-                        acc += f[a, e] * p0[e, b]
-                    fp[a, b] = acc
-            for a in range(4):
-                for b in range(4):
-                    acc = 0.0
-                    for e in range(4):
-                        acc += fp[a, e] * f[b, e]
-                    pp[r, j, a, b] = acc
-            # White-acceleration Q(|dt|) (models.white_acceleration_q).
-            qj = q[j]
-            q_pos = qj * t2 * t / 3.0
-            q_cross = qj * t2 / 2.0
-            q_vel = qj * t
-            pp[r, j, 0, 0] += q_pos
-            pp[r, j, 1, 1] += q_pos
-            pp[r, j, 0, 2] += q_cross
-            pp[r, j, 2, 0] += q_cross
-            pp[r, j, 1, 3] += q_cross
-            pp[r, j, 3, 1] += q_cross
-            pp[r, j, 2, 2] += q_vel
-            pp[r, j, 3, 3] += q_vel
+            propagate(f, x0, p0, fp, xp[r, j], pp[r, j])
+            add_white_acceleration_q(pp[r, j], step, q[j])
         _combine_row(xp, pp, c, r, xc, pc, d)
     return xp, pp, c, xc, pc
 
