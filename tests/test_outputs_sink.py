@@ -29,6 +29,7 @@ class Destination:
     """Keeps the system tracks it is sent, in order; raises while ``down``."""
 
     name = "picture"
+    keeps_datagrams = True
 
     def __init__(self, resends_tracks: bool) -> None:
         self.resends_tracks = resends_tracks
@@ -132,6 +133,36 @@ def test_an_outage_is_reported_retried_and_what_was_missed_resent(
     else:
         assert after == [(3, "confirmed", 112.0)]
     assert caplog.records[-1].getMessage().startswith("output picture: working again")
+
+
+class Publisher(Destination):
+    """A destination like Zenoh's: ``datagram`` does nothing, so it cannot fail."""
+
+    keeps_datagrams = False
+
+    def datagram(self, input_name: str, datagram: Datagram) -> None:
+        pass
+
+
+def test_only_a_call_that_carries_a_message_ends_an_outage() -> None:
+    clock = Clock()
+    destination = Publisher(resends_tracks=True)
+    sink = IsolatedSink(destination, Backoff(1.0, 4.0), clock)
+    destination.down = True
+    sink.system(track(1, 10.0), b"", 10.0)
+    # The backoff over: a datagram (nothing for this output) and an empty batch come first.
+    clock.now += 2.0
+    sink.datagram("radar", Datagram(b"\x30\x00\x03", 0, 11.0, None, None))
+    sink.system_updates([], 11.0)
+    state = sink.state
+    assert not state.ok and state.failing_since == 10.0 and state.failures == 1
+    # The next message is the retry: it fails, the outage goes on (one outage, not two).
+    sink.system(track(1, 12.0), b"", 12.0)
+    assert not state.ok and state.failures == 2 and state.outages == 1
+    destination.down = False
+    clock.now += 5.0
+    sink.system(track(2, 13.0), b"", 13.0)
+    assert state.ok and [n for n, _, _ in destination.received] == [2, 1]
 
 
 def test_a_message_the_output_refuses_is_not_an_outage(tmp_path: Path) -> None:

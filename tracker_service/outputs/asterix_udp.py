@@ -109,6 +109,8 @@ class AsterixUdpSink:
 
     resends_tracks = False
 
+    keeps_datagrams = False
+
     def __init__(self, output: UdpDestination, system: SdpsIdentity, plane: SystemPlane) -> None:
         self.name = f"asterix_udp {output.destination}"
         self.output = output

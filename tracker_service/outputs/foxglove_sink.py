@@ -170,6 +170,7 @@ class FoxgloveSink:
         self.scene = scene
         self.inner = inner
         self.resends_tracks = False if inner is None else inner.resends_tracks
+        self.keeps_datagrams = False if inner is None else inner.keeps_datagrams
 
     def _write(self, messages: list[FoxgloveMessage]) -> None:
         for message in messages:

@@ -40,6 +40,7 @@ class McapSink:
 
     name = "mcap"
     resends_tracks = False
+    keeps_datagrams = True
 
     def __init__(self, log: McapLog) -> None:
         self.log = log

@@ -6,7 +6,10 @@ its failure (a full disk, a closed session, a bug) stops only that output: the f
 call is counted as a dropped message, the output is marked failing with the reason and
 the data time it began, its calls are dropped (and counted) until a retry falls due, and
 the retries back off from 1 s to 30 s of wall clock. The first call after the backoff is
-the retry: it either goes through (the output has recovered) or fails again. Each output's
+the retry: it either goes through (the output has recovered) or fails again. Only a call
+that carries a message to the output counts as the retry: an empty batch is not made, and
+a datagram is not offered to an output that does not keep them while it fails (its
+``datagram`` may do nothing and so cannot fail). Each output's
 ``OutputState`` is plain data for the status message and the health.
 
 Each output also runs on a thread of its own (``QueuedSink``) behind a bounded queue, so
@@ -62,6 +65,9 @@ class Sink(Protocol):
     name: str
     resends_tracks: bool
     """After an outage, it is sent the latest message of each system track it missed."""
+    keeps_datagrams: bool
+    """Whether ``datagram`` writes the datagram (a log). For the others it is at most a
+    clock tick that may do nothing, so its success proves no recovery from an outage."""
 
     def datagram(self, input_name: str, datagram: Datagram) -> None:
         """A datagram as an input received it (only a log keeps these)."""
@@ -189,6 +195,8 @@ class IsolatedSink:
 
     def datagram(self, input_name: str, datagram: Datagram) -> None:
         assert datagram.time is not None
+        if self.state.failing_since is not None and not self.sink.keeps_datagrams:
+            return
         self._run(datagram.time, self.sink.datagram, input_name, datagram)
 
     def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
@@ -207,6 +215,8 @@ class IsolatedSink:
         """A batch's system-track updates in one call of the sink (one failure, counted
         as that many messages dropped), or one ``system`` call each for a sink that takes
         no batches."""
+        if not updates:
+            return
         batch = getattr(self.sink, "system_updates", None)
         if batch is None:
             for update in updates:
@@ -223,6 +233,8 @@ class IsolatedSink:
 
     def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None:
         """As :meth:`system_updates`, for one radar's local-track updates."""
+        if not updates:
+            return
         batch = getattr(self.sink, "local_updates", None)
         if batch is None:
             for update in updates:

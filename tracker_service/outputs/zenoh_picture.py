@@ -27,6 +27,7 @@ class ZenohPictureSink:
 
     name = "zenoh_picture"
     resends_tracks = False
+    keeps_datagrams = False
 
     def __init__(
         self,

@@ -27,6 +27,7 @@ class ZenohSink:
 
     name = "zenoh"
     resends_tracks = True
+    keeps_datagrams = False
 
     def __init__(self, publisher: ZenohPublisher) -> None:
         self.publisher = publisher
