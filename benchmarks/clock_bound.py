@@ -108,7 +108,8 @@ def reception_bound(model: RadarModel, duration: float) -> dict[str, float]:
     n = int(duration / model.sector_s)
     t = np.arange(n) * model.sector_s
     spread = float(np.sum((t - t.mean()) ** 2))
-    return {"messages": float(n), "drift_sigma_s_per_h": SERVICE_JITTER_S / math.sqrt(spread) * 3600}
+    sigma = SERVICE_JITTER_S / math.sqrt(spread) * 3600.0
+    return {"messages": float(n), "drift_sigma_s_per_h": sigma}
 
 
 def main() -> None:
