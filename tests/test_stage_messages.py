@@ -53,6 +53,7 @@ def test_every_batch_survives_its_encoding_bit_for_bit(
     _, found = results
     batches = [b for r in found for b in r.batches]
     assert sum(len(b.local) for b in batches) > 100
+    assert sum(len(b.clock_evidence) for b in batches) > 20  # CAT034 stamps, reception
     for result in found:
         payload = encode_message(result)
         assert payload[:4] == MAGIC
@@ -66,7 +67,8 @@ def test_every_batch_survives_its_encoding_bit_for_bit(
         for mine, theirs in zip(result.batches, back.batches, strict=True):
             assert theirs.source == mine.source and theirs.time == mine.time
             assert theirs.effective_offset_s == mine.effective_offset_s
-            for name in ("plots", "tracked", "jacobian", "monitor_xy", "local", "local_jacobian"):
+            names = ("plots", "tracked", "jacobian", "monitor_xy", "local", "local_jacobian")
+            for name in (*names, "clock_evidence"):
                 a, b = getattr(mine, name), getattr(theirs, name)
                 assert a.dtype == b.dtype and a.shape == b.shape
                 assert a.tobytes() == b.tobytes(), name

@@ -330,6 +330,8 @@ class CentralStage:
             local, batch, height_extra = self._reproject_heights(index, message, batch, local)
         extra = None
         if bias is not None and bias_cov is not None and not message.snapshot:
+            assert self.bias is not None
+            self.bias.update_reception(index, message.clock_evidence)
             extra = self._estimate_biases(index, message, batch, local, bias, bias_cov)
         if height_extra is not None:
             extra = height_extra if extra is None else extra + height_extra

@@ -35,6 +35,7 @@ import numpy.typing as npt
 from asterix.codec import Block, decode_blocks
 from asterix.daps import DAP_COLUMNS
 from asterix.plots import extract_plots
+from tracker_service.bias.reception import ReceptionEvidence
 from tracker_service.fixed_targets import FixedTargetConfig, FixedTargets, FixedTransponder
 from tracker_service.geodesy import (
     Atmosphere,
@@ -456,6 +457,7 @@ class RadarStage:
             {source: info.period_s for source, info in self.infos.items()},
         )
         self._heights = HeightModel(atmosphere=atmosphere or Atmosphere())
+        self.reception = ReceptionEvidence()
         self.next_plot_id = 0
         """The stage's plots numbered in its order: in one process the system's numbers;
         the central stage renumbers those of stages in other processes."""
@@ -476,6 +478,7 @@ class RadarStage:
                         for items in event.records:
                             self.clock.service_message(items, received)
                             self.time_sanity.service_message(items, received)
+                            self.reception.service_message(items, received)
                     else:
                         self.stats.decode_errors += 1
         if not any(next(blocks_of(payload, c), None) for c in PLOT_CATEGORIES):
@@ -584,7 +587,14 @@ class RadarStage:
             time=self.time_sanity.report(source, state.tracker),
             effective_offset_s=self.time_sanity.effective_offset(source),
             incarnation=self.incarnation,
+            clock_evidence=self._clock_evidence(source, state.info),
         )
+
+    def _clock_evidence(self, source: str, info: RadarInfo) -> FloatArray:
+        """The radar's CAT034 stamps against reception since its last batch; none for a
+        feed re-based on reception (its plot times are no longer its clock's)."""
+        evidence = self.reception.take(source)
+        return evidence if info.time_base == "data" else evidence[:0]
 
     def _fixed_transponders(
         self, state: RadarState, table: npt.NDArray[Any], batch: npt.NDArray[Any]

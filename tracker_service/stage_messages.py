@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.bias.reception import no_evidence
 from tracker_service.sources import SourceCounts
 from tracker_service.time_sanity import TimeReport
 
@@ -103,6 +104,9 @@ class RadarBatch:
     snapshot: bool = False
     """Live tracks with their estimates as pseudo-plots (``RadarStage.live_tracks``), not
     measurements: fused, never a bias observation."""
+    clock_evidence: FloatArray = field(default_factory=no_evidence)
+    """(n, 2): the radar's CAT034 messages since its last batch, [radar time, reception]
+    (``bias.reception``): clock observations for the bias estimator."""
 
 
 @dataclass
@@ -214,6 +218,7 @@ def encode_message(result: DatagramResult) -> bytes:
     for k, batch in enumerate(result.batches):
         sections.append(_section(f"{k}/meta", _batch_meta(batch)))
         sections.extend(_section(f"{k}/{name}", getattr(batch, name)) for name in _BATCH_ARRAYS)
+        sections.append(_section(f"{k}/clock_evidence", batch.clock_evidence))
     return _HEAD.pack(MAGIC, int(result.kind), len(sections)) + b"".join(sections)
 
 
@@ -282,6 +287,7 @@ def decode_message(payload: bytes) -> DatagramResult:
                     effective_offset_s=_none(m["effective_offset_s"]),
                     incarnation=int(m["incarnation"]),
                     snapshot=bool(m["snapshot"]),
+                    clock_evidence=arrays.get(f"{k}/clock_evidence", no_evidence()),
                     **parts,
                 )
             )

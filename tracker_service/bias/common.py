@@ -69,6 +69,8 @@ class BiasEstimator(Protocol):
 
     def clock_correction(self, radar: int) -> tuple[FloatArray, FloatArray]: ...
 
+    def update_reception(self, radar: int, evidence: FloatArray) -> None: ...
+
 
 def split_update(
     x: FloatArray,
@@ -141,6 +143,9 @@ class BiasFilterBase(ABC):
         self.clock = ClockModel(config)
         self.n_state = N_BIAS + self.clock.n_extra
         """States per radar: the 4 biases, then the extra clock states (``bias.clock``)."""
+        self.reception_used = np.zeros(n_radars, dtype=np.int64)
+        self.reception_rejected = np.zeros(n_radars, dtype=np.int64)
+        """CAT034 messages taken as clock observations, and those out of the gate."""
 
     def prior(self) -> tuple[FloatArray, FloatArray]:
         """Joint prior of all radars' scaled biases, then their extra clock states:
@@ -293,9 +298,18 @@ class BiasFilterBase(ABC):
         clock, clock_P = self._clock_unscaled()
         return clock[radar], clock_P[radar]
 
+    def update_reception(self, radar: int, evidence: FloatArray) -> None:
+        """CAT034 time stamps of ``radar`` against their reception (``bias.reception``:
+        rows [radar time s, reception s]) as clock observations (``BiasConfig.
+        reception_clock``); only the separated filter takes them, the others ignore them."""
+        return
+
     def _clock_unscaled(self) -> tuple[FloatArray, FloatArray]:
+        # The published states: the reception delay (last, if any) is the receiver's.
+        n = self.clock.n_clock
         c, P = self.clock_state()
-        scale = self.clock.scale
+        c, P = c[:, :n], P[:, :n, :n]
+        scale = self.clock.scale[:n]
         return c * scale, P * scale[:, None] * scale[None, :]
 
     def _unscaled(self) -> tuple[FloatArray, FloatArray]:

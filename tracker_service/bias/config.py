@@ -62,6 +62,19 @@ class BiasConfig:
     walk_sigma_drift_s_per_h: float = 1e-4
     """Random walk of the drift, s/h per sqrt(s): 6 ms/h in an hour."""
     walk_sigma_drift_rate_s_per_h2: float = 1e-4
+    reception_clock: bool = True
+    """With ``clock_states`` 2 or 3: each CAT034 message's time stamp (I030, the radar's
+    clock at a sector boundary) against its reception time (the receiving host's clock,
+    NTP/GNSS-disciplined) is a clock observation, reception - I030 = delay - offset, with
+    the transmission delay an extra state per radar (``bias.clock``): it pins the drift to
+    ms/h in minutes where ADS-B alone needs hours (docs/fusion.md "Clock drift")."""
+    reception_jitter_s: float = 0.01
+    """Sigma of the delay of a CAT034 message around its mean (the station's send timing
+    and the network's queues)."""
+    prior_sigma_reception_delay_s: float = 2.0
+    """Prior sigma of that delay: wide, the data fix it."""
+    walk_sigma_reception_delay_s: float = 1e-5
+    """Random walk of the delay, s per sqrt(s): 0.6 ms in an hour."""
     estimate_time: str = "auto"
     """"auto": estimate the time offsets once an ADS-B observation has been seen or a reference
     radar pins the clock (the common offset of all radars is not observable from radars
@@ -97,6 +110,8 @@ class BiasConfig:
         positive = (
             "prior_sigma_drift_s_per_h",
             "prior_sigma_drift_rate_s_per_h2",
+            "reception_jitter_s",
+            "prior_sigma_reception_delay_s",
             "prior_sigma_range_m",
             "prior_sigma_gain",
             "prior_sigma_azimuth_deg",
@@ -108,6 +123,7 @@ class BiasConfig:
         non_negative = (
             "walk_sigma_drift_s_per_h",
             "walk_sigma_drift_rate_s_per_h2",
+            "walk_sigma_reception_delay_s",
             "walk_sigma_range_m",
             "walk_sigma_gain",
             "walk_sigma_azimuth_deg",
@@ -122,6 +138,8 @@ class BiasConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name}: {value!r} must be a finite number >= 0")
+        if not isinstance(self.reception_clock, bool):
+            raise ValueError(f"reception_clock: {self.reception_clock!r} must be true or false")
         if self.max_coupled_states < 2 * N_BIAS:
             raise ValueError(f"max_coupled_states: {self.max_coupled_states!r} must be >= 8")
         for radar, values in self.reference_radars.items():

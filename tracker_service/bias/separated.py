@@ -62,6 +62,24 @@ class SeparatedBiasFilter(BiasFilterBase):
         free[:, TIME] &= self._clock_seen
         return free
 
+    def update_reception(self, radar: int, evidence: FloatArray) -> None:
+        """See ``BiasFilterBase.update_reception``: each message in time order, once the
+        radar's time offset is estimated (``free``)."""
+        if not self.clock.reception or not len(evidence) or not self.free()[radar, TIME]:
+            return
+        delay = N_BIAS + self.clock.n_extra - 1
+        walk = self.state_walk_rate()[radar]
+        s, P = self._s[radar], self._P[radar]
+        for stamp, received in evidence[np.argsort(evidence[:, 0])].tolist():
+            if np.isfinite(self._time[radar]):
+                dt = stamp - self._time[radar]
+                P += np.diag(walk * abs(dt))
+                self.clock.predict(s, P, dt, self._offset, self._extra, np.ones(1, dtype=bool))
+            self._time[radar] = stamp
+            used = self.clock.reception_update(s, P, TIME, delay, received - stamp)
+            self.reception_used[radar] += used
+            self.reception_rejected[radar] += not used
+
     def _process(self, obs: BiasObservations) -> None:
         free = self.state_free()
         walk = self.state_walk_rate()
