@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from tracker_service.fusion import FusionConfig, SystemTracker
+from tracker_service.fusion import ENDED, FusionConfig, SystemTracker
 from tracker_service.tracking import CONFIRMED, PLOT_DTYPE, LocalTracker
 
 T0 = 1.7e9
@@ -66,3 +66,21 @@ def test_a_wrongly_joined_local_track_inside_the_gate_is_given_back() -> None:
 def test_the_consistency_test_is_configured_with_its_field_named() -> None:
     with pytest.raises(ValueError, match="reassociate_kappa"):
         FusionConfig(reassociate_kappa=0.0)
+
+
+def test_a_lone_radars_track_keeps_its_system_track_through_jumps() -> None:
+    """One radar, one local track whose updates jump 500 m abeam four times in a row
+    (what a PSR-only track at an assumed height does passing over its radar): each is
+    out of the gate against the track's own previous state (4-dof distance about 35),
+    but the system track only that track feeds is that track: it keeps its number."""
+    fuser = SystemTracker(1)
+    numbers = []
+    for k in range(20):
+        t = T0 + 5.0 * k
+        y = 500.0 * min(max(k - 8, 0), 4)
+        u, p = _batch(3, t, SPEED * (t - T0), y, k)
+        rows = fuser.process(0, u, p)
+        numbers += rows["system_number"][rows["status"] != ENDED].tolist()
+        assert not (rows["status"] == ENDED).any(), k
+    assert len(set(numbers)) == 1
+    assert fuser.stats.reassociations == 0

@@ -31,7 +31,12 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     live = live[loc["status"][live] != LOCAL_TENTATIVE]
     held = live[loc["system"][live] > 0]
     d2 = distance(state, estimator, held, loc["system"][held])
-    fails = np.where(d2 <= cfg.gate, 0, loc["fails"][held] + 1)
+    # A solo system track is its founding local track's state: the distance compares
+    # that track with its own prediction (no independent estimate), and leaving would
+    # only end the system track and found another from the same local track (a PSR-only
+    # aircraft passing over its radar, three_sites seed 101). As in ``_consistency``.
+    solo = state.sys["solo"][loc["system"][held]]
+    fails = np.where((d2 <= cfg.gate) | solo, 0, loc["fails"][held] + 1)
     loc["fails"][held] = fails
     inconsistent = _consistency(state, held, d2)
     lost = held[(fails >= cfg.reassociate_after) | inconsistent]
