@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.fusion.cover import PSR_TYPES, RadarCover
 from tracker_service.fusion.references import References
 from tracker_service.geodesy import RadarSite, SystemPlane, convert_plots
 from tracker_service.geodesy.unknown_height import HeightBand, feasible_band, height_jacobian
@@ -54,10 +55,27 @@ class PsrHeightConfig:
     it the pair is not one aircraft at any height, and the plot does not measure it."""
     jacobian_age_s: float = 60.0
     """Another radar's height Jacobian of the aircraft older than this is not used."""
+    cover_cell_m: float = 10_000.0
+    """Side of the cells of the radars' primary cover (``fusion.cover``): a primary plot's
+    position is kilometres uncertain near the radar, and a neighbouring cell counts too."""
+    cover_memory_s: float = 300.0
+    """A radar's PSR plots older than this no longer say it covers their cell (a radar
+    that went down covers nothing)."""
     stale_s: float = 120.0
     """A system track's height untouched for this long belongs to a track that ended
     (a live one has a plot within the fuser's silence, 3 x the longest period): a new
     track under its reused number (after ``number_reuse_delay_s``, 300 s) starts afresh."""
+
+
+def _applies(entry: SystemHeight) -> bool:
+    """Whether a system track's plots are re-projected at its height estimate with the
+    estimate's uncertainty as a consider term: once another radar has measured the height,
+    or once the aircraft was in another radar's primary cover (that radar's local track,
+    off by its own height error, has to join: the consider term is what holds the gap).
+    A lone radar's aircraft is left alone: its local tracker took the band as white noise
+    in R, and a system track that took it as one common error instead (noise-only R)
+    drifts off that local track and breaks from it (canalA: 41 breaks against 24)."""
+    return entry.measurements > 0 or entry.shared
 
 
 @dataclass(frozen=True)
@@ -78,6 +96,10 @@ class SystemHeight:
     variance_m2: float
     time: float
     measurements: int = 0
+    shared: bool = False
+    """A plot of the aircraft lay in another radar's primary cover: from then on its
+    plots are re-projected at the estimate, with its uncertainty as a consider term, so
+    that the other radar's local track can join the system track (``PsrHeights``)."""
     jacobians: dict[int, tuple[FloatArray, float]] = field(default_factory=dict)
     """Per radar, its latest height Jacobian of this aircraft and when."""
 
@@ -110,6 +132,8 @@ class PsrHeights:
         self._previous: dict[tuple[int, int], tuple[npt.NDArray[Any], FloatArray]] = {}
         """Per (radar, local track number): its last plot (a table row) and the rate of
         its shift (m/s, smoothed)."""
+        self.cover = RadarCover(self.config.cover_cell_m, self.config.cover_memory_s, PSR_TYPES)
+        """The radars' primary cover, from their tracked plots (not clutter)."""
         self.measurements = 0
         self.rejected = 0
 
@@ -262,7 +286,7 @@ class PsrHeights:
             if last is not None:
                 j, used, number = last
                 entry = self.systems.get(number) if number > 0 else None
-                if entry is not None and entry.measurements > 0:
+                if entry is not None and _applies(entry):
                     shift = j * (entry.height_m - used)
                     local["x"][k] += shift[0]
                     local["y"][k] += shift[1]
@@ -288,16 +312,22 @@ class PsrHeights:
         height = plots["height_m"].copy()
         variance = plots["height_sigma_m"] ** 2
         entries: list[SystemHeight | None] = []
+        covered = self.cover.covered(
+            plots["x"], plots["y"], float(plots["time"].max()), besides=radar
+        )
         for m, k in enumerate(picked.tolist()):
             number = int(systems[k])
             entry = self._system(number, radar, float(plots["time"][m])) if number > 0 else None
-            # Until another radar has measured it, the estimate is the band's prior: the
-            # plot stays where its radar stage put it (the band's equivalent height; a
-            # lone radar's system tracks follow its local tracks, canalA).
-            if entry is not None and entry.measurements > 0:
+            if entry is not None:
+                entry.shared |= bool(covered[m])
+            # Where no other radar can see the aircraft, the plot stays where its radar
+            # stage put it (the band's equivalent height, its spread in the local
+            # tracker's R): a lone radar's system tracks follow its local tracks (canalA;
+            # docs/fusion.md "Primary-only aircraft").
+            if entry is not None and _applies(entry):
                 height[m], variance[m] = entry.height_m, entry.variance_m2
             entries.append(entry)
-        measured = np.array([e is not None and e.measurements > 0 for e in entries], dtype=bool)
+        measured = np.array([e is not None and _applies(e) for e in entries], dtype=bool)
         xy, r, j = self._convert(radar, plots, height)
         shift = xy - np.column_stack([plots["x"], plots["y"]])
         shift[~measured] = 0.0
