@@ -14,7 +14,9 @@ that radar's line of sight: white noise it is not. Here, per system track:
   y = (J_o - J_i)(H - H_hat) + noise, J_o the others' height Jacobian (0 for a radar
   that has the height from Mode C). Slant ranges from different sites agree in the
   horizontal only at the right height; a single radar leaves H where the prior put it;
-- every plot and local update of the system track is re-projected exactly at H_hat
+- once the height is measured, or the aircraft is in another radar's primary cover
+  (``fusion.cover``: that radar's local track may have to join), every plot and local
+  update of the system track is re-projected exactly at H_hat
   (``convert_plots`` from its slant range and azimuth), its covariance becomes the
   measurement noise alone, and J J^T var(H) goes to the fuser as the error common to
   that radar's plots of the aircraft (the ``extra`` consider term the residual biases
@@ -73,8 +75,10 @@ def _applies(entry: SystemHeight) -> bool:
     or once the aircraft was in another radar's primary cover (that radar's local track,
     off by its own height error, has to join: the consider term is what holds the gap).
     A lone radar's aircraft is left alone: its local tracker took the band as white noise
-    in R, and a system track that took it as one common error instead (noise-only R)
-    drifts off that local track and breaks from it (canalA: 41 breaks against 24)."""
+    in R, and a system track that takes it as one common error instead (noise-only R)
+    is a different filter of the same plots; by the algebra (not traced plot by plot) it
+    drifts off that local track and the fuser's review cuts them apart (canalA: 41
+    breaks against 24)."""
     return entry.measurements > 0 or entry.shared
 
 
@@ -327,20 +331,20 @@ class PsrHeights:
             if entry is not None and _applies(entry):
                 height[m], variance[m] = entry.height_m, entry.variance_m2
             entries.append(entry)
-        measured = np.array([e is not None and _applies(e) for e in entries], dtype=bool)
+        applied = np.array([e is not None and _applies(e) for e in entries], dtype=bool)
         xy, r, j = self._convert(radar, plots, height)
         shift = xy - np.column_stack([plots["x"], plots["y"]])
-        shift[~measured] = 0.0
+        shift[~applied] = 0.0
         local["x"][picked] += shift[:, 0]
         local["y"][picked] += shift[:, 1]
         # The height's error as a consider term only where the estimate is the system's:
         # before, the band's spread is in the plot's own covariance already.
-        extra[picked] = np.where(measured, variance, 0.0)[:, None, None] * (
+        extra[picked] = np.where(applied, variance, 0.0)[:, None, None] * (
             j[:, :, None] * j[:, None, :]
         )
         keys = [(radar, int(t)) for t in local["track_number"][picked].tolist()]
-        # Unmeasured, the plot is not moved, and neither is its velocity.
-        rate = self._shift_rates(radar, keys, plots, shift, height) * measured[:, None]
+        # Not applied, the plot is not moved, and neither is its velocity.
+        rate = self._shift_rates(radar, keys, plots, shift, height) * applied[:, None]
         local["vx"][picked] += rate[:, 0]
         local["vy"][picked] += rate[:, 1]
         # The rate is first order and lags the geometry: as uncertain as it is large
@@ -353,7 +357,7 @@ class PsrHeights:
         at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
         for m in range(n):
             found = at[m] < len(tracked) and tracked["plot_id"][at[m]] == plots["plot_id"][m]
-            if found and measured[m]:
+            if found and applied[m]:
                 tracked["x"][at[m]] += shift[m, 0]
                 tracked["y"][at[m]] += shift[m, 1]
                 tracked["R"][at[m]] = r[m]
