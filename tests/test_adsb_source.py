@@ -23,7 +23,12 @@ from tracker_service.adsb import (
     velocity_sigma_m_s,
 )
 from tracker_service.fusion import FusionConfig, SystemTracker
-from tracker_service.fusion.adsb_source import CLEAR_AFTER, AdsbSource, ReportUse
+from tracker_service.fusion.adsb_source import (
+    CHECK_TIMEOUT_PERIODS,
+    CLEAR_AFTER,
+    AdsbSource,
+    ReportUse,
+)
 from tracker_service.geodesy import SystemPlane
 from tracker_service.outputs.cat062 import encode_system_tracks
 from tracker_service.outputs.messages import SystemTrackMessage
@@ -199,6 +204,63 @@ def test_spoofed_position_is_flagged_and_not_fused() -> None:
     assert fused[-1] == ReportUse.FUSED
 
 
+def _radar_plots(t: float, x: float) -> npt.NDArray[Any]:
+    """One radar plot at (x, 0) at time t, as the central stage feeds the cover."""
+    p = np.zeros(1, dtype=PLOT_DTYPE)
+    p["time"], p["x"], p["y"], p["typ"] = t, x, 0.0, 5
+    return p
+
+
+def test_adsb_inside_radar_cover_feeds_no_system_track_until_checked() -> None:
+    fuser = SystemTracker(2, FusionConfig(adsb="fuse", longest_period_s=10.0))
+    source = AdsbSource(fuser, 1, share_reference=False, radar_periods={0: 10.0})
+    # The radar has swept once and sees a target where the spoofed position lies.
+    source.cover.note(0, _radar_plots(-10.0, 0.0))
+    source.cover.note(0, _radar_plots(0.0, 0.0))
+    uses: list[int] = []
+    for k in range(12):
+        t = float(k)
+        uses += _step(source, _reports([t], east_m=2.0 * NM), 100 + k).use.tolist()
+        if k == 9:  # the radar's track of the aircraft is confirmed: the first comparison
+            assert source.check_radar(_radar_track(fuser, t + 0.2, 1), None) == 1
+    assert uses == [ReportUse.UNCHECKED] * 10 + [ReportUse.INCONSISTENT] * 2
+    # No system track from the ADS-B reports: the only one is the radar's.
+    assert fuser.state.local.used["radar"][fuser.state.local.used["alive"]].tolist() == [0]
+    # An honest one is fused from its first agreeing comparison on.
+    honest = AdsbSource(SystemTracker(2, FusionConfig(adsb="fuse")), 1, False, {0: 10.0})
+    honest.cover.note(0, _radar_plots(-10.0, 0.0))
+    honest.cover.note(0, _radar_plots(0.0, 0.0))
+    first = _step(honest, _reports([0.0]), 1).use.tolist()
+    honest.check_radar(_radar_track(honest.fuser, 0.2, 1), None)
+    assert first + _step(honest, _reports([1.0]), 2).use.tolist() == [
+        ReportUse.UNCHECKED,
+        ReportUse.FUSED,
+    ]
+
+
+def test_adsb_outside_radar_cover_is_fused_at_once_and_inside_after_a_time_out() -> None:
+    source = AdsbSource(SystemTracker(2, FusionConfig(adsb="fuse")), 1, False, {0: 10.0})
+    source.cover.note(0, _radar_plots(-10.0, 0.0))
+    source.cover.note(0, _radar_plots(0.0, 0.0))
+    # 100 km from any radar plot: nothing to check it with.
+    far = _step(source, _reports([0.0, 1.0], east_m=100_000.0), 1).use.tolist()
+    assert far == [ReportUse.FUSED] * 2
+    assert source.fuser.system_tracks.size == 1
+    # Inside cover, never compared (a radar that sees it without its address): fused
+    # after CHECK_TIMEOUT_PERIODS antenna periods.
+    inside = AdsbSource(SystemTracker(2, FusionConfig(adsb="fuse")), 1, False, {0: 10.0})
+    inside.cover.note(0, _radar_plots(-10.0, 0.0))
+    inside.cover.note(0, _radar_plots(0.0, 0.0))
+    timeout = CHECK_TIMEOUT_PERIODS * 10.0
+    times = np.arange(0.0, timeout + 2.0)
+    uses = [u for t in times for u in _step(inside, _reports([float(t)]), int(t)).use.tolist()]
+    assert uses == [ReportUse.UNCHECKED] * int(timeout) + [ReportUse.FUSED] * 2
+    # Before the radar's first full sweep its cover is unknown: held, though far.
+    early = AdsbSource(SystemTracker(2, FusionConfig(adsb="fuse")), 1, False, {0: 10.0})
+    early.cover.note(0, _radar_plots(0.0, 0.0))
+    assert _step(early, _reports([1.0], east_m=100_000.0), 1).use.tolist() == [ReportUse.UNCHECKED]
+
+
 def test_no_report_is_both_fused_and_a_reference() -> None:
     fuser = SystemTracker(2, FusionConfig(adsb="fuse", longest_period_s=5.0))
     source = AdsbSource(fuser, 1, share_reference=True)
@@ -289,11 +351,12 @@ def test_scenario_adsb_only_tracks_and_spoof_flag(fused: Any) -> None:
     spoofed = rows["address"] == 0x4D00FF
     assert rows["adsb_inconsistent"][spoofed].any()
     assert not rows["adsb_inconsistent"][~spoofed].any()
-    # Once flagged, no system row of that address comes from an ADS-B report.
+    # No system row of that address ever comes from an ADS-B report: inside radar cover
+    # its reports wait for a radar comparison, which flags them; so it founds no false
+    # system track (its only ones are the radars').
     adsb = len(fused.pipeline.sources) - 1
-    flagged_at = rows["time"][spoofed & rows["adsb_inconsistent"]].min()
-    later = spoofed & (rows["time"] > flagged_at)
-    assert not (later & (rows["radar"] == adsb) & rows["fresh"]).any()
+    assert not (spoofed & (rows["radar"] == adsb)).any()
+    assert doc["system"]["false_tracks"] == 0
 
 
 def test_chain_reports_what_became_of_each_cat021_record() -> None:
@@ -306,6 +369,11 @@ def test_chain_reports_what_became_of_each_cat021_record() -> None:
     outputs = chain.feed(block, received)
     assert [o.source for o in outputs] == ["40/50"]
     assert chain.sources == ["40/1", "40/50"]  # the fuser's ADS-B source, named
-    # What status counts for the feed: a copy, and a record without address.
-    assert rejections(outputs[0].plots["use"]) == {"adsb_repeated": 1, "adsb_unfit": 1}
-    assert len(outputs[0].local) == 1
+    # What status counts for the feed: a copy, a record without address, and the report
+    # held back because the radar has not swept its cover yet (it could check it).
+    assert rejections(outputs[0].plots["use"]) == {
+        "adsb_repeated": 1,
+        "adsb_unfit": 1,
+        "adsb_unchecked": 1,
+    }
+    assert len(outputs[0].local) == 0

@@ -170,6 +170,48 @@ def test_height_from_two_primary_radars_and_the_reprojection() -> None:
         assert np.hypot(*(xy - truth_xy)) < 60.0
 
 
+def test_consider_term_only_where_another_radar_covers_the_aircraft() -> None:
+    """A lone radar's primary plot stays at the band's equivalent height with no consider
+    term (its local tracker has the band in R: canalA); once another radar's PSR has
+    tracked a plot near it, the plot goes to the system track's height with the band's
+    spread as the consider term, so the other radar's local track can join."""
+    heights = PsrHeights({0: _geometry(WEST), 1: _geometry(EAST)}, PLANE)
+    west = np.array(PLANE.from_geodetic(WEST.lat_deg, WEST.lon_deg))
+    truth_xy = west + np.array([20e3, 10e3])
+    local = np.zeros(1, dtype=track_update_dtype(1))
+
+    def reprojected(time: float) -> Any:
+        row = _plot_rows(WEST, truth_xy, 6000.0, time)
+        u = local.copy()
+        u["time"], u["x"], u["y"], u["plot_id"], u["track_number"] = (
+            row["time"],
+            row["x"],
+            row["y"],
+            0,
+            1,
+        )
+        return row, heights.reproject(0, row, row.copy(), u, np.array([5]))
+
+    # West's own PSR plots there say nothing of a second radar.
+    row, alone = reprojected(0.0)
+    heights.cover.note(0, row)
+    row, alone = reprojected(5.0)
+    assert alone.local["x"][0] == row["x"][0] and alone.local["y"][0] == row["y"][0]
+    assert not alone.extra.any()
+    # East's PSR tracked a plot 3 km away: West's next plot is in East's cover.
+    east_plot = row.copy()
+    east_plot["x"] += 3e3
+    heights.cover.note(1, east_plot)
+    row, shared = reprojected(10.0)
+    spread = float(np.sqrt(np.linalg.eigvalsh(shared.extra[0]).max()))
+    assert spread > 500.0  # the band's spread along the line of sight, 22 km out
+    assert np.hypot(shared.local["x"][0] - row["x"][0], shared.local["y"][0] - row["y"][0]) > 0
+    # Far from East's plots (60 km on), not covered: a new aircraft there stays alone.
+    assert not heights.cover.covered(
+        np.array([truth_xy[0] + 60e3]), np.array([truth_xy[1]]), 10.0, besides=0
+    )[0]
+
+
 SCENARIO_S = 150.0
 
 

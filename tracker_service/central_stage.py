@@ -82,6 +82,7 @@ _REPORT_USE = {
     ReportUse.REFERENCE: PlotUse.ADSB_REFERENCE,
     ReportUse.REPEATED: PlotUse.ADSB_REPEATED,
     ReportUse.INCONSISTENT: PlotUse.ADSB_INCONSISTENT,
+    ReportUse.UNCHECKED: PlotUse.ADSB_UNCHECKED,
 }
 
 FloatArray = npt.NDArray[np.float64]
@@ -149,7 +150,10 @@ class CentralStage:
         self.adsb_source: AdsbSource | None = None
         if self.fuser is not None and fuse_adsb:
             self.adsb_source = AdsbSource(
-                self.fuser, len(self.sources), share_reference=self.bias is not None
+                self.fuser,
+                len(self.sources),
+                share_reference=self.bias is not None,
+                radar_periods={k: self.infos[s].period_s for k, s in enumerate(self.sources)},
             )
         self._next_adsb_plot_id = ADSB_PLOT_ID_BASE
         self.bias_history: list[tuple[float, str, FloatArray, FloatArray]] = []
@@ -321,6 +325,8 @@ class CentralStage:
             local = corrected(local, message.local_jacobian, bias)
             tracked_c = message.jacobian[message.plots["use"] == PlotUse.TRACKED]
             batch = corrected(batch, tracked_c, bias)
+        if index is not None and not message.snapshot:
+            self._note_cover(index, message, batch)
         # A radar out of step with the others would be fused at the wrong time.
         if self.fuser is None or index is None or not len(local) or out_of_step is not None:
             return BatchOutput(source, message.plots, local, _NO_SYSTEM_ROWS, report)
@@ -340,6 +346,14 @@ class CentralStage:
             self.adsb_source.check_radar(local, extra)
         self._mark_inconsistent(system)
         return BatchOutput(source, message.plots, local, system, report)
+
+    def _note_cover(self, radar: int, message: RadarBatch, batch: npt.NDArray[Any]) -> None:
+        """Where the radar sees targets (``fusion.cover``): its tracked PSR plots for the
+        primary-only heights, all its plots for the ADS-B source's check."""
+        if self.heights is not None:
+            self.heights.cover.note(radar, batch)
+        if self.adsb_source is not None:
+            self.adsb_source.cover.note(radar, message.plots)
 
     def _reproject_heights(
         self, radar: int, message: RadarBatch, batch: npt.NDArray[Any], local: npt.NDArray[Any]

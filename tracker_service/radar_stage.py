@@ -160,6 +160,9 @@ class PlotUse(IntEnum):
     ADSB_UNFIT = 11
     """A CAT021 record without address, time or position, or with a position quality
     (NACp, NIC or NUCp) worse than 1 NM."""
+    ADSB_UNCHECKED = 12
+    """An ADS-B report inside radar cover whose address no radar has confirmed yet: not
+    fused until one has (or a time-out), so a spoofer founds no system track."""
 
 
 def rejections(use: npt.NDArray[np.int8]) -> dict[str, int]:

@@ -41,6 +41,18 @@ after a 10 s scan). From a disagreement on, the address's reports are not fused;
 ``FLAG_AFTER`` disagreements in a row flag it: its ADS-B track leaves fusion and every
 system track carrying the address is flagged (``adsb_inconsistent``, I062/080 AFF)
 until ``CLEAR_AFTER`` radar updates in a row agree again.
+
+Checked before fused: an address's first reports inside radar cover could be a spoofer's
+(or a wrong address's), and a system track founded on them is a false target on the
+controller's display before any radar comparison (adsb_cover's spoofer founded one). So a
+new ADS-B track feeds the fuser only once it is cleared: a radar update of its address
+has agreed with it, or no radar can see it (``cover``, the radars' cover learnt from
+their plots: no radar plot near it, once every radar has swept a full antenna period),
+or ``CHECK_TIMEOUT_PERIODS`` of the slowest radar's antenna period have gone by without a
+comparison (a radar that sees it without its address, or not at all). Until then its
+reports are filtered (its track is ready when cleared) but not fused
+(``ReportUse.UNCHECKED``). Outside radar cover, after the radars' first sweep, a report
+is cleared at once.
 """
 
 from __future__ import annotations
@@ -54,6 +66,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.adsb import AdsbReports
+from tracker_service.fusion.cover import RadarCover
 from tracker_service.fusion.tracker import SystemTracker
 from tracker_service.tracking.models import cv_transition
 from tracker_service.tracking.plots import PLOT_DTYPE, FloatArray, IntArray
@@ -94,6 +107,15 @@ FLAG_AFTER = 3
 CLEAR_AFTER = 3
 MAX_GAP_S = 1.5
 """A radar update is compared with a report at most this far from it in time."""
+CHECK_TIMEOUT_PERIODS = 4.0
+"""An ADS-B track inside radar cover that no radar update has been compared with for this
+many antenna periods of the slowest radar is fused anyway: a radar's local track needs
+a few scans to be confirmed (adsb_cover: the first comparisons 10-25 s in, 10 s
+period)."""
+COVER_CELL_M = 10_000.0
+"""Cells of the radars' cover (``fusion.cover``): a spoofed position 2 NM off its
+aircraft lies in the cell of the aircraft's radar plots or a neighbouring one."""
+COVER_MEMORY_S = 300.0
 
 
 class ReportUse(IntEnum):
@@ -101,6 +123,8 @@ class ReportUse(IntEnum):
     REFERENCE = 1
     REPEATED = 2
     INCONSISTENT = 3
+    UNCHECKED = 4
+    """Inside radar cover and not yet compared with a radar (module docstring)."""
 
 
 @dataclass
@@ -112,6 +136,8 @@ class AdsbFusionStats:
     references: int = 0
     repeated: int = 0
     inconsistent: int = 0
+    unchecked: int = 0
+    """Reports not fused because their track had not been checked against a radar."""
     disagreements: int = 0
     """Radar local-track updates that disagreed with their address's ADS-B."""
     moved_forward: int = 0
@@ -134,6 +160,9 @@ class _Track:
     passes: int = 0
     fl: float = np.nan
     mode3a: int = -1
+    first_report: float = np.nan
+    cleared: bool = False
+    """Checked against the radars, or out of their sight (module docstring)."""
     history: deque[tuple[float, float, float, float, float, float, float]] = field(
         default_factory=lambda: deque(maxlen=4)
     )
@@ -176,12 +205,23 @@ def _growth(sigma_v: Any, dt: Any) -> Any:
 class AdsbSource:
     """See the module docstring. ``index``: the fuser's source number of ADS-B (after
     the radars, which are ``0..index-1``); ``share_reference``: alternate the roles of an
-    address's reports (``[fusion] adsb = "fuse"`` with bias estimation)."""
+    address's reports (``[fusion] adsb = "fuse"`` with bias estimation);
+    ``radar_periods``: per radar index, its antenna period (s); without radars every
+    track is cleared at once. The central stage feeds ``cover`` every radar's plots."""
 
-    def __init__(self, fuser: SystemTracker, index: int, share_reference: bool) -> None:
+    def __init__(
+        self,
+        fuser: SystemTracker,
+        index: int,
+        share_reference: bool,
+        radar_periods: dict[int, float] | None = None,
+    ) -> None:
         self.fuser = fuser
         self.index = index
         self.share_reference = share_reference
+        self.radar_periods = radar_periods or {}
+        self.check_timeout_s = CHECK_TIMEOUT_PERIODS * max(self.radar_periods.values(), default=0.0)
+        self.cover = RadarCover(COVER_CELL_M, COVER_MEMORY_S)
         self.stats = AdsbFusionStats()
         self._tracks: dict[int, _Track] = {}
         self._next_number = 1
@@ -235,6 +275,11 @@ class AdsbSource:
                 if track.fed and address in self.stats.flagged:
                     updates.append(self._deletion(track))
                 continue
+            if not self._cleared(track, reports, k):
+                use[k] = ReportUse.UNCHECKED
+                self.stats.unchecked += 1
+                self._filter(track, reports, k)
+                continue
             use[k] = ReportUse.FUSED
             plot_id[k] = next_id
             next_id += 1
@@ -264,6 +309,22 @@ class AdsbSource:
         )
         self._next_number += 1
         return track
+
+    def _cleared(self, track: _Track, reports: AdsbReports, k: int) -> bool:
+        """Whether the track may feed the fuser (module docstring: checked before fused)."""
+        if not track.cleared:
+            t = float(reports.time[k])
+            if not np.isfinite(track.first_report):
+                track.first_report = t
+            track.cleared = (
+                track.passes > 0
+                or t - track.first_report >= self.check_timeout_s
+                or (
+                    self.cover.known(self.radar_periods, t)
+                    and not self.cover.covered(reports.x[k : k + 1], reports.y[k : k + 1], t)[0]
+                )
+            )
+        return track.cleared
 
     def _radar_tracked(self) -> set[int]:
         """The addresses of the fuser's live, confirmed radar local tracks."""
@@ -341,7 +402,8 @@ class AdsbSource:
         now = self.fuser.clock.now
         return float(now) if np.isfinite(now) else 0.0
 
-    def _fuse(self, track: _Track, reports: AdsbReports, k: int, plot_id: int) -> tuple[Any, Any]:
+    def _filter(self, track: _Track, reports: AdsbReports, k: int) -> None:
+        """The address's filter updated with report k."""
         t = float(reports.time[k])
         sigma, sigma_v = float(reports.sigma[k]), float(reports.sigma_v[k])
         z = np.array([reports.x[k], reports.y[k], reports.vx[k], reports.vy[k]])
@@ -360,6 +422,12 @@ class AdsbSource:
             track.fl = float(reports.flight_level[k])
         if reports.mode3a[k] >= 0:
             track.mode3a = int(reports.mode3a[k])
+
+    def _fuse(self, track: _Track, reports: AdsbReports, k: int, plot_id: int) -> tuple[Any, Any]:
+        """Report k filtered, as the fuser's local-track update and plot."""
+        self._filter(track, reports, k)
+        t, x, p = track.t, track.x, track.P
+        sigma = float(reports.sigma[k])
         # Never behind the system track it updates (module docstring: latency).
         ahead = max(self._system_time(track, int(reports.address[k])) - t, 0.0)
         if ahead > 0.0:

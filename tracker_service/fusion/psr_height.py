@@ -14,7 +14,9 @@ that radar's line of sight: white noise it is not. Here, per system track:
   y = (J_o - J_i)(H - H_hat) + noise, J_o the others' height Jacobian (0 for a radar
   that has the height from Mode C). Slant ranges from different sites agree in the
   horizontal only at the right height; a single radar leaves H where the prior put it;
-- every plot and local update of the system track is re-projected exactly at H_hat
+- once the height is measured, or the aircraft is in another radar's primary cover
+  (``fusion.cover``: that radar's local track may have to join), every plot and local
+  update of the system track is re-projected exactly at H_hat
   (``convert_plots`` from its slant range and azimuth), its covariance becomes the
   measurement noise alone, and J J^T var(H) goes to the fuser as the error common to
   that radar's plots of the aircraft (the ``extra`` consider term the residual biases
@@ -33,6 +35,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.fusion.cover import PSR_TYPES, RadarCover
 from tracker_service.fusion.references import References
 from tracker_service.geodesy import RadarSite, SystemPlane, convert_plots
 from tracker_service.geodesy.unknown_height import HeightBand, feasible_band, height_jacobian
@@ -54,10 +57,29 @@ class PsrHeightConfig:
     it the pair is not one aircraft at any height, and the plot does not measure it."""
     jacobian_age_s: float = 60.0
     """Another radar's height Jacobian of the aircraft older than this is not used."""
+    cover_cell_m: float = 10_000.0
+    """Side of the cells of the radars' primary cover (``fusion.cover``): a primary plot's
+    position is kilometres uncertain near the radar, and a neighbouring cell counts too."""
+    cover_memory_s: float = 300.0
+    """A radar's PSR plots older than this no longer say it covers their cell (a radar
+    that went down covers nothing)."""
     stale_s: float = 120.0
     """A system track's height untouched for this long belongs to a track that ended
     (a live one has a plot within the fuser's silence, 3 x the longest period): a new
     track under its reused number (after ``number_reuse_delay_s``, 300 s) starts afresh."""
+
+
+def _applies(entry: SystemHeight) -> bool:
+    """Whether a system track's plots are re-projected at its height estimate with the
+    estimate's uncertainty as a consider term: once another radar has measured the height,
+    or once the aircraft was in another radar's primary cover (that radar's local track,
+    off by its own height error, has to join: the consider term is what holds the gap).
+    A lone radar's aircraft is left alone: its local tracker took the band as white noise
+    in R, and a system track that takes it as one common error instead (noise-only R)
+    is a different filter of the same plots; by the algebra (not traced plot by plot) it
+    drifts off that local track and the fuser's review cuts them apart (canalA: 41
+    breaks against 24)."""
+    return entry.measurements > 0 or entry.shared
 
 
 @dataclass(frozen=True)
@@ -78,6 +100,10 @@ class SystemHeight:
     variance_m2: float
     time: float
     measurements: int = 0
+    shared: bool = False
+    """A plot of the aircraft lay in another radar's primary cover: from then on its
+    plots are re-projected at the estimate, with its uncertainty as a consider term, so
+    that the other radar's local track can join the system track (``PsrHeights``)."""
     jacobians: dict[int, tuple[FloatArray, float]] = field(default_factory=dict)
     """Per radar, its latest height Jacobian of this aircraft and when."""
 
@@ -110,6 +136,8 @@ class PsrHeights:
         self._previous: dict[tuple[int, int], tuple[npt.NDArray[Any], FloatArray]] = {}
         """Per (radar, local track number): its last plot (a table row) and the rate of
         its shift (m/s, smoothed)."""
+        self.cover = RadarCover(self.config.cover_cell_m, self.config.cover_memory_s, PSR_TYPES)
+        """The radars' primary cover, from their tracked plots (not clutter)."""
         self.measurements = 0
         self.rejected = 0
 
@@ -262,7 +290,7 @@ class PsrHeights:
             if last is not None:
                 j, used, number = last
                 entry = self.systems.get(number) if number > 0 else None
-                if entry is not None and entry.measurements > 0:
+                if entry is not None and _applies(entry):
                     shift = j * (entry.height_m - used)
                     local["x"][k] += shift[0]
                     local["y"][k] += shift[1]
@@ -288,29 +316,35 @@ class PsrHeights:
         height = plots["height_m"].copy()
         variance = plots["height_sigma_m"] ** 2
         entries: list[SystemHeight | None] = []
+        covered = self.cover.covered(
+            plots["x"], plots["y"], float(plots["time"].max()), besides=radar
+        )
         for m, k in enumerate(picked.tolist()):
             number = int(systems[k])
             entry = self._system(number, radar, float(plots["time"][m])) if number > 0 else None
-            # Until another radar has measured it, the estimate is the band's prior: the
-            # plot stays where its radar stage put it (the band's equivalent height; a
-            # lone radar's system tracks follow its local tracks, canalA).
-            if entry is not None and entry.measurements > 0:
+            if entry is not None:
+                entry.shared |= bool(covered[m])
+            # Where no other radar can see the aircraft, the plot stays where its radar
+            # stage put it (the band's equivalent height, its spread in the local
+            # tracker's R): a lone radar's system tracks follow its local tracks (canalA;
+            # docs/fusion.md "Primary-only aircraft").
+            if entry is not None and _applies(entry):
                 height[m], variance[m] = entry.height_m, entry.variance_m2
             entries.append(entry)
-        measured = np.array([e is not None and e.measurements > 0 for e in entries], dtype=bool)
+        applied = np.array([e is not None and _applies(e) for e in entries], dtype=bool)
         xy, r, j = self._convert(radar, plots, height)
         shift = xy - np.column_stack([plots["x"], plots["y"]])
-        shift[~measured] = 0.0
+        shift[~applied] = 0.0
         local["x"][picked] += shift[:, 0]
         local["y"][picked] += shift[:, 1]
         # The height's error as a consider term only where the estimate is the system's:
         # before, the band's spread is in the plot's own covariance already.
-        extra[picked] = np.where(measured, variance, 0.0)[:, None, None] * (
+        extra[picked] = np.where(applied, variance, 0.0)[:, None, None] * (
             j[:, :, None] * j[:, None, :]
         )
         keys = [(radar, int(t)) for t in local["track_number"][picked].tolist()]
-        # Unmeasured, the plot is not moved, and neither is its velocity.
-        rate = self._shift_rates(radar, keys, plots, shift, height) * measured[:, None]
+        # Not applied, the plot is not moved, and neither is its velocity.
+        rate = self._shift_rates(radar, keys, plots, shift, height) * applied[:, None]
         local["vx"][picked] += rate[:, 0]
         local["vy"][picked] += rate[:, 1]
         # The rate is first order and lags the geometry: as uncertain as it is large
@@ -323,7 +357,7 @@ class PsrHeights:
         at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
         for m in range(n):
             found = at[m] < len(tracked) and tracked["plot_id"][at[m]] == plots["plot_id"][m]
-            if found and measured[m]:
+            if found and applied[m]:
                 tracked["x"][at[m]] += shift[m, 0]
                 tracked["y"][at[m]] += shift[m, 1]
                 tracked["R"][at[m]] = r[m]

@@ -1,0 +1,83 @@
+"""Where the radars see targets, learnt from their plots: the cover that says whether a
+second radar may need to join a primary-only aircraft's system track
+(``fusion.psr_height``) and whether an ADS-B report can be checked against a radar before
+it founds a system track (``fusion.adsb_source``).
+
+The service is not configured with each radar's reach (range, PSR reach, terrain
+shadows); the plots hold it. Per square cell of the system plane and per radar, the time
+of the radar's latest plot there (of the plot types asked for); a position is covered by
+a radar that has put a plot in its cell or a neighbouring one within ``memory_s`` (a
+radar that went down covers nothing after that). Until a radar has reported for one
+antenna period its cover is not known yet: ``known`` says so.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
+
+__all__ = ["PSR_TYPES", "RadarCover"]
+
+PSR_TYPES = (1, 3, 6, 7)
+"""I048/020 TYP values with a primary detection (single PSR, SSR + PSR, Mode S + PSR)."""
+
+
+class RadarCover:
+    """See the module docstring. ``types``: the plot types (I048/020 TYP) that count,
+    None for all."""
+
+    def __init__(
+        self, cell_m: float, memory_s: float, types: tuple[int, ...] | None = None
+    ) -> None:
+        self.cell_m = cell_m
+        self.memory_s = memory_s
+        self.types = None if types is None else np.array(types)
+        self._seen: dict[tuple[int, int], dict[int, float]] = {}
+        """Per cell (ix, iy), per radar, the time of its latest plot there."""
+        self._first: dict[int, float] = {}
+        """Per radar, the time of its first plot."""
+
+    def _cells(self, x: FloatArray, y: FloatArray) -> IntArray:
+        return np.column_stack([np.floor(x / self.cell_m), np.floor(y / self.cell_m)]).astype(
+            np.int64
+        )
+
+    def note(self, radar: int, plots: npt.NDArray[Any]) -> None:
+        """A batch's plots (``PLOT_DTYPE`` rows) of ``radar``."""
+        if not len(plots):
+            return
+        self._first.setdefault(radar, float(plots["time"].min()))
+        counted = plots[np.isfinite(plots["x"]) & np.isfinite(plots["y"])]
+        if self.types is not None:
+            counted = counted[np.isin(counted["typ"], self.types)]
+        if not len(counted):
+            return
+        time = float(counted["time"].max())
+        for ix, iy in np.unique(self._cells(counted["x"], counted["y"]), axis=0).tolist():
+            self._seen.setdefault((ix, iy), {})[radar] = time
+
+    def known(self, radars: dict[int, float], time: float) -> bool:
+        """Whether every radar of ``radars`` (index: antenna period s) has reported for a
+        full antenna period by ``time`` (before, a cell without its plots may simply not
+        have been swept yet)."""
+        return all(
+            radar in self._first and time - self._first[radar] >= period
+            for radar, period in radars.items()
+        )
+
+    def covered(self, x: FloatArray, y: FloatArray, time: float, besides: int = -1) -> BoolArray:
+        """Per position, whether a radar other than ``besides`` has put a plot within a
+        cell of it in the last ``memory_s``."""
+        out = np.zeros(len(x), dtype=bool)
+        for m, (ix, iy) in enumerate(self._cells(np.asarray(x), np.asarray(y)).tolist()):
+            out[m] = any(
+                radar != besides and time - seen <= self.memory_s
+                for dx in (-1, 0, 1)
+                for dy in (-1, 0, 1)
+                for radar, seen in self._seen.get((ix + dx, iy + dy), {}).items()
+            )
+        return out
