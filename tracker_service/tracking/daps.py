@@ -10,11 +10,19 @@ Two steps, one on each side of the plot batch:
   by the plane's scale factor: ``SystemPlane.jacobian``) and the turn rate in the plane's
   sense (counter-clockwise positive, as the IMM's turn models): the track angle rate where
   the aircraft reports it, else the coordinated-turn rate g tan(roll) / V.
-- ``DapUpdate`` (local tracker, after the position update): the velocity as a second,
-  sequential measurement of every model (H = [0 I2], Joseph form), whose likelihoods
-  update the model probabilities as the position's do, and the turn rate as evidence for
-  the turn models: model j's probability times N(omega_dap; omega_j, sigma_omega^2). A
-  roll or a track angle rate announces a turn one or two scans before the positions bend.
+- ``DapUpdate`` (local tracker): the turn rate as evidence for the turn models, model
+  j's predicted probability times N(omega_dap; omega_j, sigma_omega^2), applied to the
+  prediction of each (track, plot) pair *before* the gate (``turn_prior``), so that the
+  gate, the assignment and the position update all see the turn the plot's register
+  reports; then, after the position update, the velocity as a second, sequential
+  measurement of every model (H = [0 I2], Joseph form), whose likelihoods update the
+  model probabilities as the position's do. A roll or a track angle rate announces a turn
+  one or two scans before the positions bend. (Applied after the position update, the
+  evidence came too late for the gate: a track whose earlier registers said "straight"
+  had its turn models near zero and its velocity pinned by the DAP velocity, and the
+  first plot of a sharp turn, itself reporting 47 deg of roll, fell out of the gate of the
+  straight prediction: the track was lost and a new one started two scans later, the
+  extra local tracks on three_sites.)
 
 The velocity's noise is honest about what the register is: ground speed to 2 kt steps
 (and the aircraft's own error), the track angle to 0.18 deg, and its age: a register the
@@ -210,14 +218,34 @@ class DapUpdate:
         r[:, 0, 1] = r[:, 1, 0] = (along - across) * ux * uy
         return r
 
+    def turn_prior(
+        self, pred: imm.ImmPrediction, p: PlotArrays, plots: npt.NDArray[np.intp]
+    ) -> imm.ImmPrediction:
+        """``pred`` (each pair's IMM prediction to the time of its plot ``plots``, indices
+        into ``p``) with the predicted model probabilities times the likelihood of the
+        plot's reported turn rate, and the combination that the gate tests redone; ``pred``
+        itself when no plot reports one. The register is the aircraft's at the plot's time,
+        so it weighs the models of that time, before the positions do."""
+        rates = p.rows["dap_turn_rate_rad_s"][plots]
+        has_w = np.flatnonzero((p.rows["dap_flags"][plots] & DAP_TURN_RATE) != 0)
+        if has_w.size == 0:
+            return pred
+        c = pred.c.copy()
+        c[has_w] = turn_evidence(
+            c[has_w], rates[has_w], self.turn_rates, self.noise.turn_rate_sigma_rad_s
+        )
+        self.counts.dap_turn_evidence += int(has_w.size)
+        x_comb, p_comb = pred.x_comb.copy(), pred.P_comb.copy()
+        x_comb[has_w], p_comb[has_w] = imm.combine(pred.x[has_w], pred.P[has_w], c[has_w])
+        return imm.ImmPrediction(pred.x, pred.P, c, x_comb, p_comb)
+
     def apply(self, step: imm.ImmUpdate, p: PlotArrays) -> imm.ImmUpdate:
-        """``step`` (the IMM after the position update of tracks whose plots are ``p``)
-        with each plot's DAPs applied; ``step`` itself when no plot has any."""
+        """``step`` (the IMM after the position update of tracks whose plots are ``p``,
+        from predictions that ``turn_prior`` weighed) with each plot's DAP velocity
+        applied; ``step`` itself when no plot has one."""
         x, P, mu = step.x, step.P, step.mu
-        flags = p.rows["dap_flags"]
-        has_v = (flags & DAP_VELOCITY) != 0
-        has_w = (flags & DAP_TURN_RATE) != 0
-        if not (has_v.any() or has_w.any()):
+        has_v = (p.rows["dap_flags"] & DAP_VELOCITY) != 0
+        if not has_v.any():
             return step
         x, P, mu = x.copy(), P.copy(), mu.copy()
         rows = np.flatnonzero(has_v)
@@ -238,15 +266,6 @@ class DapUpdate:
             xv, pv, muv = velocity_update(x[rows], P[rows], mu[rows], z, r)
             x[rows], P[rows], mu[rows] = xv, pv, muv
             self.counts.dap_velocity_updates += len(rows)
-        w_rows = np.flatnonzero(has_w)
-        if len(w_rows):
-            mu[w_rows] = turn_evidence(
-                mu[w_rows],
-                p.rows["dap_turn_rate_rad_s"][w_rows],
-                self.turn_rates,
-                self.noise.turn_rate_sigma_rad_s,
-            )
-            self.counts.dap_turn_evidence += len(w_rows)
         xc, pc = imm.combine(x, P, mu)
         return imm.ImmUpdate(x, P, mu, xc, pc)
 
