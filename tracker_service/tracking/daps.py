@@ -219,17 +219,25 @@ class DapUpdate:
         return r
 
     def turn_prior(
-        self, pred: imm.ImmPrediction, p: PlotArrays, plots: npt.NDArray[np.intp]
-    ) -> imm.ImmPrediction:
+        self,
+        pred: imm.ImmPrediction,
+        test: tuple[FloatArray, FloatArray],
+        p: PlotArrays,
+        plots: npt.NDArray[np.intp],
+    ) -> tuple[imm.ImmPrediction, FloatArray, FloatArray]:
         """``pred`` (each pair's IMM prediction to the time of its plot ``plots``, indices
         into ``p``) with the predicted model probabilities times the likelihood of the
-        plot's reported turn rate, and the combination that the gate tests redone; ``pred``
-        itself when no plot reports one. The register is the aircraft's at the plot's time,
-        so it weighs the models of that time, before the positions do."""
+        plot's reported turn rate, and the gate's test (NIS, log det S) of each pair: the
+        more lenient of ``test`` (without the evidence) and the test of the weighed
+        combination. The register is the aircraft's at the plot's time, so it weighs the
+        models of that time, before the positions do, and opens the gate to a turn it
+        reports; it must not close the gate on "straight", which a register up to
+        ``dap_latency_s`` old reports in the first second of a turn."""
+        nis, log_det = test
         rates = p.rows["dap_turn_rate_rad_s"][plots]
         has_w = np.flatnonzero((p.rows["dap_flags"][plots] & DAP_TURN_RATE) != 0)
         if has_w.size == 0:
-            return pred
+            return pred, nis, log_det
         c = pred.c.copy()
         c[has_w] = turn_evidence(
             c[has_w], rates[has_w], self.turn_rates, self.noise.turn_rate_sigma_rad_s
@@ -237,7 +245,14 @@ class DapUpdate:
         self.counts.dap_turn_evidence += int(has_w.size)
         x_comb, p_comb = pred.x_comb.copy(), pred.P_comb.copy()
         x_comb[has_w], p_comb[has_w] = imm.combine(pred.x[has_w], pred.P[has_w], c[has_w])
-        return imm.ImmPrediction(pred.x, pred.P, c, x_comb, p_comb)
+        weighed = imm.ImmPrediction(pred.x, pred.P, c, x_comb, p_comb)
+        z = np.column_stack([p.x[plots[has_w]], p.y[plots[has_w]]])
+        nis_w, log_det_w = imm.innovation_test(weighed.take(has_w), z, p.R[plots[has_w]])
+        nis, log_det = nis.copy(), log_det.copy()
+        better = nis_w < nis[has_w]
+        nis[has_w[better]] = nis_w[better]
+        log_det[has_w[better]] = log_det_w[better]
+        return weighed, nis, log_det
 
     def apply(self, step: imm.ImmUpdate, p: PlotArrays) -> imm.ImmUpdate:
         """``step`` (the IMM after the position update of tracks whose plots are ``p``,

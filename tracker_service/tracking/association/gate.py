@@ -27,7 +27,10 @@ from tracker_service.tracking.plots import (
     PlotArrays,
 )
 
-TurnPrior = Callable[[imm.ImmPrediction, PlotArrays, IntArray], imm.ImmPrediction]
+TurnPrior = Callable[
+    [imm.ImmPrediction, tuple[FloatArray, FloatArray], PlotArrays, IntArray],
+    tuple[imm.ImmPrediction, FloatArray, FloatArray],
+]
 
 RADIUS_SAFETY = 1.2
 RADIUS_MARGIN_M = 50.0
@@ -102,7 +105,7 @@ class Gate:
         self.models = models
         self.imm = imm_filter
         self.turn_prior = turn_prior
-        """The plots' reported turn rates weighing each pair's models before the test
+        """The plots' reported turn rates weighing each pair's models, and the test
         (``tracking.daps.DapUpdate.turn_prior``), None without DAPs."""
         # Per-tracker constants of the pre-selection radius, hoisted out of every batch.
         self._q_max = float(models.q.max())
@@ -135,9 +138,9 @@ class Gate:
             return GateResult(None, too_old)
 
         pred = self.imm.predict(cols["x"][ti], cols["P"][ti], cols["mu"][ti], dt)
-        if self.turn_prior is not None:
-            pred = self.turn_prior(pred, p, pj)
         nis, log_det = self.imm.innovation_test(pred, plot_xy[pj], r[pj])
+        if self.turn_prior is not None:
+            pred, nis, log_det = self.turn_prior(pred, (nis, log_det), p, pj)
         addr_t, addr_p = cols["address"][ti], p.address[pj]
         same_address = (addr_t >= 0) & (addr_t == addr_p)
         gated = np.flatnonzero(nis <= np.where(same_address, cfg.address_gate, cfg.gate))
