@@ -221,23 +221,23 @@ class DapUpdate:
     def turn_prior(
         self,
         pred: imm.ImmPrediction,
-        test: tuple[FloatArray, FloatArray],
+        nis: FloatArray,
         p: PlotArrays,
         plots: npt.NDArray[np.intp],
-    ) -> tuple[imm.ImmPrediction, FloatArray, FloatArray]:
+    ) -> tuple[imm.ImmPrediction, FloatArray]:
         """``pred`` (each pair's IMM prediction to the time of its plot ``plots``, indices
         into ``p``) with the predicted model probabilities times the likelihood of the
-        plot's reported turn rate, and the gate's test (NIS, log det S) of each pair: the
-        more lenient of ``test`` (without the evidence) and the test of the weighed
-        combination. The register is the aircraft's at the plot's time, so it weighs the
-        models of that time, before the positions do, and opens the gate to a turn it
-        reports; it must not close the gate on "straight", which a register up to
-        ``dap_latency_s`` old reports in the first second of a turn."""
-        nis, log_det = test
+        plot's reported turn rate, and the NIS the gate compares with its threshold: the
+        smaller of ``nis`` (the plain prediction's) and the weighed combination's. The
+        register is the aircraft's at the plot's time, so it weighs the models of that
+        time, before the positions do, and opens the gate to a turn it reports; it must
+        not close the gate on "straight", which a register up to ``dap_latency_s`` old
+        reports in the first second of a turn. The assignment keeps the plain test's
+        cost, so that plots both tests take go where they went before."""
         rates = p.rows["dap_turn_rate_rad_s"][plots]
         has_w = np.flatnonzero((p.rows["dap_flags"][plots] & DAP_TURN_RATE) != 0)
         if has_w.size == 0:
-            return pred, nis, log_det
+            return pred, nis
         c = pred.c.copy()
         c[has_w] = turn_evidence(
             c[has_w], rates[has_w], self.turn_rates, self.noise.turn_rate_sigma_rad_s
@@ -247,12 +247,10 @@ class DapUpdate:
         x_comb[has_w], p_comb[has_w] = imm.combine(pred.x[has_w], pred.P[has_w], c[has_w])
         weighed = imm.ImmPrediction(pred.x, pred.P, c, x_comb, p_comb)
         z = np.column_stack([p.x[plots[has_w]], p.y[plots[has_w]]])
-        nis_w, log_det_w = imm.innovation_test(weighed.take(has_w), z, p.R[plots[has_w]])
-        nis, log_det = nis.copy(), log_det.copy()
-        better = nis_w < nis[has_w]
-        nis[has_w[better]] = nis_w[better]
-        log_det[has_w[better]] = log_det_w[better]
-        return weighed, nis, log_det
+        nis_w, _ = imm.innovation_test(weighed.take(has_w), z, p.R[plots[has_w]])
+        gate_nis = nis.copy()
+        gate_nis[has_w] = np.minimum(nis[has_w], nis_w)
+        return weighed, gate_nis
 
     def apply(self, step: imm.ImmUpdate, p: PlotArrays) -> imm.ImmUpdate:
         """``step`` (the IMM after the position update of tracks whose plots are ``p``,

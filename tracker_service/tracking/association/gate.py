@@ -28,8 +28,7 @@ from tracker_service.tracking.plots import (
 )
 
 TurnPrior = Callable[
-    [imm.ImmPrediction, tuple[FloatArray, FloatArray], PlotArrays, IntArray],
-    tuple[imm.ImmPrediction, FloatArray, FloatArray],
+    [imm.ImmPrediction, FloatArray, PlotArrays, IntArray], tuple[imm.ImmPrediction, FloatArray]
 ]
 
 RADIUS_SAFETY = 1.2
@@ -105,8 +104,8 @@ class Gate:
         self.models = models
         self.imm = imm_filter
         self.turn_prior = turn_prior
-        """The plots' reported turn rates weighing each pair's models, and the test
-        (``tracking.daps.DapUpdate.turn_prior``), None without DAPs."""
+        """The plots' reported turn rates weighing each pair's models and widening the
+        gate (``tracking.daps.DapUpdate.turn_prior``), None without DAPs."""
         # Per-tracker constants of the pre-selection radius, hoisted out of every batch.
         self._q_max = float(models.q.max())
         self._turn_max = float(np.abs(models.turn_rates_rad_s).max())
@@ -139,11 +138,12 @@ class Gate:
 
         pred = self.imm.predict(cols["x"][ti], cols["P"][ti], cols["mu"][ti], dt)
         nis, log_det = self.imm.innovation_test(pred, plot_xy[pj], r[pj])
+        gate_nis = nis
         if self.turn_prior is not None:
-            pred, nis, log_det = self.turn_prior(pred, (nis, log_det), p, pj)
+            pred, gate_nis = self.turn_prior(pred, nis, p, pj)
         addr_t, addr_p = cols["address"][ti], p.address[pj]
         same_address = (addr_t >= 0) & (addr_t == addr_p)
-        gated = np.flatnonzero(nis <= np.where(same_address, cfg.address_gate, cfg.gate))
+        gated = np.flatnonzero(gate_nis <= np.where(same_address, cfg.address_gate, cfg.gate))
         if gated.size == 0:
             return GateResult(None, too_old)
         tg, pg = ti[gated], pj[gated]
