@@ -121,6 +121,8 @@ def test_turn_evidence_moves_probability_to_the_reported_turn() -> None:
     assert out[0].argmax() == 4 and out[0, 4] > 0.9
     level = turn_evidence(mu, np.radians([0.0]), rates, np.radians(0.5))
     assert level[0, 0] > mu[0, 0]
+    back = turn_evidence(out, np.radians([-3.0]), rates, np.radians(0.5), inverse=True)
+    np.testing.assert_allclose(back, mu, rtol=1e-9)
 
 
 def test_dap_step_gates_a_velocity_far_from_its_track_and_ignores_zero_rows() -> None:
