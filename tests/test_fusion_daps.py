@@ -8,6 +8,7 @@ import pytest
 
 from tracker_service.fusion import FusionConfig, consider, plot_daps
 from tracker_service.tracking import daps as tracking_daps
+from tracker_service.tracking import imm
 
 
 def _spd(rng: np.random.Generator, d: int, scale: float) -> np.ndarray:
@@ -59,3 +60,36 @@ def test_without_bias_it_is_the_local_trackers_update() -> None:
 def test_use_daps_is_validated() -> None:
     with pytest.raises(ValueError, match="use_daps"):
         FusionConfig(use_daps=1)  # type: ignore[arg-type]
+
+
+def test_the_plot_filter_takes_the_velocity_only_with_use_daps() -> None:
+    """One round of plots with BDS 5,0 velocities 20 m/s off the tracks' velocity: with
+    ``use_daps`` the system tracks' velocities move toward them and their velocity
+    variances shrink; without, the round ignores the DAP columns."""
+    from tests.test_fusion_kernels import _plots, _states
+    from tracker_service.fusion import estimator_plots
+    from tracker_service.tracking.plots import DAP_VELOCITY, as_plot_arrays
+
+    results = {}
+    for use_daps in (False, True):
+        _, state, rng = _states(3, 2, 6, use_daps=use_daps)
+        numbers = np.arange(1, 7)
+        sys = state.sys
+        sys["x"][numbers], _ = imm.combine(
+            sys["mx"][numbers], sys["mP"][numbers], sys["mu"][numbers]
+        )
+        rows = _plots(rng, state, numbers).rows.copy()
+        rows["time"] = sys["t"][numbers] + 1.0
+        target = sys["x"][numbers, 2:] + 20.0
+        rows["dap_vx"], rows["dap_vy"] = target.T
+        rows["dap_flags"] = DAP_VELOCITY
+        extra = np.broadcast_to(np.eye(2) * 900.0, (6, 2, 2)).copy()
+        estimator_plots._filter_round(state, 0, numbers, as_plot_arrays(rows), extra)
+        miss = np.linalg.norm(state.sys["x"][numbers, 2:] - target, axis=1)
+        var = state.sys["P"][numbers, 2, 2] + state.sys["P"][numbers, 3, 3]
+        results[use_daps] = (miss, var, state.stats.dap_velocity_updates)
+    assert results[False][2] == 0
+    updated = results[True][2]
+    assert updated > 0
+    assert np.sum(results[True][0] < results[False][0]) >= updated
+    assert np.sum(results[True][1] < results[False][1]) >= updated
