@@ -211,3 +211,33 @@ def test_a_plot_reporting_a_sharp_turn_stays_in_its_track(implementation: str) -
     numbers = [int(o["track_number"][0]) if len(o) else -1 for o in out]
     assert numbers[-4] > 0 and numbers[-3:] == [numbers[-4]] * 3
     assert tracker.stats.dap_turn_evidence > 0 and tracker.stats.dap_velocity_updates > 0
+
+
+def test_turn_prior_opens_the_gate_to_a_reported_turn_and_never_closes_it() -> None:
+    """Two pairs of one straight track: a plot 600 m left of the straight prediction whose
+    register reports a 3 deg/s left turn, and one on the straight line whose (late)
+    register reports the same turn. The weighed test passes the first far more easily;
+    the second keeps its plain test; both carry the weighed model probabilities."""
+    config = TrackerConfig(use_daps=True)
+    models = ModelSet.from_config(config)
+    step = DapUpdate(config, models)
+    m = models.n_models
+    x = np.zeros((2, m, 4))
+    x[..., 3] = 200.0  # north at 200 m/s
+    P = np.broadcast_to(np.diag([100.0, 100.0, 1.0, 1.0]), (2, m, 4, 4)).copy()
+    mu = np.tile(np.array([0.998, 0.0005, 0.0005, 0.0005, 0.0005]), (2, 1))
+    pred = imm.NumpyImm(models).predict(x, P, mu, np.array([10.0, 10.0]))
+    plots = empty_plots(2)
+    straight = pred.x[0, 0, :2]
+    left = pred.x[0, 3, :2]  # the +3 deg/s (left) model's prediction
+    plots["x"], plots["y"] = np.array([left, straight]).T
+    plots["R"] = np.diag([30.0**2, 30.0**2])
+    plots["dap_turn_rate_rad_s"] = np.radians(3.0)
+    plots["dap_flags"] = DAP_TURN_RATE
+    p = PlotArrays(plots)
+    z = np.column_stack([p.x, p.y])
+    nis, _ = imm.innovation_test(pred, z, p.R)
+    weighed, gate_nis = step.turn_prior(pred, nis, p, np.array([0, 1]))
+    assert gate_nis[0] < 0.25 * nis[0]
+    assert gate_nis[1] == nis[1]
+    assert (weighed.c[:, 3] > 0.5).all()
