@@ -90,6 +90,10 @@ class FusionConfig:
     """The plot filter's and the ML fusion's arithmetic: "compiled" (``fusion/kernels.py``,
     numba) or "numpy" (the reference: ``consider.py``, ``ml.py``); the same figures to
     1e-9 (tests/test_fusion_kernels.py)."""
+    use_daps: bool = False
+    """"plots" method: the plot filter takes each plot's Mode S BDS 5,0 velocity and turn
+    rate as the local trackers do with ``[tracker] use_daps`` (``fusion.plot_daps``; the
+    noise of ``plot_filter``'s ``dap_*`` fields, the tracker's defaults)."""
     plot_filter: TrackerConfig = field(
         default_factory=lambda: TrackerConfig(mean_sojourn_s=(150.0, 20.0, 20.0, 20.0, 20.0))
     )
@@ -121,6 +125,8 @@ class FusionConfig:
                 raise ValueError(f"{name} must be >= 0, not {getattr(self, name)!r}")
         if not 0.0 <= self.correlation < 1.0:
             raise ValueError(f"correlation must be in [0, 1), not {self.correlation!r}")
+        if not isinstance(self.use_daps, bool):
+            raise ValueError(f"[fusion] use_daps {self.use_daps!r}: use true or false")
         if self.implementation not in ("compiled", "numpy"):
             raise ValueError(f"implementation {self.implementation!r}: use 'compiled' or 'numpy'")
         if self.merge_after < 1:

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.fusion import consider
+from tracker_service.fusion import consider, plot_daps
 from tracker_service.fusion.arrays import last_of_each, positions, rank_within
 from tracker_service.fusion.state import FusionState
 from tracker_service.tracking import imm
@@ -175,11 +175,13 @@ def _filter_round(
             c.q,
             c.sojourn,
         )
-        return
-    pred = predict(state, numbers, dt)
-    x, pm, mm, mu = consider.update(pred, z, p.R, radar, sys["B"][numbers])
-    xc, pc = imm.combine(x, pm, mu)
-    sys["mx"][numbers], sys["mP"][numbers], sys["mM"][numbers] = x, pm, mm
-    sys["mu"][numbers] = mu
-    sys["x"][numbers], sys["P"][numbers], sys["t"][numbers] = xc, pc, p.time
-    sys["M"][numbers] = consider.combine(mm, mu)
+    else:
+        pred = predict(state, numbers, dt)
+        x, pm, mm, mu = consider.update(pred, z, p.R, radar, sys["B"][numbers])
+        xc, pc = imm.combine(x, pm, mu)
+        sys["mx"][numbers], sys["mP"][numbers], sys["mM"][numbers] = x, pm, mm
+        sys["mu"][numbers] = mu
+        sys["x"][numbers], sys["P"][numbers], sys["t"][numbers] = xc, pc, p.time
+        sys["M"][numbers] = consider.combine(mm, mu)
+    if state.daps is not None:
+        plot_daps.apply(state, state.daps, numbers, p)

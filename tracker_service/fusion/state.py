@@ -13,6 +13,7 @@ import numpy.typing as npt
 
 from tracker_service.fusion.config import FusionConfig
 from tracker_service.fusion.table import LocalTrackTable, new_system_table
+from tracker_service.tracking.daps import DapUpdate
 from tracker_service.tracking.models import ModelSet
 
 if TYPE_CHECKING:
@@ -36,6 +37,10 @@ class FusionStats:
     """Local-track updates refused by the clock: too far ahead of the fuser's clock or
     behind it (see ``tracking.clock``), e.g. a radar whose time is out of step."""
     clock_resyncs: int = 0
+    dap_velocity_updates: int = 0
+    """Plot-filter updates that took their plot's BDS 5,0 velocity (``plot_daps``)."""
+    dap_turn_evidence: int = 0
+    dap_velocity_gated_out: int = 0
 
 
 @dataclass
@@ -63,6 +68,13 @@ class FusionState:
         from tracker_service.fusion.kernels import ModelConstants
 
         return ModelConstants(self.models)
+
+    @cached_property
+    def daps(self) -> DapUpdate | None:
+        """The plot filter's DAP step (``fusion.plot_daps``), None unless ``use_daps``."""
+        if not self.config.use_daps:
+            return None
+        return DapUpdate(self.config.plot_filter, self.models, self.stats)
 
     @property
     def turn_max(self) -> float:

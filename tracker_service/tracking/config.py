@@ -145,10 +145,13 @@ class TrackerConfig:
     use_daps: bool = False
     """Mode S DAPs (BDS 5,0) in the horizontal filter: the velocity as a measurement and
     the turn rate as evidence for the turn models (``tracking.daps``), and the BDS 6,0
-    vertical rates and BDS 4,0 selected altitude in the vertical one. Off by default for
-    now: on three_sites they cut the local RMS by a third but add local tracks (25/12:
-    1.051 tracks per aircraft against 1.026 without, over the 1.05 target), not yet
-    understood; docs/tracking.md "Mode S DAPs"."""
+    vertical rates and BDS 4,0 selected altitude in the vertical one (with the fuser's
+    ``[fusion] use_daps``, its plot filter too). Off by default: on three_sites (seeds
+    1-5 and the scenario's) they cut the local RMS by a quarter to a third and the
+    multi-radar system RMS by a quarter, but on the scenario seed one local track is still
+    lost at a sharp turn (1.022 system tracks per aircraft against the 1.02 target) and
+    single coverage stays 4 m worse than 25/11's average local track; docs/tracking.md
+    "Mode S DAPs", docs/fusion.md "Mode S DAPs in the plot filter"."""
     dap_speed_sigma_m_s: float = 1.0
     """Along-track sigma of the BDS 5,0 velocity: 2 kt steps, the avionics' error and
     speed changes over the register's age."""

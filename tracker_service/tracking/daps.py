@@ -10,11 +10,19 @@ Two steps, one on each side of the plot batch:
   by the plane's scale factor: ``SystemPlane.jacobian``) and the turn rate in the plane's
   sense (counter-clockwise positive, as the IMM's turn models): the track angle rate where
   the aircraft reports it, else the coordinated-turn rate g tan(roll) / V.
-- ``DapUpdate`` (local tracker, after the position update): the velocity as a second,
-  sequential measurement of every model (H = [0 I2], Joseph form), whose likelihoods
-  update the model probabilities as the position's do, and the turn rate as evidence for
-  the turn models: model j's probability times N(omega_dap; omega_j, sigma_omega^2). A
-  roll or a track angle rate announces a turn one or two scans before the positions bend.
+- ``DapUpdate`` (local tracker): the turn rate as evidence for the turn models, model
+  j's predicted probability times N(omega_dap; omega_j, sigma_omega^2), applied to the
+  prediction of each (track, plot) pair *before* the gate (``turn_prior``), so that the
+  gate, the assignment and the position update all see the turn the plot's register
+  reports; then, after the position update, the velocity as a second, sequential
+  measurement of every model (H = [0 I2], Joseph form), whose likelihoods update the
+  model probabilities as the position's do. A roll or a track angle rate announces a turn
+  one or two scans before the positions bend. (Applied after the position update, the
+  evidence came too late for the gate: a track whose earlier registers said "straight"
+  had its turn models near zero and its velocity pinned by the DAP velocity, and the
+  first plot of a sharp turn, itself reporting 47 deg of roll, fell out of the gate of the
+  straight prediction: the track was lost and a new one started two scans later, the
+  extra local tracks on three_sites.)
 
 The velocity's noise is honest about what the register is: ground speed to 2 kt steps
 (and the aircraft's own error), the track angle to 0.18 deg, and its age: a register the
@@ -210,14 +218,47 @@ class DapUpdate:
         r[:, 0, 1] = r[:, 1, 0] = (along - across) * ux * uy
         return r
 
+    def turn_prior(
+        self,
+        pred: imm.ImmPrediction,
+        nis: FloatArray,
+        p: PlotArrays,
+        plots: npt.NDArray[np.intp],
+    ) -> tuple[imm.ImmPrediction, FloatArray]:
+        """``pred`` (each pair's IMM prediction to the time of its plot ``plots``, indices
+        into ``p``) with the predicted model probabilities times the likelihood of the
+        plot's reported turn rate, and the NIS the gate compares with its threshold: the
+        smaller of ``nis`` (the plain prediction's) and the weighed combination's. The
+        register is the aircraft's at the plot's time, so it weighs the models of that
+        time, before the positions do, and opens the gate to a turn it reports; it must
+        not close the gate on "straight", which a register up to ``dap_latency_s`` old
+        reports in the first second of a turn. The assignment keeps the plain test's
+        cost, so that plots both tests take go where they went before."""
+        rates = p.rows["dap_turn_rate_rad_s"][plots]
+        has_w = np.flatnonzero((p.rows["dap_flags"][plots] & DAP_TURN_RATE) != 0)
+        if has_w.size == 0:
+            return pred, nis
+        c = pred.c.copy()
+        c[has_w] = turn_evidence(
+            c[has_w], rates[has_w], self.turn_rates, self.noise.turn_rate_sigma_rad_s
+        )
+        self.counts.dap_turn_evidence += int(has_w.size)
+        x_comb, p_comb = pred.x_comb.copy(), pred.P_comb.copy()
+        x_comb[has_w], p_comb[has_w] = imm.combine(pred.x[has_w], pred.P[has_w], c[has_w])
+        weighed = imm.ImmPrediction(pred.x, pred.P, c, x_comb, p_comb)
+        z = np.column_stack([p.x[plots[has_w]], p.y[plots[has_w]]])
+        nis_w, _ = imm.innovation_test(weighed.take(has_w), z, p.R[plots[has_w]])
+        gate_nis = nis.copy()
+        gate_nis[has_w] = np.minimum(nis[has_w], nis_w)
+        return weighed, gate_nis
+
     def apply(self, step: imm.ImmUpdate, p: PlotArrays) -> imm.ImmUpdate:
-        """``step`` (the IMM after the position update of tracks whose plots are ``p``)
-        with each plot's DAPs applied; ``step`` itself when no plot has any."""
+        """``step`` (the IMM after the position update of tracks whose plots are ``p``,
+        from predictions that ``turn_prior`` weighed) with each plot's DAP velocity
+        applied; ``step`` itself when no plot has one."""
         x, P, mu = step.x, step.P, step.mu
-        flags = p.rows["dap_flags"]
-        has_v = (flags & DAP_VELOCITY) != 0
-        has_w = (flags & DAP_TURN_RATE) != 0
-        if not (has_v.any() or has_w.any()):
+        has_v = (p.rows["dap_flags"] & DAP_VELOCITY) != 0
+        if not has_v.any():
             return step
         x, P, mu = x.copy(), P.copy(), mu.copy()
         rows = np.flatnonzero(has_v)
@@ -225,9 +266,24 @@ class DapUpdate:
             z = aged_velocity(p, rows, self.noise.latency_s)
             r = self.velocity_covariance(p, rows)
             # Gate on the combined estimate: a velocity far from its track is another
-            # aircraft's register (a shared address) or a fault, not a measurement.
-            xc = np.einsum("km,kma->ka", mu[rows], x[rows])
-            _, pc = imm.combine(x[rows], P[rows], mu[rows])
+            # aircraft's register (a shared address) or a fault, not a measurement. The
+            # mixture the positions give, without the turn rate's weight (``turn_prior``):
+            # concentrated on the reported turn's model, whose rate a register up to
+            # 1.3 s old lags, it gated out good velocities in turns (turns seed 1:
+            # across-track RMS in turns 31 -> 38 m).
+            mu_gate = mu[rows]
+            w = (p.rows["dap_flags"][rows] & DAP_TURN_RATE) != 0
+            if w.any():
+                mu_gate = mu_gate.copy()
+                mu_gate[w] = turn_evidence(
+                    mu_gate[w],
+                    p.rows["dap_turn_rate_rad_s"][rows[w]],
+                    self.turn_rates,
+                    self.noise.turn_rate_sigma_rad_s,
+                    inverse=True,
+                )
+            xc = np.einsum("km,kma->ka", mu_gate, x[rows])
+            _, pc = imm.combine(x[rows], P[rows], mu_gate)
             y = z - xc[:, 2:]
             s_inv, _ = imm.inv2(pc[:, 2:, 2:] + r)
             nis = np.einsum("ka,kab,kb->k", y, s_inv, y)
@@ -238,15 +294,6 @@ class DapUpdate:
             xv, pv, muv = velocity_update(x[rows], P[rows], mu[rows], z, r)
             x[rows], P[rows], mu[rows] = xv, pv, muv
             self.counts.dap_velocity_updates += len(rows)
-        w_rows = np.flatnonzero(has_w)
-        if len(w_rows):
-            mu[w_rows] = turn_evidence(
-                mu[w_rows],
-                p.rows["dap_turn_rate_rad_s"][w_rows],
-                self.turn_rates,
-                self.noise.turn_rate_sigma_rad_s,
-            )
-            self.counts.dap_turn_evidence += len(w_rows)
         xc, pc = imm.combine(x, P, mu)
         return imm.ImmUpdate(x, P, mu, xc, pc)
 
@@ -278,12 +325,19 @@ def velocity_update(
 
 
 def turn_evidence(
-    mu: FloatArray, omega: FloatArray, turn_rates: FloatArray, sigma: float
+    mu: FloatArray,
+    omega: FloatArray,
+    turn_rates: FloatArray,
+    sigma: float,
+    *,
+    inverse: bool = False,
 ) -> FloatArray:
     """Model probabilities (k, M) times the likelihood of a reported turn rate omega (k,)
-    under each model's fixed rate, N(omega; omega_j, sigma^2), normalised."""
+    under each model's fixed rate, N(omega; omega_j, sigma^2), normalised; divided by it
+    when ``inverse`` (the probabilities before that evidence)."""
     d = (omega[:, None] - turn_rates[None, :]) / sigma
-    log_post = np.log(np.maximum(mu, imm.TINY)) - 0.5 * d * d
+    sign = -1.0 if inverse else 1.0
+    log_post = np.log(np.maximum(mu, imm.TINY)) - sign * 0.5 * d * d
     log_post -= log_post.max(axis=1, keepdims=True)
     out = np.exp(log_post)
     out /= out.sum(axis=1, keepdims=True)

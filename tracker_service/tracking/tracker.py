@@ -170,7 +170,9 @@ class LocalTracker:
         self._hist_mask = (1 << (self.config.confirm_n + extra)) - 1
         self._window_mask = (1 << self.config.confirm_n) - 1
         self._dense_window_mask = self._hist_mask
-        self.gate = Gate(self.config, self.models, self.imm)
+        self.gate = Gate(
+            self.config, self.models, self.imm, None if self.daps is None else self.daps.turn_prior
+        )
         self.associator = make_associator(self.config)
         if self.clutter is not None and isinstance(self.associator, MultipleHypothesisTracking):
             self.associator.clutter_density = self._clutter_density

@@ -8,6 +8,7 @@ associator sees the same ``GatedPairs``; only what it makes of them differs.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,6 +26,10 @@ from tracker_service.tracking.plots import (
     IntArray,
     PlotArrays,
 )
+
+TurnPrior = Callable[
+    [imm.ImmPrediction, FloatArray, PlotArrays, IntArray], tuple[imm.ImmPrediction, FloatArray]
+]
 
 RADIUS_SAFETY = 1.2
 RADIUS_MARGIN_M = 50.0
@@ -88,10 +93,19 @@ class GateResult:
 class Gate:
     """Builds the ``GatedPairs`` of a batch from the track table's columns."""
 
-    def __init__(self, config: TrackerConfig, models: ModelSet, imm_filter: imm.ImmFilter) -> None:
+    def __init__(
+        self,
+        config: TrackerConfig,
+        models: ModelSet,
+        imm_filter: imm.ImmFilter,
+        turn_prior: TurnPrior | None = None,
+    ) -> None:
         self.config = config
         self.models = models
         self.imm = imm_filter
+        self.turn_prior = turn_prior
+        """The plots' reported turn rates weighing each pair's models and widening the
+        gate (``tracking.daps.DapUpdate.turn_prior``), None without DAPs."""
         # Per-tracker constants of the pre-selection radius, hoisted out of every batch.
         self._q_max = float(models.q.max())
         self._turn_max = float(np.abs(models.turn_rates_rad_s).max())
@@ -124,9 +138,12 @@ class Gate:
 
         pred = self.imm.predict(cols["x"][ti], cols["P"][ti], cols["mu"][ti], dt)
         nis, log_det = self.imm.innovation_test(pred, plot_xy[pj], r[pj])
+        gate_nis = nis
+        if self.turn_prior is not None:
+            pred, gate_nis = self.turn_prior(pred, nis, p, pj)
         addr_t, addr_p = cols["address"][ti], p.address[pj]
         same_address = (addr_t >= 0) & (addr_t == addr_p)
-        gated = np.flatnonzero(nis <= np.where(same_address, cfg.address_gate, cfg.gate))
+        gated = np.flatnonzero(gate_nis <= np.where(same_address, cfg.address_gate, cfg.gate))
         if gated.size == 0:
             return GateResult(None, too_old)
         tg, pg = ti[gated], pj[gated]
