@@ -11,11 +11,12 @@ message building excludes the sink calls). The sinks run in their output threads
 process's CPU time (``time.process_time``, every thread, Zenoh's own threads included)
 minus the stages: the service's glue, the duplicate filter, queues, Zenoh internals.
 The recording is read into memory before the clock starts. A first, untimed run over its
-first 2 s loads (or compiles) the numba kernels of the tracker and the fuser.
+first 12 s (``--warmup-seconds``) loads (or compiles) the numba kernels of the tracker and the fuser.
 
     tracker-service simulate config/scenarios/scale.toml -o scale60.mcap --duration 60
     python benchmarks/bench_stages.py scale60.mcap [--seconds 30] [--repeats 1]
         [--no-mcap] [--no-zenoh] [--fusion-implementation compiled|numpy] [--json]
+        [--profile FILE]
 
 The stages and what each wraps:
 
@@ -37,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import cProfile
 import functools
 import json
 import statistics
@@ -204,17 +206,33 @@ def main() -> None:
     parser.add_argument("recording", help="a simulated recording (e.g. of scale)")
     parser.add_argument("--seconds", type=float, default=30.0, help="slice of the recording")
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument(
+        "--warmup-seconds", type=float, default=12.0, help="slice of the untimed first run"
+    )
     parser.add_argument("--no-mcap", action="store_true")
     parser.add_argument("--no-zenoh", action="store_true")
     parser.add_argument(
         "--fusion-implementation", choices=("compiled", "numpy"), default="compiled"
     )
     parser.add_argument("--json", action="store_true", help="the figures as JSON on stdout")
+    parser.add_argument(
+        "--profile",
+        metavar="FILE",
+        help="cProfile the timed runs' main thread into FILE (pstats), by its CPU time",
+    )
     args = parser.parse_args()
     options = (not args.no_mcap, not args.no_zenoh, args.fusion_implementation)
-    run_once(args.recording, min(2.0, args.seconds), *options)  # numba's kernels loaded
+    # numba's kernels loaded (or compiled) before the clock starts: some are first called
+    # only once system tracks are fed by two radars, after a few antenna periods.
+    run_once(args.recording, min(args.warmup_seconds, args.seconds), *options)
     runs = []
+    # The thread's CPU time, not cProfile's default wall clock: a call that releases the
+    # GIL (a lock, a large numpy reduction) would otherwise be charged with the time the
+    # output threads hold it.
+    profiler = cProfile.Profile(time.thread_time) if args.profile else None
     for repeat in range(args.repeats):
+        if profiler is not None:
+            profiler.enable()
         runs.append(
             run_once(
                 args.recording,
@@ -224,12 +242,16 @@ def main() -> None:
                 args.fusion_implementation,
             )
         )
+        if profiler is not None:
+            profiler.disable()
         _, plots, cpu, wall = runs[-1]
         print(
             f"run {repeat + 1}: {plots} plots, {cpu:.1f} CPU s, {wall:.1f} s wall,"
             f" {plots / cpu:,.0f} plots per CPU-second",
             file=sys.stderr,
         )
+    if profiler is not None:
+        profiler.dump_stats(args.profile)
     plots = runs[0][1]
     names = [*STAGES, "other"]
     median = {n: statistics.median(r[0][n] for r in runs) for n in names}
