@@ -11,7 +11,8 @@ message building excludes the sink calls). The sinks run in their output threads
 process's CPU time (``time.process_time``, every thread, Zenoh's own threads included)
 minus the stages: the service's glue, the duplicate filter, queues, Zenoh internals.
 The recording is read into memory before the clock starts. A first, untimed run over its
-first 12 s (``--warmup-seconds``) loads (or compiles) the numba kernels of the tracker and the fuser.
+first 12 s (``--warmup-seconds``) loads (or compiles) the numba kernels of the tracker
+and the fuser.
 
     tracker-service simulate config/scenarios/scale.toml -o scale60.mcap --duration 60
     python benchmarks/bench_stages.py scale60.mcap [--seconds 30] [--repeats 1]
