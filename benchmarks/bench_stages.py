@@ -78,7 +78,17 @@ STAGES = (
     "MCAP",
     "Zenoh",
 )
-SINK_CALLS = ("datagram", "system", "local", "asterix", "bias", "status", "close")
+SINK_CALLS = (
+    "datagram",
+    "system",
+    "local",
+    "system_updates",
+    "local_updates",
+    "asterix",
+    "bias",
+    "status",
+    "close",
+)
 
 
 class StageClock:
