@@ -2,7 +2,8 @@
 
 The local-track table holds one row per radar and local track number, with the latest
 state and the system track it feeds, found by a sorted key index; the system-track table
-is indexed by the system track number (1..4095).
+is indexed by the system track number (1..4095). Both are held column by column
+(``Columns``).
 """
 
 from __future__ import annotations
@@ -75,12 +76,6 @@ def system_dtype(n_models: int, n_radars: int) -> np.dtype[Any]:
     )
 
 
-def new_system_table(n_models: int, n_radars: int) -> npt.NDArray[Any]:
-    table = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=system_dtype(n_models, n_radars))
-    table["freed_at"] = -np.inf
-    return table
-
-
 class Columns:
     """A table of ``dtype``'s fields held column by column, indexed as a structured array
     is: ``table[name]`` a field (a contiguous array: a scan of one field of 20,000 local
@@ -122,6 +117,14 @@ class Columns:
             return
         for name, column in self._columns.items():
             column[key] = value[name]
+
+
+def new_system_table(n_models: int, n_radars: int) -> Columns:
+    """Column by column (``Columns``): a row holds every radar's sensitivities, about
+    10 kB, so that a field view of packed rows would touch a page per row."""
+    table = Columns.zeros(MAX_SYSTEM_NUMBER + 1, system_dtype(n_models, n_radars))
+    table["freed_at"] = -np.inf
+    return table
 
 
 class LocalTrackTable:
