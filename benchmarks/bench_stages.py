@@ -42,6 +42,7 @@ import contextlib
 import cProfile
 import functools
 import json
+import os
 import statistics
 import sys
 import tempfile
@@ -200,16 +201,45 @@ def run_once(
         with instrumented(clock):
             service = TrackerService(config, publisher, log)
             service.set_input_counters(replay.counters)
+            threads_before = thread_seconds()
             cpu0, wall0 = time.process_time(), time.perf_counter()
             for name, datagram in datagrams:
                 service.process(name, datagram)
+            service.local.drain()
+            threads_after = thread_seconds()  # before close: the output threads end there
             service.close()
             service.local.drain()
             cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
             plots = service.chain.stats.plots
     stages = dict(clock.seconds)
     stages["other"] = cpu - sum(stages.values())
+    if threads_before is not None and threads_after is not None:
+        spent = {n: s - threads_before.get(n, 0.0) for n, s in threads_after.items()}
+        print(
+            "CPU s by thread (Linux):",
+            ", ".join(f"{n} {s:.2f}" for n, s in sorted(spent.items(), key=lambda i: -i[1])),
+            file=sys.stderr,
+        )
     return stages, plots, cpu, wall
+
+
+def thread_seconds() -> dict[str, float] | None:
+    """User + system CPU seconds of this process's threads by name (comm), from /proc:
+    what "other" is made of (the service's own threads, Zenoh's, numba's)."""
+    tasks = Path("/proc/self/task")
+    if not tasks.is_dir():
+        return None
+    tick = os.sysconf("SC_CLK_TCK")
+    python_names = {t.native_id: t.name for t in threading.enumerate()}
+    seconds: dict[str, float] = {}
+    for task in tasks.iterdir():
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            stat = (task / "stat").read_text()
+            name = python_names.get(int(task.name)) or stat[stat.index("(") + 1 : stat.rindex(")")]
+            fields = stat[stat.rindex(")") + 2 :].split()
+            # utime and stime: fields 14 and 15 of stat(5), counted from the state (3).
+            seconds[name] = seconds.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+    return seconds
 
 
 def main() -> None:
