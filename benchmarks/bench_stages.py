@@ -11,11 +11,13 @@ message building excludes the sink calls). The sinks run in their output threads
 process's CPU time (``time.process_time``, every thread, Zenoh's own threads included)
 minus the stages: the service's glue, the duplicate filter, queues, Zenoh internals.
 The recording is read into memory before the clock starts. A first, untimed run over its
-first 2 s loads (or compiles) the numba kernels of the tracker and the fuser.
+first 12 s (``--warmup-seconds``) loads (or compiles) the numba kernels of the tracker
+and the fuser.
 
     tracker-service simulate config/scenarios/scale.toml -o scale60.mcap --duration 60
     python benchmarks/bench_stages.py scale60.mcap [--seconds 30] [--repeats 1]
         [--no-mcap] [--no-zenoh] [--fusion-implementation compiled|numpy] [--json]
+        [--profile FILE]
 
 The stages and what each wraps:
 
@@ -37,8 +39,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import cProfile
 import functools
 import json
+import os
 import statistics
 import sys
 import tempfile
@@ -75,7 +79,17 @@ STAGES = (
     "MCAP",
     "Zenoh",
 )
-SINK_CALLS = ("datagram", "system", "local", "asterix", "bias", "status", "close")
+SINK_CALLS = (
+    "datagram",
+    "system",
+    "local",
+    "system_updates",
+    "local_updates",
+    "asterix",
+    "bias",
+    "status",
+    "close",
+)
 
 
 class StageClock:
@@ -187,16 +201,45 @@ def run_once(
         with instrumented(clock):
             service = TrackerService(config, publisher, log)
             service.set_input_counters(replay.counters)
+            threads_before = thread_seconds()
             cpu0, wall0 = time.process_time(), time.perf_counter()
             for name, datagram in datagrams:
                 service.process(name, datagram)
+            service.local.drain()
+            threads_after = thread_seconds()  # before close: the output threads end there
             service.close()
             service.local.drain()
             cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
             plots = service.chain.stats.plots
     stages = dict(clock.seconds)
     stages["other"] = cpu - sum(stages.values())
+    if threads_before is not None and threads_after is not None:
+        spent = {n: s - threads_before.get(n, 0.0) for n, s in threads_after.items()}
+        print(
+            "CPU s by thread (Linux):",
+            ", ".join(f"{n} {s:.2f}" for n, s in sorted(spent.items(), key=lambda i: -i[1])),
+            file=sys.stderr,
+        )
     return stages, plots, cpu, wall
+
+
+def thread_seconds() -> dict[str, float] | None:
+    """User + system CPU seconds of this process's threads by name (comm), from /proc:
+    what "other" is made of (the service's own threads, Zenoh's, numba's)."""
+    tasks = Path("/proc/self/task")
+    if not tasks.is_dir():
+        return None
+    tick = os.sysconf("SC_CLK_TCK")
+    python_names = {t.native_id: t.name for t in threading.enumerate()}
+    seconds: dict[str, float] = {}
+    for task in tasks.iterdir():
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            stat = (task / "stat").read_text()
+            name = python_names.get(int(task.name)) or stat[stat.index("(") + 1 : stat.rindex(")")]
+            fields = stat[stat.rindex(")") + 2 :].split()
+            # utime and stime: fields 14 and 15 of stat(5), counted from the state (3).
+            seconds[name] = seconds.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+    return seconds
 
 
 def main() -> None:
@@ -204,17 +247,33 @@ def main() -> None:
     parser.add_argument("recording", help="a simulated recording (e.g. of scale)")
     parser.add_argument("--seconds", type=float, default=30.0, help="slice of the recording")
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument(
+        "--warmup-seconds", type=float, default=12.0, help="slice of the untimed first run"
+    )
     parser.add_argument("--no-mcap", action="store_true")
     parser.add_argument("--no-zenoh", action="store_true")
     parser.add_argument(
         "--fusion-implementation", choices=("compiled", "numpy"), default="compiled"
     )
     parser.add_argument("--json", action="store_true", help="the figures as JSON on stdout")
+    parser.add_argument(
+        "--profile",
+        metavar="FILE",
+        help="cProfile the timed runs' main thread into FILE (pstats), by its CPU time",
+    )
     args = parser.parse_args()
     options = (not args.no_mcap, not args.no_zenoh, args.fusion_implementation)
-    run_once(args.recording, min(2.0, args.seconds), *options)  # numba's kernels loaded
+    # numba's kernels loaded (or compiled) before the clock starts: some are first called
+    # only once system tracks are fed by two radars, after a few antenna periods.
+    run_once(args.recording, min(args.warmup_seconds, args.seconds), *options)
     runs = []
+    # The thread's CPU time, not cProfile's default wall clock: a call that releases the
+    # GIL (a lock, a large numpy reduction) would otherwise be charged with the time the
+    # output threads hold it.
+    profiler = cProfile.Profile(time.thread_time) if args.profile else None
     for repeat in range(args.repeats):
+        if profiler is not None:
+            profiler.enable()
         runs.append(
             run_once(
                 args.recording,
@@ -224,12 +283,16 @@ def main() -> None:
                 args.fusion_implementation,
             )
         )
+        if profiler is not None:
+            profiler.disable()
         _, plots, cpu, wall = runs[-1]
         print(
             f"run {repeat + 1}: {plots} plots, {cpu:.1f} CPU s, {wall:.1f} s wall,"
             f" {plots / cpu:,.0f} plots per CPU-second",
             file=sys.stderr,
         )
+    if profiler is not None:
+        profiler.dump_stats(args.profile)
     plots = runs[0][1]
     names = [*STAGES, "other"]
     median = {n: statistics.median(r[0][n] for r in runs) for n in names}

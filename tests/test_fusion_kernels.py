@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from tests.test_fusion import AIRCRAFT, RADARS, build
 from tests.test_tracking_kernels import TOLERANCE, close
-from tracker_service.fusion import FusionConfig, SystemTracker, consider, estimator_plots
+from tracker_service.fusion import FusionConfig, SystemTracker, consider, estimator_plots, nearby
 from tracker_service.fusion.estimator_tracks import fuse_local_tracks
 from tracker_service.fusion.state import FusionState
 from tracker_service.fusion.table import LocalTrackTable
@@ -236,3 +236,25 @@ def test_slots_are_the_references(seed: int, k: int, max_sources: int) -> None:
     numbers = rng.integers(1, 14, int(rng.integers(0, 20)))
     want, got = (table.slots(numbers, max_sources) for table in tables)
     np.testing.assert_array_equal(want, got)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=0, max_value=40), n_radars=st.integers(1, 5))
+def test_pre_selection_reads_sensitivities_and_biases_as_the_reference(
+    seed: int, k: int, n_radars: int
+) -> None:
+    """``nearby``'s in-place reads of M and B (association's and merging's radii) against
+    the gathers they replace; numbers repeat and skip rows, as candidates do."""
+    compiled, _, rng = _states(seed, n_radars, max(k, 1))
+    sys = compiled.sys
+    sys["M"][1 : k + 1] = rng.normal(0.0, 0.5, (k, n_radars, 4, 2))
+    numbers = rng.integers(1, k + 1, k) if k else np.zeros(0, dtype=np.int64)
+    t = sys["t"][numbers]
+    t_mid, spread = float(rng.uniform(0.0, 10.0)), float(rng.uniform(0.0, 3.0))
+    got = nearby.system_sensitivity_norm(sys["M"], numbers, t, t_mid, spread, compiled=True)
+    want = nearby.sensitivity_norm(sys["M"][numbers], t, t_mid, spread)
+    np.testing.assert_allclose(got, want, rtol=TOLERANCE, atol=0.0)
+    got_b = nearby.system_largest_bias(sys["B"], numbers, compiled=True)
+    want_b = nearby.largest_bias(sys["B"][numbers])
+    assert got_b == pytest.approx(want_b, rel=TOLERANCE, abs=0.0)
+    assert nearby.system_largest_bias(sys["B"], numbers, compiled=False) == want_b

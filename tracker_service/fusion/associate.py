@@ -99,11 +99,16 @@ def _near(
     loc, sys, cfg = state.local.rows, state.sys, state.config
     t_local = loc["t"][free]
     t_mid, spread = nearby.time_span(t_local)
-    b = max(nearby.largest_bias(sys["B"][candidates]), nearby.largest_bias(loc["extra"][free]))
+    b = max(
+        nearby.system_largest_bias(sys["B"], candidates, state.compiled),
+        nearby.largest_bias(loc["extra"][free]),
+    )
     q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
     x, p = estimator.coarse_state(state, candidates)
     t_system = sys["t"][candidates]
-    sensitivity = nearby.sensitivity_norm(sys["M"][candidates], t_system, t_mid, spread)
+    sensitivity = nearby.system_sensitivity_norm(
+        sys["M"], candidates, t_system, t_mid, spread, state.compiled
+    )
     xy_s, r_s = nearby.reach(
         x, p, t_system, 2.0 * b * sensitivity, t_mid, spread, cfg.gate, q, turn
     )

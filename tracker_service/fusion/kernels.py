@@ -577,6 +577,38 @@ def slots_of(
     return out
 
 
+@numba.njit(cache=True)
+def sensitivity_norms(
+    M: FloatArray, numbers: IntArray, t: FloatArray, t_mid: float, spread: float
+) -> FloatArray:  # pragma: no cover - compiled
+    """``nearby.sensitivity_norm`` of the system tracks ``numbers`` (times t), read in
+    place from the table's field M (N, L, 4, 2): no gather of the rows' sensitivities."""
+    out = np.empty(numbers.size)
+    for k in range(numbers.size):
+        r = numbers[k]
+        position = 0.0
+        velocity = 0.0
+        for radar in range(M.shape[1]):
+            for j in range(2):
+                for c in range(2):
+                    position += M[r, radar, j, c] * M[r, radar, j, c]
+                    velocity += M[r, radar, j + 2, c] * M[r, radar, j + 2, c]
+        a = abs(t_mid - t[k]) + spread
+        out[k] = 2.0 * (position + a * a * velocity)
+    return out
+
+
+@numba.njit(cache=True)
+def largest_bias_trace(B: FloatArray, numbers: IntArray) -> float:  # pragma: no cover - compiled
+    """``nearby.largest_bias`` of the rows ``numbers`` of the table's field B (N, L, 2, 2),
+    read in place."""
+    largest = 0.0
+    for k in range(numbers.size):
+        for radar in range(B.shape[1]):
+            largest = max(largest, B[numbers[k], radar, 0, 0] + B[numbers[k], radar, 1, 1])
+    return largest
+
+
 class ModelConstants:
     """The plot filter's model constants as the kernels take them (contiguous float64)."""
 

@@ -158,12 +158,17 @@ def _merge_tests(
     if touched.size == 0 or alive.size == 0:
         return empty, empty, np.zeros(0)
     t_mid, spread = nearby.time_span(sys["t"][touched])
-    b_max = max(nearby.largest_bias(sys["B"][alive]), nearby.largest_bias(sys["B"][touched]))
+    b_max = max(
+        nearby.system_largest_bias(sys["B"], alive, state.compiled),
+        nearby.system_largest_bias(sys["B"], touched, state.compiled),
+    )
     q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
 
     def reach(numbers: IntArray) -> tuple[FloatArray, FloatArray]:
         t = sys["t"][numbers]
-        sensitivity = nearby.sensitivity_norm(sys["M"][numbers], t, t_mid, spread)
+        sensitivity = nearby.system_sensitivity_norm(
+            sys["M"], numbers, t, t_mid, spread, state.compiled
+        )
         return nearby.reach(
             sys["x"][numbers],
             sys["P"][numbers],

@@ -82,6 +82,36 @@ def sensitivity_norm(M: FloatArray, t: FloatArray, t_mid: float, spread: float) 
     return np.asarray(2.0 * (position + a * a * velocity), dtype=np.float64)
 
 
+def system_sensitivity_norm(
+    M: FloatArray, numbers: IntArray, t: FloatArray, t_mid: float, spread: float, compiled: bool
+) -> FloatArray:
+    """``sensitivity_norm`` of the system tracks ``numbers`` from the table's field M
+    (N, radars, 4, 2); compiled: read in place (a row's M is a kilobyte or more, and
+    association takes every open system track)."""
+    if not compiled:
+        return sensitivity_norm(M[numbers], t, t_mid, spread)
+    from tracker_service.fusion.kernels import sensitivity_norms  # numba only when compiled
+
+    return sensitivity_norms(M, _indices(numbers), _floats(t), t_mid, spread)
+
+
+def system_largest_bias(B: FloatArray, numbers: IntArray, compiled: bool) -> float:
+    """``largest_bias`` of the rows ``numbers`` of the table's field B (N, radars, 2, 2)."""
+    if not compiled:
+        return largest_bias(B[numbers])
+    from tracker_service.fusion.kernels import largest_bias_trace
+
+    return float(largest_bias_trace(B, _indices(numbers)))
+
+
+def _indices(numbers: IntArray) -> IntArray:
+    return np.ascontiguousarray(numbers, dtype=np.int64)
+
+
+def _floats(values: FloatArray) -> FloatArray:
+    return np.ascontiguousarray(values, dtype=np.float64)
+
+
 def near_pairs(
     xy_a: FloatArray, radius_a: FloatArray, xy_b: FloatArray, radius_b: FloatArray
 ) -> tuple[IntArray, IntArray]:

@@ -6,13 +6,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
-import numpy.typing as npt
 
 from tracker_service.fusion.config import FusionConfig
-from tracker_service.fusion.table import LocalTrackTable, new_system_table
+from tracker_service.fusion.table import Columns, LocalTrackTable, new_system_table
 from tracker_service.tracking.daps import DapUpdate
 from tracker_service.tracking.models import ModelSet
 
@@ -50,7 +49,7 @@ class FusionState:
     models: ModelSet
     stats: FusionStats = field(default_factory=FusionStats)
     local: LocalTrackTable = field(init=False)
-    sys: npt.NDArray[Any] = field(init=False)
+    sys: Columns = field(init=False)
     """The system-track table (``table.system_dtype``), indexed by number."""
     now: float = -np.inf
     """The fuser's clock at the batch in hand."""

@@ -2,12 +2,13 @@
 
 The local-track table holds one row per radar and local track number, with the latest
 state and the system track it feeds, found by a sorted key index; the system-track table
-is indexed by the system track number (1..4095).
+is indexed by the system track number (1..4095). Both are held column by column
+(``Columns``).
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -75,8 +76,53 @@ def system_dtype(n_models: int, n_radars: int) -> np.dtype[Any]:
     )
 
 
-def new_system_table(n_models: int, n_radars: int) -> npt.NDArray[Any]:
-    table = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=system_dtype(n_models, n_radars))
+class Columns:
+    """A table of ``dtype``'s fields held column by column, indexed as a structured array
+    is: ``table[name]`` a field (a contiguous array: a scan of one field of 20,000 local
+    tracks reads 160 kB, where a field view of the packed rows touches a cache line per
+    row, about a hundred times slower), ``table[rows]`` the rows (a slice: views of the
+    columns; an index: copies), assignment alike."""
+
+    def __init__(self, dtype: np.dtype[Any], columns: dict[str, npt.NDArray[Any]]) -> None:
+        self.dtype = dtype
+        self._columns = columns
+
+    @classmethod
+    def zeros(cls, size: int, dtype: np.dtype[Any]) -> Columns:
+        names = dtype.names or ()
+        return cls(
+            dtype,
+            {n: np.zeros((size, *dtype[n].shape), dtype=dtype[n].base) for n in names},
+        )
+
+    @property
+    def shape(self) -> tuple[int]:
+        return (len(self),)
+
+    def __len__(self) -> int:
+        return len(next(iter(self._columns.values())))
+
+    @overload
+    def __getitem__(self, key: str) -> npt.NDArray[Any]: ...
+    @overload
+    def __getitem__(self, key: slice | npt.NDArray[Any]) -> Columns: ...
+    def __getitem__(self, key: str | slice | npt.NDArray[Any]) -> npt.NDArray[Any] | Columns:
+        if isinstance(key, str):
+            return self._columns[key]
+        return Columns(self.dtype, {n: c[key] for n, c in self._columns.items()})
+
+    def __setitem__(self, key: Any, value: Any) -> None:
+        if isinstance(key, str):
+            self._columns[key][...] = value
+            return
+        for name, column in self._columns.items():
+            column[key] = value[name]
+
+
+def new_system_table(n_models: int, n_radars: int) -> Columns:
+    """Column by column (``Columns``): a row holds every radar's sensitivities, about
+    10 kB, so that a field view of packed rows would touch a page per row."""
+    table = Columns.zeros(MAX_SYSTEM_NUMBER + 1, system_dtype(n_models, n_radars))
     table["freed_at"] = -np.inf
     return table
 
@@ -90,13 +136,13 @@ class LocalTrackTable:
         self.n_models = n_models
         self.compiled = compiled
         """``slots`` by its compiled kernel (``fusion/kernels.py``): the same rows."""
-        self.rows: npt.NDArray[Any] = np.zeros(64, dtype=local_dtype(n_models))
+        self.rows = Columns.zeros(64, local_dtype(n_models))
         self.n = 0
         self._index_keys = np.zeros(0, dtype=np.int64)
         self._index_rows = np.zeros(0, dtype=np.int64)
 
     @property
-    def used(self) -> npt.NDArray[Any]:
+    def used(self) -> Columns:
         """The rows in use (a view)."""
         return self.rows[: self.n]
 
@@ -134,7 +180,7 @@ class LocalTrackTable:
     def _grow(self, k: int) -> int:
         start = self.n
         if start + k > self.rows.shape[0]:
-            grown = np.zeros(max(2 * self.rows.shape[0], start + k), dtype=self.rows.dtype)
+            grown = Columns.zeros(max(2 * self.rows.shape[0], start + k), self.rows.dtype)
             grown[:start] = self.rows[:start]
             self.rows = grown
         self.n = start + k

@@ -21,6 +21,7 @@ from tracker_service.fusion.config import FusionConfig
 from tracker_service.fusion.estimator import make_system_estimator
 from tracker_service.fusion.references import References, references
 from tracker_service.fusion.state import FusionState, FusionStats
+from tracker_service.fusion.table import Columns
 from tracker_service.tracking.clock import DataClock
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
@@ -70,7 +71,7 @@ class SystemTracker:
         return self.state.stats
 
     @property
-    def _sys(self) -> npt.NDArray[Any]:
+    def _sys(self) -> Columns:
         return self.state.sys
 
     @property

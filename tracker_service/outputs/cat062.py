@@ -529,8 +529,15 @@ def _subfield_fspec(item: str, names: Sequence[str]) -> bytes:
     """The FSPEC of compound ``item`` naming ``names``, as the codec builds it."""
     compound = _CODEC_SPEC.items[item].variation
     assert isinstance(compound, spec.Compound)
-    slots = [None if s is None else s.name for s in compound.slots]
+    slots = _slot_names(item)
     return build_fspec(sorted(slots.index(n) for n in names), compound.fspec_octets)
+
+
+def _slot_names(item: str) -> list[str | None]:
+    """The subfield names of compound ``item`` in FSPEC order (None: an unused slot)."""
+    compound = _CODEC_SPEC.items[item].variation
+    assert isinstance(compound, spec.Compound)
+    return [None if s is None else s.name for s in compound.slots]
 
 
 _Q070 = _quantity("070")
@@ -547,6 +554,16 @@ _Q500_APW = (_quantity("500", "APW", "LAT"), _quantity("500", "APW", "LON"))
 _Q500_ATV = (_quantity("500", "ATV", "X"), _quantity("500", "ATV", "Y"))
 _Q340_POS = (_quantity("340", "POS", "RHO"), _quantity("340", "POS", "THETA"))
 _FSPEC_500 = _subfield_fspec("500", ("APC", "COV", "APW", "ATV"))
+_I380_SLOTS = _slot_names("380")
+_I295_SLOTS = _slot_names("295")
+_Q380 = {
+    subfield: _quantity("380", subfield)
+    for subfield, _, _ in _DAP_SUBFIELDS.values()
+    if subfield not in ("SAL", "TAR")
+}
+_Q380_SAL = _quantity("380", "SAL", "ALT")
+_Q380_ROT = _quantity("380", "TAR", "ROT")
+_Q295 = {age: _quantity("295", age) for _, age, _ in _DAP_SUBFIELDS.values()}
 _QNH_SET = int.from_bytes(_ITEM_ENCODERS["135"]({"QNH": 1, "CTB": 0.0}))
 _NUMBER_MAX = (1 << 16) - 1
 _LAYOUT_BITS = 13 + 10  # the last ones: which DAPs (``_DAP_SUBFIELDS``)
@@ -594,13 +611,49 @@ def _aircraft_derived_bytes(address: str | None, callsign: str | None) -> bytes:
     return _ITEM_ENCODERS["380"](_aircraft_derived(address, callsign, {}))
 
 
-def _aircraft_derived_dap_bytes(
-    address: str | None, callsign: str | None, daps: Mapping[str, tuple[float, float]]
-) -> bytes:
-    """I380 with DAPs: their values change at every update, so no cache."""
-    if not daps:
-        return _aircraft_derived_bytes(address, callsign)
-    return _ITEM_ENCODERS["380"](_aircraft_derived(address, callsign, daps))
+@cache
+def _identity_subfields(address: str | None, callsign: str | None) -> bytes:
+    """I380's ADR and ID subfields (its first two) without the FSPEC."""
+    names = [n for n, v in (("ADR", address), ("ID", callsign)) if v is not None]
+    return _aircraft_derived_bytes(address, callsign)[len(_subfield_fspec("380", names)) :]
+
+
+def _aircraft_derived_parts(
+    c: TrackColumns, index: list[int], address: bool, callsign: bool, dap_names: list[str]
+) -> list[npt.NDArray[np.uint8]]:
+    """I380 of rows ``index`` (one layout: the same subfields): the FSPEC, the cached
+    identity subfields, each DAP's subfield quantised over the rows, in slot order."""
+    n = len(index)
+    subfields = {name: _DAP_SUBFIELDS[name][0] for name in dap_names}
+    names = ["ADR"] * address + ["ID"] * callsign + list(subfields.values())
+    parts = [_constant(_subfield_fspec("380", names), n)]
+    if address or callsign:
+        parts.append(_each((_identity_subfields(c.address[k], c.callsign[k]) for k in index), n))
+    for name in sorted(dap_names, key=lambda d: _I380_SLOTS.index(subfields[d])):
+        value_of = _DAP_SUBFIELDS[name][2]
+        values = [value_of(c.daps[k][name][0]) for k in index]
+        if name == "selected_altitude_ft":  # SAS and SRC 0, ALT in the low 13 bits
+            raw = _quantised(_Q380_SAL, np.array([v["ALT"] for v in values]))
+        elif name == "track_angle_rate_deg_s":  # TI (2 bits), 6 spare, ROT (7), 1 spare
+            turn = _quantised(_Q380_ROT, np.array([v["ROT"] for v in values]))
+            raw = np.array([v["TI"] for v in values], dtype=np.int64) << 14 | turn << 1
+        else:
+            raw = _quantised(_Q380[subfields[name]], np.array(values, dtype=np.float64))
+        parts.append(_bytes(raw, 2))
+    return parts
+
+
+def _dap_age_parts(
+    c: TrackColumns, index: list[int], dap_names: list[str]
+) -> list[npt.NDArray[np.uint8]]:
+    """I295 of rows ``index`` (one layout): the FSPEC and each DAP's age, in slot order."""
+    ages = {_DAP_SUBFIELDS[name][1]: name for name in dap_names}
+    order = sorted(ages, key=_I295_SLOTS.index)
+    parts = [_constant(_subfield_fspec("295", order), len(index))]
+    for age in order:
+        values = np.array([c.daps[k][ages[age]][1] for k in index], dtype=np.float64)
+        parts.append(_bytes(_quantised(_Q295[age], np.minimum(values, AGE_MAX_S)), 1))
+    return parts
 
 
 @cache
@@ -690,16 +743,11 @@ def _layout_records(
         ]
     if has_callsign:
         parts["245"] = [_each((_callsign_bytes(c.callsign[k]) for k in index), n)]
-    daps = c.daps if c.daps else [{}] * len(c)
     if has_address or has_callsign or has_daps:
-        parts["380"] = [
-            _each(
-                (_aircraft_derived_dap_bytes(c.address[k], c.callsign[k], daps[k]) for k in index),
-                n,
-            )
-        ]
-    if has_daps:
-        parts["295"] = [_each((_ITEM_ENCODERS["295"](_dap_ages(daps[k])) for k in index), n)]
+        dap_names = [name for name, there in zip(_DAP_SUBFIELDS, has[13:], strict=True) if there]
+        parts["380"] = _aircraft_derived_parts(c, index, has_address, has_callsign, dap_names)
+        if has_daps:
+            parts["295"] = _dap_age_parts(c, index, dap_names)
     number = c.number[rows]
     if number.min() < 0 or number.max() > _NUMBER_MAX:
         raise _OutOfRange
