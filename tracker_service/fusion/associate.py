@@ -69,6 +69,11 @@ def _consistency(state: FusionState, held: IntArray, d2: FloatArray) -> BoolArra
     return np.asarray((n >= cfg.reassociate_window) & (mean > cfg.reassociate_kappa * dof) & ~solo)
 
 
+EXCHANGE_AGREEMENT = 0.75
+"""The share (running mean over the window) of the exchange test's updates in which every
+other radar's local track favoured the exchange."""
+
+
 def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) -> None:
     """Exchange two confirmed local tracks l, l' of one radar between their system tracks
     S, S' when the crosswise assignment has been the more likely over
@@ -79,10 +84,9 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     (a system track's own state is a mixture of both aircraft, dominated by the fastest
     radar): delta = sum over S's others m of d2(l, m) - d2(l', m), plus over the others
     m' of S' of d2(l', m') - d2(l, m'), twice the log-likelihood ratio of the crosswise
-    assignment against the present one."""
+    assignment against the present one; every one of those tracks must favour it."""
     cfg, loc = state.config, state.local.rows
     evidence = state.exchange_evidence
-    touched = set(loc["key"][held].tolist())
     if cfg.exchange_margin <= 0 or held.size == 0:
         return
     used = state.local.used
@@ -90,6 +94,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         used["alive"] & (used["system"] > 0) & (used["status"] == LOCAL_CONFIRMED)
     )
     confirmed = held[loc["status"][held] == LOCAL_CONFIRMED]
+    tested = set(loc["key"][confirmed].tolist())
     li, sj = _near(state, estimator, confirmed, np.unique(used["system"][feeding]))
     other = sj != loc["system"][li]
     li, sj = li[other], sj[other]
@@ -104,7 +109,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     ):
         feeders.setdefault((number, radar), row)
         others.setdefault(number, []).append(row)
-    fresh: dict[tuple[int, int], tuple[int, float]] = {}
+    fresh: dict[tuple[int, int], tuple[int, float, float]] = {}
     rows_of: dict[tuple[int, int], tuple[int, int]] = {}
     for a, there in zip(li.tolist(), sj.tolist(), strict=True):
         radar, here = int(loc["radar"][a]), int(loc["system"][a])
@@ -121,21 +126,32 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
             continue  # nothing else to tell the two assignments apart
         a_m, b_m = np.full(m.size, a), np.full(m.size, b)
         a_m2, b_m2 = np.full(m2.size, a), np.full(m2.size, b)
-        delta = float(
-            (track_distance(state, a_m, m) - track_distance(state, b_m, m)).sum()
-            + (track_distance(state, b_m2, m2) - track_distance(state, a_m2, m2)).sum()
+        # Every other radar's track must favour it (in EXCHANGE_AGREEMENT of the
+        # updates): where the system tracks are mixtures (each radar's first joins made
+        # at one moment), an exchange that one of them opposes moves the mixture around
+        # instead of undoing it (PAR10 with a shared code).
+        votes = np.concatenate(
+            [
+                track_distance(state, a_m, m) - track_distance(state, b_m, m),
+                track_distance(state, b_m2, m2) - track_distance(state, a_m2, m2),
+            ]
         )
-        n, mean = evidence.get(pair, (0, 0.0))
-        n += 1
-        mean += (delta - mean) / min(n, cfg.reassociate_window)
-        fresh[pair] = (n, mean)
+        delta = float(votes.sum())
         rows_of[pair] = (a, b)
-    # A pair's evidence lives while it is tested in a row.
-    kept = {p: e for p, e in evidence.items() if not touched & set(p)}
+        n, mean, agree = evidence.get(pair, (0, 0.0, 0.0))
+        n += 1
+        weight = 1.0 / min(n, cfg.reassociate_window)
+        mean += (delta - mean) * weight
+        agree += (float((votes > 0).all()) - agree) * weight
+        fresh[pair] = (n, mean, agree)
+    # A pair's evidence lives while it is tested in a row: a pair of a tested track not
+    # tested now is out of reach (a coasting update, no plot, tests nothing).
+    kept = {p: e for p, e in evidence.items() if not tested & set(p)}
     kept.update(fresh)
     done: set[int] = set()
-    for pair, (n, mean) in fresh.items():
-        if n < cfg.reassociate_window or mean <= cfg.exchange_margin or done & set(pair):
+    for pair, (n, mean, agree) in fresh.items():
+        weak = mean <= cfg.exchange_margin or agree < EXCHANGE_AGREEMENT
+        if n < cfg.reassociate_window or weak or done & set(pair):
             continue
         a, b = rows_of[pair]
         loc["system"][a], loc["system"][b] = loc["system"][b], loc["system"][a]

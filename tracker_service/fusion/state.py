@@ -53,9 +53,10 @@ class FusionState:
     """The fuser's clock at the batch in hand."""
     merge_counts: dict[tuple[int, int], int] = field(default_factory=dict)
     """Consecutive joint gate passes of each pair of system tracks (track life's merge)."""
-    exchange_evidence: dict[tuple[int, int], tuple[int, float]] = field(default_factory=dict)
-    """Per pair of local-track keys of one radar in two system tracks: updates in a row
-    and the running mean of the exchange test's delta (``associate._exchange``)."""
+    exchange_evidence: dict[tuple[int, int], tuple[int, float, float]] = field(default_factory=dict)
+    """Per pair of local-track keys of one radar in two system tracks: updates in a row,
+    the running means of the exchange test's delta and of its agreement
+    (``associate._exchange``)."""
     left: dict[int, tuple[int, float]] = field(default_factory=dict)
     """Per local-track key given back by the review: the system track it left (number,
     birth time), which it may not join again."""
