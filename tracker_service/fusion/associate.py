@@ -25,8 +25,12 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     cfg = state.config
     loc = state.local.rows
     live: IntArray = touched[loc["status"][touched] != LOCAL_DELETED]
-    for key in loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]].tolist():
-        state.left.pop(key, None)
+    deleted = set(loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]].tolist())
+    if deleted:
+        for key in deleted:
+            state.left.pop(key, None)
+        evidence = state.exchange_evidence
+        state.exchange_evidence = {p: e for p, e in evidence.items() if not deleted & set(p)}
     # Only confirmed local tracks feed system tracks: one that its tracker took back
     # to tentative (a slow primary-only track: clutter) leaves its system track.
     demoted = live[(loc["system"][live] > 0) & (loc["status"][live] == LOCAL_TENTATIVE)]
@@ -84,7 +88,8 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     (a system track's own state is a mixture of both aircraft, dominated by the fastest
     radar): delta = sum over S's others m of d2(l, m) - d2(l', m), plus over the others
     m' of S' of d2(l', m') - d2(l, m'), twice the log-likelihood ratio of the crosswise
-    assignment against the present one; every one of those tracks must favour it."""
+    assignment against the present one; every one of those tracks must favour it in
+    ``EXCHANGE_AGREEMENT`` of the updates."""
     cfg, loc = state.config, state.local.rows
     evidence = state.exchange_evidence
     if cfg.exchange_margin <= 0 or held.size == 0:
