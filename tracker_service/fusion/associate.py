@@ -9,6 +9,7 @@ import numpy as np
 
 from tracker_service.fusion import consider, nearby
 from tracker_service.fusion.estimator import SystemEstimator
+from tracker_service.fusion.ml import predict_cv
 from tracker_service.fusion.state import FusionState
 from tracker_service.tracking.associate import global_nearest_neighbour
 from tracker_service.tracking.identity import identity_cost
@@ -24,12 +25,19 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     cfg = state.config
     loc = state.local.rows
     live: IntArray = touched[loc["status"][touched] != LOCAL_DELETED]
+    deleted = set(loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]].tolist())
+    if deleted:
+        for key in deleted:
+            state.left.pop(key, None)
+        evidence = state.exchange_evidence
+        state.exchange_evidence = {p: e for p, e in evidence.items() if not deleted & set(p)}
     # Only confirmed local tracks feed system tracks: one that its tracker took back
     # to tentative (a slow primary-only track: clutter) leaves its system track.
     demoted = live[(loc["system"][live] > 0) & (loc["status"][live] == LOCAL_TENTATIVE)]
     _leave(state, demoted)
     live = live[loc["status"][live] != LOCAL_TENTATIVE]
     held = live[loc["system"][live] > 0]
+    _exchange(state, estimator, held)
     d2 = distance(state, estimator, held, loc["system"][held])
     # A solo system track is its founding local track's state: the distance compares
     # that track with its own prediction (no independent estimate), and leaving would
@@ -40,6 +48,16 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     loc["fails"][held] = fails
     inconsistent = _consistency(state, held, d2)
     lost = held[(fails >= cfg.reassociate_after) | inconsistent]
+    # Given back, it must not rejoin the system track it left (still the nearest in
+    # the gate, it would leave again, and that track's other aircraft has none).
+    left = loc["system"][lost]
+    state.left.update(
+        zip(
+            loc["key"][lost].tolist(),
+            zip(left.tolist(), state.sys["born"][left].tolist(), strict=True),
+            strict=True,
+        )
+    )
     _leave(state, lost)
     state.stats.reassociations += int(lost.size)
     return live
@@ -60,13 +78,123 @@ def _consistency(state: FusionState, held: IntArray, d2: FloatArray) -> BoolArra
     return np.asarray((n >= cfg.reassociate_window) & (mean > cfg.reassociate_kappa * dof) & ~solo)
 
 
-def _leave(state: FusionState, rows: IntArray) -> None:
-    """The local tracks ``rows`` leave their system tracks, their tests restarted."""
+EXCHANGE_AGREEMENT = 0.75
+"""The share (running mean over the window) of the exchange test's updates in which every
+other radar's local track favoured the exchange."""
+
+
+def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) -> None:
+    """Exchange two confirmed local tracks l, l' of one radar between their system tracks
+    S, S' when the crosswise assignment has been the more likely over
+    ``reassociate_window`` updates in a row (``FusionConfig.exchange_margin``): the
+    one-moment association's crosswise joins of two close aircraft, which neither the
+    gate nor the consistency test undoes, since each holds the other's system track
+    closed to it. The evidence is the local tracks of the other radars that feed S and S'
+    (a system track's own state is a mixture of both aircraft, dominated by the fastest
+    radar): delta = sum over S's others m of d2(l, m) - d2(l', m), plus over the others
+    m' of S' of d2(l', m') - d2(l, m'), twice the log-likelihood ratio of the crosswise
+    assignment against the present one; every one of those tracks must favour it in
+    ``EXCHANGE_AGREEMENT`` of the updates."""
+    cfg, loc = state.config, state.local.rows
+    evidence = state.exchange_evidence
+    if cfg.exchange_margin <= 0 or held.size == 0:
+        return
+    used = state.local.used
+    feeding = np.flatnonzero(
+        used["alive"] & (used["system"] > 0) & (used["status"] == LOCAL_CONFIRMED)
+    )
+    confirmed = held[loc["status"][held] == LOCAL_CONFIRMED]
+    tested = set(loc["key"][confirmed].tolist())
+    li, sj = _near(state, estimator, confirmed, np.unique(used["system"][feeding]))
+    other = sj != loc["system"][li]
+    li, sj = li[other], sj[other]
+    involved = feeding[np.isin(used["system"][feeding], np.union1d(sj, loc["system"][li]))]
+    feeders: dict[tuple[int, int], int] = {}
+    others: dict[int, list[int]] = {}
+    for row, number, radar in zip(
+        involved.tolist(),
+        used["system"][involved].tolist(),
+        used["radar"][involved].tolist(),
+        strict=True,
+    ):
+        feeders.setdefault((number, radar), row)
+        others.setdefault(number, []).append(row)
+    fresh: dict[tuple[int, int], tuple[int, float, float]] = {}
+    rows_of: dict[tuple[int, int], tuple[int, int]] = {}
+    for a, there in zip(li.tolist(), sj.tolist(), strict=True):
+        radar, here = int(loc["radar"][a]), int(loc["system"][a])
+        b = feeders.get((there, radar))
+        if b is None:
+            continue
+        ka, kb = int(loc["key"][a]), int(loc["key"][b])
+        pair = (min(ka, kb), max(ka, kb))
+        if pair in fresh:
+            continue  # both tracks in this batch: the same pair
+        m = np.array([r for r in others[here] if loc["radar"][r] != radar], dtype=np.int64)
+        m2 = np.array([r for r in others[there] if loc["radar"][r] != radar], dtype=np.int64)
+        if m.size == 0 or m2.size == 0:
+            continue  # nothing else to tell the two assignments apart
+        a_m, b_m = np.full(m.size, a), np.full(m.size, b)
+        a_m2, b_m2 = np.full(m2.size, a), np.full(m2.size, b)
+        # Every other radar's track must favour it (in EXCHANGE_AGREEMENT of the
+        # updates): where the system tracks are mixtures (each radar's first joins made
+        # at one moment), an exchange that one of them opposes moves the mixture around
+        # instead of undoing it (PAR10 with a shared code).
+        votes = np.concatenate(
+            [
+                track_distance(state, a_m, m) - track_distance(state, b_m, m),
+                track_distance(state, b_m2, m2) - track_distance(state, a_m2, m2),
+            ]
+        )
+        delta = float(votes.sum())
+        rows_of[pair] = (a, b)
+        n, mean, agree = evidence.get(pair, (0, 0.0, 0.0))
+        n += 1
+        weight = 1.0 / min(n, cfg.reassociate_window)
+        mean += (delta - mean) * weight
+        agree += (float((votes > 0).all()) - agree) * weight
+        fresh[pair] = (n, mean, agree)
+    # A pair's evidence lives while it is tested in a row: a pair of a tested track not
+    # tested now is out of reach (a coasting update, no plot, tests nothing).
+    kept = {p: e for p, e in evidence.items() if not tested & set(p)}
+    kept.update(fresh)
+    done: set[int] = set()
+    for pair, (n, mean, agree) in fresh.items():
+        weak = mean <= cfg.exchange_margin or agree < EXCHANGE_AGREEMENT
+        if n < cfg.reassociate_window or weak or done & set(pair):
+            continue
+        a, b = rows_of[pair]
+        loc["system"][a], loc["system"][b] = loc["system"][b], loc["system"][a]
+        _restart_tests(state, np.array([a, b]))
+        done.update(pair)
+        state.stats.exchanges += 1
+    state.exchange_evidence = {p: e for p, e in kept.items() if not done & set(p)}
+
+
+def track_distance(state: FusionState, a: IntArray, b: IntArray) -> FloatArray:
+    """Chi-square distance (4 dof) of local tracks a and b (of other radars) at a's
+    times, b predicted there (constant velocity), both radars' residual biases in the
+    covariance."""
     loc = state.local.rows
-    loc["system"][rows] = 0
+    xb, pb = predict_cv(loc["x"][b], loc["P"][b], loc["t"][a] - loc["t"][b], state.config.q)
+    d = loc["x"][a] - xb
+    s = loc["P"][a] + pb
+    s[:, :2, :2] += loc["extra"][a] + loc["extra"][b]
+    d2: FloatArray = np.einsum("ka,ka->k", d, np.linalg.solve(s, d[..., None])[..., 0])
+    return d2
+
+
+def _restart_tests(state: FusionState, rows: IntArray) -> None:
+    loc = state.local.rows
     loc["fails"][rows] = 0
     loc["nis_n"][rows] = 0
     loc["nis_mean"][rows] = 0.0
+
+
+def _leave(state: FusionState, rows: IntArray) -> None:
+    """The local tracks ``rows`` leave their system tracks, their tests restarted."""
+    state.local.rows["system"][rows] = 0
+    _restart_tests(state, rows)
 
 
 def assign(
@@ -76,9 +204,9 @@ def assign(
     candidates = open_systems(state, radar)
     li, sj = _near(state, estimator, free, candidates)
     d2 = distance(state, estimator, li, sj)
-    gated = d2 <= state.config.gate
-    li, sj, d2 = li[gated], sj[gated], d2[gated]
     loc, sys = state.local.rows, state.sys
+    gated = (d2 <= state.config.gate) & ~_left_before(state, li, sj)
+    li, sj, d2 = li[gated], sj[gated], d2[gated]
     cost = d2 + identity_cost(
         loc["address"][li], sys["address"][sj], loc["mode3a"][li], sys["mode3a"][sj], state.config
     )
@@ -86,6 +214,24 @@ def assign(
         np.searchsorted(free, li), np.searchsorted(candidates, sj), cost
     )
     return li[chosen], sj[chosen]
+
+
+def _left_before(state: FusionState, li: IntArray, sj: IntArray) -> BoolArray:
+    """Which pairs join a local track to the system track (the same life of it) that
+    the review gave it back from; forgets the system tracks that ended since."""
+    sys = state.sys
+    state.left = {
+        k: (number, born)
+        for k, (number, born) in state.left.items()
+        if sys["alive"][number] and sys["born"][number] == born
+    }
+    if not state.left or li.size == 0:
+        return np.zeros(li.size, dtype=bool)
+    keys = state.local.rows["key"][li].tolist()
+    left = [state.left.get(k, (0, np.nan)) for k in keys]
+    number = np.array([n for n, _ in left], dtype=np.int64)
+    born = np.array([b for _, b in left])
+    return np.asarray((number == sj) & (born == sys["born"][sj]), dtype=bool)
 
 
 def _near(

@@ -66,6 +66,14 @@ class FusionConfig:
     reassociate_window: int = 5
     """Updates of the consistency test's mean (the first ones a running mean, then an
     exponential one of this length); the test waits until it is full."""
+    exchange_margin: float = 2.0
+    """Two confirmed local tracks of one radar in two system tracks are exchanged between
+    them once the running mean (over ``reassociate_window`` updates) of delta = d2(l, S) +
+    d2(l', S') - d2(l, S') - d2(l', S) exceeds this: delta is twice the log-likelihood
+    ratio, per update, of the crosswise assignment against the present one. The one-moment
+    association can join a radar's two tracks of two close aircraft (parallel 500 m apart,
+    a 15-degree crossing) crosswise, and each then holds the other's system track closed
+    to it (``associate.open_systems``); 0 turns the test off."""
     found_delay_s: float | None = None
     """How long a confirmed local track whose address or Mode 3/A code a live system track
     carries waits to join it before founding its own; None: 2 x ``longest_period_s``."""
@@ -136,6 +144,8 @@ class FusionConfig:
                 "reassociate_kappa must be > 0 (2-5) and reassociate_window >= 1, not "
                 f"{self.reassociate_kappa!r}, {self.reassociate_window!r}"
             )
+        if self.exchange_margin < 0:
+            raise ValueError(f"exchange_margin must be >= 0 (0: off), not {self.exchange_margin!r}")
         if self.reassociate_after < 1:
             raise ValueError(f"reassociate_after must be >= 1, not {self.reassociate_after!r}")
         if self.number_reuse_delay_s < 0:

@@ -28,6 +28,8 @@ class FusionStats:
     system_tracks_created: int = 0
     system_tracks_ended: int = 0
     reassociations: int = 0
+    exchanges: int = 0
+    """Pairs of local tracks of one radar exchanged between two system tracks."""
     late_plots_skipped: int = 0
     unknown_plot_ids: int = 0
     numbers_exhausted: int = 0
@@ -55,6 +57,13 @@ class FusionState:
     """The fuser's clock at the batch in hand."""
     merge_counts: dict[tuple[int, int], int] = field(default_factory=dict)
     """Consecutive joint gate passes of each pair of system tracks (track life's merge)."""
+    exchange_evidence: dict[tuple[int, int], tuple[int, float, float]] = field(default_factory=dict)
+    """Per pair of local-track keys of one radar in two system tracks: updates in a row,
+    the running means of the exchange test's delta and of its agreement
+    (``associate._exchange``)."""
+    left: dict[int, tuple[int, float]] = field(default_factory=dict)
+    """Per local-track key given back by the review: the system track it left (number,
+    birth time), which it may not join again."""
 
     @property
     def compiled(self) -> bool:
