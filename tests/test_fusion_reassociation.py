@@ -58,9 +58,9 @@ def test_a_wrongly_joined_local_track_inside_the_gate_is_given_back() -> None:
     never come; the consistency test (mean over 5 updates above 3 x 4 dof) gives the
     track back to association."""
     assert _run(kappa=1e9, offset_m=370.0) == 0  # the gate's failures alone: never
-    # Once: given back, it may not rejoin the system track it left (it did 6 times
-    # before that rule: still the nearest in the gate, it joined and left again).
-    assert _run(kappa=3.0, offset_m=370.0) == 1
+    # Given back at least once (it may rejoin the system track it left, still the
+    # nearest in the gate: barring that cost three_sites seven extra system tracks).
+    assert _run(kappa=3.0, offset_m=370.0) >= 1
     # A local track of the same aircraft (no offset) stays: consistent.
     assert _run(kappa=3.0, offset_m=0.0) == 0
 

@@ -27,8 +27,6 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     live: IntArray = touched[loc["status"][touched] != LOCAL_DELETED]
     deleted = set(loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]].tolist())
     if deleted:
-        for key in deleted:
-            state.left.pop(key, None)
         evidence = state.exchange_evidence
         state.exchange_evidence = {p: e for p, e in evidence.items() if not deleted & set(p)}
     # Only confirmed local tracks feed system tracks: one that its tracker took back
@@ -48,16 +46,6 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     loc["fails"][held] = fails
     inconsistent = _consistency(state, held, d2)
     lost = held[(fails >= cfg.reassociate_after) | inconsistent]
-    # Given back, it must not rejoin the system track it left (still the nearest in
-    # the gate, it would leave again, and that track's other aircraft has none).
-    left = loc["system"][lost]
-    state.left.update(
-        zip(
-            loc["key"][lost].tolist(),
-            zip(left.tolist(), state.sys["born"][left].tolist(), strict=True),
-            strict=True,
-        )
-    )
     _leave(state, lost)
     state.stats.reassociations += int(lost.size)
     return live
@@ -205,7 +193,7 @@ def assign(
     li, sj = _near(state, estimator, free, candidates)
     d2 = distance(state, estimator, li, sj)
     loc, sys = state.local.rows, state.sys
-    gated = (d2 <= state.config.gate) & ~_left_before(state, li, sj)
+    gated = d2 <= state.config.gate
     li, sj, d2 = li[gated], sj[gated], d2[gated]
     cost = d2 + identity_cost(
         loc["address"][li], sys["address"][sj], loc["mode3a"][li], sys["mode3a"][sj], state.config
@@ -214,24 +202,6 @@ def assign(
         np.searchsorted(free, li), np.searchsorted(candidates, sj), cost
     )
     return li[chosen], sj[chosen]
-
-
-def _left_before(state: FusionState, li: IntArray, sj: IntArray) -> BoolArray:
-    """Which pairs join a local track to the system track (the same life of it) that
-    the review gave it back from; forgets the system tracks that ended since."""
-    sys = state.sys
-    state.left = {
-        k: (number, born)
-        for k, (number, born) in state.left.items()
-        if sys["alive"][number] and sys["born"][number] == born
-    }
-    if not state.left or li.size == 0:
-        return np.zeros(li.size, dtype=bool)
-    keys = state.local.rows["key"][li].tolist()
-    left = [state.left.get(k, (0, np.nan)) for k in keys]
-    number = np.array([n for n, _ in left], dtype=np.int64)
-    born = np.array([b for _, b in left])
-    return np.asarray((number == sj) & (born == sys["born"][sj]), dtype=bool)
 
 
 def _near(

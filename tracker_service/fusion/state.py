@@ -61,9 +61,6 @@ class FusionState:
     """Per pair of local-track keys of one radar in two system tracks: updates in a row,
     the running means of the exchange test's delta and of its agreement
     (``associate._exchange``)."""
-    left: dict[int, tuple[int, float]] = field(default_factory=dict)
-    """Per local-track key given back by the review: the system track it left (number,
-    birth time), which it may not join again."""
 
     @property
     def compiled(self) -> bool:
