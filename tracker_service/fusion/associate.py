@@ -93,6 +93,12 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     )
     confirmed = held[loc["status"][held] == LOCAL_CONFIRMED]
     tested = set(loc["key"][confirmed].tolist())
+    if np.unique(used["radar"][feeding]).size < 2:
+        # One radar feeds the picture (canalA): no other radar's track can tell the two
+        # assignments apart, so the pair search is skipped (a quarter of the fuser's cost
+        # there); the tested tracks' evidence ends as below.
+        state.exchange_evidence = {p: e for p, e in evidence.items() if not tested & set(p)}
+        return
     li, sj = _near(state, estimator, confirmed, np.unique(used["system"][feeding]))
     other = sj != loc["system"][li]
     li, sj = li[other], sj[other]
