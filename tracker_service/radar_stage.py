@@ -460,7 +460,7 @@ class RadarStage:
             {source: info.period_s for source, info in self.infos.items()},
         )
         self._heights = HeightModel(atmosphere=atmosphere or Atmosphere())
-        self.reception = ReceptionEvidence()
+        self.reception = ReceptionEvidence(self.time_sanity.config.max_offset_s)
         self.next_plot_id = 0
         """The stage's plots numbered in its order: in one process the system's numbers;
         the central stage renumbers those of stages in other processes."""

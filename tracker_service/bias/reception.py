@@ -9,9 +9,10 @@ each radar's evidence until its next plot batch carries it to the central stage
 (``RadarBatch.clock_evidence``).
 
 Plots are not used: a plot waits in the station until its sector is complete, a delay that
-depends on its azimuth within the sector. Stamps further than ``MAX_OFFSET_S`` from their
-reception (a replayed capture, a radar whose clock is off by hours) are no evidence: such a
-feed is ``time_sanity``'s business first.
+depends on its azimuth within the sector. Stamps further than ``max_offset_s`` (the time
+sanity's bound, ``TimeSanityConfig.max_offset_s``) from their reception (a replayed
+capture, a radar whose clock is off by hours) are no evidence: such a feed is
+``time_sanity``'s business first.
 """
 
 from __future__ import annotations
@@ -21,10 +22,9 @@ from typing import Any
 import numpy as np
 
 from tracker_service.ingest import posix_from_time_of_day
+from tracker_service.time_sanity import TimeSanityConfig
 from tracker_service.tracking.plots import FloatArray
 
-MAX_OFFSET_S = 10.0
-"""The same bound as ``TimeSanityConfig.max_offset_s``' default."""
 SERVICE_KINDS = (1, 2)
 """I000 message types stamped at a boundary: north marker, sector crossing."""
 
@@ -36,9 +36,10 @@ def no_evidence() -> FloatArray:
 
 class ReceptionEvidence:
     """Per radar ("SAC/SIC"), the service messages' (radar time, reception time) since the
-    radar's last batch."""
+    radar's last batch; stamps beyond ``max_offset_s`` of their reception are dropped."""
 
-    def __init__(self) -> None:
+    def __init__(self, max_offset_s: float = TimeSanityConfig.max_offset_s) -> None:
+        self.max_offset_s = max_offset_s
         self._pending: dict[str, list[tuple[float, float]]] = {}
 
     def service_message(self, items: dict[str, Any], received: float) -> None:
@@ -47,7 +48,7 @@ class ReceptionEvidence:
         if kind not in SERVICE_KINDS or not isinstance(source, dict) or not isinstance(tod, float):
             return
         stamp = float(posix_from_time_of_day(np.array([tod]), received)[0])
-        if abs(stamp - received) <= MAX_OFFSET_S:
+        if abs(stamp - received) <= self.max_offset_s:
             key = f"{source['SAC']}/{source['SIC']}"
             self._pending.setdefault(key, []).append((stamp, received))
 
