@@ -32,6 +32,7 @@ from tracker_service.evaluation.assess import (
     AssessRun,
     TrackSet,
     assess,
+    clock_measures,
     format_summary,
     is_discrete,
     run_recording,
@@ -141,6 +142,14 @@ def test_068_two_aircraft_for_79_minutes(assessed: Callable[[Path], Assessed]) -
     time = radar["time"]
     assert time["median_offset_s"] == pytest.approx(-0.18, abs=0.05)
     assert time["far_from_reception"] == time["older_than_latest"] == 0
+    # 950 CAT034 north markers over 79 minutes: the radar clock loses 10.5 ms/h on the
+    # capture's (sigma 0.5); what the line leaves is 6 ms of reception jitter.
+    clock = radar["clock"]
+    assert clock["messages"] == 950
+    assert clock["drift_s_per_h"] == pytest.approx(-0.0105, abs=0.002)
+    assert clock["drift_sigma_s_per_h"] < 0.001
+    assert 3.0 < clock["residual_sd_ms"] < 10.0
+    assert clock["outliers"] < 20
 
     local = radar["local"]
     address = local["per_address"]
@@ -295,6 +304,26 @@ def test_canal_a_cat001_radar(assessed: Callable[[Path], Assessed]) -> None:
 
 
 # --- the measures themselves --------------------------------------------------------------
+
+
+def test_clock_drift_from_service_messages() -> None:
+    """A radar clock 40 ms/h fast against reception, stamped at 1/128 s, received with
+    5 ms of jitter over a 20 ms delay, and three messages held up by 0.3 s: the fit finds
+    the drift within its sigma and drops only the held-up ones."""
+    rng = np.random.default_rng(7)
+    received = 1000.0 + np.arange(0.0, 3600.0, 4.0)
+    true_time = received - 0.020 - rng.normal(0.0, 0.005, len(received))
+    stamp = np.round((true_time + 0.040 / 3600.0 * (true_time - 1000.0)) * 128) / 128
+    received[[100, 400, 700]] += 0.3
+    clock = clock_measures(np.column_stack([stamp, received]))
+    assert clock is not None
+    assert clock["outliers"] == 3
+    assert clock["drift_s_per_h"] == pytest.approx(0.040, abs=3 * clock["drift_sigma_s_per_h"])
+    assert clock["drift_sigma_s_per_h"] < 0.002
+    assert clock["lag_median_ms"] == pytest.approx(0.0, abs=5.0)  # delay 20, clock +20 at mid
+    assert 4.5 < clock["residual_sd_ms"] < 6.5  # jitter and quantisation (2.3 ms)
+    assert clock_measures(np.column_stack([stamp, received])[:9]) is None  # too few
+    assert clock_measures(np.column_stack([stamp, received])[:60]) is None  # 236 s span
 
 
 def test_discrete_codes() -> None:

@@ -29,6 +29,12 @@ radar's local tracks and for the system tracks:
   transponder);
 - time faults: each radar's plot times against their reception (median offset, plots
   more than a scan away from it, plots more than a scan older than the radar's latest);
+- the radar's clock against the recording's: its service messages' time stamps (CAT034 or
+  CAT002 I030, ``bias.reception``) against their reception, a straight line fitted by least
+  squares and fitted again without the stamps more than ``CLOCK_OUTLIER_MADS`` median
+  absolute deviations off it: the drift (s/h, positive for a radar clock that runs fast)
+  with its standard error, and what the line does not explain (reception jitter and the
+  stamps' 1/128 s resolution), the evidence ``[bias] clock_states = 2`` models;
 - ADS-B (CAT021) as the reference where the recording has it: the distance of each
   published track update with a Mode S address from the ADS-B position of that address
   at the update's time (``tracker_service.adsb``).
@@ -65,6 +71,7 @@ from asterix.codec import Block, decode_blocks
 from asterix.containers import Datagram, read_file
 from asterix.plots import extract_plots
 from tracker_service.adsb import AdsbReference
+from tracker_service.bias.reception import ReceptionEvidence
 from tracker_service.chain import (
     CAT021,
     NM,
@@ -80,6 +87,7 @@ from tracker_service.fusion import SYSTEM_UPDATE_DTYPE
 from tracker_service.fusion.messages import COASTING, CONFIRMED, ENDED
 from tracker_service.geodesy import RadarSite
 from tracker_service.ingest import TimeSource
+from tracker_service.radar_stage import RadarStage
 from tracker_service.service.config import ConfigError, ServiceConfig, load_service_config
 from tracker_service.service.config import parse_service_config as parse_config
 from tracker_service.service.core import build_chain
@@ -99,6 +107,7 @@ __all__ = [
     "TrackSet",
     "add_arguments",
     "assess",
+    "clock_measures",
     "format_summary",
     "identity_tracks",
     "is_discrete",
@@ -135,6 +144,14 @@ STATIONARY_UPDATES = 10
 ADSB_OTHER_AIRCRAFT_M = 5 * 1852.0
 MAX_SPEED_KT = 650.0
 MAX_JUMP_M = NM
+CLOCK_MIN_MESSAGES = 10
+CLOCK_MIN_SPAN_S = 300.0
+"""Fewer service messages, or a shorter span, tell nothing of a drift."""
+CLOCK_OUTLIER_MADS = 5.0
+CLOCK_STAMP_RESOLUTION_S = 1.0 / 128.0
+"""I030's LSB. A quiet line can be all in one or two steps of it (canalA's lags are 0,
+7.8 or 15.6 ms): the deviation that sets the outlier bound is at least that of a uniform
+error over one step (a quarter step), not zero."""
 KT = NM / 3600.0
 PUBLISHED = (CONFIRMED, COASTING)
 REUSE_OFFSET = 1_000_000
@@ -205,6 +222,8 @@ class AssessRun:
     adsb_errors: dict[str, list[tuple[float, int, float]]]
     """Per track set name: (time, address, error m) of each published update with an ADS-B
     reference."""
+    clock_evidence: dict[str, FloatArray]
+    """Per radar: its service messages' [radar time, reception] (``bias.reception``)."""
     seconds: float
     notes: list[str] = field(default_factory=list)
 
@@ -282,6 +301,20 @@ def _assumed_config(sources: list[str], periods: Mapping[str, float]) -> Service
     return parse_config({"radars": radars, "system": system}, "the assumed configuration")
 
 
+class _KeepingEvidence(ReceptionEvidence):
+    """The radar stage's reception evidence, kept whole as the stage takes it batch by
+    batch."""
+
+    def __init__(self, max_offset_s: float, kept: dict[str, list[FloatArray]]) -> None:
+        super().__init__(max_offset_s)
+        self._kept = kept
+
+    def take(self, source: str) -> FloatArray:
+        evidence = super().take(source)
+        self._kept[source].append(evidence)
+        return evidence
+
+
 class _KeepingTracker(LocalTracker):
     """A local tracker that keeps each plot as it tracked it: after the chain's bias
     correction, which the plot table does not carry."""
@@ -341,6 +374,10 @@ def run_recording(
     replay = open_replay(file, config, DEFAULT_DAY_POSIX if day_posix is None else day_posix)
     kept: list[npt.NDArray[Any]] = []
     chain = _chain(replay.config, fuse, kept)
+    stamps: dict[str, list[FloatArray]] = defaultdict(list)
+    stage = chain.radar_stage
+    if isinstance(stage, RadarStage):
+        stage.reception = _KeepingEvidence(stage.reception.max_offset_s, stamps)
     adsb = AdsbReference(chain.plane)
     tables: list[npt.NDArray[Any]] = []
     extras: list[npt.NDArray[Any]] = []
@@ -418,6 +455,7 @@ def run_recording(
         system=system_set,
         adsb_reports=adsb.reports,
         adsb_errors=dict(errors),
+        clock_evidence={source: np.concatenate(parts) for source, parts in stamps.items()},
         seconds=time.perf_counter() - started,
         notes=notes,
     )
@@ -803,6 +841,49 @@ def _time_faults(table: npt.NDArray[Any], extra: npt.NDArray[Any], period: float
     }
 
 
+def clock_measures(evidence: FloatArray) -> dict[str, Any] | None:
+    """The radar clock against reception from its service messages' [radar time, reception]
+    rows: the lag (reception - radar time: transmission delay minus clock offset) fitted
+    as a straight line in reception time, then again without the outliers (a message held
+    up on the way). None with fewer than ``CLOCK_MIN_MESSAGES`` or a shorter span than
+    ``CLOCK_MIN_SPAN_S``."""
+    if len(evidence) < CLOCK_MIN_MESSAGES:
+        return None
+    received = evidence[:, 1]
+    span = float(received.max() - received.min())
+    if span < CLOCK_MIN_SPAN_S:
+        return None
+    t = received - received.min()
+    lag = received - evidence[:, 0]
+    coef = _line_fit(t, lag)
+    residual = lag - (coef[0] + coef[1] * t)
+    mad = float(np.median(np.abs(residual - np.median(residual))))
+    kept = np.abs(residual) <= CLOCK_OUTLIER_MADS * max(mad, CLOCK_STAMP_RESOLUTION_S / 4)
+    coef = _line_fit(t[kept], lag[kept])
+    residual = (lag - (coef[0] + coef[1] * t))[kept]
+    dof = max(len(residual) - 2, 1)
+    sigma = math.sqrt(float(residual @ residual) / dof)
+    centred = t[kept] - t[kept].mean()
+    slope_sigma = sigma / math.sqrt(float(centred @ centred))
+    return {
+        "messages": len(evidence),
+        "span_s": round(span, 1),
+        "lag_median_ms": round(float(np.median(lag)) * 1e3, 2),
+        # The lag falls as a fast radar clock gains on reception.
+        "drift_s_per_h": round(-float(coef[1]) * 3600.0, 5),
+        "drift_sigma_s_per_h": round(slope_sigma * 3600.0, 5),
+        "residual_sd_ms": round(sigma * 1e3, 2),
+        "residual_max_ms": round(float(np.abs(residual).max()) * 1e3, 2),
+        "outliers": int(np.count_nonzero(~kept)),
+    }
+
+
+def _line_fit(t: FloatArray, y: FloatArray) -> FloatArray:
+    """Least-squares [a, b] of y = a + b t."""
+    design = np.column_stack([np.ones(len(t)), t])
+    return np.asarray(np.linalg.lstsq(design, y, rcond=None)[0], dtype=np.float64)
+
+
 def _targets_seen(table: npt.NDArray[Any], extra: npt.NDArray[Any]) -> list[dict[str, Any]]:
     """Plots that are not traffic, or say they are not: grouped by what marks them
     (kept-out use, TST, SIM, RAB, code 7777) and their identity, with where they were."""
@@ -871,6 +952,9 @@ def _radar_measures(run: AssessRun, source: str, index: Mapping[int, int]) -> di
         },
         "targets_seen": _targets_seen(table, extra),
         "time": _time_faults(table, extra, run.periods.get(source, DEFAULT_PERIOD_S)),
+        "clock": clock_measures(run.clock_evidence[source])
+        if source in run.clock_evidence
+        else None,
         "local": _track_measures(run, run.local[source], run.plots, index),
     }
 
@@ -1067,6 +1151,14 @@ def format_summary(doc: Mapping[str, Any]) -> str:
             f"{t['far_from_reception']} plots more than a scan from it, "
             f"{t['older_than_latest']} more than a scan older than the latest",
         ]
+        if (c := r["clock"]) is not None:
+            lines.append(
+                f"  clock: drift {c['drift_s_per_h'] * 1e3:+.1f} ms/h "
+                f"(sigma {c['drift_sigma_s_per_h'] * 1e3:.1f}) from {c['messages']} service "
+                f"messages over {c['span_s'] / 60:.0f} min; lag median {_v(c['lag_median_ms'])} "
+                f"ms, residual sd {_v(c['residual_sd_ms'])} ms, max "
+                f"{_v(c['residual_max_ms'])} ms, {c['outliers']} outliers"
+            )
         for target in r["targets_seen"][:8]:
             where = (
                 f"at {target['range_nm']} NM, {target['azimuth_deg']} deg"
