@@ -12,7 +12,8 @@ from scipy.optimize import linear_sum_assignment
 
 from tests.test_association import _pairs
 from tests.test_tracking import PERIOD
-from tracker_service.tracking import TrackerConfig
+from tests.test_tracking_kernels import close
+from tracker_service.tracking import PLOT_DTYPE, LocalTracker, ModelSet, TrackerConfig, imm
 from tracker_service.tracking.association import (
     GatedPairs,
     JointProbabilisticDataAssociation,
@@ -120,3 +121,95 @@ def test_sums_are_numpy_sums_bit_for_bit() -> None:
     for n in (*range(1, 40), 127, 128, 129, 300, 1000):
         values = rng.normal(0.0, 1e6, n) * 10.0 ** rng.integers(-8, 8, n)
         assert kernels._sum(values) == float(values.sum())
+
+
+def _several_tracks(seed: int, n_tracks: int) -> tuple[GatedPairs, np.ndarray, np.ndarray]:
+    """Tracks of the default model set, each gated with 1-4 plots near its prediction
+    (the pairs interleaved, as the gate gives them); the plots and their covariances."""
+    rng = np.random.default_rng(seed)
+    models = ModelSet.from_config(TrackerConfig())
+    m = models.n_models
+    x = np.empty((n_tracks, m, 4))
+    x[..., :2] = rng.uniform(-1e5, 1e5, (n_tracks, 1, 2)) + rng.normal(0, 50, (n_tracks, m, 2))
+    x[..., 2:] = rng.uniform(-250, 250, (n_tracks, 1, 2)) + rng.normal(0, 5, (n_tracks, m, 2))
+    p = np.tile(np.diag([900.0, 900.0, 40.0, 40.0]), (n_tracks, m, 1, 1))
+    mu = rng.dirichlet(np.ones(m), n_tracks)
+    pred = imm.predict(x, p, mu, rng.uniform(3.0, 6.0, n_tracks), models)
+    track = np.repeat(np.arange(n_tracks), rng.integers(1, 5, n_tracks))
+    track = track[rng.permutation(track.size)]
+    pred = pred.take(track)
+    z = pred.x_comb[:, :2] + rng.normal(0.0, 80.0, (track.size, 2))
+    r = np.tile(np.diag([2500.0, 2500.0]), (track.size, 1, 1))
+    nis, log_det = imm.innovation_test(pred, z, r)
+    pairs = GatedPairs(
+        track=track,
+        plot=np.arange(track.size),
+        nis=nis,
+        log_det=log_det,
+        identity_cost=np.zeros(track.size),
+        pred=pred,
+    )
+    return pairs, z, r
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_weighted_update_matches_the_reference(seed: int) -> None:
+    pairs, z, r = _several_tracks(seed, 12)
+    for config in (NUMPY, replace(NUMPY, detection_probability=0.5)):
+        # Pd 0.5: some tracks' plots together fall below a detection, and are left out.
+        weighted = JointProbabilisticDataAssociation(config).associate(pairs)
+        want = weighted_update(pairs, weighted, z, r, "numpy")
+        got = weighted_update(pairs, weighted, z, r, "compiled")
+        np.testing.assert_array_equal(got.track, want.track)
+        np.testing.assert_array_equal(got.reported, want.reported)
+        for field in ("x", "P", "mu"):
+            close(getattr(want, field), getattr(got, field))
+    one = WeightedPairs(np.array([0]), np.array([0.3]))
+    assert weighted_update(pairs, one, z, r, "compiled").track.size == 0
+
+
+def _formations(seed: int, scans: int) -> list[np.ndarray]:
+    """Primary-only aircraft three abreast, 600 m apart, in a few formations crossing
+    each other: one batch per quarter scan, clusters every scan."""
+    rng = np.random.default_rng(seed)
+    n_groups = 6
+    centre = rng.uniform(-4e4, 4e4, (n_groups, 2))
+    heading = rng.uniform(0, 2 * np.pi, n_groups)
+    direction = np.column_stack([np.sin(heading), np.cos(heading)])
+    abreast = np.column_stack([direction[:, 1], -direction[:, 0]])
+    offsets = np.array([-600.0, 0.0, 600.0])
+    start = (centre[:, None] + offsets[None, :, None] * abreast[:, None]).reshape(-1, 2)
+    velocity = np.repeat(direction * 200.0, 3, axis=0)
+    n = start.shape[0]
+    batches = []
+    for scan in range(scans):
+        t = scan * PERIOD + rng.uniform(0, PERIOD, n)
+        pos = start + velocity * t[:, None] + rng.normal(0.0, 60.0, (n, 2))
+        plots = np.zeros(n, dtype=PLOT_DTYPE)
+        plots["time"], plots["x"], plots["y"] = 1.7e9 + t, pos[:, 0], pos[:, 1]
+        plots["R"] = np.eye(2) * 3600.0
+        plots["flight_level"] = np.nan
+        plots["mode3a"] = plots["address"] = -1
+        plots["typ"] = 2
+        plots["plot_id"] = scan * n + np.arange(n)
+        quarter = ((t - scan * PERIOD) // (PERIOD / 4)).astype(int)
+        for q in range(4):
+            chosen = plots[quarter == q]
+            batches.append(chosen[np.argsort(chosen["time"])])
+    return batches
+
+
+def test_jpda_trackers_agree_on_close_formations() -> None:
+    """The same plots through the compiled and the numpy JPDA tracker: the same tracks
+    and plots, states to 1e-9 of their scale."""
+    compiled, reference = LocalTracker(COMPILED), LocalTracker(NUMPY)
+    rows = 0
+    for batch in _formations(3, 30):
+        a, b = reference.process(batch), compiled.process(batch)
+        for field in ("track_number", "status", "plot_id"):
+            np.testing.assert_array_equal(a[field], b[field])
+        for field in ("x", "y", "vx", "vy", "P", "model_probabilities"):
+            close(a[field], b[field])
+        rows += len(a)
+    assert rows > 300
+    assert (compiled.tracks["status"] == 1).sum() >= 15

@@ -20,7 +20,7 @@ import math
 import numba
 import numpy as np
 
-from tracker_service.tracking.kernels import _combine_row, imm_update
+from tracker_service.tracking.kernels import imm_update
 from tracker_service.tracking.plots import FloatArray, IntArray
 
 FORBIDDEN = 1.0e12
@@ -448,3 +448,118 @@ def _jpda_star(ratio: FloatArray, events: IntArray, log_miss: float) -> FloatArr
             if j >= 0:
                 marginal[i, j] += probability[g]
     return marginal
+
+
+@numba.njit(cache=True)
+def weighted_update(
+    pair: IntArray,
+    weight: FloatArray,
+    owner_track: IntArray,
+    pair_plot: IntArray,
+    xp: FloatArray,
+    pp: FloatArray,
+    c: FloatArray,
+    plot_xy: FloatArray,
+    R: FloatArray,
+    min_detection_weight: float,
+) -> tuple[IntArray, FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """``update.weighted_update`` from the weighted pairs sorted by track, each track's
+    most likely first (``pair``, ``weight``, the track of each in ``owner_track``):
+    ``pair_plot``, ``xp``, ``pp``, ``c`` are the gated pairs' plots and per-model
+    predictions. Returns the reported pair of each updated track and its per-model
+    posterior x, P, mu: the mixture over its plots' IMM updates and its miss."""
+    n = pair.size
+    starts = np.empty(n + 1, np.int64)
+    n_groups = 0
+    for k in range(n):
+        if k == 0 or owner_track[k] != owner_track[k - 1]:
+            starts[n_groups] = k
+            n_groups += 1
+    starts[n_groups] = n
+    total = np.zeros(n_groups)
+    n_detected = 0
+    n_kept = 0
+    for g in range(n_groups):
+        for k in range(starts[g], starts[g + 1]):
+            total[g] += weight[k]
+        if total[g] >= min_detection_weight:
+            n_detected += 1
+            n_kept += starts[g + 1] - starts[g]
+    # The kept pairs' own IMM updates, in one call.
+    kept = np.empty(n_kept, np.int64)
+    group_of = np.empty(n_kept, np.int64)
+    first = np.empty(n_detected, np.int64)
+    group_total = np.empty(n_detected)
+    r = 0
+    g_new = 0
+    for g in range(n_groups):
+        if total[g] < min_detection_weight:
+            continue
+        first[g_new] = r
+        group_total[g_new] = total[g]
+        for k in range(starts[g], starts[g + 1]):
+            kept[r] = k
+            group_of[r] = g_new
+            r += 1
+        g_new += 1
+    sel = pair[kept]
+    x_j, p_j, mu_j, _, _ = imm_update(
+        xp[sel], pp[sel], c[sel], plot_xy[pair_plot[sel]], R[pair_plot[sel]]
+    )
+    m = xp.shape[1]
+    reported = np.empty(n_detected, np.int64)
+    x = np.zeros((n_detected, m, 4))
+    p = np.zeros((n_detected, m, 4, 4))
+    mu = np.zeros((n_detected, m))
+    d = np.empty(4)
+    for g in range(n_detected):
+        lo = first[g]
+        hi = first[g + 1] if g + 1 < n_detected else n_kept
+        best = sel[lo]
+        reported[g] = best
+        miss = min(max(1.0 - group_total[g], 0.0), 1.0)
+        w_pair = weight[kept[lo:hi]]
+        for j in range(m):
+            # The components in the reference's order: the plots, then the miss.
+            mass = 0.0
+            for q in range(lo, hi):
+                mass += w_pair[q - lo] * mu_j[q, j]
+            mass += miss * c[best, j]
+            safe = max(mass, TINY)
+            for a in range(4):
+                acc = 0.0
+                for q in range(lo, hi):
+                    acc += w_pair[q - lo] * mu_j[q, j] * x_j[q, j, a]
+                acc += miss * c[best, j] * xp[best, j, a]
+                x[g, j, a] = acc / safe
+            for q in range(lo, hi + 1):
+                if q < hi:
+                    wq = w_pair[q - lo] * mu_j[q, j]
+                    xs, ps = x_j[q, j], p_j[q, j]
+                else:
+                    wq = miss * c[best, j]
+                    xs, ps = xp[best, j], pp[best, j]
+                for a in range(4):
+                    d[a] = xs[a] - x[g, j, a]
+                for a in range(4):
+                    for b in range(4):
+                        p[g, j, a, b] += wq * (ps[a, b] + d[a] * d[b])
+            for a in range(4):
+                for b in range(4):
+                    p[g, j, a, b] /= safe
+            if mass <= TINY:
+                # Every component underflowed: the prediction of the best plot.
+                x[g, j] = xp[best, j]
+                p[g, j] = pp[best, j]
+            mu[g, j] = mass
+        norm = 0.0
+        for j in range(m):
+            norm += mu[g, j]
+        for j in range(m):
+            mu[g, j] /= norm
+            for a in range(4):
+                for b in range(a + 1, 4):
+                    s = 0.5 * (p[g, j, a, b] + p[g, j, b, a])
+                    p[g, j, a, b] = s
+                    p[g, j, b, a] = s
+    return reported, x, p, mu
