@@ -109,7 +109,9 @@ def test_assignment_and_ranking_match_scipy_and_the_reference(seed: int) -> None
     cost = rng.normal(0.0, 3.0, (rows, rows + int(rng.integers(0, 9))))
     cost[rng.random(cost.shape) < 0.3] = FORBIDDEN
     cost = np.round(cost, 1)  # ties: the same solution among equal ones as scipy
-    np.testing.assert_array_equal(kernels.linear_sum_assignment(cost), linear_sum_assignment(cost)[1])
+    np.testing.assert_array_equal(
+        kernels.linear_sum_assignment(cost), linear_sum_assignment(cost)[1]
+    )
     ratio = rng.normal(1.0, 2.0, (rows, rows + 2))
     ratio[rng.random(ratio.shape) < 0.3] = -np.inf
     want = np.array(_k_best(ratio, math.log(0.1), 30))

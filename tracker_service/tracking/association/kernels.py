@@ -208,7 +208,7 @@ def _sum(values: FloatArray) -> float:  # pragma: no cover - compiled
             for a in range(8):
                 r[a] += values[i + a]
             i += 8
-        total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        total = float(((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7])))
         while i < n:
             total += values[i]
             i += 1
@@ -394,7 +394,9 @@ def _key_hash(key: IntArray) -> np.uint64:  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _jpda_star(ratio: FloatArray, events: IntArray, log_miss: float) -> FloatArray:  # pragma: no cover
+def _jpda_star(
+    ratio: FloatArray, events: IntArray, log_miss: float
+) -> FloatArray:  # pragma: no cover
     """The marginal of each (track, plot) of a cluster from its events, JPDA*: of the
     events that detect the same tracks with the same plots, the first most likely only;
     the kept events in the order of their key's first appearance (the reference's dict)."""
