@@ -483,7 +483,8 @@ class LocalTracker:
         elif isinstance(posterior, imm.ImmUpdate):
             step = posterior
         else:
-            xc, pc = imm.combine(posterior.x, posterior.P, posterior.mu)
+            combine = kernels.combine if self._compiled else imm.combine
+            xc, pc = combine(posterior.x, posterior.P, posterior.mu)
             step = imm.ImmUpdate(posterior.x, posterior.P, posterior.mu, xc, pc)
         if self.daps is not None:
             step = self.daps.apply(step, p)
