@@ -214,13 +214,13 @@ def compare_recording(path: str, associations: list[str]) -> None:
 def print_ratios(per_plot: dict[str, dict[str, float]], associations: list[str]) -> None:
     """Each association's cost per plot over GNN's, for each data set and implementation."""
     print("cost per plot over GNN's (medians)")
-    print(f"{'data':>10} {'implementation':>15} " + " ".join(f"{a:>12}" for a in associations))
+    print(f"{'data':>13} {'implementation':>15} " + " ".join(f"{a:>12}" for a in associations))
     for data, by_variant in per_plot.items():
         for implementation in sorted({v.split("/")[0] for v in by_variant}):
             cost = [by_variant[f"{implementation}/{a}"] for a in associations]
             gnn = by_variant[f"{implementation}/gnn"]
             cells = " ".join(f"{c / gnn:>6.2f} ({c * 1e6:>3.0f})" for c in cost)
-            print(f"{data:>10} {implementation:>15} {cells}")
+            print(f"{data:>13} {implementation:>15} {cells}")
     print("(in brackets: us per plot)")
 
 
