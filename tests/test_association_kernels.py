@@ -166,8 +166,11 @@ def test_weighted_update_matches_the_reference(seed: int) -> None:
         np.testing.assert_array_equal(got.reported, want.reported)
         for field in ("x", "P", "mu"):
             close(getattr(want, field), getattr(got, field))
+    # Nothing detected, nothing weighted: no track updated.
     one = WeightedPairs(np.array([0]), np.array([0.3]))
     assert weighted_update(pairs, one, z, r, "compiled").track.size == 0
+    none = WeightedPairs(np.empty(0, dtype=np.int64), np.empty(0))
+    assert weighted_update(pairs, none, z, r, "compiled").x.shape == (0, pairs.pred.x.shape[1], 4)
 
 
 def _formations(seed: int, scans: int) -> list[np.ndarray]:
