@@ -244,6 +244,8 @@ def main() -> None:
     )
     args = parser.parse_args()
     if args.compare:
+        if not args.recording:
+            parser.error("--compare needs --recording")
         compare_recording(args.recording, args.associations)
         return
     # Loads (or compiles, after an install) the kernels before any clock runs.
