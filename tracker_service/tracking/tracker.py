@@ -337,7 +337,9 @@ class LocalTracker:
             tracks, plot_index, posterior = pairs.track[sel], pairs.plot[sel], None
             used[plot_index] = True
         else:
-            posterior = weighted_update(pairs, weighted, np.column_stack([p.x, p.y]), p.R)
+            posterior = weighted_update(
+                pairs, weighted, np.column_stack([p.x, p.y]), p.R, self.config.implementation
+            )
             # Nor does a plot that a track's mixture takes in good part: left to the
             # initiator, it pairs with the next scan's left-over plot of the other
             # aircraft (the swaps of primary-only encounters, docs/association.md).
@@ -481,7 +483,8 @@ class LocalTracker:
         elif isinstance(posterior, imm.ImmUpdate):
             step = posterior
         else:
-            xc, pc = imm.combine(posterior.x, posterior.P, posterior.mu)
+            combine = kernels.combine if self._compiled else imm.combine
+            xc, pc = combine(posterior.x, posterior.P, posterior.mu)
             step = imm.ImmUpdate(posterior.x, posterior.P, posterior.mu, xc, pc)
         if self.daps is not None:
             step = self.daps.apply(step, p)

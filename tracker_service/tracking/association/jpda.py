@@ -14,6 +14,10 @@ plots, only the most likely permutation: the tracks keep their own plots and sta
 
 Exact enumeration for small clusters; beyond ``jpda_max_events`` feasible events, the
 ``jpda_k_best`` most likely events by Murty's ranking of assignments.
+
+``TrackerConfig.implementation`` chooses the code: "compiled" (``association.kernels``,
+numba: one call per batch) or "numpy" (the methods here, the reference); the same weights
+to rounding (tests/test_association_kernels.py).
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from tracker_service.tracking.association import kernels
 from tracker_service.tracking.association.base import WeightedPairs
 from tracker_service.tracking.association.gate import GatedPairs
 from tracker_service.tracking.config import TrackerConfig
@@ -48,6 +53,7 @@ class JointProbabilisticDataAssociation:
         self.log_miss = math.log(1.0 - pd)
         self.log_pd = math.log(pd)
         self.log_pd_over_clutter = math.log(pd) - math.log(config.clutter_density_per_km2 * 1e-6)
+        self._compiled = config.implementation == "compiled"
 
     def associate(self, pairs: GatedPairs) -> WeightedPairs:
         if pairs.clutter_density is None:
@@ -56,6 +62,22 @@ class JointProbabilisticDataAssociation:
             # The clutter map's density at each plot: a plot in a dense cell is more
             # likely nobody's, and weighs less for any track.
             score = pairs.log_likelihood + self.log_pd - np.log(pairs.clutter_density)
+        if self._compiled:
+            weight = kernels.jpda_weights(
+                np.ascontiguousarray(pairs.track, dtype=np.int64),
+                np.ascontiguousarray(pairs.plot, dtype=np.int64),
+                np.ascontiguousarray(score, dtype=np.float64),
+                self.log_miss,
+                self.config.jpda_max_events,
+                self.config.jpda_k_best,
+            )
+        else:
+            weight = self._weights(pairs, score)
+        keep = np.flatnonzero(weight >= MIN_WEIGHT)
+        return WeightedPairs(keep, weight[keep])
+
+    def _weights(self, pairs: GatedPairs, score: FloatArray) -> FloatArray:
+        """The weight of every pair (the reference of ``kernels.jpda_weights``)."""
         _, t_idx = np.unique(pairs.track, return_inverse=True)
         _, p_idx = np.unique(pairs.plot, return_inverse=True)
         nt, npl = int(t_idx.max()) + 1, int(p_idx.max()) + 1
@@ -74,8 +96,7 @@ class JointProbabilisticDataAssociation:
             bounds = np.flatnonzero(np.diff(cluster[order])) + 1
             for members in np.split(rest[order], bounds):
                 weight[members] = self._cluster(t_idx[members], p_idx[members], score[members])
-        keep = np.flatnonzero(weight >= MIN_WEIGHT)
-        return WeightedPairs(keep, weight[keep])
+        return weight
 
     def _cluster(self, tracks: IntArray, plots: IntArray, score: FloatArray) -> FloatArray:
         """The marginal probability of each pair of one cluster."""

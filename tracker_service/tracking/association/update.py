@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tracker_service.tracking import imm
+from tracker_service.tracking.association import kernels
 from tracker_service.tracking.association.base import WeightedPairs
 from tracker_service.tracking.association.gate import GatedPairs
 from tracker_service.tracking.plots import FloatArray, IntArray
@@ -40,11 +41,31 @@ class WeightedUpdate:
 
 
 def weighted_update(
-    pairs: GatedPairs, weighted: WeightedPairs, plot_xy: FloatArray, R: FloatArray
+    pairs: GatedPairs,
+    weighted: WeightedPairs,
+    plot_xy: FloatArray,
+    R: FloatArray,
+    implementation: str = "compiled",
 ) -> WeightedUpdate:
+    """The tracks' posteriors; ``implementation`` as ``TrackerConfig.implementation``:
+    "compiled" (``kernels.weighted_update``) or "numpy" (the reference, here)."""
     track_of = pairs.track[weighted.pair]
     # By track, each track's most likely pair first.
     order = np.lexsort((-weighted.weight, track_of))
+    if implementation == "compiled":
+        reported, x, p, mu = kernels.weighted_update(
+            np.ascontiguousarray(weighted.pair[order], dtype=np.int64),
+            np.ascontiguousarray(weighted.weight[order], dtype=np.float64),
+            np.ascontiguousarray(track_of[order], dtype=np.int64),
+            np.ascontiguousarray(pairs.plot, dtype=np.int64),
+            pairs.pred.x,
+            pairs.pred.P,
+            pairs.pred.c,
+            np.ascontiguousarray(plot_xy, dtype=np.float64),
+            np.ascontiguousarray(R, dtype=np.float64),
+            MIN_DETECTION_WEIGHT,
+        )
+        return WeightedUpdate(pairs.track[reported], reported, x, p, mu)
     sel, w, owner_track = weighted.pair[order], weighted.weight[order], track_of[order]
     starts = np.flatnonzero(np.r_[True, owner_track[1:] != owner_track[:-1]])
     total = np.add.reduceat(w, starts)
