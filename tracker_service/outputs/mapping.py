@@ -9,7 +9,6 @@ the MCAP log publish the same ones.
 
 from __future__ import annotations
 
-import functools
 import math
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
@@ -34,7 +33,7 @@ from tracker_service.outputs.messages import (
     SensorAges,
     SystemTrackMessage,
     TrackSource,
-    iso_times,
+    iso_time,
     position_sigma_m,
     track_angle_deg,
     wrap_degrees,
@@ -124,22 +123,17 @@ def location_fix(message: SystemTrackMessage) -> LocationFix:
 
 
 def _remember_daps(
-    daps: dict[str, tuple[float, float]], values: Sequence[float], time: float
+    daps: dict[str, tuple[float, float]], plot: Any, time: float
 ) -> dict[str, tuple[float, float]]:
-    """``daps`` (copied) with a plot's DAPs taken in: ``values`` in ``DAP_NAMES`` order,
-    NaN where the plot has none."""
+    """``daps`` (copied) with the DAPs of ``plot`` (a plot-table row) taken in."""
+    if "has_daps" not in (plot.dtype.names or ()) or not plot["has_daps"]:
+        return daps
     daps = dict(daps)
-    for name, value in zip(DAP_NAMES, values, strict=True):
+    for name in DAP_NAMES:
+        value = float(plot[name])
         if math.isfinite(value):
             daps[name] = (value, time)
     return daps
-
-
-def _has_daps(plots: npt.NDArray[Any]) -> npt.NDArray[np.bool_]:
-    """Which plots of a plot table carry DAPs."""
-    if "has_daps" in (plots.dtype.names or ()):
-        return np.asarray(plots["has_daps"], dtype=bool)
-    return np.zeros(plots.shape, dtype=bool)
 
 
 def _dap_docs(daps: dict[str, tuple[float, float]], time: float) -> list[dict[str, Any]]:
@@ -148,63 +142,6 @@ def _dap_docs(daps: dict[str, tuple[float, float]], time: float) -> list[dict[st
         for name in DAP_NAMES
         if name in daps
     ]
-
-
-def _finite_or_none(
-    values: npt.NDArray[np.floating[Any]], finite: npt.NDArray[np.bool_] | None = None
-) -> list[float | None]:
-    """``values`` as floats, None where ``finite`` (by default: the values' own
-    finiteness) is False."""
-    known = np.isfinite(values) if finite is None else finite
-    floats: list[float | None] = values.tolist()
-    if known.all():
-        return floats
-    return [v if k else None for v, k in zip(floats, known.tolist(), strict=True)]
-
-
-_SYSTEM_STATUS: dict[int, str] = {ENDED: "ended", COASTING: "coasting"}
-"""A system row's status as its message's; any other is "confirmed"."""
-_NO_AGES: dict[str, float | None] = {"psr": None, "ssr": None, "mode_s": None, "adsb": None}
-
-
-@functools.cache
-def _sensors_of_type(typ: int) -> tuple[str, ...]:
-    """The sensors whose age a plot of I048/020 TYP ``typ`` renews."""
-    return tuple(
-        sensor
-        for sensor, types in (
-            ("psr", _PSR_TYPES),
-            ("ssr", _SSR_TYPES),
-            ("mode_s", _MODE_S_TYPES),
-            ("adsb", _ADSB_TYPES),
-        )
-        if typ in types
-    )
-
-
-class _PlotColumns:
-    """A batch's plot table as what the system updates need of a plot, by plot index:
-    Python values taken out of the columns once for the batch."""
-
-    def __init__(self, plots: npt.NDArray[Any], plane: SystemPlane) -> None:
-        lat, lon = plane.to_geodetic(plots["x"], plots["y"])
-        self.lat: list[float] = lat.tolist()
-        self.lon: list[float] = lon.tolist()
-        self.time: list[float] = plots["time"].tolist()
-        self.typ: list[int] = plots["typ"].tolist()
-        self.callsign: list[str] = [str(c) for c in plots["callsign"].tolist()]
-        self.range_m = _finite_or_none(plots["rho_m"])
-        self.azimuth_deg: list[float | None] = [
-            _none_if_nan(wrap_degrees(theta)) for theta in plots["theta_deg"].tolist()
-        ]
-        carries = _has_daps(plots)
-        self.daps: list[list[float] | None] = [None] * len(plots)
-        """Each plot's DAP values in ``DAP_NAMES`` order, None for a plot without DAPs."""
-        if carries.any():
-            (with_daps,) = np.nonzero(carries)
-            values = np.column_stack([plots[name][with_daps] for name in DAP_NAMES]).tolist()
-            for i, plot_values in zip(with_daps.tolist(), values, strict=True):
-                self.daps[i] = plot_values
 
 
 class MessageMapper:
@@ -360,35 +297,38 @@ class MessageMapper:
         self, rows: npt.NDArray[Any], plots: npt.NDArray[Any], sources: Sequence[str]
     ) -> list[SystemUpdate]:
         """As :meth:`system`, each update as plain values and its JSON
-        (``SystemTrackMessage``'s). What depends on the row alone is worked out for the
-        whole batch first, column by column; the loop over the rows keeps what needs the
-        mapper's memory of each track (last plot, sensor ages, DAPs, sources' ages)."""
+        (``SystemTrackMessage``'s)."""
         n = len(rows)
         if not n:
             return []
         lat, lon = self.plane.to_geodetic(rows["x"], rows["y"])
         plot_index = {p: i for i, p in enumerate(plots["plot_id"].tolist())}
-        plot_columns = _PlotColumns(plots, self.plane)
-        times = rows["time"].tolist()
-        vx, vy = rows["vx"].tolist(), rows["vy"].tolist()
+        plot_lat, plot_lon = self.plane.to_geodetic(plots["x"], plots["y"])
+        plot_callsigns = plots["callsign"].tolist()
+        plot_columns = (
+            plots["time"].tolist(),
+            plots["typ"].tolist(),
+            plots["rho_m"].tolist(),
+            [wrap_degrees(theta) for theta in plots["theta_deg"].tolist()],
+            plot_lat.tolist(),
+            plot_lon.tolist(),
+        )
         covariance = rows["P"].reshape(n, 4, 4).tolist()
-        climb = rows["climb_rate_fl_per_s"]
         columns = zip(
             rows["system_number"].tolist(),
-            times,
+            rows["time"].tolist(),
             rows["x"].tolist(),
             rows["y"].tolist(),
-            vx,
-            vy,
-            _finite_or_none(rows["flight_level"]),
-            # The rate in ft/min where it is known (the product of the float, as before).
-            _finite_or_none(climb * 6000.0, np.isfinite(climb)),
+            rows["vx"].tolist(),
+            rows["vy"].tolist(),
+            rows["flight_level"].tolist(),
+            rows["climb_rate_fl_per_s"].tolist(),
             rows["status"].tolist(),
             rows["fresh"].tolist(),
             rows["radar"].tolist(),
             rows["plot_id"].tolist(),
-            [_hex_address(a) for a in rows["address"].tolist()],
-            [_octal_code(c) for c in rows["mode3a"].tolist()],
+            rows["address"].tolist(),
+            rows["mode3a"].tolist(),
             rows["n_sources"].tolist(),
             rows["local_radars"].tolist(),
             rows["local_numbers"].tolist(),
@@ -396,53 +336,46 @@ class MessageMapper:
             rows["adsb_inconsistent"].tolist(),
             lat.tolist(),
             ((lon + 180.0) % 360.0 - 180.0).tolist(),
-            iso_times(times),
-            list(map(math.hypot, vx, vy)),
-            list(map(track_angle_deg, vx, vy)),
-            covariance,
-            list(map(position_sigma_m, covariance)),
             strict=True,
         )
         updates = []
-        tracks, by_address, local_times = self._tracks, self._by_address, self._local_times
-        for row in columns:
-            (number, time, x, y, vx_k, vy_k, level, rate, status, fresh, radar, plot_id) = row[:12]
-            (address, mode3a, n_sources, radars, numbers, plot_ids, adsb_flag) = row[12:19]
-            (lat_k, lon_k, time_iso, speed, angle, p, sigma) = row[19:]
-            previous = tracks.get(number)
-            if previous is None:
-                sensor_times, daps, last_plot = {}, {}, None
-            else:
-                sensor_times, daps, last_plot = (
-                    previous.sensor_times,
-                    previous.daps,
-                    previous.last_plot,
-                )
-                if isinstance(last_plot, LastPlot):
-                    last_plot = last_plot.model_dump()
+        for k, row in enumerate(columns):
+            (number, time, x, y, vx, vy, level, climb, status, fresh, radar, plot_id) = row[:12]
+            (address_raw, code_raw, n_sources, radars, numbers, plot_ids, adsb_flag) = row[12:19]
+            lat_k, lon_k = row[19:]
+            previous = self._tracks.get(number)
+            sensor_times = {} if previous is None else previous.sensor_times
+            daps = {} if previous is None else previous.daps
+            last_plot = None if previous is None else previous.last_plot
+            if isinstance(last_plot, LastPlot):
+                last_plot = last_plot.model_dump()
             plot = plot_index.get(plot_id)
             plot_callsign = None
             if plot is not None and fresh:
-                plot_callsign = plot_columns.callsign[plot]
-                plot_time = plot_columns.time[plot]
-                dap_values = plot_columns.daps[plot]
-                if dap_values is not None:
-                    daps = _remember_daps(daps, dap_values, plot_time)
-                for sensor in _sensors_of_type(plot_columns.typ[plot]):
-                    sensor_times[sensor] = plot_time
+                plot_callsign = str(plot_callsigns[plot])
+                plot_time, typ, rho, theta, p_lat, p_lon = (c[plot] for c in plot_columns)
+                daps = _remember_daps(daps, plots[plot], plot_time)
+                for sensor, types in (
+                    ("psr", _PSR_TYPES),
+                    ("ssr", _SSR_TYPES),
+                    ("mode_s", _MODE_S_TYPES),
+                    ("adsb", _ADSB_TYPES),
+                ):
+                    if typ in types:
+                        sensor_times[sensor] = plot_time
                 last_plot = {
                     "radar": sources[radar],
                     "time": plot_time,
-                    "lat": plot_columns.lat[plot],
-                    "lon": plot_columns.lon[plot],
+                    "lat": p_lat,
+                    "lon": p_lon,
                     # An ADS-B report has no range and azimuth (NaN).
-                    "range_m": plot_columns.range_m[plot],
-                    "azimuth_deg": plot_columns.azimuth_deg[plot],
+                    "range_m": _none_if_nan(rho),
+                    "azimuth_deg": _none_if_nan(theta),
                 }
             track_sources = []
             for slot in range(n_sources):
                 local_radar, local = sources[radars[slot]], numbers[slot]
-                local_time = local_times.get((local_radar, local), time)
+                local_time = self._local_times.get((local_radar, local), time)
                 track_sources.append(
                     {
                         "radar": local_radar,
@@ -451,48 +384,54 @@ class MessageMapper:
                         "plot_id": plot_ids[slot] if plot_ids[slot] >= 0 else None,
                     }
                 )
+            address = _hex_address(address_raw)
+            mode3a = _octal_code(code_raw)
             if previous is not None and previous.address is not None:
-                by_address[previous.address].discard(number)
-            ages = dict(_NO_AGES)
-            for sensor, sensor_time in sensor_times.items():
-                ages[sensor] = max(time - sensor_time, 0.0)
+                self._by_address[previous.address].discard(number)
+            ages: dict[str, float | None] = {"psr": None, "ssr": None, "mode_s": None}
+            ages |= {"adsb": None} | {s: max(time - t, 0.0) for s, t in sensor_times.items()}
+            rate = _none_if_nan(climb)
             doc = {
                 "number": number,
                 "time": time,
-                "time_iso": time_iso,
+                "time_iso": iso_time(time),
                 "lat": lat_k,
                 "lon": lon_k,
                 "altitude_m": None,
-                "flight_level": level,
+                "flight_level": _none_if_nan(level),
                 "x_m": x,
                 "y_m": y,
-                "vx_mps": vx_k,
-                "vy_mps": vy_k,
-                "ground_speed_mps": speed,
-                "track_angle_deg": angle,
-                "climb_rate_fpm": rate,
-                "covariance": p,
-                "position_sigma_m": sigma,
+                "vx_mps": vx,
+                "vy_mps": vy,
+                "ground_speed_mps": math.hypot(vx, vy),
+                "track_angle_deg": track_angle_deg(vx, vy),
+                "climb_rate_fpm": None if rate is None else rate * 6000.0,
+                "covariance": covariance[k],
+                "position_sigma_m": position_sigma_m(covariance[k]),
                 "address": address,
                 "callsign": _track_callsign(plot_callsign, previous, address),
                 "mode3a": mode3a,
                 "mode3a_changed": previous is not None and previous.mode3a not in (None, mode3a),
                 "first": previous is None,
                 "sources": track_sources,
-                "status": _SYSTEM_STATUS.get(status, "confirmed"),
+                "status": "ended"
+                if status == ENDED
+                else "coasting"
+                if status == COASTING
+                else "confirmed",
                 "last_plot": last_plot,
                 "ages": ages,
-                "duplicate_address": address is not None and bool(by_address.get(address)),
+                "duplicate_address": address is not None and bool(self._by_address.get(address)),
                 "adsb_inconsistent": bool(adsb_flag),
                 "daps": _dap_docs(daps, time),
             }
             update = SystemUpdate(number, doc, system_json(doc))
             if status == ENDED:
-                tracks.pop(number, None)
+                self._tracks.pop(number, None)
             else:
-                tracks[number] = _SystemTrack(update, last_plot, sensor_times, daps)
+                self._tracks[number] = _SystemTrack(update, last_plot, sensor_times, daps)
                 if address is not None:
-                    by_address[address].add(number)
+                    self._by_address[address].add(number)
             updates.append(update)
         return updates
 
@@ -564,9 +503,7 @@ class MessageMapper:
         if isinstance(last_plot, dict):
             last_plot = LastPlot.model_construct(**last_plot)
         if plot is not None and plot_position is not None:
-            if _has_daps(plot):
-                values = [float(plot[name]) for name in DAP_NAMES]
-                daps = _remember_daps(daps, values, float(plot["time"]))
+            daps = _remember_daps(daps, plot, float(plot["time"]))
             radar = chain_sources[int(row["radar"])]
             typ = int(plot["typ"])
             for sensor, types in (

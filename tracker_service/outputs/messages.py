@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import math
 import sys
-from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -423,29 +422,6 @@ MODELS: tuple[type[BaseModel], ...] = (
 def iso_time(posix: float) -> str:
     """ISO 8601 UTC with microseconds, e.g. 2026-06-01T10:00:00.500000Z."""
     return datetime.fromtimestamp(posix, UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-
-
-def iso_times(posix: Sequence[float]) -> list[str]:
-    """:func:`iso_time` of each time, the same strings: the date and time of day formatted
-    once per whole second of the batch, the microseconds rounded as ``fromtimestamp``
-    rounds them (half to even, a fraction that rounds to 1 s carried to the second)."""
-    seconds: dict[int, str] = {}
-    texts = []
-    for t in posix:
-        fraction, whole = math.modf(t)
-        micro = round(fraction * 1e6)
-        second = int(whole)
-        if micro >= 1_000_000:
-            second, micro = second + 1, micro - 1_000_000
-        elif micro < 0:
-            second, micro = second - 1, micro + 1_000_000
-        text = seconds.get(second)
-        if text is None:
-            text = seconds[second] = datetime.fromtimestamp(second, UTC).strftime(
-                "%Y-%m-%dT%H:%M:%S"
-            )
-        texts.append(f"{text}.{micro:06d}Z")
-    return texts
 
 
 def wrap_degrees(angle: float) -> float:
