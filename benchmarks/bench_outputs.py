@@ -145,7 +145,6 @@ def _system_old(c: Captured) -> list[list[SystemTrackMessage]]:
     mapper = MessageMapper(_plane(c.config))
     out = []
     for output, sources in c.batches:
-        mapper.note_callsigns(output.plots)
         mapper.local(output.source, output.local)  # the sources' ages need their times
         messages = mapper.system(output.system, output.plots, sources) if len(output.system) else []
         for m in messages:
@@ -158,7 +157,6 @@ def _system_new(c: Captured) -> list[list[Any]]:
     mapper = MessageMapper(_plane(c.config))
     out = []
     for output, sources in c.batches:
-        mapper.note_callsigns(output.plots)
         mapper.local_updates(output.source, output.local)
         out.append(
             mapper.system_updates(output.system, output.plots, sources)

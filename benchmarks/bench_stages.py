@@ -32,6 +32,7 @@ The stages and what each wraps:
 | messages | ``Outputs.batch``, ``publish_cat062`` and the periodic messages, less the rest |
 | CAT062 | ``encode_system_documents`` and ``encode_cat065`` |
 | MCAP | ``McapSink``'s calls (the log's writer thread) |
+| Foxglove map | ``FoxgloveSink``'s calls less its ``McapSink`` calls (the map in the log) |
 | Zenoh | ``ZenohSink``'s calls (the publisher's thread) |
 """
 
@@ -56,6 +57,7 @@ from asterix.containers import Datagram
 from tracker_service import radar_stage as radar_stage_module
 from tracker_service.central_stage import CentralStage
 from tracker_service.fusion import SystemTracker
+from tracker_service.outputs.foxglove_sink import FoxgloveSink
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.mcap_sink import McapSink
 from tracker_service.outputs.zenoh_out import ZenohPublisher
@@ -77,6 +79,7 @@ STAGES = (
     "messages",
     "CAT062",
     "MCAP",
+    "Foxglove map",
     "Zenoh",
 )
 SINK_CALLS = (
@@ -144,6 +147,7 @@ def instrumented(clock: StageClock) -> Iterator[None]:
         (core_module, "encode_cat065", "CAT062"),
     ]
     targets += [(McapSink, call, "MCAP") for call in SINK_CALLS]
+    targets += [(FoxgloveSink, call, "Foxglove map") for call in SINK_CALLS]
     targets += [(ZenohSink, call, "Zenoh") for call in SINK_CALLS]
     saved = []
     for owner, name, stage in targets:

@@ -28,6 +28,7 @@ from tracker_service.outputs.foxglove_scene import (
     FoxgloveMessage,
     MapRadar,
     MapScene,
+    MapTrack,
     track_colour,
     track_label,
 )
@@ -393,3 +394,21 @@ def test_layout_opens_on_the_map_of_the_example_configuration() -> None:
     assert not {TRACKS_TOPIC, PICTURE_TOPIC, RADARS_TOPIC} & set(panels[first]["disabledTopics"])
     rest = [layout["layout"]["second"]["first"], layout["layout"]["second"]["second"]]
     assert all(name in panels for name in rest)
+
+
+def test_scene_from_values_is_the_scene_from_models() -> None:
+    """The batch path's ``MapTrack.of_values`` (an update's plain values) gives the scene's
+    messages the model gives, byte for byte: fixes, labels, colours, pictures."""
+    messages = [
+        track(3, radars=("25/11",), callsign="AFR12   ", flight_level=99.6),
+        track(4, status="coasting", mode3a="7000"),
+        track(5, duplicate_address=True, address="3C660C"),
+        track(3, time=T0 + 13.0, lat=48.51, radars=("25/11", "25/12", "25/13")),
+        track(4, time=T0 + 14.0, status="ended"),
+    ]
+    from_models, from_values = MapScene([SITE]), MapScene([SITE])
+    for m in messages:
+        assert from_values.update(MapTrack.of_values(m.model_dump()), m.time) == (
+            from_models.update(m, m.time)
+        )
+    assert from_values.picture_geojson() == from_models.picture_geojson()

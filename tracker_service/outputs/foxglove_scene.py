@@ -30,7 +30,7 @@ from __future__ import annotations
 import json
 import math
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -118,20 +118,97 @@ class MapRadar:
     range_nm: float
 
 
-def track_colour(message: SystemTrackMessage) -> Rgb:
+@dataclass(frozen=True, slots=True)
+class MapTrack:
+    """What the map shows of a system-track update: its message's values, read from the
+    model (:meth:`of_message`) or from an update's plain values (:meth:`of_values`, the
+    batch path: no model per update)."""
+
+    number: int
+    time: float
+    status: str
+    lat: float
+    lon: float
+    altitude_m: float | None
+    flight_level: float | None
+    vx_mps: float
+    vy_mps: float
+    ground_speed_mps: float
+    track_angle_deg: float
+    covariance: Sequence[Sequence[float]]
+    address: str | None
+    callsign: str | None
+    mode3a: str | None
+    duplicate_address: bool
+    radars: frozenset[str]
+    """The radars of its sources."""
+
+    @classmethod
+    def of_message(cls, m: SystemTrackMessage) -> MapTrack:
+        return cls(
+            m.number,
+            m.time,
+            m.status,
+            m.lat,
+            m.lon,
+            m.altitude_m,
+            m.flight_level,
+            m.vx_mps,
+            m.vy_mps,
+            m.ground_speed_mps,
+            m.track_angle_deg,
+            m.covariance,
+            m.address,
+            m.callsign,
+            m.mode3a,
+            m.duplicate_address,
+            frozenset(s.radar for s in m.sources),
+        )
+
+    @classmethod
+    def of_values(cls, d: Mapping[str, Any]) -> MapTrack:
+        """From a system update's values (``updates.SystemUpdate.doc``)."""
+        return cls(
+            d["number"],
+            d["time"],
+            d["status"],
+            d["lat"],
+            d["lon"],
+            d["altitude_m"],
+            d["flight_level"],
+            d["vx_mps"],
+            d["vy_mps"],
+            d["ground_speed_mps"],
+            d["track_angle_deg"],
+            d["covariance"],
+            d["address"],
+            d["callsign"],
+            d["mode3a"],
+            d["duplicate_address"],
+            frozenset(s["radar"] for s in d["sources"]),
+        )
+
+
+def _map_track(track: SystemTrackMessage | MapTrack) -> MapTrack:
+    return track if isinstance(track, MapTrack) else MapTrack.of_message(track)
+
+
+def track_colour(track: SystemTrackMessage | MapTrack) -> Rgb:
     """See the module docstring."""
+    message = _map_track(track)
     if message.status == "ended":
         return _ENDED
     if message.duplicate_address:
         return _DUPLICATE
     if message.status == "coasting":
         return _COASTING
-    return _MULTI if len({s.radar for s in message.sources}) >= 2 else _SINGLE
+    return _MULTI if len(message.radars) >= 2 else _SINGLE
 
 
-def track_label(message: SystemTrackMessage) -> str:
+def track_label(track: SystemTrackMessage | MapTrack) -> str:
     """What an ATC label shows: callsign, else Mode 3/A code, else the track number;
     flight level; ground speed in knots. E.g. "DLH65A FL350 452kt", "A7000 FL--- 120kt"."""
+    message = _map_track(track)
     callsign = (message.callsign or "").strip()
     identity = callsign or (f"A{message.mode3a}" if message.mode3a else f"#{message.number}")
     level = "FL---" if message.flight_level is None else f"FL{round(message.flight_level):03d}"
@@ -163,7 +240,7 @@ _Point = tuple[float, float, float]
 
 @dataclass
 class _Track:
-    last: SystemTrackMessage
+    last: MapTrack
     trail: deque[_Point] = field(default_factory=deque)
     """(time, lon, lat), oldest first."""
     features: str | None = None
@@ -199,9 +276,10 @@ class MapScene:
     def live_tracks(self) -> list[int]:
         return sorted(self._tracks)
 
-    def update(self, message: SystemTrackMessage, time: float) -> list[FoxgloveMessage]:
+    def update(self, update: SystemTrackMessage | MapTrack, time: float) -> list[FoxgloveMessage]:
         """A system-track message at data time ``time``: its fix (none for "ended", whose
         track leaves the picture), then whatever periodic message falls due."""
+        message = _map_track(update)
         out: list[FoxgloveMessage] = []
         if message.status == "ended":
             self._tracks.pop(message.number, None)
@@ -228,13 +306,14 @@ class MapScene:
             out.append(FoxgloveMessage(PICTURE_TOPIC, GEOJSON, self.picture_geojson(), time))
         return out
 
-    def _extend_trail(self, trail: deque[_Point], m: SystemTrackMessage) -> None:
+    def _extend_trail(self, trail: deque[_Point], m: MapTrack) -> None:
         if not trail or m.time - trail[-1][0] >= self.trail_spacing_s:
             trail.append((m.time, round(m.lon, 5), round(m.lat, 5)))
         while trail and m.time - trail[0][0] > self.trail_s:
             trail.popleft()
 
-    def location_fix(self, message: SystemTrackMessage) -> bytes:
+    def location_fix(self, track: SystemTrackMessage | MapTrack) -> bytes:
+        message = _map_track(track)
         p = message.covariance
         if message.altitude_m is not None:
             altitude = message.altitude_m
@@ -259,7 +338,7 @@ class MapScene:
         return _dumps(fix)
 
     @staticmethod
-    def _identity(m: SystemTrackMessage) -> Iterator[tuple[str, str]]:
+    def _identity(m: MapTrack) -> Iterator[tuple[str, str]]:
         yield "label", track_label(m)
         yield "track", str(m.number)
         yield "status", m.status
@@ -273,7 +352,7 @@ class MapScene:
             yield "flight_level", f"{m.flight_level:.2f}"
         yield "ground_speed_kt", f"{m.ground_speed_mps * _KT_PER_MPS:.0f}"
         yield "track_angle_deg", f"{m.track_angle_deg:.0f}"
-        yield "sources", ",".join(sorted({s.radar for s in m.sources}))
+        yield "sources", ",".join(sorted(m.radars))
 
     def picture_geojson(self) -> bytes:
         """Every live track's point, trail and vector, as one FeatureCollection; a track's
@@ -384,7 +463,7 @@ def _due(next_time: float | None, period: float, time: float) -> tuple[bool, flo
     return True, next_time + period * (math.floor((time - next_time) / period) + 1)
 
 
-def _ahead(m: SystemTrackMessage) -> list[float]:
+def _ahead(m: MapTrack) -> list[float]:
     """Where the track is in one minute at its velocity (the plane's axes taken as east
     and north: a display's speed vector, not a prediction)."""
     d_north = m.vy_mps * _SPEED_VECTOR_S

@@ -25,6 +25,7 @@ from tracker_service.outputs.foxglove_scene import (
     FoxgloveMessage,
     MapRadar,
     MapScene,
+    MapTrack,
 )
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.messages import (
@@ -191,17 +192,16 @@ class FoxgloveSink:
 
     def system_updates(self, updates: Sequence[SystemUpdate], time: float) -> None:
         """A batch (``updates.py``): the inner sink takes it whole when it takes batches;
-        the scene needs each update's values as a model (built unvalidated)."""
+        the scene reads each update's values, no model built."""
         inner = self.inner
         batch = None if inner is None else getattr(inner, "system_updates", None)
-        messages = [update.message() for update in updates]
         if batch is not None:
             batch(updates, time)
         elif inner is not None:
-            for update, message in zip(updates, messages, strict=True):
-                inner.system(message, update.payload, time)
-        for message in messages:
-            self._write(self.scene.update(message, time))
+            for update in updates:
+                inner.system(update.message(), update.payload, time)
+        for update in updates:
+            self._write(self.scene.update(MapTrack.of_values(update.doc), time))
 
     def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None:
         inner = self.inner
