@@ -182,3 +182,59 @@ def test_mht_settings_are_checked() -> None:
         TrackerConfig(association="mht", mht_n_scan=1)
     with pytest.raises(ValueError, match="mht_ambiguity_llr <= mht_prune_llr"):
         TrackerConfig(association="mht", mht_ambiguity_llr=10.0, mht_prune_llr=5.0)
+
+
+def test_a_plot_left_over_next_to_a_track_starts_a_track_with_the_neighbours_velocity() -> None:
+    """The ambiguous scan of ``_sidestep``: the plot the best hypothesis leaves (150 m
+    south) starts a track at once, at the plot, with the neighbour's predicted velocity
+    and that velocity's covariance widened by ``birth_relative_speed_sigma_m_s``
+    (before, it waited for a two-point start with the next scan's left-over plot)."""
+    batches = _sidestep()
+    tracker = LocalTracker(MHT)
+    for b in batches[:8]:
+        tracker.process(b)
+    before = tracker.tracks
+    assert before.size == 1 and before["status"][0] == CONFIRMED
+    plot = batches[8][batches[8]["plot_id"] == 9]
+    dt = float(plot["time"][0]) - float(before["t"][0])
+    neighbour = tracker.imm.predict(before["x"], before["P"], before["mu"], np.array([dt]))
+    out = tracker.process(batches[8])
+    born = out[out["track_number"] == 2]
+    assert born["plot_id"].tolist() == [9]
+    new = tracker.tracks[tracker.tracks["number"] == 2][0]
+    np.testing.assert_allclose(new["xc"][:2], [plot["x"][0], plot["y"][0]], atol=1e-9)
+    np.testing.assert_allclose(new["xc"][2:], neighbour.x_comb[0, 2:], rtol=1e-12)
+    sigma = MHT.birth_relative_speed_sigma_m_s
+    np.testing.assert_allclose(
+        new["Pc"][2:, 2:], neighbour.P_comb[0, 2:, 2:] + sigma**2 * np.eye(2), rtol=1e-12
+    )
+    np.testing.assert_allclose(new["Pc"][:2, :2], plot["R"][0], rtol=1e-12)
+
+
+def test_a_close_pair_far_out_keeps_its_identities_when_the_second_aircraft_appears() -> None:
+    """Two primary-only aircraft 1 km abeam at 180 km (cross-range sigma 220 m), Pd 0.9,
+    the second seen from scan 6 on. Before births next to a track, the second aircraft's
+    left-over plots made a two-point track that started on the first aircraft's plots,
+    and the two confirmed tracks exchanged aircraft three times."""
+    targets = [
+        Target(straight(0.0, dx, 180e3, 220.0), mode3a=-1, address=-1) for dx in (0.0, 1000.0)
+    ]
+    scenario = simulate(targets, scans=40, seed=8)
+    drop = np.random.default_rng(108)
+    tracker = LocalTracker(MHT)
+    out = []
+    for batch in scenario.batches:
+        late = np.array(
+            [scenario.owner[int(p)] == 1 and scenario.truth_time[int(p)] < 6 * PERIOD
+             for p in batch["plot_id"]], dtype=bool,
+        )  # fmt: skip
+        detected = drop.random(len(batch)) < 0.9
+        out.append(tracker.process(batch[detected & ~late]))
+    rows = np.concatenate(out)
+    rows = rows[(rows["plot_id"] >= 0) & (rows["status"] == CONFIRMED)]
+    owners = np.array([scenario.owner[int(p)] for p in rows["plot_id"]])
+    numbers = np.unique(rows["track_number"])
+    assert len(numbers) == 2
+    for number in numbers:
+        mine = owners[rows["track_number"] == number]
+        assert np.count_nonzero(mine[1:] != mine[:-1]) == 0
