@@ -34,7 +34,7 @@ def _sidestep() -> list[npt.NDArray[np.void]]:
     south at 30 m/s from then on (plots 10, 11, ...)."""
     batches = [_scan(k, [0.0], k) for k in range(8)]
     batches.append(_scan(8, [140.0, -150.0], 8))
-    for k in range(9, 14):
+    for k in range(9, 15):
         batches.append(_scan(k, [-150.0 - 30.0 * PERIOD * (k - 8)], k + 1))
     return batches
 
@@ -45,20 +45,25 @@ def test_a_later_scan_revises_the_published_choice_and_the_track_keeps_its_numbe
     out = [tracker.process(b) for b in batches]
     mht = tracker.associator
     assert isinstance(mht, MultipleHypothesisTracking)
+    track = [o[o["track_number"] == 1] for o in out]
     # Scan 8: the nearer (northern) plot is published; scan 9 makes the southern one
     # the better history.
-    assert out[8]["plot_id"].tolist() == [8]
-    assert out[9]["plot_id"].tolist() == [10]
+    assert track[8]["plot_id"].tolist() == [8]
+    assert track[9]["plot_id"].tolist() == [10]
     assert mht.stats.revisions == 1
-    numbers = {int(r["track_number"]) for o in out for r in o}
-    assert numbers == {1}  # one track throughout, under one number
+    # The plot left over at scan 8, in the track's gate, started a track (a possible
+    # second aircraft) that never took a plot again and was deleted tentative.
+    assert out[8]["plot_id"][out[8]["track_number"] == 2].tolist() == [9]
+    confirmed = {int(r["track_number"]) for o in out for r in o if r["status"] == CONFIRMED}
+    assert confirmed == {1}  # one track throughout, under one number
     # The corrected state is the one a tracker that never saw the northern plot has.
     clean = LocalTracker(TrackerConfig(scan_period_s=PERIOD))
     reference = [clean.process(b[b["plot_id"] != 8]) for b in batches]
     for k in (9, 10, 13):
         for name in ("x", "y", "vx", "vy", "P", "model_probabilities"):
-            np.testing.assert_allclose(out[k][name], reference[k][name], rtol=1e-9, atol=1e-9)
-    # N-scan pruning (N = 3): three scans on, the choice of scan 8 is fixed and the
+            np.testing.assert_allclose(track[k][name], reference[k][name], rtol=1e-9, atol=1e-9)
+    # N-scan pruning (N = 3): the choice of scan 8 is fixed three scans on; the
+    # scan-9 choice between the track and the new one three scans after that, and the
     # cluster, down to one hypothesis, has dissolved.
     assert mht.clusters == []
 
@@ -70,7 +75,7 @@ def test_without_the_revision_the_nearer_plot_stays() -> None:
     batches += [_scan(k, [140.0 + 30.0 * PERIOD * (k - 8)], k + 1) for k in range(9, 12)]
     tracker = LocalTracker(MHT)
     out = [tracker.process(b) for b in batches]
-    assert out[8]["plot_id"].tolist() == [8]
+    assert out[8]["plot_id"][out[8]["track_number"] == 1].tolist() == [8]
     assert isinstance(tracker.associator, MultipleHypothesisTracking)
     assert tracker.associator.stats.revisions == 0
     assert tracker.associator.stats.clusters_formed == 1
@@ -92,7 +97,8 @@ def test_the_clutter_density_is_a_plug_in_and_weighs_plot_against_clutter() -> N
     tracker.associator.clutter_density = dense
     out.append(tracker.process(_sidestep()[8]))
     assert seen == [2]
-    assert out[8]["plot_id"].tolist() == []  # no update: the scan counts as missed
+    # No update of the track: the scan counts as missed.
+    assert out[8]["plot_id"][out[8]["track_number"] == 1].tolist() == []
 
 
 @pytest.fixture(scope="module")
@@ -176,3 +182,59 @@ def test_mht_settings_are_checked() -> None:
         TrackerConfig(association="mht", mht_n_scan=1)
     with pytest.raises(ValueError, match="mht_ambiguity_llr <= mht_prune_llr"):
         TrackerConfig(association="mht", mht_ambiguity_llr=10.0, mht_prune_llr=5.0)
+
+
+def test_a_plot_left_over_next_to_a_track_starts_a_track_with_the_neighbours_velocity() -> None:
+    """The ambiguous scan of ``_sidestep``: the plot the best hypothesis leaves (150 m
+    south) starts a track at once, at the plot, with the neighbour's predicted velocity
+    and that velocity's covariance widened by ``birth_relative_speed_sigma_m_s``
+    (before, it waited for a two-point start with the next scan's left-over plot)."""
+    batches = _sidestep()
+    tracker = LocalTracker(MHT)
+    for b in batches[:8]:
+        tracker.process(b)
+    before = tracker.tracks
+    assert before.size == 1 and before["status"][0] == CONFIRMED
+    plot = batches[8][batches[8]["plot_id"] == 9]
+    dt = float(plot["time"][0]) - float(before["t"][0])
+    neighbour = tracker.imm.predict(before["x"], before["P"], before["mu"], np.array([dt]))
+    out = tracker.process(batches[8])
+    born = out[out["track_number"] == 2]
+    assert born["plot_id"].tolist() == [9]
+    new = tracker.tracks[tracker.tracks["number"] == 2][0]
+    np.testing.assert_allclose(new["xc"][:2], [plot["x"][0], plot["y"][0]], atol=1e-9)
+    np.testing.assert_allclose(new["xc"][2:], neighbour.x_comb[0, 2:], rtol=1e-12)
+    sigma = MHT.birth_relative_speed_sigma_m_s
+    np.testing.assert_allclose(
+        new["Pc"][2:, 2:], neighbour.P_comb[0, 2:, 2:] + sigma**2 * np.eye(2), rtol=1e-12
+    )
+    np.testing.assert_allclose(new["Pc"][:2, :2], plot["R"][0], rtol=1e-12)
+
+
+def test_a_close_pair_far_out_keeps_its_identities_when_the_second_aircraft_appears() -> None:
+    """Two primary-only aircraft 1 km abeam at 180 km (cross-range sigma 220 m), Pd 0.9,
+    the second seen from scan 6 on. Before births next to a track, the second aircraft's
+    left-over plots made a two-point track that started on the first aircraft's plots,
+    and the two confirmed tracks exchanged aircraft three times."""
+    targets = [
+        Target(straight(0.0, dx, 180e3, 220.0), mode3a=-1, address=-1) for dx in (0.0, 1000.0)
+    ]
+    scenario = simulate(targets, scans=40, seed=8)
+    drop = np.random.default_rng(108)
+    tracker = LocalTracker(MHT)
+    out = []
+    for batch in scenario.batches:
+        late = np.array(
+            [scenario.owner[int(p)] == 1 and scenario.truth_time[int(p)] < 6 * PERIOD
+             for p in batch["plot_id"]], dtype=bool,
+        )  # fmt: skip
+        detected = drop.random(len(batch)) < 0.9
+        out.append(tracker.process(batch[detected & ~late]))
+    rows = np.concatenate(out)
+    rows = rows[(rows["plot_id"] >= 0) & (rows["status"] == CONFIRMED)]
+    owners = np.array([scenario.owner[int(p)] for p in rows["plot_id"]])
+    numbers = np.unique(rows["track_number"])
+    assert len(numbers) == 2
+    for number in numbers:
+        mine = owners[rows["track_number"] == number]
+        assert np.count_nonzero(mine[1:] != mine[:-1]) == 0

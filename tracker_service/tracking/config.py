@@ -179,6 +179,11 @@ class TrackerConfig:
     reach after every scan, and no cluster ever ended)."""
     mht_max_cluster_tracks: int = 6
     """A component of more tracks is left to GNN: the cost of branching stays bounded."""
+    birth_relative_speed_sigma_m_s: float = 40.0
+    """With MHT, a plot left over in the gate of a confirmed or coasting track starts a
+    track at once, with that neighbour's velocity (``initiate.neighbour_state``); this is
+    the sigma (per axis) of the new aircraft's velocity relative to it. A two-point start
+    there paired left-over plots of the two aircraft of a close pair."""
     clutter_map: bool = True
     """Learn a clutter map (``tracking.clutter``) from the plots of no confirmed track:
     tracks seeded in its dense cells need ``clutter_extra_hits`` more hits to be
@@ -230,6 +235,8 @@ class TrackerConfig:
             )
         if not 0 < self.mht_ambiguity_llr <= self.mht_prune_llr:
             raise ValueError("need 0 < mht_ambiguity_llr <= mht_prune_llr")
+        if not self.birth_relative_speed_sigma_m_s > 0:
+            raise ValueError("birth_relative_speed_sigma_m_s must be positive")
         if not self.max_clock_jump_periods > 0 or self.clock_resync_batches < 1:
             raise ValueError("max_clock_jump_periods and clock_resync_batches must be positive")
         for name in ("vertical_q", "vertical_sojourn_s", "vertical_initial_probabilities"):

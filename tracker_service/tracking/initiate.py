@@ -96,3 +96,23 @@ def two_point_state(
         (r1 + r2) / (dt * dt)[:, None, None] + (q * dt / 3.0)[:, None, None] * np.eye(2)
     )
     return x, p
+
+
+def neighbour_state(
+    plots: PlotArrays, velocity: FloatArray, velocity_cov: FloatArray, relative_sigma: float
+) -> tuple[FloatArray, FloatArray]:
+    """State at a plot born next to a live track, and its covariance: the position is the
+    plot's (covariance R), the velocity the neighbour's (``velocity``, ``velocity_cov``:
+    its prediction to the plot's time), widened by ``relative_sigma`` (m/s) per axis for
+    the new aircraft's speed relative to it.
+
+    Aircraft that share a gate fly nearly alike (a parallel pair, a formation, a slow
+    crossing); a two-point start would pair the plot with a left-over plot of either
+    aircraft and carry a velocity variance of 2 R / dt^2 scaled up, so its gate and its
+    likelihoods could not compete with the neighbour's in the MHT's hypotheses."""
+    k = len(plots)
+    x = np.column_stack([plots.x, plots.y, velocity[:, 0], velocity[:, 1]])
+    p = np.zeros((k, 4, 4))
+    p[:, :2, :2] = plots.R
+    p[:, 2:, 2:] = velocity_cov + relative_sigma**2 * np.eye(2)
+    return x, p

@@ -32,7 +32,11 @@ from tracker_service.tracking.clutter import (
 )
 from tracker_service.tracking.config import TrackerConfig
 from tracker_service.tracking.daps import DapUpdate
-from tracker_service.tracking.initiate import TwoPointInitiator, two_point_state
+from tracker_service.tracking.initiate import (
+    TwoPointInitiator,
+    neighbour_state,
+    two_point_state,
+)
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
     DAP_SELECTED_ALTITUDE,
@@ -396,6 +400,7 @@ class LocalTracker:
             step = branch_states(decision.detected)
             rows.append(self._apply(decision.rows, p.take(decision.plots), None, step))
         self.stats.late_plots_dropped += int(np.count_nonzero(too_old & ~used))
+        used |= self._start_next_to_tracks(p, pairs, ~used & ~blocked, rows)
         return used, blocked, updated
 
     def _revise(self, ti: IntArray, leaves: list[Branch]) -> None:
@@ -709,16 +714,59 @@ class LocalTracker:
 
     def _create(self, first: PlotArrays, second: PlotArrays) -> npt.NDArray[Any]:
         """Start tentative tracks from the initiator's pairs; their output rows."""
-        k = len(second)
         cfg = self.config
+        x, pm = two_point_state(
+            first, second, float(self.models.q[0]), cfg.init_velocity_variance_scale
+        )
+        missed_between = second.time - first.time > 1.5 * cfg.scan_period_s
+        hist = np.where(missed_between, 0b101, 0b11) & self._hist_mask
+        return self._start(x, pm, hist, [first, second])
+
+    def _start_next_to_tracks(
+        self, p: PlotArrays, pairs: GatedPairs, free: BoolArray, rows: list[npt.NDArray[Any]]
+    ) -> BoolArray:
+        """MHT: each ``free`` plot of the batch in the gate of a confirmed or coasting track
+        starts a tentative track at once with the velocity of its likeliest such
+        neighbour (``initiate.neighbour_state``); which plots did. Left to the two-point
+        initiator, a left-over plot of a close pair pairs with the other aircraft's next
+        one, and its velocity is too uncertain for the new track's hypotheses to compete
+        with the neighbour's."""
+        cols = self._cols
+        born = np.zeros(len(p), dtype=bool)
+        near = free[pairs.plot] & (cols["status"][pairs.track] != TENTATIVE)
+        idx = np.flatnonzero(near)
+        if idx.size == 0:
+            return born
+        idx = idx[np.lexsort((pairs.cost[idx], pairs.plot[idx]))]
+        plot_index, first = np.unique(pairs.plot[idx], return_index=True)
+        likeliest = idx[first]
+        pred = pairs.pred.take(likeliest)
+        plots = p.take(plot_index)
+        x, pm = neighbour_state(
+            plots,
+            pred.x_comb[:, 2:],
+            pred.P_comb[:, 2:, 2:],
+            self.config.birth_relative_speed_sigma_m_s,
+        )
+        hist = np.full(len(plots), 0b1, dtype=np.int64) & self._hist_mask
+        rows.append(self._start(x, pm, hist, [plots]))
+        born[plot_index] = True
+        return born
+
+    def _start(
+        self, x: FloatArray, pm: FloatArray, hist: IntArray, plots: list[PlotArrays]
+    ) -> npt.NDArray[Any]:
+        """Start tentative tracks in state ``x``, ``pm`` at the last of their ``plots``
+        (in time order, one entry per track in each: the identity, the vertical filter
+        and the clutter cells come from them), with the hit history ``hist``; their
+        output rows."""
+        k = len(plots[-1])
+        last = plots[-1]
         start = self._n
         if start + k > self._cols["t"].shape[0]:
             self._allocate(max(2 * self._cols["t"].shape[0], start + k))
         self._n = start + k
         new = np.arange(start, start + k)
-        x, pm = two_point_state(
-            first, second, float(self.models.q[0]), cfg.init_velocity_variance_scale
-        )
         cols = self._cols
         # Every field is written: rows past the live ones hold deleted tracks.
         cols["number"][new] = np.arange(self._next_number, self._next_number + k)
@@ -729,42 +777,43 @@ class LocalTracker:
         cols["mu"][new] = mu
         cols["xc"][new] = x
         cols["Pc"][new] = pm
-        cols["t"][new] = cols["t_hit"][new] = second.time
-        cols["due"][new] = second.time + (self._scan_tolerance_s - DUE_MARGIN_S)
+        cols["t"][new] = cols["t_hit"][new] = last.time
+        cols["due"][new] = last.time + (self._scan_tolerance_s - DUE_MARGIN_S)
         cols["misses"][new] = 0
-        missed_between = second.time - first.time > 1.5 * cfg.scan_period_s
-        hist = np.where(missed_between, 0b101, 0b11) & self._hist_mask
         cols["hist"][new] = hist
-        address = np.where(second.address >= 0, second.address, first.address)
+        # The latest known identity of the plots.
+        address = np.full(k, -1, dtype=np.int64)
+        mode3a = np.full(k, -1, dtype=np.int64)
+        secondary = np.zeros(k, dtype=bool)
+        dense = np.zeros(k, dtype=bool)
+        for plot in plots:
+            address = np.where(plot.address >= 0, plot.address, address)
+            code = np.where(plot.mode3a_valid, plot.mode3a, -1)
+            mode3a = np.where(code >= 0, code, mode3a)
+            secondary |= secondary_reply(plot.typ, plot.address, plot.mode3a)
+            if self.clutter is not None:
+                dense |= self.clutter.dense(plot.x, plot.y)
         cols["address"][new] = address
-        code2 = np.where(second.mode3a_valid, second.mode3a, -1)
-        code1 = np.where(first.mode3a_valid, first.mode3a, -1)
-        cols["mode3a"][new] = np.where(code2 >= 0, code2, code1)
+        cols["mode3a"][new] = mode3a
         cols["fl"][new] = np.nan
         cols["rate"][new] = 0.0
         cols["Pv"][new] = 0.0
         cols["t_fl"][new] = 0.0
         cols["fl_ok"][new] = False
         cols["fl_rejects"][new] = 0
-        cols["secondary"][new] = secondary_reply(
-            first.typ, first.address, first.mode3a
-        ) | secondary_reply(second.typ, second.address, second.mode3a)
+        cols["secondary"][new] = secondary
         cols["clutter_cell"][new] = (
-            -1 if self.clutter is None else self.clutter.cells(second.x, second.y)
+            -1 if self.clutter is None else self.clutter.cells(last.x, last.y)
         )
-        cols["dense_seed"][new] = (
-            False
-            if self.clutter is None
-            else self.clutter.dense(first.x, first.y) | self.clutter.dense(second.x, second.y)
-        )
-        self._update_vertical(new, first)
-        self._update_vertical(new, second)
+        cols["dense_seed"][new] = dense
+        for plot in plots:
+            self._update_vertical(new, plot)
         self.stats.tracks_initiated += k
         status = np.full(k, TENTATIVE, dtype=np.int8)
         cols["status"][new] = status
         self._confirm(new, status, hist)
         cols["status"][new] = status
-        return self._rows(new, second.time, status, second.plot_id, mu, x, pm)
+        return self._rows(new, last.time, status, last.plot_id, mu, x, pm)
 
     def _age(
         self, now: float, updated: BoolArray, n_old: int, rows: list[npt.NDArray[Any]]
@@ -794,7 +843,12 @@ class LocalTracker:
         status = cols["status"][idle]
         limit = np.where(status == CONFIRMED, cfg.delete_misses, cfg.tentative_delete_misses)
         position_var = pred.P_comb[:, 0, 0] + pred.P_comb[:, 1, 1]
-        dead = (n_miss >= limit) | (position_var > cfg.max_position_variance_m2)
+        spread = position_var > cfg.max_position_variance_m2
+        if isinstance(self.associator, MultipleHypothesisTracking):
+            # A track of a live cluster is not deleted for its spread: its hypotheses
+            # (other histories, other plots) decide it, and deleting it would drop them.
+            spread &= ~np.isin(cols["number"][idle], self.associator.clustered_numbers)
+        dead = (n_miss >= limit) | spread
         coasting = (status == CONFIRMED) & ~dead
         report = np.flatnonzero(dead | coasting)
         if report.size:

@@ -192,6 +192,12 @@ class MultipleHypothesisTracking:
         self.clusters: list[Cluster] = []
         self.stats = HypothesisStats()
 
+    @property
+    def clustered_numbers(self) -> IntArray:
+        """The numbers of the tracks in a live cluster: their hypotheses still differ, so
+        the table's state (the best hypothesis's) is not the whole story of them."""
+        return np.array([num for c in self.clusters for num in c.numbers], dtype=np.int64)
+
     def associate(self, pairs: GatedPairs) -> WeightedPairs:
         """One batch on its own, without memory: GNN (the ``Associator`` protocol)."""
         return WeightedPairs.hard(global_nearest_neighbour(pairs.track, pairs.plot, pairs.cost))
