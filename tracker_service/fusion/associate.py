@@ -119,8 +119,10 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     farther: list[int] = []  # ... than to this one, for the exchange to be favoured
     witness: list[int] = []
     ends = [0]
-    for a, there, radar, here in zip(
+    key_of = dict(zip(involved.tolist(), used["key"][involved].tolist(), strict=True))
+    for a, ka, there, radar, here in zip(
         li.tolist(),
+        loc["key"][li].tolist(),
         sj.tolist(),
         loc["radar"][li].tolist(),
         loc["system"][li].tolist(),
@@ -129,7 +131,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         b = feeders.get((there, radar))
         if b is None:
             continue
-        ka, kb = int(loc["key"][a]), int(loc["key"][b])
+        kb = key_of[b]
         pair = (min(ka, kb), max(ka, kb))
         if pair in rows_of:
             continue  # both tracks in this batch: the same pair
