@@ -10,7 +10,7 @@ import numpy as np
 from tracker_service.fusion import consider, nearby
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.ml import predict_cv
-from tracker_service.fusion.state import FusionState
+from tracker_service.fusion.state import ExchangeEvidence, FusionState
 from tracker_service.tracking.associate import global_nearest_neighbour
 from tracker_service.tracking.identity import identity_cost
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
@@ -25,12 +25,9 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     cfg = state.config
     loc = state.local.rows
     live: IntArray = touched[loc["status"][touched] != LOCAL_DELETED]
-    deleted = set(loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]].tolist())
-    if deleted:
-        evidence = state.exchange_evidence
-        state.exchange_evidence = {
-            p: e for p, e in evidence.items() if p[0] not in deleted and p[1] not in deleted
-        }
+    state.exchange_evidence.drop(
+        loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]].tolist()
+    )
     # Only confirmed local tracks feed system tracks: one that its tracker took back
     # to tentative (a slow primary-only track: clutter) leaves its system track.
     demoted = live[(loc["system"][live] > 0) & (loc["status"][live] == LOCAL_TENTATIVE)]
@@ -99,9 +96,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         # One radar feeds the picture (canalA): no other radar's track can tell the two
         # assignments apart, so the pair search is skipped (a quarter of the fuser's cost
         # there); the tested tracks' evidence ends as below.
-        state.exchange_evidence = {
-            p: e for p, e in evidence.items() if p[0] not in tested and p[1] not in tested
-        }
+        evidence.drop(tested)
         return
     li, sj = _near(state, estimator, confirmed, np.unique(used["system"][feeding]))
     other = sj != loc["system"][li]
@@ -124,8 +119,10 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     farther: list[int] = []  # ... than to this one, for the exchange to be favoured
     witness: list[int] = []
     ends = [0]
-    for a, there, radar, here in zip(
+    key_of = dict(zip(involved.tolist(), used["key"][involved].tolist(), strict=True))
+    for a, ka, there, radar, here in zip(
         li.tolist(),
+        loc["key"][li].tolist(),
         sj.tolist(),
         loc["radar"][li].tolist(),
         loc["system"][li].tolist(),
@@ -134,7 +131,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         b = feeders.get((there, radar))
         if b is None:
             continue
-        ka, kb = int(loc["key"][a]), int(loc["key"][b])
+        kb = key_of[b]
         pair = (min(ka, kb), max(ka, kb))
         if pair in rows_of:
             continue  # both tracks in this batch: the same pair
@@ -153,7 +150,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         m_all = np.array(witness, dtype=np.int64)
         all_votes = track_distance(state, np.array(closer, dtype=np.int64), m_all)
         all_votes -= track_distance(state, np.array(farther, dtype=np.int64), m_all)
-    fresh: dict[tuple[int, int], tuple[int, float, float]] = {}
+    fresh: dict[tuple[int, int], ExchangeEvidence] = {}
     for k, pair in enumerate(rows_of):
         # Every other radar's track must favour it (in EXCHANGE_AGREEMENT of the
         # updates): where the system tracks are mixtures (each radar's first joins made
@@ -161,7 +158,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         # instead of undoing it (PAR10 with a shared code).
         votes = all_votes[ends[k] : ends[k + 1]]
         delta = float(votes.sum())
-        n, mean, agree = evidence.get(pair, (0, 0.0, 0.0))
+        n, mean, agree = evidence.get(pair) or (0, 0.0, 0.0)
         n += 1
         weight = 1.0 / min(n, cfg.reassociate_window)
         mean += (delta - mean) * weight
@@ -169,8 +166,9 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         fresh[pair] = (n, mean, agree)
     # A pair's evidence lives while it is tested in a row: a pair of a tested track not
     # tested now is out of reach (a coasting update, no plot, tests nothing).
-    kept = {p: e for p, e in evidence.items() if p[0] not in tested and p[1] not in tested}
-    kept.update(fresh)
+    evidence.drop(tested)
+    for pair, value in fresh.items():
+        evidence.set(pair, value)
     done: set[int] = set()
     for pair, (n, mean, agree) in fresh.items():
         weak = mean <= cfg.exchange_margin or agree < EXCHANGE_AGREEMENT
@@ -181,9 +179,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         _restart_tests(state, np.array([a, b]))
         done.update(pair)
         state.stats.exchanges += 1
-    state.exchange_evidence = {
-        p: e for p, e in kept.items() if p[0] not in done and p[1] not in done
-    }
+    evidence.drop(done)
 
 
 def track_distance(state: FusionState, a: IntArray, b: IntArray) -> FloatArray:
