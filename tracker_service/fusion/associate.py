@@ -199,7 +199,13 @@ def assign(
     li, sj = _near(state, estimator, free, candidates)
     d2 = distance(state, estimator, li, sj)
     loc, sys = state.local.rows, state.sys
-    gated = d2 <= state.config.gate
+    # An orphan (``lifecycle.orphan``) is taken up only by a track whose identity agrees:
+    # with no local track left, its identity is the aircraft's last known one.
+    orphan = ~np.isnan(sys["orphaned"][sj])
+    agree = identities_agree(
+        loc["address"][li], sys["address"][sj], loc["mode3a"][li], sys["mode3a"][sj]
+    )
+    gated = (d2 <= state.config.gate) & (agree | ~orphan)
     li, sj, d2 = li[gated], sj[gated], d2[gated]
     cost = d2 + identity_cost(
         loc["address"][li], sys["address"][sj], loc["mode3a"][li], sys["mode3a"][sj], state.config
@@ -292,8 +298,16 @@ def compatible_pairs(state: FusionState, a: IntArray, b: IntArray) -> BoolArray:
     """Pairs of system tracks whose identities do not tell them apart: no two different
     Mode S addresses, no two different Mode 3/A codes."""
     sys = state.sys
-    address_a, address_b = sys["address"][a], sys["address"][b]
-    code_a, code_b = sys["mode3a"][a], sys["mode3a"][b]
+    return identities_agree(
+        sys["address"][a], sys["address"][b], sys["mode3a"][a], sys["mode3a"][b]
+    )
+
+
+def identities_agree(
+    address_a: IntArray, address_b: IntArray, code_a: IntArray, code_b: IntArray
+) -> BoolArray:
+    """Neither two different Mode S addresses nor two different Mode 3/A codes (-1:
+    unknown, which agrees with any)."""
     same_address = (address_a < 0) | (address_b < 0) | (address_a == address_b)
     same_code = (code_a < 0) | (code_b < 0) | (code_a == code_b)
     return np.asarray(same_address & same_code, dtype=bool)
