@@ -12,8 +12,8 @@ import numpy.typing as npt
 import pytest
 
 from tracker_service.fusion import COASTING, ENDED, FusionConfig, SystemTracker
-from tracker_service.tracking import CONFIRMED, DELETED, PLOT_DTYPE, LocalTracker
 from tracker_service.tracking import COASTING as LOCAL_COASTING
+from tracker_service.tracking import CONFIRMED, DELETED, PLOT_DTYPE, LocalTracker
 
 T0 = 1.7e9
 PERIOD = 5.0
@@ -24,6 +24,9 @@ LOST, FOUND = 10, 16
 the third; the radar's new track of it is confirmed at scan FOUND."""
 OTHER = 9
 """A local track of another aircraft, 50 km away, that keeps the fuser's clock going."""
+
+
+FL = 240.0
 
 
 def _update(
@@ -37,13 +40,13 @@ def _update(
     u["track_number"], u["time"], u["status"], u["plot_id"] = number, t, status, plot_id
     u["x"], u["y"], u["vx"], u["vy"] = SPEED * (t - T0), y, SPEED, 0.0
     u["P"] = np.diag([SIGMA**2, SIGMA**2, 9.0, 9.0]).reshape(16)
-    u["flight_level"] = u["climb_rate_fl_per_s"] = np.nan
+    u["flight_level"], u["climb_rate_fl_per_s"] = FL, 0.0
     u["mode3a"], u["address"] = mode3a, address
     u["model_probabilities"][0, 0] = 1.0
     p = np.zeros(int(plotted), dtype=PLOT_DTYPE)
     p["time"], p["x"], p["y"], p["plot_id"] = t, u["x"][0], y, plot_id
     p["R"] = np.diag([SIGMA**2, SIGMA**2])
-    p["flight_level"], p["mode3a"], p["address"], p["typ"] = np.nan, mode3a, address, 1
+    p["flight_level"], p["mode3a"], p["address"], p["typ"] = FL, mode3a, address, 1
     return u, p
 
 
@@ -85,6 +88,7 @@ def test_an_orphan_keeps_its_number_when_its_radars_new_track_comes_within_the_g
     gap = rows[(rows["time"] > T0 + PERIOD * (LOST + 3)) & (rows["time"] < T0 + PERIOD * FOUND)]
     assert len(gap) >= 2
     assert (gap["status"] == COASTING).all() and (gap["n_sources"] == 0).all()
+    assert (gap["flight_level"] == FL).all()  # the last one known
     sigma_x = np.sqrt(gap["P"][:, 0])
     assert (np.abs(gap["x"] - SPEED * (gap["time"] - T0)) < 3.0 * sigma_x).all()
     assert (np.diff(sigma_x) > 0).all()  # growing as it coasts

@@ -69,6 +69,7 @@ def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -
     sys["orphaned"][numbers] = np.nan
     sys["t_row"][numbers] = -np.inf
     sys["row_interval"][numbers] = np.nan
+    sys["fl"][numbers] = np.nan
     sys["t"][numbers] = loc["t"][founders]
     sys["x"][numbers] = loc["x"][founders]
     sys["P"][numbers] = loc["P"][founders]
@@ -261,7 +262,7 @@ def coast_orphans(state: FusionState, estimator: SystemEstimator, radar: int) ->
         _predicted_rows(state, estimator, radar, ending, ENDED),
     ]
     _release(state, ending)
-    published(state, coasting, np.full(coasting.size, now))
+    published(state, out[0])
     return np.concatenate(out)
 
 
@@ -280,14 +281,20 @@ MIN_ROW_INTERVAL_S = 1.0
 published at each of their updates: a fraction of a second apart at times)."""
 
 
-def published(state: FusionState, numbers: IntArray, t: FloatArray) -> None:
-    """Note rows of system tracks ``numbers`` (distinct) at times t: the pace of their
-    rows that an orphan's coasting rows keep (``due``)."""
+def published(state: FusionState, rows: npt.NDArray[Any]) -> None:
+    """Note the rows of distinct system tracks: the pace of their rows, which an
+    orphan's coasting rows keep (``due``), and their flight level, which its rows carry
+    on (with no local track left to give it)."""
     sys = state.sys
-    later = t > sys["t_row"][numbers]
-    numbers, t = numbers[later], t[later]
+    rows = rows[rows["time"] > sys["t_row"][rows["system_number"]]]
+    numbers, t = rows["system_number"], rows["time"]
     sys["row_interval"][numbers] = t - sys["t_row"][numbers]
     sys["t_row"][numbers] = t
+    level = rows[np.isfinite(rows["flight_level"])]
+    numbers = level["system_number"]
+    sys["fl"][numbers] = level["flight_level"]
+    sys["rate"][numbers] = np.nan_to_num(level["climb_rate_fl_per_s"])
+    sys["t_fl"][numbers] = level["time"]
 
 
 def _predicted_rows(
@@ -309,6 +316,10 @@ def _predicted_rows(
         state.local.slots(numbers, state.config.max_sources),
     )
     out["radar"] = radar
+    known = np.isfinite(sys["fl"][numbers])
+    n = numbers[known]
+    out["flight_level"][known] = sys["fl"][n] + sys["rate"][n] * (now - sys["t_fl"][n])
+    out["climb_rate_fl_per_s"][known] = sys["rate"][n]
     return out
 
 

@@ -72,6 +72,9 @@ def system_dtype(n_models: int, n_radars: int) -> np.dtype[Any]:
             ("orphaned", np.float64),  # when its last local track ended (NaN: fed)
             ("t_row", np.float64),  # its latest row's time
             ("row_interval", np.float64),  # between its latest two rows
+            ("fl", np.float64),  # its latest row's flight level (NaN: unknown) and rate
+            ("rate", np.float64),
+            ("t_fl", np.float64),
             ("mx", np.float64, (n_models, 4)),  # "plots" method: the IMM's models
             ("mP", np.float64, (n_models, 4, 4)),
             ("mu", np.float64, (n_models,)),

@@ -125,7 +125,7 @@ class SystemTracker:
         fed = rows.emit(
             state, self.estimator, radar, systems[fed_rows], u[fed_rows], has_plot[fed_rows]
         )
-        lifecycle.published(state, fed["system_number"], fed["time"])
+        lifecycle.published(state, fed)
         out += [merged, fed]
         table.remove(touched[table.rows["status"][touched] == LOCAL_DELETED])
         out.append(lifecycle.orphan(state, radar, np.union1d(old_system, systems)))
