@@ -92,6 +92,7 @@ def test_an_orphan_keeps_its_number_when_its_radars_new_track_comes_within_the_g
     sigma_x = np.sqrt(gap["P"][:, 0])
     assert (np.abs(gap["x"] - SPEED * (gap["time"] - T0)) < 3.0 * sigma_x).all()
     assert (np.diff(sigma_x) > 0).all()  # growing as it coasts
+    np.testing.assert_allclose(gap["vx"], gap["vx"][0])  # in a straight line
     # The lone radar's new track is followed as a system track it founded would be.
     for out in new_track_rows:
         (row,) = out

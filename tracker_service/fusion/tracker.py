@@ -171,7 +171,7 @@ class SystemTracker:
         """The orphans' coasting and last rows, and the silent system tracks' ends."""
         return np.concatenate(
             [
-                lifecycle.coast_orphans(self.state, self.estimator, radar),
+                lifecycle.coast_orphans(self.state, radar),
                 lifecycle.end_silent(self.state, radar),
             ]
         )
