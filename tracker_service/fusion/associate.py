@@ -9,6 +9,7 @@ import numpy as np
 
 from tracker_service.fusion import consider, nearby
 from tracker_service.fusion.estimator import SystemEstimator
+from tracker_service.fusion.estimator_tracks import TrackFusionEstimator
 from tracker_service.fusion.ml import predict_cv
 from tracker_service.fusion.state import FusionState
 from tracker_service.tracking.associate import global_nearest_neighbour
@@ -199,9 +200,13 @@ def assign(
     li, sj = _near(state, estimator, free, candidates)
     d2 = distance(state, estimator, li, sj)
     loc, sys = state.local.rows, state.sys
-    # An orphan (``lifecycle.orphan``) is taken up only by a track whose identity agrees:
-    # with no local track left, its identity is the aircraft's last known one.
+    # An orphan (``lifecycle.orphan``) is taken up only by a track whose identity agrees
+    # (with no local track left, its identity is the aircraft's last known one), and
+    # where it is published: coasting in a straight line. By the IMM's prediction, whose
+    # turn models widen it, a lone radar's new tracks of aircraft that had turned took
+    # their orphans up 1 NM and more off them (canalA: 10 jumps, main none).
     orphan = ~np.isnan(sys["orphaned"][sj])
+    d2[orphan] = distance(state, STRAIGHT_LINE, li[orphan], sj[orphan])
     agree = identities_agree(
         loc["address"][li], sys["address"][sj], loc["mode3a"][li], sys["mode3a"][sj]
     )
@@ -214,6 +219,10 @@ def assign(
         np.searchsorted(free, li), np.searchsorted(candidates, sj), cost
     )
     return li[chosen], sj[chosen]
+
+
+STRAIGHT_LINE = TrackFusionEstimator()
+"""The gate of a system track's latest state predicted at constant velocity."""
 
 
 def _near(
