@@ -252,9 +252,9 @@ def coast_orphans(state: FusionState, radar: int) -> npt.NDArray[Any]:
     """Rows of the orphans at the fuser's clock, their latest state extrapolated in a
     straight line (an ATC display's coasting track): the last row of those whose
     ``orphan_coast_s`` is over, which end; a coasting row of those due one (``due``).
-    Not the "plots" IMM's prediction, which the gate takes: its turn models, averaged,
-    slow the mean down (a 160 m/s aircraft leaving cover coasted at 60 m/s after 60 s,
-    three_sites seed 102)."""
+    The gate that takes an orphan up predicts it so too (``associate.assign``). Not the
+    "plots" IMM's prediction: its turn models, averaged, slow the mean down (a 160 m/s
+    aircraft leaving cover coasted at 60 m/s after 60 s, three_sites seed 102)."""
     sys, now = state.sys, state.now
     orphans = np.flatnonzero(sys["alive"] & ~np.isnan(sys["orphaned"]))
     if orphans.size == 0:
