@@ -73,7 +73,7 @@ def batch(state: FusionState, estimator: SystemEstimator, numbers: npt.NDArray[A
     candidates = associate.open_systems(state, 0)
     free = state.local._lookup((np.int64(3) << KEY_SHIFT) | numbers)
     associate._near(state, estimator, free, candidates)
-    lifecycle.end_orphans(state, 0, numbers)
+    lifecycle.orphan(state, 0, numbers)
     state.local.slots(numbers, state.config.max_sources)
     lifecycle.merge(state, 0, numbers)
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from tracker_service.fusion import consider, nearby
 from tracker_service.fusion.estimator import SystemEstimator
+from tracker_service.fusion.estimator_tracks import TrackFusionEstimator
 from tracker_service.fusion.ml import predict_cv
 from tracker_service.fusion.state import ExchangeEvidence, FusionState
 from tracker_service.tracking.associate import global_nearest_neighbour
@@ -216,7 +217,17 @@ def assign(
     li, sj = _near(state, estimator, free, candidates)
     d2 = distance(state, estimator, li, sj)
     loc, sys = state.local.rows, state.sys
-    gated = d2 <= state.config.gate
+    # An orphan (``lifecycle.orphan``) is taken up only by a track whose identity agrees
+    # (with no local track left, its identity is the aircraft's last known one), and
+    # where it is published: coasting in a straight line. By the IMM's prediction, whose
+    # turn models widen it, a lone radar's new tracks of aircraft that had turned took
+    # their orphans up 1 NM and more off them (canalA: 10 jumps, main none).
+    orphan = ~np.isnan(sys["orphaned"][sj])
+    d2[orphan] = distance(state, STRAIGHT_LINE, li[orphan], sj[orphan])
+    agree = identities_agree(
+        loc["address"][li], sys["address"][sj], loc["mode3a"][li], sys["mode3a"][sj]
+    )
+    gated = (d2 <= state.config.gate) & (agree | ~orphan)
     li, sj, d2 = li[gated], sj[gated], d2[gated]
     cost = d2 + identity_cost(
         loc["address"][li], sys["address"][sj], loc["mode3a"][li], sys["mode3a"][sj], state.config
@@ -225,6 +236,10 @@ def assign(
         np.searchsorted(free, li), np.searchsorted(candidates, sj), cost
     )
     return li[chosen], sj[chosen]
+
+
+STRAIGHT_LINE = TrackFusionEstimator()
+"""The gate of a system track's latest state predicted at constant velocity."""
 
 
 def _near(
@@ -309,8 +324,16 @@ def compatible_pairs(state: FusionState, a: IntArray, b: IntArray) -> BoolArray:
     """Pairs of system tracks whose identities do not tell them apart: no two different
     Mode S addresses, no two different Mode 3/A codes."""
     sys = state.sys
-    address_a, address_b = sys["address"][a], sys["address"][b]
-    code_a, code_b = sys["mode3a"][a], sys["mode3a"][b]
+    return identities_agree(
+        sys["address"][a], sys["address"][b], sys["mode3a"][a], sys["mode3a"][b]
+    )
+
+
+def identities_agree(
+    address_a: IntArray, address_b: IntArray, code_a: IntArray, code_b: IntArray
+) -> BoolArray:
+    """Neither two different Mode S addresses nor two different Mode 3/A codes (-1:
+    unknown, which agrees with any)."""
     same_address = (address_a < 0) | (address_b < 0) | (address_a == address_b)
     same_code = (code_a < 0) | (code_b < 0) | (code_a == code_b)
     return np.asarray(same_address & same_code, dtype=bool)

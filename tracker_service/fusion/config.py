@@ -74,6 +74,13 @@ class FusionConfig:
     association can join a radar's two tracks of two close aircraft (parallel 500 m apart,
     a 15-degree crossing) crosswise, and each then holds the other's system track closed
     to it (``associate.open_systems``); 0 turns the test off."""
+    orphan_coast_s: float | None = None
+    """An orphaned system track (its last local track ended: a single-coverage aircraft's
+    track deleted on a detection gap) is published coasting for this long from then,
+    instead of ending with its only source; a confirmed local track within its gate, with
+    no Mode S address or Mode 3/A code telling them apart, takes it up again, number and
+    identity kept. None: 5 x ``longest_period_s`` (the fuser knows no radar's own period);
+    0: orphans end at once. It replaces ``max_silence_s`` for orphans."""
     found_delay_s: float | None = None
     """How long a confirmed local track whose address or Mode 3/A code a live system track
     carries waits to join it before founding its own; None: 2 x ``longest_period_s``."""
@@ -128,6 +135,8 @@ class FusionConfig:
             value = getattr(self, name)
             if value is not None and not value > 0:
                 raise ValueError(f"{name} must be positive or None, not {value!r}")
+        if self.orphan_coast_s is not None and not self.orphan_coast_s >= 0:
+            raise ValueError(f"orphan_coast_s must be >= 0 or None, not {self.orphan_coast_s!r}")
         for name in ("address_bonus", "address_mismatch_penalty", "mode3a_bonus"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, not {getattr(self, name)!r}")
@@ -158,6 +167,12 @@ class FusionConfig:
     @property
     def silence_s(self) -> float:
         return 3.0 * self.longest_period_s if self.max_silence_s is None else self.max_silence_s
+
+    @property
+    def orphan_coast(self) -> float:
+        if self.orphan_coast_s is None:
+            return 5.0 * self.longest_period_s
+        return self.orphan_coast_s
 
     @property
     def found_delay(self) -> float:

@@ -46,6 +46,17 @@ def fuse_local_tracks(
     return x, p
 
 
+def cv_prediction(
+    state: FusionState, numbers: IntArray, dt: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """System tracks' latest states (x, P, M) predicted over dt at constant velocity:
+    states, covariances, bias sensitivities."""
+    sys = state.sys
+    xs, ps = predict_cv(sys["x"][numbers], sys["P"][numbers], dt, state.config.q)
+    moved = np.einsum("kab,klbc->klac", cv_transition(dt), sys["M"][numbers])
+    return xs, ps, moved
+
+
 class TrackFusionEstimator:
     """The whole covariance in P (M = 0): a constant-velocity prediction for the gate."""
 
@@ -54,10 +65,7 @@ class TrackFusionEstimator:
     def gate_prediction(
         self, state: FusionState, numbers: IntArray, dt: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        sys = state.sys
-        xs, ps = predict_cv(sys["x"][numbers], sys["P"][numbers], dt, state.config.q)
-        moved = np.einsum("kab,klbc->klac", cv_transition(dt), sys["M"][numbers])
-        return xs, ps, moved
+        return cv_prediction(state, numbers, dt)
 
     def coarse_state(self, state: FusionState, numbers: IntArray) -> tuple[FloatArray, FloatArray]:
         return state.sys["x"][numbers], state.sys["P"][numbers]

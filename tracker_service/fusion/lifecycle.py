@@ -1,6 +1,8 @@
 """System-track life: creation by a confirmed local track that joined none (or waited
 long enough beside a system track with its identity), joining, merging of duplicates,
-ending (orphaned, silent, or left in an abandoned future), and number reuse."""
+orphans (a system track whose last local track ended coasts for
+``FusionConfig.orphan_coast_s``, which a new local track may take up again), ending
+(an orphan's coast over, silent, or left in an abandoned future), and number reuse."""
 
 from __future__ import annotations
 
@@ -12,7 +14,13 @@ import numpy.typing as npt
 from tracker_service.fusion import consider, nearby
 from tracker_service.fusion.associate import compatible_pairs
 from tracker_service.fusion.estimator import SystemEstimator
-from tracker_service.fusion.messages import ENDED, MAX_SYSTEM_NUMBER, SYSTEM_UPDATE_DTYPE
+from tracker_service.fusion.estimator_tracks import cv_prediction
+from tracker_service.fusion.messages import (
+    COASTING,
+    ENDED,
+    MAX_SYSTEM_NUMBER,
+    SYSTEM_UPDATE_DTYPE,
+)
 from tracker_service.fusion.ml import predict_cv
 from tracker_service.fusion.rows import system_rows
 from tracker_service.fusion.state import FusionState
@@ -59,10 +67,15 @@ def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -
     sys["alive"][numbers] = True
     sys["born"][numbers] = state.now
     sys["solo"][numbers] = True
+    sys["orphaned"][numbers] = np.nan
+    sys["t_row"][numbers] = -np.inf
+    sys["row_interval"][numbers] = np.nan
+    sys["fl"][numbers] = np.nan
     sys["t"][numbers] = loc["t"][founders]
     sys["x"][numbers] = loc["x"][founders]
     sys["P"][numbers] = loc["P"][founders]
     radars = loc["radar"][founders]
+    sys["founder_radar"][numbers] = radars
     sys["B"][numbers] = 0.0
     sys["B"][numbers, radars] = loc["extra"][founders]
     sys["M"][numbers] = 0.0
@@ -87,8 +100,10 @@ def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -
 
 def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> None:
     """Attach local tracks to system tracks; a stale local track of the same radar on
-    that system track (coasting: the local tracker restarted the aircraft) leaves."""
-    loc, n = state.local.rows, state.local.n
+    that system track (coasting: the local tracker restarted the aircraft) leaves. An
+    orphan taken up by a new track of the radar that alone fed it stays solo: it follows
+    its one local track again, as a system track that track founded would."""
+    loc, n, sys = state.local.rows, state.local.n, state.sys
     if joined.size == 0:
         return
     same = np.flatnonzero(
@@ -96,11 +111,13 @@ def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> 
     )
     loc["system"][same] = 0
     loc["system"][joined] = target
-    state.sys["solo"][target] = False
+    orphaned = ~np.isnan(sys["orphaned"][target])
+    sys["solo"][target] &= orphaned & (sys["founder_radar"][target] == radar)
+    sys["orphaned"][target] = np.nan
     loc["fails"][joined] = 0
     loc["nis_n"][joined] = 0  # the consistency test starts again (associate._consistency)
     loc["t_founder"][joined] = np.nan
-    state.sys["t_plot"][target] = np.maximum(state.sys["t_plot"][target], loc["t_plot"][joined])
+    sys["t_plot"][target] = np.maximum(sys["t_plot"][target], loc["t_plot"][joined])
 
 
 def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]:
@@ -111,7 +128,9 @@ def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]
     fed = loc["alive"] & (loc["system"] > 0)
     radars_of = np.zeros((MAX_SYSTEM_NUMBER + 1, state.n_radars), dtype=bool)
     radars_of[loc["system"][fed], loc["radar"][fed]] = True
-    alive = np.flatnonzero(sys["alive"])
+    # An orphan is taken up through the gate only (``associate.assign``), where its
+    # identity must agree: merged, its number would pass to a track it never gated.
+    alive = np.flatnonzero(sys["alive"] & np.isnan(sys["orphaned"]))
     alive = alive[alive > 0]
     # A pair's count lives while every check of it passes: the checks of the touched
     # tracks start from the counts of their pairs that pass again now.
@@ -212,20 +231,111 @@ def _identity_candidates(state: FusionState, touched: IntArray, alive: IntArray)
     return alive[address_ok & code_ok]
 
 
-def end_orphans(state: FusionState, radar: int, numbers: IntArray) -> npt.NDArray[Any]:
-    """System tracks (among ``numbers``) left without any local track end."""
+def orphan(state: FusionState, radar: int, numbers: IntArray) -> npt.NDArray[Any]:
+    """System tracks (among ``numbers``) left without any local track become orphans,
+    coasting from now (``coast_orphans``); with ``orphan_coast_s`` 0 they end at once
+    (their rows returned)."""
+    sys = state.sys
     numbers = numbers[numbers > 0]
-    numbers = numbers[state.sys["alive"][numbers]]
+    numbers = numbers[sys["alive"][numbers] & np.isnan(sys["orphaned"][numbers])]
     loc = state.local.used
     fed = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
     fed[loc["system"][loc["alive"]]] = True
-    return end(state, radar, numbers[~fed[numbers]])
+    orphans = numbers[~fed[numbers]]
+    if state.config.orphan_coast <= 0:
+        return end(state, radar, orphans)
+    sys["orphaned"][orphans] = state.now
+    return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
+
+
+def coast_orphans(state: FusionState, radar: int) -> npt.NDArray[Any]:
+    """Rows of the orphans at the fuser's clock, their latest state extrapolated in a
+    straight line (an ATC display's coasting track): the last row of those whose
+    ``orphan_coast_s`` is over, which end; a coasting row of those due one (``due``).
+    The gate that takes an orphan up predicts it so too (``associate.assign``). Not the
+    "plots" IMM's prediction: its turn models, averaged, slow the mean down (a 160 m/s
+    aircraft leaving cover coasted at 60 m/s after 60 s, three_sites seed 102)."""
+    sys, now = state.sys, state.now
+    orphans = np.flatnonzero(sys["alive"] & ~np.isnan(sys["orphaned"]))
+    if orphans.size == 0:
+        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
+    over = now >= sys["orphaned"][orphans] + state.config.orphan_coast
+    ending, coasting = orphans[over], orphans[~over & due(state, orphans)]
+    out = [
+        _predicted_rows(state, radar, coasting, COASTING),
+        _predicted_rows(state, radar, ending, ENDED),
+    ]
+    _release(state, ending)
+    published(state, out[0])
+    return np.concatenate(out)
+
+
+def due(state: FusionState, numbers: IntArray) -> BoolArray:
+    """The system tracks whose next row is due: at the interval of their latest two rows
+    (a lone radar's period, the shorter interval of several radars), between
+    ``MIN_ROW_INTERVAL_S`` and ``longest_period_s``."""
+    sys = state.sys
+    interval = np.nan_to_num(sys["row_interval"][numbers], nan=state.config.longest_period_s)
+    interval = np.clip(interval, MIN_ROW_INTERVAL_S, state.config.longest_period_s)
+    return np.asarray(state.now >= sys["t_row"][numbers] + interval, dtype=bool)
+
+
+MIN_ROW_INTERVAL_S = 1.0
+"""An orphan's coasting rows come at most this often (a track fed by several radars is
+published at each of their updates: a fraction of a second apart at times)."""
+
+
+def published(state: FusionState, rows: npt.NDArray[Any]) -> None:
+    """Note the rows of distinct system tracks: the pace of their rows, which an
+    orphan's coasting rows keep (``due``), and their flight level, which its rows carry
+    on (with no local track left to give it)."""
+    sys = state.sys
+    rows = rows[rows["time"] > sys["t_row"][rows["system_number"]]]
+    numbers, t = rows["system_number"], rows["time"]
+    sys["row_interval"][numbers] = t - sys["t_row"][numbers]
+    sys["t_row"][numbers] = t
+    level = rows[np.isfinite(rows["flight_level"])]
+    numbers = level["system_number"]
+    sys["fl"][numbers] = level["flight_level"]
+    sys["rate"][numbers] = np.nan_to_num(level["climb_rate_fl_per_s"])
+    sys["t_fl"][numbers] = level["time"]
+
+
+def _predicted_rows(
+    state: FusionState, radar: int, numbers: IntArray, status: int
+) -> npt.NDArray[Any]:
+    sys, now = state.sys, state.now
+    if numbers.size == 0:
+        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
+    t = np.full(numbers.size, now)
+    x, p, moved = cv_prediction(state, numbers, t - sys["t"][numbers])
+    p = p + consider.bias_share(moved, sys["B"][numbers])
+    out = system_rows(
+        state,
+        numbers,
+        t,
+        x,
+        p,
+        np.full(numbers.size, status, dtype=np.int8),
+        state.local.slots(numbers, state.config.max_sources),
+    )
+    out["radar"] = radar
+    known = np.isfinite(sys["fl"][numbers])
+    n = numbers[known]
+    out["flight_level"][known] = sys["fl"][n] + sys["rate"][n] * (now - sys["t_fl"][n])
+    out["climb_rate_fl_per_s"][known] = sys["rate"][n]
+    return out
 
 
 def end_silent(state: FusionState, radar: int) -> npt.NDArray[Any]:
-    """System tracks none of whose local tracks had a plot for ``silence_s`` end."""
+    """System tracks none of whose local tracks had a plot for ``silence_s`` end
+    (orphans at the end of their own coast instead: ``coast_orphans``)."""
     sys = state.sys
-    quiet = sys["alive"] & (sys["t_plot"] < state.now - state.config.silence_s)
+    quiet = (
+        sys["alive"]
+        & np.isnan(sys["orphaned"])
+        & (sys["t_plot"] < state.now - state.config.silence_s)
+    )
     return end(state, radar, np.flatnonzero(quiet))
 
 
@@ -236,6 +346,8 @@ def end_future(state: FusionState, radar: int, max_ahead_s: float) -> npt.NDArra
     now = state.now
     sys, loc = state.sys, state.local.used
     sys["freed_at"] = np.minimum(sys["freed_at"], now)
+    sys["orphaned"] = np.minimum(sys["orphaned"], now)  # NaN (fed) stays NaN
+    sys["t_row"] = np.minimum(sys["t_row"], now)
     loc["t_founder"] = np.where(loc["t_founder"] > now, now, loc["t_founder"])
     future = np.flatnonzero(sys["alive"] & (sys["t_plot"] > now + max_ahead_s))
     return end(state, radar, future[future > 0])
@@ -259,6 +371,13 @@ def end(
         state.local.slots(numbers, state.config.max_sources),
     )
     out["radar"] = radar
+    _release(state, numbers, moved_to)
+    return out
+
+
+def _release(state: FusionState, numbers: IntArray, moved_to: IntArray | None = None) -> None:
+    """The bookkeeping of ``end``: the numbers freed, their local tracks moved or gone."""
+    sys = state.sys
     loc = state.local.used
     if moved_to is None:
         loc["system"][np.isin(loc["system"], numbers)] = 0
@@ -268,5 +387,5 @@ def end(
         sys["solo"][moved_to] = False
     sys["alive"][numbers] = False
     sys["freed_at"][numbers] = state.now
+    sys["orphaned"][numbers] = np.nan
     state.stats.system_tracks_ended += int(numbers.size)
-    return out

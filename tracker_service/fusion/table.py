@@ -68,6 +68,13 @@ def system_dtype(n_models: int, n_radars: int) -> np.dtype[Any]:
             ("address", np.int64),
             ("mode3a", np.int64),
             ("solo", np.bool_),  # fed by its founding local track alone so far
+            ("founder_radar", np.int64),
+            ("orphaned", np.float64),  # when its last local track ended (NaN: fed)
+            ("t_row", np.float64),  # its latest row's time
+            ("row_interval", np.float64),  # between its latest two rows
+            ("fl", np.float64),  # its latest row's flight level (NaN: unknown) and rate
+            ("rate", np.float64),
+            ("t_fl", np.float64),
             ("mx", np.float64, (n_models, 4)),  # "plots" method: the IMM's models
             ("mP", np.float64, (n_models, 4, 4)),
             ("mu", np.float64, (n_models,)),
@@ -124,6 +131,7 @@ def new_system_table(n_models: int, n_radars: int) -> Columns:
     10 kB, so that a field view of packed rows would touch a page per row."""
     table = Columns.zeros(MAX_SYSTEM_NUMBER + 1, system_dtype(n_models, n_radars))
     table["freed_at"] = -np.inf
+    table["orphaned"] = np.nan
     return table
 
 

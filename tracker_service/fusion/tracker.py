@@ -98,14 +98,14 @@ class SystemTracker:
         u = updates[order]
         extra = np.zeros((len(u), 2, 2)) if extra_R is None else np.asarray(extra_R)[order]
         if len(u) == 0:
-            return lifecycle.end_silent(state, radar)
+            return self._expire(radar)
         step = self.clock.step(u["time"])
         out = [self._resynchronised(radar)] if step.resynchronised else []
         if not step.accepted.all():
             state.stats.out_of_line_updates += int(np.count_nonzero(~step.accepted))
             u, extra = u[step.accepted], extra[step.accepted]
             if len(u) == 0:
-                return np.concatenate([*out, lifecycle.end_silent(state, radar)])
+                return np.concatenate([*out, self._expire(radar)])
         state.now = self.clock.now
         local_rows = table.find(radar, u)
         known = local_rows >= 0
@@ -122,15 +122,14 @@ class SystemTracker:
         systems = table.rows["system"][local_rows]
         fed_rows = systems > 0
         # Emitted before the deleted local tracks leave: their last state still counts.
-        out += [
-            merged,
-            rows.emit(
-                state, self.estimator, radar, systems[fed_rows], u[fed_rows], has_plot[fed_rows]
-            ),
-        ]
+        fed = rows.emit(
+            state, self.estimator, radar, systems[fed_rows], u[fed_rows], has_plot[fed_rows]
+        )
+        lifecycle.published(state, fed)
+        out += [merged, fed]
         table.remove(touched[table.rows["status"][touched] == LOCAL_DELETED])
-        out.append(lifecycle.end_orphans(state, radar, np.union1d(old_system, systems)))
-        out.append(lifecycle.end_silent(state, radar))
+        out.append(lifecycle.orphan(state, radar, np.union1d(old_system, systems)))
+        out.append(self._expire(radar))
         table.compact()
         result = np.concatenate(out)
         state.stats.rows += len(result)
@@ -167,6 +166,15 @@ class SystemTracker:
         lifecycle.join(state, radar, joined, target)
         rest = np.setdiff1d(free, joined)
         return lifecycle.create(state, self.estimator, rest[lifecycle.may_found(state, rest)])
+
+    def _expire(self, radar: int) -> npt.NDArray[Any]:
+        """The orphans' coasting and last rows, and the silent system tracks' ends."""
+        return np.concatenate(
+            [
+                lifecycle.coast_orphans(self.state, radar),
+                lifecycle.end_silent(self.state, radar),
+            ]
+        )
 
     def _resynchronised(self, radar: int) -> npt.NDArray[Any]:
         self.state.stats.clock_resyncs += 1
