@@ -28,6 +28,9 @@ OTHER = 9
 
 FL = 240.0
 
+ORPHANS_ON = FusionConfig(orphan_coast_s=None)
+"""Orphans on (off by default), coasting 5 x the longest period."""
+
 
 def _update(
     number: int, k: int, y: float, status: int = CONFIRMED, address: int = -1, mode3a: int = -1
@@ -80,7 +83,7 @@ def _run(
 
 
 def test_an_orphan_keeps_its_number_when_its_radars_new_track_comes_within_the_gate() -> None:
-    rows, new_track_rows = _run(FusionConfig())
+    rows, new_track_rows = _run(ORPHANS_ON)
     assert np.unique(rows["system_number"]).size == 1  # main: a second number at FOUND
     assert not (rows["status"] == ENDED).any()
     # Published coasting in the gap (CAT062 I080 CST), predicted at the fuser's clock,
@@ -108,11 +111,11 @@ def test_an_orphan_keeps_its_number_when_its_radars_new_track_comes_within_the_g
 def test_an_orphan_is_not_taken_up_by_a_track_of_another_identity(
     identity: tuple[int, int], new_identity: tuple[int, int]
 ) -> None:
-    rows, new_track_rows = _run(FusionConfig(), identity=identity, new_identity=new_identity)
+    rows, new_track_rows = _run(ORPHANS_ON, identity=identity, new_identity=new_identity)
     orphan = rows["system_number"][0]
     assert all(out["system_number"][0] != orphan for out in new_track_rows)
     # The same identity is taken up.
-    rows, new_track_rows = _run(FusionConfig(), identity=identity, new_identity=identity)
+    rows, new_track_rows = _run(ORPHANS_ON, identity=identity, new_identity=identity)
     assert np.unique(rows["system_number"]).size == 1
 
 
@@ -130,6 +133,7 @@ def test_an_orphan_ends_after_orphan_coast_s() -> None:
 
 
 def test_orphan_coast_s_is_checked() -> None:
-    assert FusionConfig(longest_period_s=8.0).orphan_coast == 40.0
+    assert FusionConfig(longest_period_s=8.0).orphan_coast == 0.0  # off by default
+    assert FusionConfig(longest_period_s=8.0, orphan_coast_s=None).orphan_coast == 40.0
     with pytest.raises(ValueError, match="orphan_coast_s"):
         FusionConfig(orphan_coast_s=-1.0)
