@@ -87,10 +87,16 @@ def enu_rotation(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike) -> FloatArray:
     lon = np.radians(as_float(lon_deg))
     sin_lat, cos_lat = np.sin(lat), np.cos(lat)
     sin_lon, cos_lon = np.sin(lon), np.cos(lon)
-    zero = np.zeros_like(lat)
-    rows = (
-        (-sin_lon, cos_lon, zero),
-        (-sin_lat * cos_lon, -sin_lat * sin_lon, cos_lat),
-        (cos_lat * cos_lon, cos_lat * sin_lon, sin_lat),
-    )
-    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+    # Filled in place rather than stacked: a radar's batch is a few dozen plots, where
+    # the nine stacks cost more than the arithmetic.
+    rotation = np.empty((*lat.shape, 3, 3))
+    rotation[..., 0, 0] = -sin_lon
+    rotation[..., 0, 1] = cos_lon
+    rotation[..., 0, 2] = 0.0
+    rotation[..., 1, 0] = -sin_lat * cos_lon
+    rotation[..., 1, 1] = -sin_lat * sin_lon
+    rotation[..., 1, 2] = cos_lat
+    rotation[..., 2, 0] = cos_lat * cos_lon
+    rotation[..., 2, 1] = cos_lat * sin_lon
+    rotation[..., 2, 2] = sin_lat
+    return rotation
