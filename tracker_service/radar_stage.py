@@ -167,7 +167,10 @@ class PlotUse(IntEnum):
 
 def rejections(use: npt.NDArray[np.int8]) -> dict[str, int]:
     """Counts of a table's plots kept out of tracking, by reason (``PlotUse`` names)."""
-    codes, counts = np.unique(use[use != PlotUse.TRACKED], return_counts=True)
+    rejected = use[use != PlotUse.TRACKED]
+    if not len(rejected):
+        return {}  # most batches: np.unique's set-up is not needed
+    codes, counts = np.unique(rejected, return_counts=True)
     return {PlotUse(code).name.lower(): int(n) for code, n in zip(codes, counts, strict=True)}
 
 
@@ -323,11 +326,12 @@ def convert_batch(
     table["aircraft"] = -1
     table["detection_time"] = np.nan
     table["implausible_daps"] = implausible_daps
-    table["use"] = np.select(
-        [rab, np.asarray(raw["tst"]) == 1, np.asarray(raw["sim"]) == 1],
-        [PlotUse.FIELD_MONITOR, PlotUse.TEST_TARGET, PlotUse.SIMULATED],
-        PlotUse.TRACKED,
-    )
+    # Set in reverse order of precedence (a field monitor first, then test, then
+    # simulated): the last assignment wins. The table's zeros are TRACKED.
+    use = table["use"]
+    use[np.asarray(raw["sim"]) == 1] = PlotUse.SIMULATED
+    use[np.asarray(raw["tst"]) == 1] = PlotUse.TEST_TARGET
+    use[rab] = PlotUse.FIELD_MONITOR
     table["height_m"] = height
     table["height_sigma_m"] = height_sigma
     table["height_known"] = ~unknown
@@ -492,15 +496,16 @@ class RadarStage:
         if len(raw) == 0:
             return []
         sac, sic = np.asarray(raw["sac"], np.int64), np.asarray(raw["sic"], np.int64)
-        keys = np.unique(sac * 256 + sic)
-        if len(keys) == 1:
+        key = sac * 256 + sic
+        if (key == key[0]).all():
             return [self._radar_batch(f"{sac[0]}/{sic[0]}", raw, received, order)]
+        keys = np.unique(key)
         # Only odd captures mix radars in one datagram.
         return [
             self._radar_batch(
-                f"{key >> 8}/{key & 255}", raw[sac * 256 + sic == key], received, order
+                f"{k >> 8}/{k & 255}", raw[key == k], received, order
             )
-            for key in keys.tolist()
+            for k in keys.tolist()
         ]
 
     def _radar(self, source: str) -> RadarState:
