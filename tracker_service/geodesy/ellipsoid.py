@@ -30,14 +30,23 @@ def as_float(values: npt.ArrayLike) -> FloatArray:
 
 def meridian_radius_m(lat_deg: npt.ArrayLike) -> FloatArray:
     """M = a(1-e^2)/(1-e^2 sin^2 L)^(3/2): the radius of curvature along the meridian."""
-    s = np.sin(np.radians(as_float(lat_deg)))
-    return np.asarray(A * (1.0 - E2) / (1.0 - E2 * s * s) ** 1.5, dtype=np.float64)
+    return radii_m(lat_deg)[0]
 
 
 def prime_vertical_radius_m(lat_deg: npt.ArrayLike) -> FloatArray:
     """N = a/(1-e^2 sin^2 L)^(1/2): the radius of curvature across the meridian."""
+    return radii_m(lat_deg)[1]
+
+
+def radii_m(lat_deg: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """(``meridian_radius_m``, ``prime_vertical_radius_m``) at once, for callers that
+    need both (one sine)."""
     s = np.sin(np.radians(as_float(lat_deg)))
-    return np.asarray(A / np.sqrt(1.0 - E2 * s * s), dtype=np.float64)
+    w = 1.0 - E2 * s * s
+    return (
+        np.asarray(A * (1.0 - E2) / w**1.5, dtype=np.float64),
+        np.asarray(A / np.sqrt(w), dtype=np.float64),
+    )
 
 
 def gaussian_radius_m(lat_deg: npt.ArrayLike) -> FloatArray:

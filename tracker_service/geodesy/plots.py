@@ -35,8 +35,7 @@ import numpy.typing as npt
 from tracker_service.geodesy.ellipsoid import (
     FloatArray,
     as_float,
-    meridian_radius_m,
-    prime_vertical_radius_m,
+    radii_m,
 )
 from tracker_service.geodesy.sites import RadarSite
 
@@ -83,8 +82,7 @@ def normal_section_radius_m(lat_deg: npt.ArrayLike, azimuth_deg: npt.ArrayLike) 
     Offered for ``earth_radius_m`` when the last metre at long range matters: it is the
     sphere that follows the ellipsoid in the look direction.
     """
-    m = meridian_radius_m(lat_deg)
-    n = prime_vertical_radius_m(lat_deg)
+    m, n = radii_m(lat_deg)
     az = np.radians(as_float(azimuth_deg))
     return np.asarray(m * n / (n * np.cos(az) ** 2 + m * np.sin(az) ** 2), dtype=np.float64)
 
