@@ -24,13 +24,7 @@ import pytest
 from tests.conftest import shared_file
 from tracker_service.chain import RAW_PLOT_DTYPE, BatchOutput, PlotUse
 from tracker_service.evaluation.real_data import DEFAULT_DAY_POSIX
-from tracker_service.fixed_targets import (
-    FixedTargetConfig,
-    FixedTargets,
-    FixedTransponder,
-    is_one_of,
-    median,
-)
+from tracker_service.fixed_targets import FixedTargetConfig, FixedTargets, FixedTransponder
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.outputs.messages import StatusMessage
 from tracker_service.service.config import ConfigError, ServiceConfig, parse_service_config
@@ -537,21 +531,3 @@ def test_canala_site_monitors() -> None:
     assert not np.isin(run.local["plot_id"], fed).any()
     assert not (run.local["mode3a"] == 0o7777).any()
     assert not (run.system["mode3a"] == 0o7777).any()
-
-
-def test_median_and_is_one_of_match_numpy() -> None:
-    """The detection's cheap stand-ins for ``np.median`` and ``np.isin``: the same to the
-    bit on odd and even counts, with NaN, and on codes with and without a match."""
-    rng = np.random.default_rng(7)
-    for n in range(1, 40):
-        for _ in range(20):
-            times = 1.7e9 + rng.normal(0.0, 3.0, n)
-            if rng.random() < 0.2:
-                times[rng.integers(n)] = np.nan
-            expected = float(np.median(times))
-            got = median(times)
-            assert got == expected or (math.isnan(got) and math.isnan(expected))
-            codes = rng.integers(0, 8, n)
-            wanted = np.array([2, 5], np.int64)
-            np.testing.assert_array_equal(is_one_of(codes, wanted), np.isin(codes, wanted))
-    assert not is_one_of(np.array([1, 2], np.int64), np.zeros(0, np.int64)).any()

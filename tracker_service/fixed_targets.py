@@ -57,6 +57,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.geodesy import RadarSite, SystemPlane, geodetic_to_ecef
+from tracker_service.small_arrays import is_one_of, median
 from tracker_service.tracking.config import SHARED_MODE3A_CODES
 
 __all__ = [
@@ -185,26 +186,6 @@ def identity_keys(address: IntArray, mode3a: IntArray, mode3a_valid: BoolArray) 
     code_ok = mode3a_valid & (mode3a >= 0) & ~is_one_of(mode3a, _UNKEYED_CODES)
     keys = np.where(code_ok, CODE_KEY + mode3a, NO_KEY)
     return np.where(address >= 0, address, keys).astype(np.int64)
-
-
-def is_one_of(values: IntArray, codes: IntArray) -> BoolArray:
-    """``np.isin(values, codes)`` for a few codes, without its set-up cost (a radar's
-    batch is a few dozen plots: the set-up was most of it)."""
-    found: BoolArray = (values[:, None] == codes[None, :]).any(axis=1)
-    return found
-
-
-def median(values: FloatArray) -> float:
-    """``np.median`` of a non-empty 1-D array, the same to the bit (the mean of the two
-    middle values of an even count, NaN when any is), without its overhead: per batch it
-    cost more than the rest of the detection's set-up."""
-    ordered = np.sort(values)
-    if np.isnan(ordered[-1]):
-        return math.nan
-    middle = len(ordered) // 2
-    if len(ordered) % 2:
-        return float(ordered[middle])
-    return float((ordered[middle - 1] + ordered[middle]) / 2.0)
 
 
 def _largest_sigma(r: FloatArray) -> FloatArray:

@@ -502,9 +502,7 @@ class RadarStage:
         keys = np.unique(key)
         # Only odd captures mix radars in one datagram.
         return [
-            self._radar_batch(
-                f"{k >> 8}/{k & 255}", raw[key == k], received, order
-            )
+            self._radar_batch(f"{k >> 8}/{k & 255}", raw[key == k], received, order)
             for k in keys.tolist()
         ]
 

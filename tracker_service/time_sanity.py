@@ -40,6 +40,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.ingest import DAY_S, TimeSource, posix_from_time_of_day
+from tracker_service.small_arrays import median
 from tracker_service.tracking import LocalTracker
 
 __all__ = [
@@ -310,8 +311,8 @@ class TimeSanity:
         phase = _wrap((times[recent] - timeline.north_posix) / period - theta_deg[recent] / 360.0)
         # The radar's usual phase (its stamping convention), from the datagrams' medians:
         # a lone stray plot is no datagram's median.
-        timeline.phases.append(float(np.median(phase)))
-        usual = float(np.median(timeline.phases))
+        timeline.phases.append(median(phase))
+        usual = median(timeline.phases)
         stray = np.abs(_wrap(phase - usual)) > self.config.azimuth_tolerance
         off[np.flatnonzero(recent)[stray]] = True
         return off
