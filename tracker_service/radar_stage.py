@@ -367,11 +367,10 @@ def _fill_daps(
     )
     for name, values in columns.items():
         batch[name] = values
-    has = np.zeros(len(raw), dtype=bool)
-    for name in DAP_NAMES:
-        table[name] = columns[name]
-        has |= np.isfinite(columns[name])
-    table["has_daps"] = has
+    published = [columns[name] for name in DAP_NAMES]
+    for name, values in zip(DAP_NAMES, published, strict=True):
+        table[name] = values
+    table["has_daps"] = np.isfinite(np.stack(published)).any(axis=0)
     return implausible
 
 
