@@ -64,17 +64,21 @@ def convert_plots(
     """Convert one radar's plots: slant range (m), azimuth as reported (deg, the site's
     north offset is added here), height above MSL (m, from ``HeightModel.heights``) and the
     sigmas (scalars or per plot) into plane positions and covariances."""
-    rho, theta, height, height_sigma, sigma_rho, sigma_theta = (
-        np.ravel(a)
-        for a in np.broadcast_arrays(
-            as_float(rho_m),
-            as_float(theta_deg),
-            as_float(height_msl_m),
-            as_float(height_sigma_m),
-            as_float(sigma_rho_m),
-            as_float(sigma_theta_deg),
+    columns = [
+        as_float(values)
+        for values in (
+            rho_m,
+            theta_deg,
+            height_msl_m,
+            height_sigma_m,
+            sigma_rho_m,
+            sigma_theta_deg,
         )
-    )
+    ]
+    shape = columns[0].shape
+    if not all(values.ndim == 1 and values.shape == shape for values in columns):
+        columns = [np.ravel(values) for values in np.broadcast_arrays(*columns)]
+    rho, theta, height, height_sigma, sigma_rho, sigma_theta = columns
     geometry = slant_geometry(site, rho, height, earth_radius_m=earth_radius_m)
     # The true azimuth's sine and cosine, once for the position, the covariance and the
     # Jacobians (a batch is a few dozen plots: the calls cost more than the arithmetic).
