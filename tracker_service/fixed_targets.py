@@ -57,6 +57,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.geodesy import RadarSite, SystemPlane, geodetic_to_ecef
+from tracker_service.small_arrays import is_one_of, median
 from tracker_service.tracking.config import SHARED_MODE3A_CODES
 
 __all__ = [
@@ -74,6 +75,8 @@ BoolArray = npt.NDArray[np.bool_]
 
 KT = 1852.0 / 3600.0
 EMERGENCY_CODES = (0o7500, 0o7600, 0o7700)
+_UNKEYED_CODES = np.array(SHARED_MODE3A_CODES + EMERGENCY_CODES, np.int64)
+"""The codes no identity key is made of (shared or emergency)."""
 """Hijack, radio failure, emergency: never taken for a fixed transponder by detection."""
 CODE_KEY = 1 << 24
 """Identity keys: a Mode S address as is, a Mode 3/A code offset past every address."""
@@ -180,7 +183,7 @@ def identity_keys(address: IntArray, mode3a: IntArray, mode3a_valid: BoolArray) 
     """Each plot's identity for detection: its Mode S address, else its validated Mode 3/A
     code (offset by ``CODE_KEY``) unless that code is shared or an emergency; else
     ``NO_KEY`` (primary plots, garbled codes)."""
-    code_ok = mode3a_valid & (mode3a >= 0) & ~np.isin(mode3a, SHARED_MODE3A_CODES + EMERGENCY_CODES)
+    code_ok = mode3a_valid & (mode3a >= 0) & ~is_one_of(mode3a, _UNKEYED_CODES)
     keys = np.where(code_ok, CODE_KEY + mode3a, NO_KEY)
     return np.where(address >= 0, address, keys).astype(np.int64)
 
@@ -247,8 +250,13 @@ class _Candidates:
     ) -> None:
         v = self.values[rows]
         dt, dx, dy = t - v[:, self.T0], x - v[:, self.X0], y - v[:, self.Y0]
-        terms = np.column_stack([np.ones(len(rows)), dt, dx, dy, dt * dt, dt * dx, dt * dy, var])
-        if len(np.unique(rows)) == len(rows):  # the rule: one plot per identity and area
+        terms = np.empty((len(rows), len(self.SUMS)))  # the SUMS' columns, filled in place
+        terms[:, 0] = 1.0
+        terms[:, 1], terms[:, 2], terms[:, 3] = dt, dx, dy
+        terms[:, 4], terms[:, 5], terms[:, 6] = dt * dt, dt * dx, dt * dy
+        terms[:, 7] = var
+        ordered = np.sort(rows)
+        if not (ordered[1:] == ordered[:-1]).any():  # the rule: one plot per identity and area
             self.values[rows[:, None], self.SUMS] += terms
             self.values[rows, self.LAST] = np.maximum(v[:, self.LAST], t)
             return
@@ -380,7 +388,7 @@ class FixedTargets:
         if self.config.detect:
             # A site monitor's code counts even garbled or not validated: replies that
             # overlap its own are often flagged so (canalA.gps: 89 of one monitor's 716).
-            monitor = (mode3a >= 0) & np.isin(mode3a, self._monitor_codes)
+            monitor = (mode3a >= 0) & is_one_of(mode3a, self._monitor_codes)
             keys = identity_keys(address, mode3a, mode3a_valid | monitor)
             rows = np.flatnonzero(candidates & ~configured & (keys != NO_KEY))
             if rows.size:
@@ -398,7 +406,7 @@ class FixedTargets:
         sigma = _largest_sigma(np.asarray(plots["R"], np.float64))
         # Forget candidates that have gone quiet; keep the others sorted by identity, so
         # that each plot looks at its identity's few candidates only.
-        now = float(np.median(t))  # one plot's wrong time does not age every candidate
+        now = median(t)  # one plot's wrong time does not age every candidate
         if len(c):
             memory = np.where(c.fixed, cfg.fixed_memory_s, cfg.stale_periods * self.period_s)
             live = np.flatnonzero(c.last >= now - memory)

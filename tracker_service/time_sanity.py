@@ -40,6 +40,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.ingest import DAY_S, TimeSource, posix_from_time_of_day
+from tracker_service.small_arrays import median
 from tracker_service.tracking import LocalTracker
 
 __all__ = [
@@ -260,7 +261,8 @@ class TimeSanity:
         timeline = self._timeline(source)
         period = timeline.period_s
         times = np.array(times, dtype=np.float64)
-        stamped = time_sources == TimeSource.I140
+        # Plain values: numpy compares with an IntEnum member through a slow path.
+        stamped = time_sources == TimeSource.I140.value
         prior = timeline.offset()
         if prior is not None and stamped.any():
             times[stamped] = _nearest(times[stamped], received + prior, DAY_S)
@@ -279,9 +281,9 @@ class TimeSanity:
         expected = received + offset
         if prior is None and plot_offsets:
             times[stamped] = _nearest(times[stamped], expected, DAY_S)
-        by_reception = time_sources == TimeSource.RECEPTION
+        by_reception = time_sources == TimeSource.RECEPTION.value
         times[by_reception] = expected
-        by_azimuth = time_sources == TimeSource.AZIMUTH
+        by_azimuth = time_sources == TimeSource.AZIMUTH.value
         if by_azimuth.any() and abs(offset) > cfg.max_offset_s:
             # The plot clock counted the turns up to the reception; the radar's own time
             # is elsewhere by whole turns.
@@ -310,8 +312,8 @@ class TimeSanity:
         phase = _wrap((times[recent] - timeline.north_posix) / period - theta_deg[recent] / 360.0)
         # The radar's usual phase (its stamping convention), from the datagrams' medians:
         # a lone stray plot is no datagram's median.
-        timeline.phases.append(float(np.median(phase)))
-        usual = float(np.median(timeline.phases))
+        timeline.phases.append(median(phase))
+        usual = median(timeline.phases)
         stray = np.abs(_wrap(phase - usual)) > self.config.azimuth_tolerance
         off[np.flatnonzero(recent)[stray]] = True
         return off

@@ -11,9 +11,9 @@ from tracker_service.geodesy.ellipsoid import FloatArray, as_float, ecef_to_geod
 from tracker_service.geodesy.plane import SystemPlane
 from tracker_service.geodesy.plots import (
     CrossRange,
-    local_from_geometry,
+    covariance_from_gains,
+    local_from_azimuth,
     local_to_ecef,
-    polar_covariance,
     slant_geometry,
 )
 from tracker_service.geodesy.sites import RadarSite
@@ -64,31 +64,40 @@ def convert_plots(
     """Convert one radar's plots: slant range (m), azimuth as reported (deg, the site's
     north offset is added here), height above MSL (m, from ``HeightModel.heights``) and the
     sigmas (scalars or per plot) into plane positions and covariances."""
-    rho, theta, height, height_sigma, sigma_rho, sigma_theta = (
-        np.ravel(a)
-        for a in np.broadcast_arrays(
-            as_float(rho_m),
-            as_float(theta_deg),
-            as_float(height_msl_m),
-            as_float(height_sigma_m),
-            as_float(sigma_rho_m),
-            as_float(sigma_theta_deg),
+    columns = [
+        as_float(values)
+        for values in (
+            rho_m,
+            theta_deg,
+            height_msl_m,
+            height_sigma_m,
+            sigma_rho_m,
+            sigma_theta_deg,
         )
-    )
+    ]
+    shape = columns[0].shape
+    if not all(values.ndim == 1 and values.shape == shape for values in columns):
+        columns = [np.ravel(values) for values in np.broadcast_arrays(*columns)]
+    rho, theta, height, height_sigma, sigma_rho, sigma_theta = columns
     geometry = slant_geometry(site, rho, height, earth_radius_m=earth_radius_m)
-    x, y, z = local_to_ecef(site, *local_from_geometry(site, geometry, theta))
+    # The true azimuth's sine and cosine, once for the position, the covariance and the
+    # Jacobians (a batch is a few dozen plots: the calls cost more than the arithmetic).
+    azimuth = np.radians(theta + site.north_offset_deg)
+    sin_az, cos_az = np.sin(azimuth), np.cos(azimuth)
+    x, y, z = local_to_ecef(site, *local_from_azimuth(geometry, sin_az, cos_az))
     lat, lon, h = ecef_to_geodetic(x, y, z)
     e, n = plane.plane_xy(x, y, z, lat, lon)
-    azimuth = theta + site.north_offset_deg
-    horizontal = polar_covariance(
+    range_gain, height_gain = geometry.gains("target")
+    horizontal = covariance_from_gains(
         rho,
-        azimuth,
+        sin_az,
+        cos_az,
         sigma_rho,
-        sigma_theta,
-        elevation_rad=geometry.elevation_rad,
-        central_angle_rad=geometry.central_angle_rad,
-        frame="target",
-        cross_range=cross_range,
+        np.radians(sigma_theta),
+        geometry.elevation_rad,
+        (range_gain, height_gain),
+        0.0,
+        cross_range,
     )
     jacobian = plane.jacobian(lat, lon, h)
     a = jacobian[..., :2] @ plane.radar_turn(site, lat, lon)
@@ -97,17 +106,17 @@ def convert_plots(
     # sight at the target and up by as much as the error, both at once, so the two shares
     # add as one vector (the up one only counts in the tangent plane). The slide is
     # bounded by rho, as in polar_covariance: an impossible height must not blow it up.
-    slide = np.clip(geometry.height_gain("target") * height_sigma, -rho, rho)
-    along = np.stack([np.sin(np.radians(azimuth)), np.cos(np.radians(azimuth))], axis=-1)
+    slide = np.clip(height_gain * height_sigma, -rho, rho)
+    along = np.stack([sin_az, cos_az], axis=-1)
     shift = (
         np.einsum("nij,nj->ni", a, along * slide[:, None])
         + jacobian[..., 2] * height_sigma[:, None]
     )
     covariance += shift[:, :, None] * shift[:, None, :]
-    across = np.stack([np.cos(np.radians(azimuth)), -np.sin(np.radians(azimuth))], axis=-1)
+    across = np.stack([cos_az, -sin_az], axis=-1)
     polar_jacobian = np.stack(
         [
-            np.einsum("nij,nj->ni", a, along * geometry.range_gain("target")[:, None]),
+            np.einsum("nij,nj->ni", a, along * range_gain[:, None]),
             np.einsum("nij,nj->ni", a, across * geometry.ground_range_m[:, None]),
         ],
         axis=-1,

@@ -30,14 +30,23 @@ def as_float(values: npt.ArrayLike) -> FloatArray:
 
 def meridian_radius_m(lat_deg: npt.ArrayLike) -> FloatArray:
     """M = a(1-e^2)/(1-e^2 sin^2 L)^(3/2): the radius of curvature along the meridian."""
-    s = np.sin(np.radians(as_float(lat_deg)))
-    return np.asarray(A * (1.0 - E2) / (1.0 - E2 * s * s) ** 1.5, dtype=np.float64)
+    return radii_m(lat_deg)[0]
 
 
 def prime_vertical_radius_m(lat_deg: npt.ArrayLike) -> FloatArray:
     """N = a/(1-e^2 sin^2 L)^(1/2): the radius of curvature across the meridian."""
+    return radii_m(lat_deg)[1]
+
+
+def radii_m(lat_deg: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """(``meridian_radius_m``, ``prime_vertical_radius_m``) at once, for callers that
+    need both (one sine)."""
     s = np.sin(np.radians(as_float(lat_deg)))
-    return np.asarray(A / np.sqrt(1.0 - E2 * s * s), dtype=np.float64)
+    w = 1.0 - E2 * s * s
+    return (
+        np.asarray(A * (1.0 - E2) / w**1.5, dtype=np.float64),
+        np.asarray(A / np.sqrt(w), dtype=np.float64),
+    )
 
 
 def gaussian_radius_m(lat_deg: npt.ArrayLike) -> FloatArray:
@@ -87,10 +96,16 @@ def enu_rotation(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike) -> FloatArray:
     lon = np.radians(as_float(lon_deg))
     sin_lat, cos_lat = np.sin(lat), np.cos(lat)
     sin_lon, cos_lon = np.sin(lon), np.cos(lon)
-    zero = np.zeros_like(lat)
-    rows = (
-        (-sin_lon, cos_lon, zero),
-        (-sin_lat * cos_lon, -sin_lat * sin_lon, cos_lat),
-        (cos_lat * cos_lon, cos_lat * sin_lon, sin_lat),
-    )
-    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+    # Filled in place rather than stacked: a radar's batch is a few dozen plots, where
+    # the nine stacks cost more than the arithmetic.
+    rotation = np.empty((*lat.shape, 3, 3))
+    rotation[..., 0, 0] = -sin_lon
+    rotation[..., 0, 1] = cos_lon
+    rotation[..., 0, 2] = 0.0
+    rotation[..., 1, 0] = -sin_lat * cos_lon
+    rotation[..., 1, 1] = -sin_lat * sin_lon
+    rotation[..., 1, 2] = cos_lat
+    rotation[..., 2, 0] = cos_lat * cos_lon
+    rotation[..., 2, 1] = cos_lat * sin_lon
+    rotation[..., 2, 2] = sin_lat
+    return rotation

@@ -34,8 +34,7 @@ from tracker_service.geodesy.ellipsoid import (
     enu_rotation,
     gaussian_radius_m,
     geodetic_to_ecef,
-    meridian_radius_m,
-    prime_vertical_radius_m,
+    radii_m,
 )
 from tracker_service.geodesy.sites import RadarSite
 
@@ -213,8 +212,9 @@ class SystemPlane:
         e_north, n_north = self._project(lat + _STEP_DEG, lon)
         e_east, n_east = self._project(lat, lon + _STEP_DEG)
         step = np.radians(_STEP_DEG)
-        north_m = (meridian_radius_m(lat) + h) * step
-        east_m = (prime_vertical_radius_m(lat) + h) * np.cos(np.radians(lat)) * step
+        meridian, prime_vertical = radii_m(lat)
+        north_m = (meridian + h) * step
+        east_m = (prime_vertical + h) * np.cos(np.radians(lat)) * step
         out[..., 0, 0] = (e_east - e0) / east_m
         out[..., 1, 0] = (n_east - n0) / east_m
         out[..., 0, 1] = (e_north - e0) / north_m

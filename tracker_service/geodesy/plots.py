@@ -35,8 +35,7 @@ import numpy.typing as npt
 from tracker_service.geodesy.ellipsoid import (
     FloatArray,
     as_float,
-    meridian_radius_m,
-    prime_vertical_radius_m,
+    radii_m,
 )
 from tracker_service.geodesy.sites import RadarSite
 
@@ -66,11 +65,15 @@ class SlantGeometry:
 
     def range_gain(self, frame: CovarianceFrame = "radar") -> FloatArray:
         """d(ground position)/d(rho) along the line of sight, at constant height."""
-        return _gains(self.elevation_rad, self.central_angle_rad, frame)[0]
+        return self.gains(frame)[0]
 
     def height_gain(self, frame: CovarianceFrame = "radar") -> FloatArray:
         """d(ground position)/dH along the line of sight, at constant slant range."""
-        return _gains(self.elevation_rad, self.central_angle_rad, frame)[1]
+        return self.gains(frame)[1]
+
+    def gains(self, frame: CovarianceFrame = "radar") -> tuple[FloatArray, FloatArray]:
+        """(``range_gain``, ``height_gain``) at once."""
+        return _gains(self.elevation_rad, self.central_angle_rad, frame)
 
 
 def normal_section_radius_m(lat_deg: npt.ArrayLike, azimuth_deg: npt.ArrayLike) -> FloatArray:
@@ -79,8 +82,7 @@ def normal_section_radius_m(lat_deg: npt.ArrayLike, azimuth_deg: npt.ArrayLike) 
     Offered for ``earth_radius_m`` when the last metre at long range matters: it is the
     sphere that follows the ellipsoid in the look direction.
     """
-    m = meridian_radius_m(lat_deg)
-    n = prime_vertical_radius_m(lat_deg)
+    m, n = radii_m(lat_deg)
     az = np.radians(as_float(azimuth_deg))
     return np.asarray(m * n / (n * np.cos(az) ** 2 + m * np.sin(az) ** 2), dtype=np.float64)
 
@@ -123,10 +125,18 @@ def local_from_geometry(
     site: RadarSite, geometry: SlantGeometry, theta_deg: npt.ArrayLike
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     azimuth = np.radians(as_float(theta_deg) + site.north_offset_deg)
+    return local_from_azimuth(geometry, np.sin(azimuth), np.cos(azimuth))
+
+
+def local_from_azimuth(
+    geometry: SlantGeometry, sin_azimuth: FloatArray, cos_azimuth: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``local_from_geometry`` given the sine and cosine of the true azimuth (the
+    conversion computes them once for the position and the covariance)."""
     ground = geometry.ground_range_m
     return (
-        ground * np.sin(azimuth),
-        ground * np.cos(azimuth),
+        ground * sin_azimuth,
+        ground * cos_azimuth,
         geometry.slant_range_m * np.sin(geometry.elevation_rad),
     )
 
@@ -235,8 +245,6 @@ def polar_covariance(
     The along-track variance is capped at rho^2 + sigma_r^2: the ground range cannot leave
     [0, rho], whatever height the plot was given.
     """
-    if cross_range not in ("exact", "tan"):
-        raise ValueError(f"cross_range must be 'exact' or 'tan', not {cross_range!r}")
     rho, theta, sigma_rho, sigma_theta, psi, gamma, sigma_h = np.broadcast_arrays(
         as_float(rho_m),
         np.radians(as_float(theta_deg)),
@@ -247,12 +255,41 @@ def polar_covariance(
         as_float(height_sigma_m),
     )
     range_gain, height_gain = _gains(psi, gamma, frame)
+    return covariance_from_gains(
+        rho,
+        np.sin(theta),
+        np.cos(theta),
+        sigma_rho,
+        sigma_theta,
+        psi,
+        (range_gain, height_gain),
+        sigma_h,
+        cross_range,
+    )
+
+
+def covariance_from_gains(
+    rho: FloatArray,
+    sin_azimuth: FloatArray,
+    cos_azimuth: FloatArray,
+    sigma_rho: FloatArray,
+    sigma_theta_rad: FloatArray,
+    elevation_rad: FloatArray,
+    gains: tuple[FloatArray, FloatArray],
+    sigma_h: FloatArray | float,
+    cross_range: CrossRange,
+) -> FloatArray:
+    """``polar_covariance`` from the sine and cosine of the azimuth and the gains
+    (``SlantGeometry.gains``), arrays of one shape: for the conversion, which has them."""
+    if cross_range not in ("exact", "tan"):
+        raise ValueError(f"cross_range must be 'exact' or 'tan', not {cross_range!r}")
+    range_gain, height_gain = gains
     along = (range_gain * sigma_rho) ** 2 + (height_gain * sigma_h) ** 2
     along = np.minimum(along, rho * rho + sigma_rho * sigma_rho)
-    spread = np.tan(sigma_theta) if cross_range == "tan" else sigma_theta
-    cross = (rho * np.cos(psi) * spread) ** 2
-    s = np.sin(theta)
-    c = np.cos(theta)
+    spread = np.tan(sigma_theta_rad) if cross_range == "tan" else sigma_theta_rad
+    cross = (rho * np.cos(elevation_rad) * spread) ** 2
+    s = sin_azimuth
+    c = cos_azimuth
     covariance = np.empty((*rho.shape, 2, 2))
     covariance[..., 0, 0] = along * s * s + cross * c * c
     covariance[..., 1, 1] = along * c * c + cross * s * s

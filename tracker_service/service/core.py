@@ -510,7 +510,7 @@ class Outputs:
         counters.plots += len(plots)
         if len(plots):
             # A plot whose time is implausible says nothing of when the radar was heard.
-            timed = plots["time"][plots["use"] != PlotUse.TIME_IMPLAUSIBLE]
+            timed = plots["time"][plots["use"] != PlotUse.TIME_IMPLAUSIBLE.value]
             if len(timed):
                 counters.last_plot_time = float(timed.max())
                 counters.plot_delay = self._now - counters.last_plot_time
@@ -518,7 +518,7 @@ class Outputs:
             if "implausible_daps" in (plots.dtype.names or ()) and plots["implausible_daps"].any():
                 counters.rejected["implausible_daps"] += int(plots["implausible_daps"].sum())
             counters.test_targets.update(plots)
-            if (plots["use"] == PlotUse.TRACKED).any():
+            if (plots["use"] == PlotUse.TRACKED.value).any():
                 last = counters.last_tracked_plot
                 if last is None or self._now - last > self._silence_s(output.source):
                     counters.tracked_since = self._now  # tracks need some scans to form
