@@ -655,12 +655,12 @@ def _add_roots(h: Hypothesis, roots: list[Branch], root_plots: list[int]) -> Hyp
         leaf = root
         same = [b for b in newborns if b.plot_id == plot_id]
         if plot_id >= 0 and same:
-            leaf = same[0]
+            newborns.remove(same[0])
+            if same[0].parent is not None:
+                leaf = same[0]  # a continued newborn: a longer history than the root's
         elif plot_id in held and newborns:
             distance = [float(np.hypot(*(b.xc[:2] - root.xc[:2]))) for b in newborns]
-            leaf = newborns[int(np.argmin(distance))]
-        if leaf is not root:
-            newborns.remove(leaf)
+            leaf = newborns.pop(int(np.argmin(distance)))
         leaves.append(leaf)
     return Hypothesis(h.score, tuple(leaves), tuple(newborns))
 
