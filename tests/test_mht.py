@@ -165,13 +165,14 @@ def test_close_pair_keeps_two_tracks_without_a_swap(
 
 def test_where_nothing_is_ambiguous_mht_is_gnn() -> None:
     """Two aircraft 1 km apart, a third crossing 20 km away: no cluster is branched and
-    every output row is GNN's, bit for bit."""
+    every output row is GNN's, bit for bit. (Seed 7: no track's only plot lies beyond its
+    95 % ellipse, where a lone pair may be a miss and a new aircraft; seed 5 has one.)"""
     targets = [
         Target(straight(90.0, 40e3, 60e3 + dy, 220.0), mode3a=-1, address=-1)
         for dy in (0.0, 1000.0)
     ]
     targets.append(Target(straight(0.0, 60e3, 40e3, 200.0), address=0x3C0001))
-    scenario = simulate(targets, scans=30, seed=5)
+    scenario = simulate(targets, scans=30, seed=7)
     tracker, out = run(scenario, MHT)
     _, gnn = run(scenario, TrackerConfig(scan_period_s=PERIOD))
     assert isinstance(tracker.associator, MultipleHypothesisTracking)

@@ -179,6 +179,11 @@ class _Candidates:
     index: IntArray
 
 
+FAR_IN_GATE_NIS = 5.99
+"""Chi-square (2 dof, 95 %) beyond which a track's only plot may be another aircraft's."""
+TENTATIVE_STATUS = 0
+"""``tracker.TENTATIVE`` (the tracker imports this module)."""
+
 _EMPTY = np.zeros(0, dtype=np.int64)
 _NONE = _Candidates(np.zeros(0, np.int64), np.zeros(0), 0, np.zeros(0, np.int64))
 
@@ -222,7 +227,18 @@ class MultipleHypothesisTracking:
     ) -> HypothesisDecision:
         numbers = cols["number"][:n]
         row_of = self._forget_deleted(numbers)
-        if not self.clusters and _all_lone(pairs, n, len(p)):
+        log_clutter = np.log(self.clutter_density(p))
+        score = pairs.log_likelihood + self.log_pd - log_clutter[pairs.plot]
+        # A lone pair of a confirmed or coasting track is ambiguous where "the track missed,
+        # the plot is a new aircraft" is close and the plot lies beyond the 95 % ellipse:
+        # a second aircraft appearing in the scan the first is missed (otherwise GNN takes
+        # it for good, and the track swaps).
+        doubtful = (
+            (score - self.log_miss < self.config.mht_ambiguity_llr)
+            & (pairs.nis > FAR_IN_GATE_NIS)
+            & (cols["status"][pairs.track] != TENTATIVE_STATUS)
+        )
+        if not self.clusters and not doubtful.any() and _all_lone(pairs, n, len(p)):
             # The usual batch: no cluster, no plot or track with a second candidate.
             everything = np.arange(len(pairs))
             return HypothesisDecision(
@@ -231,8 +247,6 @@ class MultipleHypothesisTracking:
         clustered = np.zeros(n, dtype=bool)
         clustered[list(row_of.values())] = True
         free = ~clustered[pairs.track]
-        log_clutter = np.log(self.clutter_density(p))
-        score = pairs.log_likelihood + self.log_pd - log_clutter[pairs.plot]
 
         # The clusters' leaves and newborns, gated against the batch (a newborn links its
         # plots to its cluster's first track).
@@ -280,6 +294,7 @@ class MultipleHypothesisTracking:
         free_idx = np.flatnonzero(free)
         comp_of_pair = label[pairs.track[free_idx]]
         shared = np.bincount(comp_of_pair, minlength=size)[comp_of_pair] > 1
+        branching.update(comp_of_pair[~shared & doubtful[free_idx]].tolist())
         for comp in np.unique(comp_of_pair[shared]).tolist():
             if comp in branching:
                 continue
