@@ -241,3 +241,25 @@ def test_a_close_pair_far_out_keeps_its_identities_when_the_second_aircraft_appe
     for number in numbers:
         mine = owners[rows["track_number"] == number]
         assert np.count_nonzero(mine[1:] != mine[:-1]) == 0
+
+
+def test_a_second_aircraft_appearing_when_the_first_is_missed_does_not_take_its_track() -> None:
+    """Eight scans of one aircraft; at scan 8 it is missed and a second one appears 600 m
+    north (its only plot in the track's gate, far out); from scan 9 both are seen. The
+    lone pair of scan 8 is a cluster ("took the plot" against "missed, the plot is a new
+    aircraft"), and the new-target branch of the plot, continued at scan 9, makes the
+    second history the best: track 1 keeps the first aircraft, a new track the second.
+    (Before: GNN's hard choice at scan 8, and track 1 followed the second aircraft.)"""
+    first, second = 0, 1  # plot ids end in the aircraft's index
+    batches = [_scan(k, [0.0], 1000 + 10 * k) for k in range(8)]
+    batches.append(_scan(8, [600.0], 1000 + 10 * 8 + second))
+    batches += [_scan(k, [0.0, 600.0], 1000 + 10 * k) for k in range(9, 15)]
+    tracker = LocalTracker(MHT)
+    out = [tracker.process(b) for b in batches]
+    late = np.concatenate(out[10:])
+    late = late[late["plot_id"] >= 0]
+    owner = late["plot_id"] % 10
+    assert set(owner[late["track_number"] == 1].tolist()) == {first}
+    others = np.unique(late["track_number"][owner == second])
+    assert len(others) == 1 and others[0] != 1
+    assert set(late["status"][late["track_number"] == others[0]][-3:].tolist()) == {CONFIRMED}
