@@ -179,10 +179,6 @@ class TrackerConfig:
     reach after every scan, and no cluster ever ended)."""
     mht_max_cluster_tracks: int = 6
     """A component of more tracks is left to GNN: the cost of branching stays bounded."""
-    mht_new_target_density_per_km2: float = 0.01
-    """MHT: density of new aircraft (beta_NT) among the plots a hypothesis leaves to no
-    track; such a plot starts a new-target branch in that hypothesis, scored
-    log(beta_NT / beta_FA) with beta_FA the clutter density when its next plot comes."""
     birth_relative_speed_sigma_m_s: float = 40.0
     """With MHT, a plot left over in the gate of a confirmed or coasting track starts a
     track at once, with that neighbour's velocity (``initiate.neighbour_state``); this is
@@ -239,8 +235,6 @@ class TrackerConfig:
             )
         if not 0 < self.mht_ambiguity_llr <= self.mht_prune_llr:
             raise ValueError("need 0 < mht_ambiguity_llr <= mht_prune_llr")
-        if not self.mht_new_target_density_per_km2 > 0:
-            raise ValueError("mht_new_target_density_per_km2 must be positive")
         if not self.birth_relative_speed_sigma_m_s > 0:
             raise ValueError("birth_relative_speed_sigma_m_s must be positive")
         if not self.max_clock_jump_periods > 0 or self.clock_resync_batches < 1:

@@ -107,8 +107,6 @@ def _table_dtype(n_models: int) -> np.dtype[Any]:
             ("dense_seed", np.bool_),  # seeded in a dense clutter cell: more hits to confirm
             ("secondary", np.bool_),  # some plot of the track had a secondary reply
             ("clutter_cell", np.int64),  # the clutter map's cell of the latest plot
-            # The plot it started at (MHT: its newborn of that plot in each hypothesis).
-            ("start_plot_id", np.int64),
         ]
     )
 
@@ -783,7 +781,6 @@ class LocalTracker:
         cols["due"][new] = last.time + (self._scan_tolerance_s - DUE_MARGIN_S)
         cols["misses"][new] = 0
         cols["hist"][new] = hist
-        cols["start_plot_id"][new] = last.plot_id
         # The latest known identity of the plots.
         address = np.full(k, -1, dtype=np.int64)
         mode3a = np.full(k, -1, dtype=np.int64)

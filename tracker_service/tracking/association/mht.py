@@ -53,7 +53,6 @@ from tracker_service.tracking.association.base import WeightedPairs
 from tracker_service.tracking.association.gate import Gate, GatedPairs
 from tracker_service.tracking.association.jpda import _k_best
 from tracker_service.tracking.config import TrackerConfig
-from tracker_service.tracking.initiate import neighbour_state
 from tracker_service.tracking.plots import FloatArray, IntArray, PlotArrays
 
 ClutterDensity = Callable[[PlotArrays], FloatArray]
@@ -84,9 +83,6 @@ class Branch:
     decided_at: float
     plot_id: int = -1
     parent: Branch | None = None
-    birth_llr: float = 0.0
-    """For a new-target branch not yet continued, log(beta_NT / beta_FA) at its plot: what
-    its hypothesis gains over "that plot was clutter" when the branch takes a plot."""
 
     def anchor(self, cutoff: float) -> Branch:
         """The newest node of this history decided before ``cutoff``: what N-scan pruning
@@ -112,11 +108,6 @@ class Hypothesis:
 
     score: float
     leaves: tuple[Branch, ...]
-    newborns: tuple[Branch, ...] = ()
-    """New-target branches: plots this hypothesis left to no track (and their
-    continuations), at most ``1.5`` antenna periods old. A new track of the table that
-    joins the cluster takes, in each hypothesis, its newborn of the same plot (or, where
-    a track of the hypothesis holds that plot, the nearest newborn)."""
 
 
 @dataclass(eq=False)
@@ -179,11 +170,6 @@ class _Candidates:
     index: IntArray
 
 
-FAR_IN_GATE_NIS = 5.99
-"""Chi-square (2 dof, 95 %) beyond which a track's only plot may be another aircraft's."""
-TENTATIVE_STATUS = 0
-"""``tracker.TENTATIVE`` (the tracker imports this module)."""
-
 _EMPTY = np.zeros(0, dtype=np.int64)
 _NONE = _Candidates(np.zeros(0, np.int64), np.zeros(0), 0, np.zeros(0, np.int64))
 
@@ -227,18 +213,7 @@ class MultipleHypothesisTracking:
     ) -> HypothesisDecision:
         numbers = cols["number"][:n]
         row_of = self._forget_deleted(numbers)
-        log_clutter = np.log(self.clutter_density(p))
-        score = pairs.log_likelihood + self.log_pd - log_clutter[pairs.plot]
-        # A lone pair of a confirmed or coasting track is ambiguous where "the track missed,
-        # the plot is a new aircraft" is close and the plot lies beyond the 95 % ellipse:
-        # a second aircraft appearing in the scan the first is missed (otherwise GNN takes
-        # it for good, and the track swaps).
-        doubtful = (
-            (score - self.log_miss < self.config.mht_ambiguity_llr)
-            & (pairs.nis > FAR_IN_GATE_NIS)
-            & (cols["status"][pairs.track] != TENTATIVE_STATUS)
-        )
-        if not self.clusters and not doubtful.any() and _all_lone(pairs, n, len(p)):
+        if not self.clusters and _all_lone(pairs, n, len(p)):
             # The usual batch: no cluster, no plot or track with a second candidate.
             everything = np.arange(len(pairs))
             return HypothesisDecision(
@@ -247,18 +222,15 @@ class MultipleHypothesisTracking:
         clustered = np.zeros(n, dtype=bool)
         clustered[list(row_of.values())] = True
         free = ~clustered[pairs.track]
+        log_clutter = np.log(self.clutter_density(p))
+        score = pairs.log_likelihood + self.log_pd - log_clutter[pairs.plot]
 
-        # The clusters' leaves and newborns, gated against the batch (a newborn links its
-        # plots to its cluster's first track).
+        # The clusters' leaves, gated against the batch.
         leaves = list(
-            {id(b): b for c in self.clusters for h in c.hypotheses
-             for b in h.leaves + h.newborns}.values()
-        )  # fmt: skip
+            {id(b): b for c in self.clusters for h in c.hypotheses for b in h.leaves}.values()
+        )
         leaf_number = {id(b): num for c in self.clusters for h in c.hypotheses
                        for num, b in zip(c.numbers, h.leaves, strict=True)}  # fmt: skip
-        leaf_number.update(
-            {id(b): c.numbers[0] for c in self.clusters for h in c.hypotheses for b in h.newborns}
-        )
         leaf_pairs = gate(_branch_columns(leaves), len(leaves), p).pairs if leaves else None
 
         # Components of the graph of track rows and plots (a cluster's tracks linked).
@@ -294,7 +266,6 @@ class MultipleHypothesisTracking:
         free_idx = np.flatnonzero(free)
         comp_of_pair = label[pairs.track[free_idx]]
         shared = np.bincount(comp_of_pair, minlength=size)[comp_of_pair] > 1
-        branching.update(comp_of_pair[~shared & doubtful[free_idx]].tolist())
         for comp in np.unique(comp_of_pair[shared]).tolist():
             if comp in branching:
                 continue
@@ -322,8 +293,7 @@ class MultipleHypothesisTracking:
             comp_rows = np.flatnonzero(label[:n] == comp)
             cluster, root_cands = self._gather(comp_rows, row_of, cols, pairs, score)
             cands = {**leaf_cands, **root_cands}
-            step = self._step(cluster, p, imm_filter, pairs, leaf_pairs, cands, log_clutter)
-            for number, leaf, plot in step:
+            for number, leaf, plot in self._step(cluster, p, imm_filter, pairs, leaf_pairs, cands):
                 row = int(np.searchsorted(numbers, number))
                 if plot >= 0:
                     rows_out.append(row)
@@ -386,7 +356,7 @@ class MultipleHypothesisTracking:
                     leaves = tuple(h.leaves[i] for i in keep)
                     key = tuple(id(b) for b in leaves)
                     if key not in best or h.score > best[key].score:
-                        best[key] = Hypothesis(h.score, leaves, h.newborns)
+                        best[key] = Hypothesis(h.score, leaves)
                 c.hypotheses = sorted(best.values(), key=lambda h: -h.score)
                 c.published = {k: v for k, v in c.published.items() if k in c.numbers}
                 rows = rows[live]
@@ -419,14 +389,13 @@ class MultipleHypothesisTracking:
             numbers += c.numbers
             published.update(c.published)
             product = [
-                Hypothesis(a.score + b.score, a.leaves + b.leaves, a.newborns + b.newborns)
+                Hypothesis(a.score + b.score, a.leaves + b.leaves)
                 for a in hypotheses
                 for b in c.hypotheses
             ]
             hypotheses = sorted(product, key=lambda h: -h.score)[:limit]
         clustered = set(row_of.values())
         roots: list[Branch] = []
-        root_plots: list[int] = []
         root_cands: dict[int, _Candidates] = {}
         for row in comp_rows.tolist():
             if row in clustered:
@@ -445,14 +414,16 @@ class MultipleHypothesisTracking:
             number = int(cols["number"][row])
             numbers.append(number)
             roots.append(root)
-            root_plots.append(int(cols["start_plot_id"][row]))
             published[number] = root
             idx = np.flatnonzero(pairs.track == row)
             root_cands[id(root)] = _Candidates(pairs.plot[idx], score[idx], 1, idx)
         if not merging:
             self.stats.clusters_formed += 1
+        root_leaves = tuple(roots)
         cluster = Cluster(
-            numbers, [_add_roots(h, roots, root_plots) for h in hypotheses], published
+            numbers,
+            [Hypothesis(h.score, h.leaves + root_leaves) for h in hypotheses],
+            published,
         )
         return cluster, root_cands
 
@@ -464,7 +435,6 @@ class MultipleHypothesisTracking:
         pairs: GatedPairs,
         leaf_pairs: GatedPairs | None,
         cands: dict[int, _Candidates],
-        log_clutter: FloatArray,
     ) -> list[tuple[int, Branch, int]]:
         """Extend, prune and publish one cluster over this batch; the tracks whose
         published leaf changed: (number, leaf, its plot in the batch or -1)."""
@@ -475,33 +445,24 @@ class MultipleHypothesisTracking:
         for h in cluster.hypotheses:
             for i, b in enumerate(h.leaves):
                 observed[i] |= id(b) in cands
-        seen = np.flatnonzero(observed).tolist()
-        gated = [b for h in cluster.hypotheses for b in h.leaves + h.newborns if id(b) in cands]
-        if not gated:
+        seen = np.flatnonzero(observed)
+        if seen.size == 0:
             self._keep(cluster)
             return []
-        local_plots = np.unique(np.concatenate([cands[id(b)].plots for b in gated]))
+        local_plots = np.unique(np.concatenate([cands[id(b)].plots for h in cluster.hypotheses
+                                                for b in h.leaves if id(b) in cands]))  # fmt: skip
         now = float(p.time[local_plots].max())
         cutoff = now - (cfg.mht_n_scan - 0.5) * cfg.scan_period_s
 
-        # Every parent's best extensions: its tracks, and its newborns with a gated plot (a
-        # newborn without a plot costs nothing: its plot may have been clutter, or the
-        # new aircraft's next plot is in another batch).
-        children: list[tuple[float, Hypothesis, tuple[Branch, ...], tuple[int, ...]]] = []
+        # Every parent's best extensions.
+        children: list[tuple[float, Hypothesis, tuple[int, ...]]] = []
         for h in cluster.hypotheses:
-            rows = tuple([h.leaves[i] for i in seen] + [b for b in h.newborns if id(b) in cands])
-            ratio = np.full((len(rows), local_plots.size), -np.inf)
-            miss = np.zeros(len(rows))
-            miss[: len(seen)] = self.log_miss
-            for r, b in enumerate(rows):
-                c = cands.get(id(b), _NONE)
-                ratio[r, np.searchsorted(local_plots, c.plots)] = c.scores + b.birth_llr
-            # Murty's ranking takes one miss score: a newborn row's plots shifted by the
-            # difference rank its events alike.
-            shifted = ratio + (self.log_miss - miss)[:, None]
-            for event in _k_best(shifted, self.log_miss, cfg.mht_max_hypotheses):
-                llr = sum(ratio[r, j] if j >= 0 else miss[r] for r, j in enumerate(event))
-                children.append((h.score + float(llr), h, rows, event))
+            ratio = np.full((seen.size, local_plots.size), -np.inf)
+            for r, i in enumerate(seen.tolist()):
+                c = cands.get(id(h.leaves[i]), _NONE)
+                ratio[r, np.searchsorted(local_plots, c.plots)] = c.scores
+            for event in _k_best(ratio, self.log_miss, cfg.mht_max_hypotheses):
+                children.append((h.score + self._event_score(ratio, event), h, event))
         children.sort(key=lambda c: -c[0])
         best_score = children[0][0]
         children = [c for c in children if c[0] >= best_score - cfg.mht_prune_llr]
@@ -518,30 +479,31 @@ class MultipleHypothesisTracking:
         # The new nodes: one per (parent, plot), shared by the hypotheses holding it.
         nodes: dict[tuple[int, int], Branch] = {}
         wanted: dict[tuple[int, int], tuple[Branch, int, int, int]] = {}
-        for _, _, rows, event in children:
-            for r, parent in enumerate(rows):
+        for _, h, event in children:
+            for r, i in enumerate(seen.tolist()):
+                parent = h.leaves[i]
                 j = int(local_plots[event[r]]) if event[r] >= 0 else -1
                 key = (id(parent), j)
-                if key in wanted or key in nodes or (j < 0 and r >= len(seen)):
-                    continue  # a newborn without a plot stays as it is
+                if key in wanted or key in nodes:
+                    continue
                 if j < 0:
                     nodes[key] = Branch(
                         parent.x, parent.P, parent.mu, parent.xc, parent.Pc, parent.t,
-                        parent.address, parent.mode3a, now, -1, parent, parent.birth_llr,
+                        parent.address, parent.mode3a, now, -1, parent,
                     )  # fmt: skip
                     continue
                 c = cands[id(parent)]
                 k = int(np.flatnonzero(c.plots == j)[0])
                 wanted[key] = (parent, j, c.source, int(c.index[k]))
-        for source, gated_pairs in ((0, leaf_pairs), (1, pairs)):
+        for source, gated in ((0, leaf_pairs), (1, pairs)):
             keys = [key for key, w in wanted.items() if w[2] == source]
             if not keys:
                 continue
-            assert gated_pairs is not None
+            assert gated is not None
             index = np.array([wanted[key][3] for key in keys], dtype=np.int64)
             plot = np.array([wanted[key][1] for key in keys], dtype=np.int64)
             xy = np.column_stack([p.x[plot], p.y[plot]])
-            up = imm_filter.update(gated_pairs.pred.take(index), xy, p.R[plot])
+            up = imm_filter.update(gated.pred.take(index), xy, p.R[plot])
             for k, key in enumerate(keys):
                 parent, j = wanted[key][0], wanted[key][1]
                 address = int(p.address[j]) if p.address[j] >= 0 else parent.address
@@ -552,37 +514,13 @@ class MultipleHypothesisTracking:
                     float(p.time[j]), int(p.plot_id[j]), parent,
                 )  # fmt: skip
         plot_of = {id(b): key[1] for key, b in nodes.items()}
-        oldest_newborn = now - 1.5 * cfg.scan_period_s
-        built: list[tuple[float, list[Branch], list[Branch]]] = []
-        born: list[tuple[list[Branch], Branch, int]] = []
-        for s, h, rows, event in children:
+        hypotheses = []
+        for s, h, event in children:
             leaves = list(h.leaves)
-            newborns = list(h.newborns)
-            taken: set[int] = set()
-            for r, parent in enumerate(rows):
+            for r, i in enumerate(seen.tolist()):
                 j = int(local_plots[event[r]]) if event[r] >= 0 else -1
-                taken.add(j)
-                if r < len(seen):
-                    leaves[seen[r]] = nodes[(id(parent), j)]
-                elif j >= 0:
-                    newborns[newborns.index(parent)] = nodes[(id(parent), j)]
-            newborns = [b for b in newborns if b.decided_at >= oldest_newborn]
-            # The plots this hypothesis leaves in its tracks' gates: each a new-target
-            # branch with its likeliest track's velocity.
-            for j in local_plots.tolist():
-                if j in taken:
-                    continue
-                best: tuple[float, Branch] | None = None
-                for i in seen:
-                    c = cands.get(id(h.leaves[i]), _NONE)
-                    hit = np.flatnonzero(c.plots == j)
-                    if hit.size and (best is None or c.scores[hit[0]] > best[0]):
-                        best = (float(c.scores[hit[0]]), h.leaves[i])
-                if best is not None:
-                    born.append((newborns, best[1], j))
-            built.append((s, leaves, newborns))
-        self._new_targets(born, p, log_clutter, leaf_pairs, pairs, cands)
-        hypotheses = [Hypothesis(s, tuple(leaves), tuple(nb)) for s, leaves, nb in built]
+                leaves[i] = nodes[(id(h.leaves[i]), j)]
+            hypotheses.append(Hypothesis(s, tuple(leaves)))
         for h in hypotheses:
             for b in h.leaves:
                 b.anchor(cutoff).parent = None  # the fixed past: forgotten
@@ -604,80 +542,10 @@ class MultipleHypothesisTracking:
         self._keep(cluster)
         return changed
 
-    def _new_targets(
-        self,
-        born: list[tuple[list[Branch], Branch, int]],
-        p: PlotArrays,
-        log_clutter: FloatArray,
-        leaf_pairs: GatedPairs | None,
-        pairs: GatedPairs,
-        cands: dict[int, _Candidates],
-    ) -> None:
-        """Append to each hypothesis's newborns (the lists in ``born``) the new-target
-        branch at plot j with its neighbour's velocity (``initiate.neighbour_state``), one
-        node per (neighbour, plot)."""
-        cfg = self.config
-        nodes: dict[tuple[int, int], Branch] = {}
-        wanted: dict[tuple[int, int], tuple[int, int, int]] = {}
-        for _, neighbour, j in born:
-            key = (id(neighbour), j)
-            if key not in wanted:
-                c = cands[id(neighbour)]
-                k = int(np.flatnonzero(c.plots == j)[0])
-                wanted[key] = (j, c.source, int(c.index[k]))
-        mu = np.array(cfg.initial_model_probabilities, dtype=float)
-        log_new_target = math.log(cfg.mht_new_target_density_per_km2 * 1e-6)
-        for source, gated in ((0, leaf_pairs), (1, pairs)):
-            keys = [key for key, w in wanted.items() if w[1] == source]
-            if not keys:
-                continue
-            assert gated is not None
-            plot = np.array([wanted[key][0] for key in keys], dtype=np.int64)
-            pred = gated.pred.take(np.array([wanted[key][2] for key in keys], dtype=np.int64))
-            x, pm = neighbour_state(
-                p.take(plot), pred.x_comb[:, 2:], pred.P_comb[:, 2:, 2:],
-                cfg.birth_relative_speed_sigma_m_s,
-            )  # fmt: skip
-            for k, key in enumerate(keys):
-                j = int(plot[k])
-                code_ok = bool(p.mode3a_valid[j]) and p.mode3a[j] >= 0
-                nodes[key] = Branch(
-                    np.repeat(x[k][None], mu.size, axis=0), np.repeat(pm[k][None], mu.size, axis=0),
-                    mu, x[k], pm[k], float(p.time[j]), int(p.address[j]),
-                    int(p.mode3a[j]) if code_ok else -1, float(p.time[j]), int(p.plot_id[j]),
-                    None, log_new_target - float(log_clutter[j]),
-                )  # fmt: skip
-        for newborns, neighbour, j in born:
-            newborns.append(nodes[(id(neighbour), j)])
-
     def _keep(self, cluster: Cluster) -> None:
         """A cluster with one hypothesis left has nothing to defer: it dissolves."""
         if len(cluster.hypotheses) > 1 and len(cluster.numbers) > 0:
             self.clusters.append(cluster)
-
-
-def _add_roots(h: Hypothesis, roots: list[Branch], root_plots: list[int]) -> Hypothesis:
-    """Hypothesis ``h`` with the free tracks joining its cluster (``roots``: their table
-    states; ``root_plots``: the plots they started at). A track just started from a plot that ``h``
-    gave to no track is ``h``'s newborn of that plot (its history in ``h``); one started
-    from a plot that a track of ``h`` holds is, in ``h``, the nearest other newborn (the
-    plot ``h`` left to no track, its new aircraft): otherwise ``h`` would hold that plot
-    twice, and the hypothesis where the track kept its aircraft would lack the other."""
-    newborns = list(h.newborns)
-    held = {b.plot_id for b in h.leaves if b.plot_id >= 0}
-    leaves = list(h.leaves)
-    for root, plot_id in zip(roots, root_plots, strict=True):
-        leaf = root
-        same = [b for b in newborns if b.plot_id == plot_id]
-        if plot_id >= 0 and same:
-            newborns.remove(same[0])
-            if same[0].parent is not None:
-                leaf = same[0]  # a continued newborn: a longer history than the root's
-        elif plot_id in held and newborns:
-            distance = [float(np.hypot(*(b.xc[:2] - root.xc[:2]))) for b in newborns]
-            leaf = newborns.pop(int(np.argmin(distance)))
-        leaves.append(leaf)
-    return Hypothesis(h.score, tuple(leaves), tuple(newborns))
 
 
 def _all_lone(pairs: GatedPairs, n_tracks: int, n_plots: int) -> bool:
