@@ -256,6 +256,8 @@ def coast_orphans(state: FusionState, radar: int) -> npt.NDArray[Any]:
     "plots" IMM's prediction: its turn models, averaged, slow the mean down (a 160 m/s
     aircraft leaving cover coasted at 60 m/s after 60 s, three_sites seed 102)."""
     sys, now = state.sys, state.now
+    if state.config.orphan_coast <= 0:
+        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)  # off: no orphan, no pass over the table
     orphans = np.flatnonzero(sys["alive"] & ~np.isnan(sys["orphaned"]))
     if orphans.size == 0:
         return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
@@ -288,7 +290,9 @@ published at each of their updates: a fraction of a second apart at times)."""
 def published(state: FusionState, rows: npt.NDArray[Any]) -> None:
     """Note the rows of distinct system tracks: the pace of their rows, which an
     orphan's coasting rows keep (``due``), and their flight level, which its rows carry
-    on (with no local track left to give it)."""
+    on (with no local track left to give it). Nothing to note with orphans off."""
+    if state.config.orphan_coast <= 0:
+        return
     sys = state.sys
     rows = rows[rows["time"] > sys["t_row"][rows["system_number"]]]
     numbers, t = rows["system_number"], rows["time"]
