@@ -145,25 +145,7 @@ class MapTrack:
 
     @classmethod
     def of_message(cls, m: SystemTrackMessage) -> MapTrack:
-        return cls(
-            m.number,
-            m.time,
-            m.status,
-            m.lat,
-            m.lon,
-            m.altitude_m,
-            m.flight_level,
-            m.vx_mps,
-            m.vy_mps,
-            m.ground_speed_mps,
-            m.track_angle_deg,
-            m.covariance,
-            m.address,
-            m.callsign,
-            m.mode3a,
-            m.duplicate_address,
-            frozenset(s.radar for s in m.sources),
-        )
+        return cls.of_values(m.model_dump())
 
     @classmethod
     def of_values(cls, d: Mapping[str, Any]) -> MapTrack:
