@@ -243,17 +243,22 @@ def test_slots_are_the_references(seed: int, k: int, max_sources: int) -> None:
 def test_pre_selection_reads_sensitivities_and_biases_as_the_reference(
     seed: int, k: int, n_radars: int
 ) -> None:
-    """``nearby``'s in-place reads of M and B (association's and merging's radii) against
-    the gathers they replace; numbers repeat and skip rows, as candidates do."""
+    """``nearby``'s in-place reads of the coarse states, M and B (association's and
+    merging's radii) against the gathers they replace; numbers repeat and skip rows, as
+    candidates do."""
     compiled, _, rng = _states(seed, n_radars, max(k, 1))
     sys = compiled.sys
     sys["M"][1 : k + 1] = rng.normal(0.0, 0.5, (k, n_radars, 4, 2))
+    sys["x"][1 : k + 1] = sys["mx"][1 : k + 1, 0]
+    sys["P"][1 : k + 1] = sys["mP"][1 : k + 1, -1]
     numbers = rng.integers(1, k + 1, k) if k else np.zeros(0, dtype=np.int64)
-    t = sys["t"][numbers]
     t_mid, spread = float(rng.uniform(0.0, 10.0)), float(rng.uniform(0.0, 3.0))
-    got = nearby.system_sensitivity_norm(sys["M"], numbers, t, t_mid, spread, compiled=True)
-    want = nearby.sensitivity_norm(sys["M"][numbers], t, t_mid, spread)
-    np.testing.assert_allclose(got, want, rtol=TOLERANCE, atol=0.0)
+    for from_models in (True, False):
+        args = (from_models, float(rng.uniform(0.0, 2e4)), t_mid, spread, 16.0, 4.0, 0.05)
+        got_xy, got_r = nearby.system_reach(sys, numbers, *args, compiled=True)
+        want_xy, want_r = nearby.system_reach(sys, numbers, *args, compiled=False)
+        np.testing.assert_allclose(got_xy, want_xy, rtol=TOLERANCE, atol=0.0)
+        np.testing.assert_allclose(got_r, want_r, rtol=TOLERANCE, atol=0.0)
     got_b = nearby.system_largest_bias(sys["B"], numbers, compiled=True)
     want_b = nearby.largest_bias(sys["B"][numbers])
     assert got_b == pytest.approx(want_b, rel=TOLERANCE, abs=0.0)

@@ -258,13 +258,17 @@ def _near(
         nearby.largest_bias(loc["extra"][free]),
     )
     q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
-    x, p = estimator.coarse_state(state, candidates)
-    t_system = sys["t"][candidates]
-    sensitivity = nearby.system_sensitivity_norm(
-        sys["M"], candidates, t_system, t_mid, spread, state.compiled
-    )
-    xy_s, r_s = nearby.reach(
-        x, p, t_system, 2.0 * b * sensitivity, t_mid, spread, cfg.gate, q, turn
+    xy_s, r_s = nearby.system_reach(
+        sys,
+        candidates,
+        estimator.coarse_from_models,
+        2.0 * b,
+        t_mid,
+        spread,
+        cfg.gate,
+        q,
+        turn,
+        state.compiled,
     )
     xy_l, r_l = nearby.reach(
         loc["x"][free],

@@ -27,10 +27,10 @@ class SystemEstimator(Protocol):
         (k, 4), covariances (k, 4, 4), bias sensitivities (k, radars, 4, 2)."""
         ...
 
-    def coarse_state(self, state: FusionState, numbers: IntArray) -> tuple[FloatArray, FloatArray]:
-        """State (k, 4) and covariance (k, 4, 4) at their time that ``gate_prediction``
-        starts from: for the pre-selection of the pairs it may pass (``nearby.py``)."""
-        ...
+    coarse_from_models: bool
+    """The state ``gate_prediction`` starts from, for the pre-selection of the pairs it
+    may pass (``nearby.system_reach``): the combination of the system table's IMM models
+    (mx, mP, mu) rather than its x and P."""
 
     def absorb(
         self,

@@ -56,6 +56,7 @@ def combined_prediction(
 
 class PlotFilterEstimator:
     founder_carries_bias = True
+    coarse_from_models = True
 
     def gate_prediction(
         self, state: FusionState, numbers: IntArray, dt: FloatArray
@@ -63,10 +64,6 @@ class PlotFilterEstimator:
         """By the IMM, which follows a turn the local track's IMM follows (a constant-
         velocity prediction cut aircraft that turned out of their system tracks)."""
         return combined_prediction(state, numbers, dt)
-
-    def coarse_state(self, state: FusionState, numbers: IntArray) -> tuple[FloatArray, FloatArray]:
-        sys = state.sys
-        return imm.combine(sys["mx"][numbers], sys["mP"][numbers], sys["mu"][numbers])
 
     def absorb(
         self,

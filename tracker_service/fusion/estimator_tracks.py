@@ -61,14 +61,12 @@ class TrackFusionEstimator:
     """The whole covariance in P (M = 0): a constant-velocity prediction for the gate."""
 
     founder_carries_bias = False
+    coarse_from_models = False
 
     def gate_prediction(
         self, state: FusionState, numbers: IntArray, dt: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         return cv_prediction(state, numbers, dt)
-
-    def coarse_state(self, state: FusionState, numbers: IntArray) -> tuple[FloatArray, FloatArray]:
-        return state.sys["x"][numbers], state.sys["P"][numbers]
 
     def absorb(
         self,

@@ -23,6 +23,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.fusion.nearby import RADIUS_MARGIN_M, RADIUS_SAFETY
 from tracker_service.tracking.kernels import (
     _combine_row,
     _transition,
@@ -578,24 +579,87 @@ def slots_of(
 
 
 @numba.njit(cache=True)
-def sensitivity_norms(
-    M: FloatArray, numbers: IntArray, t: FloatArray, t_mid: float, spread: float
-) -> FloatArray:  # pragma: no cover - compiled
-    """``nearby.sensitivity_norm`` of the system tracks ``numbers`` (times t), read in
-    place from the table's field M (N, L, 4, 2): no gather of the rows' sensitivities."""
-    out = np.empty(numbers.size)
-    for k in range(numbers.size):
-        r = numbers[k]
-        position = 0.0
-        velocity = 0.0
+def system_reach(
+    x: FloatArray,
+    P: FloatArray,
+    mx: FloatArray,
+    mP: FloatArray,
+    mu: FloatArray,
+    M: FloatArray,
+    t: FloatArray,
+    numbers: IntArray,
+    from_models: bool,
+    bias_scale: float,
+    t_mid: float,
+    spread: float,
+    gate: float,
+    q_max: float,
+    turn_max: float,
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """``nearby.system_reach`` read in place from the system table's fields: the coarse
+    state (the IMM's moment-matched combination of mx, mP, mu when ``from_models``, else
+    x, P), the sensitivity norm of M and ``nearby.reach``, for every candidate, with no
+    gather of the rows' models and sensitivities (association takes every open system
+    track, each batch)."""
+    k = numbers.size
+    xy = np.empty((k, 2))
+    radius = np.empty(k)
+    xc = np.empty(4)
+    for i in range(k):
+        r = numbers[i]
+        # The entries of the covariance that ``reach`` reads: P00 + P11, P02 + P13,
+        # P22 + P33.
+        if from_models:
+            xc[:] = 0.0
+            for m in range(mu.shape[1]):
+                for a in range(4):
+                    xc[a] += mu[r, m] * mx[r, m, a]
+            pos = 0.0
+            cross = 0.0
+            vel = 0.0
+            for m in range(mu.shape[1]):
+                d0 = mx[r, m, 0] - xc[0]
+                d1 = mx[r, m, 1] - xc[1]
+                d2 = mx[r, m, 2] - xc[2]
+                d3 = mx[r, m, 3] - xc[3]
+                w = mu[r, m]
+                pos += w * (mP[r, m, 0, 0] + d0 * d0) + w * (mP[r, m, 1, 1] + d1 * d1)
+                cross += w * (mP[r, m, 0, 2] + d0 * d2) + w * (mP[r, m, 1, 3] + d1 * d3)
+                vel += w * (mP[r, m, 2, 2] + d2 * d2) + w * (mP[r, m, 3, 3] + d3 * d3)
+        else:
+            xc[:] = x[r]
+            pos = P[r, 0, 0] + P[r, 1, 1]
+            cross = P[r, 0, 2] + P[r, 1, 3]
+            vel = P[r, 2, 2] + P[r, 3, 3]
+        m_position = 0.0
+        m_velocity = 0.0
         for radar in range(M.shape[1]):
             for j in range(2):
                 for c in range(2):
-                    position += M[r, radar, j, c] * M[r, radar, j, c]
-                    velocity += M[r, radar, j + 2, c] * M[r, radar, j + 2, c]
-        a = abs(t_mid - t[k]) + spread
-        out[k] = 2.0 * (position + a * a * velocity)
-    return out
+                    m_position += M[r, radar, j, c] * M[r, radar, j, c]
+                    m_velocity += M[r, radar, j + 2, c] * M[r, radar, j + 2, c]
+        dt = t_mid - t[r]
+        a = abs(dt) + spread
+        sensitivity = 2.0 * (m_position + a * a * m_velocity)
+        var = (
+            pos
+            + 2.0 * a * abs(cross)
+            + a * a * vel
+            + 2.0 * q_max * a**3 / 3.0
+            + bias_scale * sensitivity
+        )
+        speed = math.hypot(xc[2], xc[3])
+        turn = 0.5 * speed * turn_max * a * a
+        var += turn * turn
+        radius[i] = (
+            RADIUS_SAFETY * math.sqrt(gate * max(var, 0.0))
+            + speed * spread
+            + turn
+            + RADIUS_MARGIN_M
+        )
+        xy[i, 0] = xc[0] + xc[2] * dt
+        xy[i, 1] = xc[1] + xc[3] * dt
+    return xy, radius
 
 
 @numba.njit(cache=True)

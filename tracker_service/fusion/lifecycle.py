@@ -184,20 +184,9 @@ def _merge_tests(
     q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
 
     def reach(numbers: IntArray) -> tuple[FloatArray, FloatArray]:
-        t = sys["t"][numbers]
-        sensitivity = nearby.system_sensitivity_norm(
-            sys["M"], numbers, t, t_mid, spread, state.compiled
-        )
-        return nearby.reach(
-            sys["x"][numbers],
-            sys["P"][numbers],
-            t,
-            2.0 * b_max * sensitivity,
-            t_mid,
-            spread,
-            cfg.gate,
-            q,
-            turn,
+        # The latest output state (x, P), which merging's test predicts from.
+        return nearby.system_reach(
+            sys, numbers, False, 2.0 * b_max, t_mid, spread, cfg.gate, q, turn, state.compiled
         )
 
     i, j = nearby.near_pairs(*reach(touched), *reach(alive))

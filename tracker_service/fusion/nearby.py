@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tracker_service.fusion.table import Columns
+from tracker_service.tracking import imm
 from tracker_service.tracking.associate import candidate_pairs
 from tracker_service.tracking.plots import FloatArray, IntArray
 
@@ -82,17 +84,51 @@ def sensitivity_norm(M: FloatArray, t: FloatArray, t_mid: float, spread: float) 
     return np.asarray(2.0 * (position + a * a * velocity), dtype=np.float64)
 
 
-def system_sensitivity_norm(
-    M: FloatArray, numbers: IntArray, t: FloatArray, t_mid: float, spread: float, compiled: bool
-) -> FloatArray:
-    """``sensitivity_norm`` of the system tracks ``numbers`` from the table's field M
-    (N, radars, 4, 2); compiled: read in place (a row's M is a kilobyte or more, and
-    association takes every open system track)."""
-    if not compiled:
-        return sensitivity_norm(M[numbers], t, t_mid, spread)
-    from tracker_service.fusion.kernels import sensitivity_norms  # numba only when compiled
+def system_reach(
+    sys: Columns,
+    numbers: IntArray,
+    from_models: bool,
+    bias_scale: float,
+    t_mid: float,
+    spread: float,
+    gate: float,
+    q_max: float,
+    turn_max: float,
+    compiled: bool,
+) -> tuple[FloatArray, FloatArray]:
+    """``reach`` of the system tracks ``numbers`` from their coarse state at their time
+    (the IMM's combined models when ``from_models``, else x and P: the state the
+    estimator's gate predicts from), their bias term ``bias_scale`` times their
+    ``sensitivity_norm``; compiled: read in place by one kernel (a row's models and
+    sensitivities are a kilobyte or more, and association takes every open system
+    track each batch)."""
+    if compiled:
+        from tracker_service.fusion.kernels import system_reach as kernel  # numba on use
 
-    return sensitivity_norms(M, _indices(numbers), _floats(t), t_mid, spread)
+        return kernel(
+            sys["x"],
+            sys["P"],
+            sys["mx"],
+            sys["mP"],
+            sys["mu"],
+            sys["M"],
+            sys["t"],
+            _indices(numbers),
+            from_models,
+            bias_scale,
+            t_mid,
+            spread,
+            gate,
+            q_max,
+            turn_max,
+        )
+    if from_models:
+        x, p = imm.combine(sys["mx"][numbers], sys["mP"][numbers], sys["mu"][numbers])
+    else:
+        x, p = sys["x"][numbers], sys["P"][numbers]
+    t = sys["t"][numbers]
+    sensitivity = sensitivity_norm(sys["M"][numbers], t, t_mid, spread)
+    return reach(x, p, t, bias_scale * sensitivity, t_mid, spread, gate, q_max, turn_max)
 
 
 def system_largest_bias(B: FloatArray, numbers: IntArray, compiled: bool) -> float:
@@ -106,10 +142,6 @@ def system_largest_bias(B: FloatArray, numbers: IntArray, compiled: bool) -> flo
 
 def _indices(numbers: IntArray) -> IntArray:
     return np.ascontiguousarray(numbers, dtype=np.int64)
-
-
-def _floats(values: FloatArray) -> FloatArray:
-    return np.ascontiguousarray(values, dtype=np.float64)
 
 
 def near_pairs(
