@@ -22,7 +22,7 @@ from tracker_service.fusion.messages import (
     SYSTEM_UPDATE_DTYPE,
 )
 from tracker_service.fusion.ml import predict_cv
-from tracker_service.fusion.rows import system_rows
+from tracker_service.fusion.rows import joined, system_rows
 from tracker_service.fusion.state import FusionState
 from tracker_service.tracking.models import cv_transition
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray, is_shared_code
@@ -258,7 +258,7 @@ def coast_orphans(state: FusionState, radar: int) -> npt.NDArray[Any]:
     ]
     _release(state, ending)
     published(state, out[0])
-    return np.concatenate(out)
+    return joined(out)
 
 
 def due(state: FusionState, numbers: IntArray) -> BoolArray:

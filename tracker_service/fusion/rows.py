@@ -47,6 +47,21 @@ def emit(
     return out
 
 
+def joined(parts: list[npt.NDArray[Any]]) -> npt.NDArray[Any]:
+    """The rows of ``parts`` (``SYSTEM_UPDATE_DTYPE``, fresh arrays) one after another:
+    the one part with rows as it is, several joined as bytes. ``np.concatenate`` promotes
+    a structured dtype field by field in Python (about 75 us a call, three calls a batch)."""
+    full = [p for p in parts if len(p)]
+    if not full:
+        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
+    if len(full) == 1:
+        return full[0]
+    raw = np.concatenate(
+        [np.ascontiguousarray(p, dtype=SYSTEM_UPDATE_DTYPE).view(np.uint8) for p in full]
+    )
+    return raw.view(SYSTEM_UPDATE_DTYPE)
+
+
 def system_rows(
     state: FusionState,
     numbers: IntArray,

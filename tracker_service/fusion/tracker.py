@@ -105,7 +105,7 @@ class SystemTracker:
             state.stats.out_of_line_updates += int(np.count_nonzero(~step.accepted))
             u, extra = u[step.accepted], extra[step.accepted]
             if len(u) == 0:
-                return np.concatenate([*out, self._expire(radar)])
+                return rows.joined([*out, self._expire(radar)])
         state.now = self.clock.now
         local_rows = table.find(radar, u)
         known = local_rows >= 0
@@ -131,7 +131,7 @@ class SystemTracker:
         out.append(lifecycle.orphan(state, radar, np.union1d(old_system, systems)))
         out.append(self._expire(radar))
         table.compact()
-        result = np.concatenate(out)
+        result = rows.joined(out)
         state.stats.rows += len(result)
         return result
 
@@ -169,7 +169,7 @@ class SystemTracker:
 
     def _expire(self, radar: int) -> npt.NDArray[Any]:
         """The orphans' coasting and last rows, and the silent system tracks' ends."""
-        return np.concatenate(
+        return rows.joined(
             [
                 lifecycle.coast_orphans(self.state, radar),
                 lifecycle.end_silent(self.state, radar),
