@@ -16,7 +16,14 @@ from hypothesis import strategies as st
 
 from tests.test_fusion import AIRCRAFT, RADARS, build
 from tests.test_tracking_kernels import TOLERANCE, close
-from tracker_service.fusion import FusionConfig, SystemTracker, consider, estimator_plots, nearby
+from tracker_service.fusion import (
+    FusionConfig,
+    SystemTracker,
+    associate,
+    consider,
+    estimator_plots,
+    nearby,
+)
 from tracker_service.fusion.estimator_tracks import fuse_local_tracks
 from tracker_service.fusion.state import FusionState
 from tracker_service.fusion.table import LocalTrackTable
@@ -263,3 +270,21 @@ def test_pre_selection_reads_sensitivities_and_biases_as_the_reference(
     want_b = nearby.largest_bias(sys["B"][numbers])
     assert got_b == pytest.approx(want_b, rel=TOLERANCE, abs=0.0)
     assert nearby.system_largest_bias(sys["B"], numbers, compiled=False) == want_b
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=SIZES, n_radars=st.integers(min_value=1, max_value=5))
+def test_gate_distances_are_the_reference(seed: int, k: int, n_radars: int) -> None:
+    """The association gate's distances in one compiled pass (``kernels.gate_distances``)
+    against ``associate.distance``'s numpy path: pairs of any local track (of any radar)
+    with any system track, numbers repeating, steps backwards and forwards."""
+    compiled, reference, rng = _states(seed, n_radars, k)
+    local = compiled.local.rows
+    local["radar"][:k] = rng.integers(0, n_radars, k)
+    pairs = 2 * k
+    rows = rng.integers(0, k, pairs)
+    numbers = rng.integers(1, k + 1, pairs)
+    estimator = estimator_plots.PlotFilterEstimator()
+    got = associate.distance(compiled, estimator, rows, numbers)
+    want = associate.distance(reference, estimator, rows, numbers)
+    np.testing.assert_allclose(got, want, rtol=TOLERANCE, atol=0.0)

@@ -305,6 +305,30 @@ def distance(
     if local.size == 0:
         return np.zeros(0)
     loc, sys = state.local.rows, state.sys
+    if state.compiled and estimator.coarse_from_models:
+        # The "plots" estimator's gate prediction, from the table's IMM models: the whole
+        # test in one pass over the pairs (``kernels.gate_distances``).
+        from tracker_service.fusion.kernels import gate_distances  # numba only when compiled
+
+        c = state.model_constants
+        return gate_distances(
+            sys["mx"],
+            sys["mP"],
+            sys["mM"],
+            sys["mu"],
+            sys["t"],
+            sys["B"],
+            loc["t"],
+            loc["x"],
+            loc["P"],
+            loc["extra"],
+            loc["radar"],
+            np.ascontiguousarray(local, dtype=np.int64),
+            np.ascontiguousarray(system, dtype=np.int64),
+            c.omega,
+            c.q,
+            c.sojourn,
+        )
     t = loc["t"][local]
     dt = t - sys["t"][system]
     xs, ps, moved = estimator.gate_prediction(state, system, dt)

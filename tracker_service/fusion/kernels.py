@@ -170,6 +170,109 @@ def consider_predict(
 
 
 @numba.njit(cache=True)
+def gate_distances(
+    mx: FloatArray,
+    mP: FloatArray,
+    mM: FloatArray,
+    mu: FloatArray,
+    sys_t: FloatArray,
+    B: FloatArray,
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    loc_extra: FloatArray,
+    loc_radar: IntArray,
+    local: IntArray,
+    system: IntArray,
+    omega: FloatArray,
+    q: FloatArray,
+    sojourn: FloatArray,
+) -> FloatArray:  # pragma: no cover - compiled
+    """``associate.distance`` with the "plots" estimator's gate prediction, pair by pair
+    from the tables in place: system track system[r]'s IMM predicted to local track
+    local[r]'s time (``consider_predict``), the residual biases' share of the pair's
+    difference (the local track carries its radar's bias whole, the system track its
+    sensitivities M to each radar's), the 4-dof chi-square distance by an LU solve."""
+    k, m, n_radars = local.size, mx.shape[1], mM.shape[2]
+    xp = np.empty((1, m, 4))
+    pp = np.empty((1, m, 4, 4))
+    mp = np.empty((1, m, n_radars, 4, 2))
+    c = np.empty((1, m))
+    one_x = np.empty((1, 4))
+    one_p = np.empty((1, 4, 4))
+    one_m = np.empty((1, n_radars, 4, 2))
+    d = np.empty(4)
+    s = np.empty((4, 4))
+    g = np.empty((4, 2))
+    gb = np.empty((4, 2))
+    out = np.empty(k)
+    for r in range(k):
+        n, row = system[r], local[r]
+        _predict_track(
+            mx, mP, mM, mu, n, loc_t[row] - sys_t[n], omega, q, sojourn, xp, pp, mp, c, 0
+        )
+        _combine_row(xp, pp, c, 0, one_x, one_p, d)
+        _combine_sensitivities(mp, c, 0, one_m)
+        radar = loc_radar[row]
+        for a in range(4):
+            for b in range(4):
+                s[a, b] = loc_P[row, a, b] + one_p[0, a, b]
+        for sensor in range(n_radars):
+            # g = [sensor == radar] POSITION - M_sensor; the local track's own radar's
+            # bias covariance is its own (extra), the others' the system track's.
+            for a in range(4):
+                for b in range(2):
+                    g[a, b] = -one_m[0, sensor, a, b]
+            if sensor == radar:
+                g[0, 0] += 1.0
+                g[1, 1] += 1.0
+            for a in range(4):
+                for b in range(2):
+                    if sensor == radar:
+                        gb[a, b] = g[a, 0] * loc_extra[row, 0, b] + g[a, 1] * loc_extra[row, 1, b]
+                    else:
+                        gb[a, b] = g[a, 0] * B[n, sensor, 0, b] + g[a, 1] * B[n, sensor, 1, b]
+            for a in range(4):
+                for b in range(4):
+                    s[a, b] += gb[a, 0] * g[b, 0] + gb[a, 1] * g[b, 1]
+        for a in range(4):
+            d[a] = loc_x[row, a] - one_x[0, a]
+        out[r] = _quadratic_form_lu(s, d)
+    return out
+
+
+@numba.njit(cache=True)
+def _quadratic_form_lu(s: FloatArray, d: FloatArray) -> float:  # pragma: no cover - compiled
+    """d^T s^-1 d for a 4x4 s by Gaussian elimination with partial pivoting (LAPACK's
+    gesv, as ``np.linalg.solve``); s is overwritten."""
+    y = d.copy()
+    for col in range(4):
+        pivot = col
+        for r in range(col + 1, 4):
+            if abs(s[r, col]) > abs(s[pivot, col]):
+                pivot = r
+        if pivot != col:
+            for b in range(4):
+                s[col, b], s[pivot, b] = s[pivot, b], s[col, b]
+            y[col], y[pivot] = y[pivot], y[col]
+        for r in range(col + 1, 4):
+            factor = s[r, col] / s[col, col]
+            for b in range(col, 4):
+                s[r, b] -= factor * s[col, b]
+            y[r] -= factor * y[col]
+    total = 0.0
+    solution = np.empty(4)
+    for a in range(3, -1, -1):
+        acc = y[a]
+        for b in range(a + 1, 4):
+            acc -= s[a, b] * solution[b]
+        solution[a] = acc / s[a, a]
+    for a in range(4):
+        total += d[a] * solution[a]
+    return total
+
+
+@numba.njit(cache=True)
 def bias_share(M: FloatArray, B: FloatArray) -> FloatArray:  # pragma: no cover - compiled
     """``consider.bias_share``: sum_l M_l B_l M_l^T (k, 4, 4) for M (k, L, 4, 2), B (k, L, 2, 2)."""
     k, n_radars = M.shape[0], M.shape[1]
