@@ -6,6 +6,7 @@ two fusers, one of each implementation, side by side on three radars' traffic.""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from typing import Any
 
 import numpy as np
@@ -288,3 +289,17 @@ def test_gate_distances_are_the_reference(seed: int, k: int, n_radars: int) -> N
     got = associate.distance(compiled, estimator, rows, numbers)
     want = associate.distance(reference, estimator, rows, numbers)
     np.testing.assert_allclose(got, want, rtol=TOLERANCE, atol=0.0)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, sizes=st.lists(st.integers(min_value=0, max_value=300), max_size=12))
+def test_segment_sums_are_numpy_sums_to_the_bit(seed: int, sizes: list[int]) -> None:
+    """The exchange test's per-pair sums by segments (``kernels.segment_sums``): the bits
+    of ``values[lo:hi].sum()`` of every slice, lengths across numpy's pairwise blocks."""
+    from tracker_service.fusion.kernels import segment_sums
+
+    rng = np.random.default_rng(seed)
+    ends = np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)]).astype(np.int64)
+    values = rng.normal(0.0, 1.0, int(ends[-1])) * 10.0 ** rng.uniform(-3, 6, int(ends[-1]))
+    want = [values[lo:hi].sum() for lo, hi in itertools.pairwise(ends.tolist())]
+    assert segment_sums(values, ends).tolist() == want

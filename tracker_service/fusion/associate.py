@@ -5,6 +5,8 @@ already feed a system track (demoted, or out of the gate too often: they leave i
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from tracker_service.fusion import consider, nearby
@@ -103,67 +105,38 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     other = sj != loc["system"][li]
     li, sj = li[other], sj[other]
     involved = feeding[np.isin(used["system"][feeding], np.union1d(sj, loc["system"][li]))]
-    feeders: dict[tuple[int, int], int] = {}
-    others: dict[int, list[tuple[int, int]]] = {}
-    for row, number, radar in zip(
-        involved.tolist(),
-        used["system"][involved].tolist(),
-        used["radar"][involved].tolist(),
-        strict=True,
-    ):
-        feeders.setdefault((number, radar), row)
-        others.setdefault(number, []).append((row, radar))
-    # The pairs and their witnesses first, then every distance in two batched calls: one
-    # call per pair cost 60 % of the whole chain on ``scale``.
-    rows_of: dict[tuple[int, int], tuple[int, int]] = {}
-    closer: list[int] = []  # per vote: the track the witness should be closer to ...
-    farther: list[int] = []  # ... than to this one, for the exchange to be favoured
-    witness: list[int] = []
-    ends = [0]
-    key_of = dict(zip(involved.tolist(), used["key"][involved].tolist(), strict=True))
-    for a, ka, there, radar, here in zip(
-        li.tolist(),
-        loc["key"][li].tolist(),
-        sj.tolist(),
-        loc["radar"][li].tolist(),
-        loc["system"][li].tolist(),
-        strict=True,
-    ):
-        b = feeders.get((there, radar))
-        if b is None:
-            continue
-        kb = key_of[b]
-        pair = (min(ka, kb), max(ka, kb))
-        if pair in rows_of:
-            continue  # both tracks in this batch: the same pair
-        m = [r for r, radar_m in others[here] if radar_m != radar]
-        m2 = [r for r, radar_m in others[there] if radar_m != radar]
-        if not m or not m2:
-            continue  # nothing else to tell the two assignments apart
-        rows_of[pair] = (a, b)
-        # S's others should be farther from l than from l', S''s from l' than from l.
-        closer += [a] * len(m) + [b] * len(m2)
-        farther += [b] * len(m) + [a] * len(m2)
-        witness += m + m2
-        ends.append(len(witness))
-    all_votes = np.zeros(0)
-    if witness:
-        m_all = np.array(witness, dtype=np.int64)
-        all_votes = track_distance(state, np.array(closer, dtype=np.int64), m_all)
-        all_votes -= track_distance(state, np.array(farther, dtype=np.int64), m_all)
+    # The pairs and their witnesses by array operations, then every distance in two
+    # batched calls (one call per pair cost 60 % of the whole chain on ``scale``, the
+    # pairs built in Python a third of the fuser).
+    pair_a, pair_b, closer, farther, witness, ends = _exchange_witnesses(state, li, sj, involved)
+    rows_of = {
+        (min(ka, kb), max(ka, kb)): (a, b)
+        for a, b, ka, kb in zip(
+            pair_a.tolist(),
+            pair_b.tolist(),
+            loc["key"][pair_a].tolist(),
+            loc["key"][pair_b].tolist(),
+            strict=True,
+        )
+    }
+    deltas: list[float] = []
+    favoured: list[bool] = []
+    if witness.size:
+        all_votes = track_distance(state, closer, witness)
+        all_votes -= track_distance(state, farther, witness)
+        deltas = _segment_sums(state, all_votes, ends).tolist()
+        favoured = np.logical_and.reduceat(all_votes > 0, ends[:-1]).tolist()
     fresh: dict[tuple[int, int], ExchangeEvidence] = {}
-    for k, pair in enumerate(rows_of):
+    for pair, delta, all_favour in zip(rows_of, deltas, favoured, strict=True):
         # Every other radar's track must favour it (in EXCHANGE_AGREEMENT of the
         # updates): where the system tracks are mixtures (each radar's first joins made
         # at one moment), an exchange that one of them opposes moves the mixture around
         # instead of undoing it (PAR10 with a shared code).
-        votes = all_votes[ends[k] : ends[k + 1]]
-        delta = float(votes.sum())
         n, mean, agree = evidence.get(pair) or (0, 0.0, 0.0)
         n += 1
         weight = 1.0 / min(n, cfg.reassociate_window)
         mean += (delta - mean) * weight
-        agree += (float((votes > 0).all()) - agree) * weight
+        agree += (float(all_favour) - agree) * weight
         fresh[pair] = (n, mean, agree)
     # A pair's evidence lives while it is tested in a row: a pair of a tested track not
     # tested now is out of reach (a coasting update, no plot, tests nothing).
@@ -181,6 +154,81 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         done.update(pair)
         state.stats.exchanges += 1
     evidence.drop(done)
+
+
+def _exchange_witnesses(
+    state: FusionState, li: IntArray, sj: IntArray, involved: IntArray
+) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray, IntArray]:
+    """The exchange test's pairs and votes. For each candidate (local row li[i] of radar
+    r in system track S, near system track sj[i] = S'), l' is the first row of
+    ``involved`` (the confirmed rows feeding S and S', ascending) of radar r in S'; the
+    pair (l, l') is kept the first time it comes (each of its tracks' candidates names
+    it) and only when other radars' rows feed both S and S'. Returns the pairs' rows l
+    and l', then per vote the track its witness should be closer to, the one it should
+    be farther from and the witness (S's other feeders, then S''s, in ``involved``'s
+    order), and the bounds of each pair's votes (``ends``, from 0)."""
+    loc = state.local.rows
+    empty = np.zeros(0, dtype=np.int64)
+    if li.size == 0 or involved.size == 0:
+        return empty, empty, empty, empty, empty, np.zeros(1, dtype=np.int64)
+    radars = np.int64(state.n_radars)
+    system, radar = loc["system"][involved], loc["radar"][involved]
+    here, own = loc["system"][li], loc["radar"][li]
+    # Every S and S' is fed by a row of ``involved`` (l itself, or the row that made S'
+    # a candidate): ``numbers`` holds them all.
+    codes, first, per_code = np.unique(
+        system * radars + radar, return_index=True, return_counts=True
+    )
+    by_system = np.argsort(system, kind="stable")
+    numbers, start, per_system = np.unique(system[by_system], return_index=True, return_counts=True)
+
+    def own_radar_rows(number: IntArray) -> tuple[IntArray, BoolArray]:
+        """Where (number, the candidate's radar) is in ``codes``, and whether it is."""
+        code = number * radars + own
+        at = np.minimum(np.searchsorted(codes, code), codes.size - 1)
+        return at, codes[at] == code
+
+    def other_radar_rows(number: IntArray) -> IntArray:
+        at, present = own_radar_rows(number)
+        return per_system[np.searchsorted(numbers, number)] - np.where(present, per_code[at], 0)
+
+    at, found = own_radar_rows(sj)
+    valid = np.flatnonzero(found & (other_radar_rows(here) > 0) & (other_radar_rows(sj) > 0))
+    ka, kb = loc["key"][li[valid]], loc["key"][involved[first[at[valid]]]]
+    low, high = np.minimum(ka, kb), np.maximum(ka, kb)
+    order = np.lexsort((valid, high, low))
+    first_of_pair = np.ones(valid.size, dtype=bool)
+    first_of_pair[1:] = (low[order][1:] != low[order][:-1]) | (high[order][1:] != high[order][:-1])
+    valid = valid[np.sort(order[first_of_pair])]
+    a, b = li[valid], involved[first[at[valid]]]
+    if a.size == 0:
+        return empty, empty, empty, empty, empty, np.zeros(1, dtype=np.int64)
+    # Two segments a pair (S's feeders, then S''s) of the rows grouped by system track
+    # in ``involved``'s order; the candidate's own radar's rows left out.
+    segment_number = np.column_stack([here[valid], sj[valid]]).reshape(-1)
+    group = np.searchsorted(numbers, segment_number)
+    size = per_system[group]
+    segment = np.repeat(np.arange(segment_number.size), size)
+    offset = np.arange(segment.size) - np.repeat(np.cumsum(size) - size, size)
+    witness = involved[by_system[start[group][segment] + offset]]
+    pair = segment // 2
+    other = loc["radar"][witness] != own[valid][pair]
+    witness, pair, of_s = witness[other], pair[other], segment[other] % 2 == 0
+    closer = np.where(of_s, a[pair], b[pair])
+    farther = np.where(of_s, b[pair], a[pair])
+    ends = np.zeros(a.size + 1, dtype=np.int64)
+    ends[1:] = np.cumsum(np.bincount(pair, minlength=a.size))
+    return a, b, closer, farther, witness, ends
+
+
+def _segment_sums(state: FusionState, values: FloatArray, ends: IntArray) -> FloatArray:
+    """Each segment's ``values[ends[k]:ends[k + 1]].sum()``, to the bit (numpy's pairwise
+    summation: compiled, ``kernels.segment_sums``)."""
+    if state.compiled:
+        from tracker_service.fusion.kernels import segment_sums  # numba only when compiled
+
+        return segment_sums(values, ends)
+    return np.array([values[lo:hi].sum() for lo, hi in itertools.pairwise(ends.tolist())])
 
 
 def track_distance(state: FusionState, a: IntArray, b: IntArray) -> FloatArray:

@@ -783,3 +783,45 @@ class ModelConstants:
         self.omega = np.ascontiguousarray(models.turn_rates_rad_s, dtype=np.float64)
         self.q = np.ascontiguousarray(models.q, dtype=np.float64)
         self.sojourn = np.ascontiguousarray(models.mean_sojourn_s, dtype=np.float64)
+
+
+PAIRWISE_BLOCK = 128
+"""numpy's ``PW_BLOCKSIZE``: its float sum splits runs longer than this in halves."""
+
+
+@numba.njit(cache=True)
+def _pairwise_sum(values: FloatArray, lo: int, n: int) -> float:  # pragma: no cover - compiled
+    """``values[lo:lo + n].sum()`` as numpy computes it (``pairwise_sum`` in its loops:
+    a plain loop below 8 terms, eight running sums up to a block, halves beyond), so
+    that a sum by segments is the bits of a sum per slice."""
+    if n < 8:
+        total = 0.0
+        for i in range(n):
+            total += values[lo + i]
+        return total
+    if n <= PAIRWISE_BLOCK:
+        r = np.empty(8)
+        for j in range(8):
+            r[j] = values[lo + j]
+        i = 8
+        while i < n - n % 8:
+            for j in range(8):
+                r[j] += values[lo + i + j]
+            i += 8
+        total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            total += values[lo + i]
+            i += 1
+        return float(total)
+    half = n // 2
+    half -= half % 8
+    return float(_pairwise_sum(values, lo, half) + _pairwise_sum(values, lo + half, n - half))
+
+
+@numba.njit(cache=True)
+def segment_sums(values: FloatArray, ends: IntArray) -> FloatArray:  # pragma: no cover - compiled
+    """``values[ends[k]:ends[k + 1]].sum()`` for each k, to the bit."""
+    out = np.empty(ends.size - 1)
+    for k in range(ends.size - 1):
+        out[k] = _pairwise_sum(values, ends[k], ends[k + 1] - ends[k])
+    return out
