@@ -303,3 +303,15 @@ def test_segment_sums_are_numpy_sums_to_the_bit(seed: int, sizes: list[int]) -> 
     values = rng.normal(0.0, 1.0, int(ends[-1])) * 10.0 ** rng.uniform(-3, 6, int(ends[-1]))
     want = [values[lo:hi].sum() for lo, hi in itertools.pairwise(ends.tolist())]
     assert segment_sums(values, ends).tolist() == want
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=SIZES)
+def test_track_distances_are_the_reference(seed: int, k: int) -> None:
+    """The exchange test's distances between local tracks (``kernels.track_distances``)
+    against ``associate.track_distance``'s numpy path, steps both ways."""
+    compiled, reference, rng = _states(seed, 2, k)
+    a, b = rng.integers(0, k, 3 * k), rng.integers(0, k, 3 * k)
+    got = associate.track_distance(compiled, a, b)
+    want = associate.track_distance(reference, a, b)
+    np.testing.assert_allclose(got, want, rtol=TOLERANCE, atol=0.0)

@@ -236,6 +236,18 @@ def track_distance(state: FusionState, a: IntArray, b: IntArray) -> FloatArray:
     times, b predicted there (constant velocity), both radars' residual biases in the
     covariance."""
     loc = state.local.rows
+    if state.compiled:
+        from tracker_service.fusion.kernels import track_distances  # numba only when compiled
+
+        return track_distances(
+            loc["t"],
+            loc["x"],
+            loc["P"],
+            loc["extra"],
+            np.ascontiguousarray(a, dtype=np.int64),
+            np.ascontiguousarray(b, dtype=np.int64),
+            state.config.q,
+        )
     xb, pb = predict_cv(loc["x"][b], loc["P"][b], loc["t"][a] - loc["t"][b], state.config.q)
     d = loc["x"][a] - xb
     s = loc["P"][a] + pb

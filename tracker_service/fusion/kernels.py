@@ -242,6 +242,43 @@ def gate_distances(
 
 
 @numba.njit(cache=True)
+def track_distances(
+    t: FloatArray,
+    x: FloatArray,
+    P: FloatArray,
+    extra: FloatArray,
+    a: IntArray,
+    b: IntArray,
+    q: float,
+) -> FloatArray:  # pragma: no cover - compiled
+    """``associate.track_distance`` from the local table's fields in place: local track
+    b[r] predicted to a[r]'s time at constant velocity (process noise q), both radars'
+    residual biases (``extra``) in the covariance, the 4-dof chi-square distance."""
+    out = np.empty(a.size)
+    f = np.eye(4)
+    fp = np.empty((4, 4))
+    xb = np.empty(4)
+    s = np.empty((4, 4))
+    d = np.empty(4)
+    for r in range(a.size):
+        i, j = a[r], b[r]
+        step = t[i] - t[j]
+        f[0, 2] = step
+        f[1, 3] = step
+        propagate(f, x[j], P[j], fp, xb, s)
+        add_white_acceleration_q(s, step, q)
+        for e in range(4):
+            d[e] = x[i, e] - xb[e]
+            for c in range(4):
+                s[e, c] += P[i, e, c]
+        for e in range(2):
+            for c in range(2):
+                s[e, c] += extra[i, e, c] + extra[j, e, c]
+        out[r] = _quadratic_form_lu(s, d)
+    return out
+
+
+@numba.njit(cache=True)
 def _quadratic_form_lu(s: FloatArray, d: FloatArray) -> float:  # pragma: no cover - compiled
     """d^T s^-1 d for a 4x4 s by Gaussian elimination with partial pivoting (LAPACK's
     gesv, as ``np.linalg.solve``); s is overwritten."""
