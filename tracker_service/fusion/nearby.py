@@ -148,6 +148,12 @@ def near_pairs(
     xy_a: FloatArray, radius_a: FloatArray, xy_b: FloatArray, radius_b: FloatArray
 ) -> tuple[IntArray, IntArray]:
     """(i, j) with a[i] and b[j] closer than the sum of their radii, sorted by (i, j)."""
-    i, j = candidate_pairs(xy_a, radius_a, xy_b, radius_b)
+    if xy_a.shape[0] >= xy_b.shape[0]:
+        i, j = candidate_pairs(xy_a, radius_a, xy_b, radius_b)
+    else:
+        # The box around the smaller set (a batch's few local or touched tracks) leaves
+        # the larger set's tracks near it before any tree is built: a tree of every open
+        # system track per batch cost more than the rest of the pre-selection.
+        j, i = candidate_pairs(xy_b, radius_b, xy_a, radius_a)
     order = np.lexsort((j, i))
     return i[order], j[order]
