@@ -32,6 +32,17 @@ def positions(ids: IntArray, wanted: IntArray) -> IntArray:
     return np.where(ids[order][pos] == wanted, order[pos], -1)
 
 
+def is_member(values: IntArray, members: IntArray) -> BoolArray:
+    """``np.isin(values, members)`` by binary search in the sorted members: for a table's
+    column against a batch's few values, where ``np.isin`` makes a pass over the column
+    per member (or sorts both)."""
+    if members.size == 0:
+        return np.zeros(values.shape, dtype=bool)
+    ordered = np.sort(members)
+    at = np.minimum(np.searchsorted(ordered, values), ordered.size - 1)
+    return np.asarray(ordered[at] == values, dtype=bool)
+
+
 def first_where(mask: BoolArray) -> IntArray:
     """Column of the first true entry per row (0 when none)."""
     return np.asarray(np.argmax(mask, axis=1), dtype=np.int64)

@@ -10,6 +10,7 @@ import itertools
 import numpy as np
 
 from tracker_service.fusion import consider, nearby
+from tracker_service.fusion.arrays import is_member
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import TrackFusionEstimator
 from tracker_service.fusion.ml import predict_cv
@@ -104,7 +105,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     li, sj = _near(state, estimator, confirmed, np.unique(used["system"][feeding]))
     other = sj != loc["system"][li]
     li, sj = li[other], sj[other]
-    involved = feeding[np.isin(used["system"][feeding], np.union1d(sj, loc["system"][li]))]
+    involved = feeding[is_member(used["system"][feeding], np.union1d(sj, loc["system"][li]))]
     # The pairs and their witnesses by array operations, then every distance in two
     # batched calls (one call per pair cost 60 % of the whole chain on ``scale``, the
     # pairs built in Python a third of the fuser).

@@ -12,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion import consider, nearby
+from tracker_service.fusion.arrays import is_member
 from tracker_service.fusion.associate import compatible_pairs
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import cv_prediction
@@ -107,7 +108,7 @@ def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> 
     if joined.size == 0:
         return
     same = np.flatnonzero(
-        loc["alive"][:n] & (loc["radar"][:n] == radar) & np.isin(loc["system"][:n], target)
+        loc["alive"][:n] & (loc["radar"][:n] == radar) & is_member(loc["system"][:n], target)
     )
     loc["system"][same] = 0
     loc["system"][joined] = target
@@ -215,8 +216,8 @@ def _identity_candidates(state: FusionState, touched: IntArray, alive: IntArray)
     sys = state.sys
     address, code = sys["address"][touched], sys["mode3a"][touched]
     other_address, other_code = sys["address"][alive], sys["mode3a"][alive]
-    address_ok = (other_address < 0) | np.isin(other_address, address) | bool((address < 0).any())
-    code_ok = (other_code < 0) | np.isin(other_code, code) | bool((code < 0).any())
+    address_ok = (other_address < 0) | is_member(other_address, address) | bool((address < 0).any())
+    code_ok = (other_code < 0) | is_member(other_code, code) | bool((code < 0).any())
     return alive[address_ok & code_ok]
 
 

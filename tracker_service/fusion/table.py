@@ -114,7 +114,7 @@ class Columns:
     @overload
     def __getitem__(self, key: slice | npt.NDArray[Any]) -> Columns: ...
     def __getitem__(self, key: str | slice | npt.NDArray[Any]) -> npt.NDArray[Any] | Columns:
-        if isinstance(key, str):
+        if key.__class__ is str:  # the usual key: ahead of the isinstance machinery
             return self._columns[key]
         return Columns(self.dtype, {n: c[key] for n, c in self._columns.items()})
 
