@@ -31,7 +31,7 @@ from tracker_service.tracking.kernels import (
     propagate,
 )
 from tracker_service.tracking.models import ModelSet
-from tracker_service.tracking.plots import FloatArray, IntArray
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
 LOG_2PI = math.log(2.0 * math.pi)
 TINY = 1e-300
@@ -53,10 +53,12 @@ def _predict_track(
     mp: FloatArray,
     c: FloatArray,
     r: int,
+    active: BoolArray,
 ) -> None:  # pragma: no cover - compiled
     """``consider.predict`` of system track n (rows of the table's fields mx, mP, mM, mu)
     over ``step``: per-model states, covariances, sensitivities and predicted
-    probabilities into row r of xp (k, M, 4), pp (k, M, 4, 4), mp (k, M, L, 4, 2), c (k, M)."""
+    probabilities into row r of xp (k, M, 4), pp (k, M, 4, 4), mp (k, M, L, 4, 2), c (k, M);
+    the sensitivities only to the radars ``active`` (L,) (the others' left unset)."""
     m = mx.shape[1]
     n_radars = mM.shape[2]
     t = abs(step)
@@ -103,6 +105,8 @@ def _predict_track(
                 for b in range(4):
                     p0[a, b] += wij * mP[n, i, a, b] + wij * d[a] * d[b]
             for sensor in range(n_radars):
+                if not active[sensor]:
+                    continue
                 for a in range(4):
                     m0[sensor, a, 0] += wij * mM[n, i, sensor, a, 0]
                     m0[sensor, a, 1] += wij * mM[n, i, sensor, a, 1]
@@ -110,6 +114,8 @@ def _predict_track(
         propagate(f, x0, p0, fp, xp[r, j], pp[r, j])
         add_white_acceleration_q(pp[r, j], step, q[j])
         for sensor in range(n_radars):
+            if not active[sensor]:
+                continue
             for a in range(4):
                 for b in range(2):
                     acc = 0.0
@@ -159,8 +165,11 @@ def consider_predict(
     one_p = np.empty((1, 4, 4))
     one_m = np.empty((1, n_radars, 4, 2))
     d = np.empty(4)
+    every = np.ones(n_radars, dtype=np.bool_)
     for r in range(k):
-        _predict_track(mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0)
+        _predict_track(
+            mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, every
+        )
         _combine_row(xp, pp, c, 0, one_x, one_p, d)
         _combine_sensitivities(mp, c, 0, one_m)
         xc[r] = one_x[0]
@@ -200,29 +209,43 @@ def gate_distances(
     c = np.empty((1, m))
     one_x = np.empty((1, 4))
     one_p = np.empty((1, 4, 4))
-    one_m = np.empty((1, n_radars, 4, 2))
     d = np.empty(4)
     s = np.empty((4, 4))
     g = np.empty((4, 2))
     gb = np.empty((4, 2))
     out = np.empty(k)
+    active = np.empty(n_radars, dtype=np.bool_)
     for r in range(k):
         n, row = system[r], local[r]
+        radar = loc_radar[row]
+        # A radar whose residual bias the system track holds none of (B = 0: none of its
+        # plots updated it) adds nothing to S: its sensitivities are not predicted.
+        for sensor in range(n_radars):
+            active[sensor] = sensor == radar or (
+                B[n, sensor, 0, 0] != 0.0
+                or B[n, sensor, 0, 1] != 0.0
+                or B[n, sensor, 1, 0] != 0.0
+                or B[n, sensor, 1, 1] != 0.0
+            )
         _predict_track(
-            mx, mP, mM, mu, n, loc_t[row] - sys_t[n], omega, q, sojourn, xp, pp, mp, c, 0
+            mx, mP, mM, mu, n, loc_t[row] - sys_t[n], omega, q, sojourn, xp, pp, mp, c, 0, active
         )
         _combine_row(xp, pp, c, 0, one_x, one_p, d)
-        _combine_sensitivities(mp, c, 0, one_m)
-        radar = loc_radar[row]
         for a in range(4):
             for b in range(4):
                 s[a, b] = loc_P[row, a, b] + one_p[0, a, b]
         for sensor in range(n_radars):
-            # g = [sensor == radar] POSITION - M_sensor; the local track's own radar's
-            # bias covariance is its own (extra), the others' the system track's.
+            if not active[sensor]:
+                continue
+            # g = [sensor == radar] POSITION - M_sensor (M combined over the models); the
+            # local track's own radar's bias covariance is its own (extra), the others'
+            # the system track's.
             for a in range(4):
                 for b in range(2):
-                    g[a, b] = -one_m[0, sensor, a, b]
+                    acc = 0.0
+                    for j in range(m):
+                        acc += c[0, j] * mp[0, j, sensor, a, b]
+                    g[a, b] = -acc
             if sensor == radar:
                 g[0, 0] += 1.0
                 g[1, 1] += 1.0
@@ -373,9 +396,12 @@ def filter_round(
     joseph = np.empty((4, 4))
     log_post = np.empty(m)
     d = np.empty(4)
+    every = np.ones(n_radars, dtype=np.bool_)
     for r in range(k):
         n = numbers[r]
-        _predict_track(mx, mP, mM, mu, n, time[r] - t[n], omega, q, sojourn, xp, pp, mp, c, 0)
+        _predict_track(
+            mx, mP, mM, mu, n, time[r] - t[n], omega, q, sojourn, xp, pp, mp, c, 0, every
+        )
         r00, r01, r10, r11 = R[r, 0, 0], R[r, 0, 1], R[r, 1, 0], R[r, 1, 1]
         for j in range(m):
             # G_l = H M_l - [l = radar] I, B_l G_l^T, S and the cross-covariance X.
