@@ -90,9 +90,8 @@ def trace(result: Run, group: str, callsigns: list[str]) -> list[str]:
                 for k in range(int(system["n_sources"][r]))
             )
             made_by = sources[int(system["radar"][r])]
-            lines.append(
-                f"    {system['time'][r]:.0f} {made_by} {letter(int(labels[r]), letters)} [{feeders}]"
-            )
+            held = letter(int(labels[r]), letters)
+            lines.append(f"    {system['time'][r]:.0f} {made_by} {held} [{feeders}]")
     return lines
 
 
