@@ -3,7 +3,7 @@ system track's rows carry, and which local tracks fed each system row (issue 13'
 docs/association.md "Session 9").
 
     python benchmarks/trace_encounter.py --seed 10 --group ABR3P [X15P ...]
-        [--association mht] [--cache DIR]
+        [--association mht] [--fusion join_ambiguity_margin=4] [--cache DIR]
 
 A group is an encounter type and its transponder letter (ABR3P: three abreast, primary
 only). Per radar, each local track that held one of the group's aircraft, as one
@@ -40,16 +40,20 @@ Run = tuple[
 ]
 
 
-def run(seed: int, association: str, cache: Path) -> Run:
+def run(seed: int, association: str, fusion: dict[str, float], cache: Path) -> Run:
     """Per radar (updates, plots), the system rows, the radars in fusion order, truth."""
-    kept = cache / f"trace_{seed}_{association}.pkl"
+    settings = "".join(f"_{k}={v:g}" for k, v in sorted(fusion.items()))
+    kept = cache / f"trace_{seed}_{association}{settings}.pkl"
     if kept.exists():
         result: Run = pickle.loads(kept.read_bytes())
         return result
     recording = cache / f"encounters_{seed}.mcap"
     if not recording.exists():
         simulate(load_scenario(ENCOUNTERS), recording, seed=seed)
-    ev = evaluate(recording, EvaluationConfig(tracker={"association": association}))
+    config = EvaluationConfig.from_mapping(
+        {"tracker": {"association": association}, "fusion": fusion}
+    )
+    ev = evaluate(recording, config)
     radars = {s: (r.updates, r.plots) for s, r in ev.pipeline.radars.items()}
     result = (radars, ev.pipeline.system, ev.pipeline.sources, ev.truth)
     kept.write_bytes(pickle.dumps(result))
@@ -100,10 +104,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, required=True)
     parser.add_argument("--group", nargs="+", required=True, help="type + transponder: ABR3P")
     parser.add_argument("--association", default="mht")
+    parser.add_argument("--fusion", nargs="*", default=[], help="[fusion] settings, key=value")
     parser.add_argument("--cache", type=Path, default=Path("/tmp"))
     args = parser.parse_args()
+    fusion = {k: float(v) for k, v in (kv.split("=") for kv in args.fusion)}
     callsigns = [a["callsign"] for a in tomllib.loads(ENCOUNTERS.read_text())["aircraft"]]
-    result = run(args.seed, args.association, args.cache)
+    result = run(args.seed, args.association, fusion, args.cache)
     for group in args.group:
         print("\n".join(trace(result, group, callsigns)))
 
