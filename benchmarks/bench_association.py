@@ -68,6 +68,10 @@ class TimedTracker(LocalTracker):
         return out
 
 
+FUSION: dict[str, float] = {}
+"""``[fusion]`` settings of every run (``--fusion key=value``)."""
+
+
 def timed_evaluation(path: Path, association: str) -> tuple[Evaluation, float]:
     """The evaluation of a recording with one associator, and its CPU per plot (s)."""
     trackers: list[TimedTracker] = []
@@ -76,7 +80,9 @@ def timed_evaluation(path: Path, association: str) -> tuple[Evaluation, float]:
         trackers.append(TimedTracker(config))
         return trackers[-1]
 
-    config = EvaluationConfig(tracker={"association": association})
+    config = EvaluationConfig.from_mapping(
+        {"tracker": {"association": association}, "fusion": FUSION}
+    )
     result = evaluate(path, config, make)
     plots = sum(t.plots for t in trackers)
     return result, sum(t.seconds for t in trackers) / max(plots, 1)
@@ -269,12 +275,16 @@ def main() -> None:
     parser.add_argument("--three-sites", type=Path, help="a three_sites recording: RMS")
     parser.add_argument("--json", type=Path, help="write every figure here")
     parser.add_argument(
+        "--fusion", nargs="*", default=[], help="[fusion] settings, key=value (numbers)"
+    )
+    parser.add_argument(
         "--summarise",
         type=Path,
         nargs="+",
         help="only print the tables of these --json files' seeds together (runs in parallel)",
     )
     args = parser.parse_args()
+    FUSION.update({k: float(v) for k, v in (kv.split("=") for kv in args.fusion)})
     if args.summarise:
         print(summarise(merged_seeds(args.summarise, args.associators), args.associators))
         return

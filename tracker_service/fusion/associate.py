@@ -272,8 +272,9 @@ def _leave(state: FusionState, rows: IntArray) -> None:
 
 def assign(
     state: FusionState, estimator: SystemEstimator, radar: int, free: IntArray
-) -> tuple[IntArray, IntArray]:
-    """The free local tracks (rows) of ``radar`` that join a system track, and which."""
+) -> tuple[IntArray, IntArray, IntArray]:
+    """The free local tracks (rows) of ``radar`` that join a system track, and which; and
+    those that wait (an ambiguous first join, ``FusionConfig.join_ambiguity_margin``)."""
     candidates = open_systems(state, radar)
     li, sj = _near(state, estimator, free, candidates)
     d2 = distance(state, estimator, li, sj)
@@ -293,10 +294,45 @@ def assign(
     cost = d2 + identity_cost(
         loc["address"][li], sys["address"][sj], loc["mode3a"][li], sys["mode3a"][sj], state.config
     )
+    waiting = _ambiguous_joins(state, li, sj, cost)
+    if waiting.size:
+        keep = ~np.isin(li, waiting)
+        li, sj, cost = li[keep], sj[keep], cost[keep]
     chosen = global_nearest_neighbour(
         np.searchsorted(free, li), np.searchsorted(candidates, sj), cost
     )
-    return li[chosen], sj[chosen]
+    return li[chosen], sj[chosen], waiting
+
+
+def _ambiguous_joins(state: FusionState, li: IntArray, sj: IntArray, cost: FloatArray) -> IntArray:
+    """The local tracks (rows) among the gated pairs whose join waits: one of two
+    candidates within ``join_ambiguity_margin`` of each other, for a local track (its two
+    likeliest system tracks) or for a system track (its two likeliest local tracks), and
+    not waiting for longer than ``found_delay`` yet (the wait is counted from
+    ``t_founder``, the first time the track could have founded a system track)."""
+    margin = state.config.join_ambiguity_margin
+    empty = np.zeros(0, dtype=np.int64)
+    if margin <= 0 or li.size < 2:
+        return empty
+    close: set[int] = set()
+    for keys, others in ((li, sj), (sj, li)):
+        order = np.lexsort((cost, keys))
+        k, c, o = keys[order], cost[order], others[order]
+        # Each key's likeliest pair (the first of its sorted run) against its second.
+        second = np.flatnonzero((k[1:] == k[:-1]) & (np.r_[True, k[1:-1] != k[:-2]]))
+        near = second[c[second + 1] - c[second] < margin]
+        if keys is li:
+            close.update(k[near].tolist())
+        else:
+            close.update(o[near].tolist())
+            close.update(o[near + 1].tolist())
+    if not close:
+        return empty
+    rows = np.array(sorted(close), dtype=np.int64)
+    loc = state.local.rows
+    first = np.isnan(loc["t_founder"][rows])
+    loc["t_founder"][rows[first]] = state.now
+    return rows[state.now - loc["t_founder"][rows] < state.config.found_delay]
 
 
 STRAIGHT_LINE = TrackFusionEstimator()

@@ -162,9 +162,9 @@ class SystemTracker:
         free = np.intersect1d(live[loc["system"][live] == 0], plotted)
         if free.size == 0:
             return np.zeros(0, dtype=np.int64)
-        joined, target = associate.assign(state, self.estimator, radar, free)
+        joined, target, waiting = associate.assign(state, self.estimator, radar, free)
         lifecycle.join(state, radar, joined, target)
-        rest = np.setdiff1d(free, joined)
+        rest = np.setdiff1d(free, np.union1d(joined, waiting))
         return lifecycle.create(state, self.estimator, rest[lifecycle.may_found(state, rest)])
 
     def _expire(self, radar: int) -> npt.NDArray[Any]:

@@ -1,0 +1,96 @@
+"""The fuser's first join of a local track that two system tracks could take alike waits
+(``FusionConfig.join_ambiguity_margin``, fusion/associate.py ``_ambiguous_joins``):
+docs/association.md "Session 9"."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tracker_service.fusion import FusionConfig, SystemTracker
+from tracker_service.tracking import CONFIRMED, PLOT_DTYPE, LocalTracker
+
+T0 = 1.7e9
+SPEED = 200.0
+APART = 1000.0
+YOUNG_S = 12.0
+
+
+def _batch(
+    numbers: list[int], t: float, ys: list[float], sigma: float, first_id: int
+) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
+    """One radar's primary-only local tracks flying east at ``ys``, and their plots."""
+    k = len(numbers)
+    u = np.zeros(k, dtype=LocalTracker().output_dtype)
+    u["track_number"], u["time"], u["status"] = numbers, t, CONFIRMED
+    u["plot_id"] = np.arange(first_id, first_id + k)
+    u["x"], u["y"] = SPEED * (t - T0), ys
+    u["vx"], u["vy"] = SPEED, 0.0
+    u["P"] = np.diag([sigma**2, sigma**2, 9.0, 9.0]).reshape(16)
+    u["flight_level"] = u["climb_rate_fl_per_s"] = np.nan
+    u["mode3a"] = u["address"] = -1
+    u["model_probabilities"][:, 0] = 1.0
+    p = np.zeros(k, dtype=PLOT_DTYPE)
+    p["time"], p["x"], p["y"], p["plot_id"] = t, u["x"], u["y"], u["plot_id"]
+    p["R"] = np.diag([sigma**2, sigma**2])
+    p["flight_level"], p["mode3a"], p["address"], p["typ"] = np.nan, -1, -1, 1
+    return u, p
+
+
+def _system_of(fuser: SystemTracker, radar: int, number: int) -> int:
+    u = np.zeros(1, dtype=LocalTracker().output_dtype)
+    u["track_number"], u["status"] = number, CONFIRMED
+    row = int(fuser.state.local.find(radar, u, create=False)[0])
+    return int(fuser.state.local.rows["system"][row])
+
+
+def _crosswise_moments(margin: float) -> int:
+    """Aircraft A (y = 0) and B (1 km abeam) parallel, primary only. Radar 0 (4 s) tracks
+    them from the start (tracks 10, 20: 150 m); radar 1 (5 s) confirms its tracks 11 (A)
+    and 21 (B) at T0 + 2.5 s, young (400 m) and, for their first ``YOUNG_S`` seconds, 300
+    and 200 m north of the line (noise and bias of a new track): A's nearer B's system
+    track, B's nearer A's. The radar-1 updates after which track 11 feeds B's system
+    track or 21 A's."""
+    fuser = SystemTracker(2, FusionConfig(join_ambiguity_margin=margin, found_delay_s=30.0))
+    events = sorted(
+        (T0 + 2.5 * r + period * k, r) for r, period in enumerate((4.0, 5.0)) for k in range(12)
+    )
+    crosswise = 0
+    for plot_id, (t, radar) in enumerate(events):
+        young = radar == 1 and t - T0 < YOUNG_S
+        ys = [300.0, 200.0] if young else [0.0, APART]
+        u, p = _batch([10 + radar, 20 + radar], t, ys, 400.0 if young else 150.0, 2 * plot_id)
+        fuser.process(radar, u, p)
+        if radar == 1:
+            a, b = _system_of(fuser, 1, 11), _system_of(fuser, 1, 21)
+            crosswise += (a > 0 and a == _system_of(fuser, 0, 20)) or (
+                b > 0 and b == _system_of(fuser, 0, 10)
+            )
+    assert _system_of(fuser, 0, 10) != _system_of(fuser, 0, 20)
+    return crosswise
+
+
+def test_an_ambiguous_first_join_waits_for_the_tracks_to_tell() -> None:
+    # Off (the default): radar 1's young tracks join crosswise at once and stay so.
+    assert _crosswise_moments(margin=0.0) > 0
+    # On: they wait, then join the right system tracks.
+    assert _crosswise_moments(margin=4.0) == 0
+
+
+def test_the_wait_ends_after_the_found_delay() -> None:
+    """Two tracks of radar 1 that stay ambiguous (both on the line between the aircraft)
+    join after ``found_delay_s``, as GNN would have at once."""
+    fuser = SystemTracker(2, FusionConfig(join_ambiguity_margin=4.0, found_delay_s=20.0))
+    joined_at = []
+    for k in range(20):
+        t = T0 + 2.5 * k
+        radar = k % 2
+        ys = [500.0, 500.0] if radar == 1 else [0.0, APART]
+        u, p = _batch([10 + radar, 20 + radar], t, ys, 600.0, 2 * k)
+        fuser.process(radar, u, p)
+        if radar == 1 and _system_of(fuser, 1, 11) > 0 and _system_of(fuser, 1, 21) > 0:
+            joined_at.append(t)
+    # First seen at T0 + 2.5 s; every 5 s since; joined at the first update 20 s later.
+    assert joined_at and joined_at[0] == T0 + 22.5
