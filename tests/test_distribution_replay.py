@@ -1,9 +1,12 @@
 """``replay --workers N``: the radar stages in worker processes over real Zenoh sessions
-(loopback), fusion and the outputs in the main process: the same system tracks as one
-process, and a worker killed with SIGKILL stops the replay with a one-line error."""
+(loopback), the central stage in the main process, the outputs in a process of their own
+(``--output-process``, the default with workers): the same messages as one process, and
+a worker or the output process killed with SIGKILL stops the replay with a one-line
+error."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -72,18 +75,27 @@ def one_process(recording: Path, tmp_path_factory: pytest.TempPathFactory) -> Pa
     return log_dir
 
 
-def test_two_workers_publish_exactly_the_system_tracks_of_one_process(
-    recording: Path, one_process: Path, tmp_path: Path
+@pytest.mark.parametrize(
+    "layout",
+    [("--workers", "2"), ("--workers", "2", "--no-output-process"), ("--output-process",)],
+    ids=["workers and output process", "workers alone", "output process alone"],
+)
+def test_the_processes_publish_exactly_the_messages_of_one_process(
+    recording: Path, one_process: Path, tmp_path: Path, layout: tuple[str, ...]
 ) -> None:
-    one, two = one_process, tmp_path / "two"
-    assert replay(recording, two, "--workers", "2") == 0
+    one, apart = one_process, tmp_path / "apart"
+    assert replay(recording, apart, *layout) == 0
     tracks = logged(one, "/system_tracks")
     assert len(tracks) > 200
     assert len({data["number"] for _, data in tracks}) > 10
-    # The same messages, numbers and values; and so for local tracks, bias and status.
-    assert logged(two, "/system_tracks") == tracks
-    for prefix in ("/local_tracks", "/bias", "/status"):
-        assert logged(two, prefix) == logged(one, prefix), prefix
+    # The same messages, numbers and values; and so for every other topic (local tracks,
+    # bias, status with its input counters, CAT062, the Foxglove map, the datagrams).
+    assert logged(apart, "/system_tracks") == tracks
+    topics = {topic for topic, _ in logged(one, "/")}
+    kinds = {topic.split("/")[1] for topic in topics}
+    assert {"status", "bias", "cat062", "map", "datagrams"} <= kinds, kinds
+    for topic in topics:
+        assert logged(apart, topic) == logged(one, topic), topic
 
 
 def test_three_workers_for_three_radars_too(
@@ -94,7 +106,8 @@ def test_three_workers_for_three_radars_too(
     assert logged(three, "/system_tracks") == logged(one_process, "/system_tracks")
 
 
-def _workers_of(pid: int) -> list[int]:
+def _children_of(pid: int) -> list[int]:
+    """The processes ``pid`` spawned (multiprocessing's), its resource tracker aside."""
     out = subprocess.run(
         ["ps", "-ww", "-o", "pid=,args=", "--ppid", str(pid)],
         capture_output=True,
@@ -104,11 +117,25 @@ def _workers_of(pid: int) -> list[int]:
     return [int(line.split()[0]) for line in out.splitlines() if "spawn_main" in line]
 
 
-def test_a_worker_killed_stops_the_replay_with_a_clear_error(
-    recording: Path, tmp_path: Path
+def _holds_file_in(pid: int, directory: Path) -> bool:
+    """Whether ``pid`` has a file of ``directory`` open: the output process its log."""
+    with contextlib.suppress(OSError):
+        for fd in Path(f"/proc/{pid}/fd").iterdir():
+            with contextlib.suppress(OSError):
+                if Path(os.readlink(fd)).parent == directory:
+                    return True
+    return False
+
+
+@pytest.mark.parametrize("victim", ["radar worker", "output process"])
+def test_a_process_killed_stops_the_replay_with_a_clear_error(
+    recording: Path, tmp_path: Path, victim: str
 ) -> None:
     """A replay must give the one-process picture or none: a dead worker is an error,
-    not a gap (the live roles coast its radars instead: test_distribution_roles)."""
+    not a gap (the live roles coast its radars instead: test_distribution_roles), and a
+    dead output process is one too, not restarted as the daemon's is: a new one would
+    start a second log without the picture of the first (every track "first" again)."""
+    log_dir = tmp_path / "log"
     command = [
         sys.executable,
         "-m",
@@ -121,6 +148,8 @@ def test_a_worker_killed_stops_the_replay_with_a_clear_error(
         "2",
         "--zenoh-listen",
         endpoint(),
+        "--mcap-dir",
+        str(log_dir),
     ]
     # A session of its own: a replay that fails to stop is killed with its workers, so
     # that no orphan slows the tests after this one.
@@ -129,13 +158,16 @@ def test_a_worker_killed_stops_the_replay_with_a_clear_error(
     reader = threading.Thread(target=lambda: stderr.extend(process.stderr or []), daemon=True)
     reader.start()
     deadline = time.monotonic() + 30
-    workers: list[int] = []
-    while time.monotonic() < deadline and len(workers) < 2 and process.poll() is None:
-        workers = _workers_of(process.pid)
+    outputs: list[int] = []
+    children: list[int] = []
+    while time.monotonic() < deadline and not outputs and process.poll() is None:
+        children = _children_of(process.pid)
+        outputs = [child for child in children if _holds_file_in(child, log_dir.resolve())]
         time.sleep(0.2)
-    assert len(workers) == 2, f"the worker processes did not start: {''.join(stderr)}"
+    workers = [child for child in children if child not in outputs]
+    assert len(outputs) == 1 and len(workers) == 2, f"not started: {''.join(stderr)}"
     time.sleep(3.0)  # well into the replay (at twice real time, 15 s long)
-    os.kill(workers[0], signal.SIGKILL)
+    os.kill((workers if victim == "radar worker" else outputs)[0], signal.SIGKILL)
     try:
         code = process.wait(timeout=60)
     except subprocess.TimeoutExpired:
@@ -147,4 +179,6 @@ def test_a_worker_killed_stops_the_replay_with_a_clear_error(
     assert code == 1
     reader.join(timeout=5)
     text = "".join(stderr)
-    assert "radar worker" in text and "exited with code -9" in text, text
+    assert f"{victim} " in text and "exited with code -9" in text, text
+    assert len(text.strip().splitlines()[-1]) < 200  # one line says it, no traceback
+    assert "Traceback" not in text, text

@@ -22,6 +22,7 @@ from tracker_service.stage_messages import (
     StageMessageError,
     decode_message,
     encode_message,
+    read_npy,
 )
 
 RECORDING = Path(__file__).resolve().parents[1] / "recordings" / "three_sites.mcap"
@@ -188,3 +189,41 @@ def test_a_restarted_radar_stage_replaces_its_predecessors_tracks_in_the_fuser()
         chain.feed(datagram.payload, datagram.time)
     after = live()
     assert after and min(after) > max(before)
+
+
+def _npy_bytes(array: np.ndarray, allow_pickle: bool = False) -> memoryview:
+    out = io.BytesIO()
+    np.lib.format.write_array(out, array, allow_pickle=allow_pickle)
+    return memoryview(out.getvalue())
+
+
+@pytest.mark.parametrize(
+    "array",
+    [
+        np.arange(24.0).reshape(2, 3, 4),
+        np.asfortranarray(np.arange(12).reshape(3, 4)),
+        np.zeros(0, dtype=[("a", "<f8"), ("b", "U16")]),
+        np.array(3.5),
+        np.array([(1, "25/11")] * 1000, dtype=[("n", "<i8"), ("s", "U16")]),
+    ],
+    ids=["3-d", "fortran", "empty structured", "0-d", "long shape"],
+)
+def test_a_section_read_with_its_layout_remembered_is_numpys_array(array: np.ndarray) -> None:
+    for rows in (array, array[..., :1] if array.ndim else array):
+        # Twice: the first read parses the layout (numpy's reader), the second uses it.
+        for _ in range(2):
+            mine = read_npy(_npy_bytes(rows))
+            theirs = np.lib.format.read_array(io.BytesIO(_npy_bytes(rows)), allow_pickle=False)
+            assert mine.dtype == theirs.dtype and mine.shape == theirs.shape
+            assert mine.flags.f_contiguous == theirs.flags.f_contiguous
+            assert mine.flags.writeable
+            assert mine.tobytes(order="A") == theirs.tobytes(order="A")
+
+
+def test_a_section_cut_short_or_of_objects_is_refused() -> None:
+    data = _npy_bytes(np.arange(100.0))
+    read_npy(data)  # its layout remembered
+    with pytest.raises(ValueError):
+        read_npy(data[:-8])
+    with pytest.raises(ValueError, match="pickle"):
+        read_npy(_npy_bytes(np.array([1, None], dtype=object), allow_pickle=True))

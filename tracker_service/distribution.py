@@ -130,8 +130,11 @@ def _exit_when_orphaned(parent: int) -> None:
             os._exit(1)
 
 
-def _run_worker(args: _WorkerArgs, done: Event, parent: int) -> None:
-    """A worker process: its radars' stage over the input, each result published."""
+def _run_worker(
+    args: _WorkerArgs, done: Event, cpu: multiprocessing.Queue[tuple[int, float]], parent: int
+) -> None:
+    """A worker process: its radars' stage over the input, each result published; its
+    CPU seconds into ``cpu`` at the end."""
     threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True).start()
     logging.basicConfig(level=logging.WARNING)
     config = parse_service_config(json.loads(args.config_json), "replay worker")
@@ -159,6 +162,7 @@ def _run_worker(args: _WorkerArgs, done: Event, parent: int) -> None:
                 publisher.put(encode_message(result))
             order += 1
         publisher.put(encode_message(DatagramResult(order, 0.0, kind=MessageKind.END_OF_INPUT)))
+        cpu.put((args.worker, time.process_time()))
         # Until the main process has what it needs: closing at once could drop the tail.
         done.wait()
     finally:
@@ -212,6 +216,9 @@ class RemoteRadarStages:
         )
         context = multiprocessing.get_context("spawn")
         self._done = context.Event()
+        self._cpu: multiprocessing.Queue[tuple[int, float]] = context.Queue()
+        self.cpu_s = [0.0] * workers
+        """Each worker's CPU seconds (``time.process_time``), known once it has ended."""
         self._processes = [
             context.Process(
                 target=_run_worker,
@@ -226,6 +233,7 @@ class RemoteRadarStages:
                         prefix,
                     ),
                     self._done,
+                    self._cpu,
                     os.getpid(),
                 ),
                 name=f"tracker-radar-worker-{k}",
@@ -286,6 +294,10 @@ class RemoteRadarStages:
             if process.is_alive():
                 process.kill()
                 process.join()
+        with contextlib.suppress(queue.Empty):
+            while True:
+                worker, seconds = self._cpu.get(timeout=0.1)
+                self.cpu_s[worker] = seconds
         with contextlib.suppress(zenoh.ZError):
             self._queryable.undeclare()  # type: ignore[no-untyped-call]
             self._subscriber.undeclare()  # type: ignore[no-untyped-call]

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 import struct
 from dataclasses import dataclass, field
 from enum import IntEnum
@@ -172,6 +173,52 @@ def _npy(array: npt.NDArray[Any]) -> bytes:
     return out.getvalue()
 
 
+_NPY_MAGIC = b"\x93NUMPY"
+_NPY_HEADER_LENGTH = {1: struct.Struct("<H"), 2: struct.Struct("<I")}
+_NPY_SHAPE = re.compile(rb"'shape': \(([0-9, ]*)\)")
+_npy_layouts: dict[bytes, tuple[np.dtype[Any], bool]] = {}
+"""Per .npy header without its shape (and the padding that follows the shape's length):
+the dtype and the order, as numpy's own reader parsed them the first time."""
+MAX_NPY_LAYOUTS = 256
+"""Layouts remembered at most: a peer that sends ever new dtypes costs a parse each,
+not memory."""
+
+
+def read_npy(data: memoryview) -> npt.NDArray[Any]:
+    """``np.lib.format.read_array(..., allow_pickle=False)`` of one section, the same
+    array, but each header layout parsed once: numpy parses a header (a Python literal)
+    with ``ast.literal_eval`` at every call, which was a third of the main process's CPU
+    in a replay with workers. Only the shape, digits and commas, is read at each call."""
+    header = None
+    if bytes(data[:6]) == _NPY_MAGIC and data[6] in _NPY_HEADER_LENGTH:
+        length = _NPY_HEADER_LENGTH[data[6]]
+        start = 8 + length.size
+        if len(data) >= start:
+            (size,) = length.unpack_from(data, 8)
+            header = bytes(data[start : start + size])
+            body = data[start + size :]
+    match = None if header is None else _NPY_SHAPE.search(header)
+    if header is None or match is None:
+        return np.lib.format.read_array(io.BytesIO(data), allow_pickle=False)  # says why
+    layout_key = (header[: match.start(1)] + header[match.end(1) :]).rstrip()
+    layout = _npy_layouts.get(layout_key)
+    if layout is None:
+        # numpy's reader, with its checks (no object arrays), once for this layout.
+        array = np.lib.format.read_array(io.BytesIO(data), allow_pickle=False)
+        if len(_npy_layouts) < MAX_NPY_LAYOUTS:
+            _npy_layouts[layout_key] = (array.dtype, bool(b"'fortran_order': True" in header))
+        return array
+    dtype, fortran = layout
+    shape = tuple(int(n) for n in match.group(1).split(b",") if n.strip())
+    count = math.prod(shape)
+    if len(body) < count * dtype.itemsize:
+        raise ValueError(f"{len(body)} bytes for {count} items of {dtype.itemsize} bytes")
+    array = np.frombuffer(body, dtype=dtype, count=count).copy()  # writable, as numpy's
+    if fortran:
+        return array.reshape(shape[::-1]).transpose()
+    return array.reshape(shape)
+
+
 def _section(name: str, array: npt.NDArray[Any]) -> bytes:
     label = name.encode()
     data = _npy(array)
@@ -248,9 +295,7 @@ def _sections(payload: bytes) -> tuple[MessageKind, dict[str, npt.NDArray[Any]]]
         if pos + length > len(view):
             raise StageMessageError(f"section {name!r}: {length} bytes announced, fewer left")
         try:
-            arrays[name] = np.lib.format.read_array(
-                io.BytesIO(view[pos : pos + length]), allow_pickle=False
-            )
+            arrays[name] = read_npy(view[pos : pos + length])
         except ValueError as exc:
             raise StageMessageError(f"section {name!r}: {exc}") from None
         pos += length

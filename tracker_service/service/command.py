@@ -16,7 +16,7 @@ import sys
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, Self
@@ -47,7 +47,7 @@ from tracker_service.service.config import (
     load_service_config,
     with_destinations,
 )
-from tracker_service.service.core import CoreState, Outputs, TrackerService
+from tracker_service.service.core import CoreState, Outputs, ServiceCounts, TrackerService
 from tracker_service.service.health import (
     DEFAULT_BEHIND_S,
     DEFAULT_SILENT_FOR_S,
@@ -66,6 +66,7 @@ from tracker_service.service.signals import StopSignal, stop_on_signals
 __all__ = [
     "OutputProcess",
     "OutputProcessFailed",
+    "OutputSummary",
     "add_health_arguments",
     "add_replay_arguments",
     "add_run_arguments",
@@ -169,9 +170,17 @@ def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=0,
         metavar="N",
-        help="run the radar stages in N worker processes, fusion and the outputs in this "
-        "one, over Zenoh on 127.0.0.1 (default 0: everything in this process); the system "
-        "tracks are the same either way",
+        help="run the radar stages in N worker processes and the central stage (bias, "
+        "fusion) in this one, over Zenoh on 127.0.0.1, the outputs in a process of their own "
+        "(default 0: everything in this process); the messages are the same either way",
+    )
+    parser.add_argument(
+        "--output-process",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="the outputs (messages, CAT062, MCAP log, Foxglove map, Zenoh) in a process of "
+        "their own, as the daemon runs them (default: with --workers only); the messages "
+        "are the same either way; the process dying ends the replay with status 1",
     )
     _add_zenoh_arguments(parser)
     _add_asterix_arguments(parser)
@@ -356,15 +365,19 @@ def open_service(
     *,
     zenoh: bool = True,
     output_process: bool = False,
+    supervised: bool = True,
     health_file: Path | None = None,
     radar_stage: RadarStages | None = None,
 ) -> Iterator[TrackerService]:
     """The core with its Zenoh session and MCAP log, in this process or, with
     ``output_process``, in a process of their own (which writes each status into
-    ``health_file``); on the way out every live track is ended, then the session and the
-    log are closed, whatever happened."""
+    ``health_file``, and is restarted when it dies if ``supervised``: ``OutputProcess``);
+    on the way out every live track is ended, then the session and the log are closed,
+    whatever happened."""
     if output_process:
-        with OutputProcess(config, mcap_dir, zenoh=zenoh, health_file=health_file) as outputs:
+        with OutputProcess(
+            config, mcap_dir, zenoh=zenoh, health_file=health_file, supervised=supervised
+        ) as outputs:
             service = TrackerService(config, outputs=outputs, radar_stage=radar_stage)
             try:
                 yield service
@@ -397,6 +410,16 @@ status 1 and a one-line error, and the service manager (systemd ``Restart=on-fai
 Docker ``restart: on-failure``) takes over."""
 
 
+@dataclass
+class OutputSummary:
+    """What an output process that ended normally hands back: the totals a replay
+    prints, its log's files, and its CPU seconds (``time.process_time``)."""
+
+    counts: ServiceCounts
+    log_files: list[Path]
+    cpu_s: float
+
+
 class OutputProcess:
     """``Outputs`` (messages, Zenoh, CAT062, MCAP) in a process of its own, so that the
     chain keeps a core to itself: each call of the core goes, pickled at once (the chain
@@ -405,10 +428,15 @@ class OutputProcess:
     ones ``Outputs`` makes in the core's process. ``close`` (the core's) ends the tracks
     there; leaving the context waits for the process to drain the pipe and exit.
 
-    Supervised: when the process dies (killed, out of memory), the next call finds it
-    gone, logs it, and starts a new one (see ``RESTART_WINDOW_S``); the calls in the pipe at
-    that moment are lost, and the new process starts without the old one's picture (every
-    live track's next update is a "first" again). The status reports each restart."""
+    Supervised (the daemon): when the process dies (killed, out of memory), the next call
+    finds it gone, logs it, and starts a new one (see ``RESTART_WINDOW_S``); the calls in the
+    pipe at that moment are lost, and the new process starts without the old one's picture
+    (every live track's next update is a "first" again). The status reports each restart.
+    Not supervised (the replay, whose log must be the one-process log or none): its death
+    is an ``OutputProcessFailed`` at the next call.
+
+    A process that ends normally (the context left after ``close``) sends back its
+    ``OutputSummary``: ``summary``, None until then."""
 
     def __init__(
         self,
@@ -417,8 +445,11 @@ class OutputProcess:
         *,
         zenoh: bool = True,
         health_file: Path | None = None,
+        supervised: bool = True,
     ) -> None:
         self._args = (config, mcap_dir, zenoh, health_file)
+        self._supervised = supervised
+        self.summary: OutputSummary | None = None
         self.restarts = 0
         self.last_restart: str | None = None
         self._deaths: list[float] = []
@@ -437,7 +468,8 @@ class OutputProcess:
         reader, self._calls = context.Pipe(duplex=False)
         with contextlib.suppress(OSError):
             fcntl.fcntl(self._calls.fileno(), fcntl.F_SETPIPE_SZ, PIPE_BYTES)
-        replies: multiprocessing.Queue[str | None] = context.Queue()
+        replies: multiprocessing.Queue[str | OutputSummary | None] = context.Queue()
+        self._replies = replies
         self._process = context.Process(
             target=_serve_outputs,
             args=(*self._args, os.getpid(), reader, replies),
@@ -464,6 +496,9 @@ class OutputProcess:
         self._process.join(timeout=5.0)
         code = self._process.exitcode
         self._calls.close()
+        if not self._supervised:
+            self._failed = f"the output process exited with code {code}"
+            raise OutputProcessFailed(self._failed)
         now = time.monotonic()
         self._deaths = [t for t in self._deaths if now - t <= RESTART_WINDOW_S] + [now]
         if len(self._deaths) > self._args[0].system.max_output_restarts:
@@ -553,6 +588,12 @@ class OutputProcess:
         if self._process.is_alive():
             with contextlib.suppress(OSError):
                 self._calls.send_bytes(b"")
+        # Read before the join: the process ends once its queue is flushed to here.
+        while self.summary is None and (self._process.is_alive() or not self._replies.empty()):
+            with contextlib.suppress(queue.Empty):
+                reply = self._replies.get(timeout=1.0)
+                if isinstance(reply, OutputSummary):
+                    self.summary = reply
         self._process.join()
         self._calls.close()
 
@@ -564,10 +605,10 @@ def _serve_outputs(
     health_file: Path | None,
     parent: int,
     calls: Connection,
-    replies: multiprocessing.Queue[str | None],
+    replies: multiprocessing.Queue[str | OutputSummary | None],
 ) -> None:
     """The output process: ``Outputs`` making the calls that arrive, until told to stop
-    or until its parent is gone."""
+    (then its ``OutputSummary`` into ``replies``) or until its parent is gone."""
     configure()
     # A signal to the process group is the parent's to handle: this process ends the
     # tracks when the parent says so, after the calls queued before.
@@ -580,10 +621,13 @@ def _serve_outputs(
             outputs.health_file = health_file
             replies.put(None)
             try:
-                _make_calls(outputs, parent, calls, failed)
+                told_to_stop = _make_calls(outputs, parent, calls, failed)
             finally:
                 # The outputs' threads finish before the session and the log close.
                 outputs.stop()
+        if told_to_stop:
+            files = [] if mcap is None else list(mcap.files)
+            replies.put(OutputSummary(outputs.counts, files, time.process_time()))
     except ZenohConfigError as exc:
         # Said by the parent, in one line (the endpoint and the fix).
         replies.put(str(exc))
@@ -592,21 +636,21 @@ def _serve_outputs(
         raise
 
 
-def _make_calls(outputs: Outputs, parent: int, calls: Connection, failed: RateLimitedLog) -> None:
-    """The calls that arrive, until told to stop or until the parent is gone."""
+def _make_calls(outputs: Outputs, parent: int, calls: Connection, failed: RateLimitedLog) -> bool:
+    """The calls that arrive, until told to stop (True) or until the parent is gone."""
     while True:
         if not calls.poll(1.0):
             if os.getppid() != parent:
                 log.error("the core's process is gone: stopping")
-                return
+                return False
             continue
         try:
             item = calls.recv_bytes()
         except EOFError:
             log.error("the core's process is gone: stopping")
-            return
+            return False
         if not item:
-            return
+            return True
         method, args = pickle.loads(item)
         try:
             getattr(outputs, method)(*args)
@@ -627,12 +671,18 @@ def _watch_hint(config: ServiceConfig) -> str:
     return f"tracker-service subscribe {connect}{prefix}".replace("  ", " ").strip()
 
 
+def _live_tracks(service: TrackerService) -> int | None:
+    """The live system tracks, when the outputs that know them run in this process."""
+    return len(service.live_tracks) if isinstance(service.outputs, Outputs) else None
+
+
 def _replay_datagrams(
     service: TrackerService, source: Replay, speed: float, stop: StopSignal
 ) -> None:
     progress = Progress(source.span)
     first: float | None = None
     wall0 = time.monotonic()
+    datagrams = 0
     for name, datagram in source.datagrams:
         if stop.is_set():
             break
@@ -644,8 +694,10 @@ def _replay_datagrams(
             if delay > 0 and stop.wait(delay):
                 break
         service.process(name, datagram)
-        progress.update(service.now, service.counts.datagrams, len(service.live_tracks))
-    progress.update(service.now, service.counts.datagrams, len(service.live_tracks), True)
+        datagrams += 1
+        if progress.enabled:
+            progress.update(service.now, datagrams, _live_tracks(service))
+    progress.update(service.now, datagrams, _live_tracks(service), True)
     progress.finish()
 
 
@@ -662,6 +714,7 @@ def replay(args: argparse.Namespace) -> int:
         return 2
     mcap_dir = None if args.mcap_dir is None else Path(args.mcap_dir)
     speed: float = args.speed
+    output_process: bool = args.workers > 0 if args.output_process is None else args.output_process
     print(f"{args.recording}: {source.kind}; watch with: {_watch_hint(config)}", file=sys.stderr)
     if config.foxglove.listen is not None:
         print(f"foxglove: open ws://{config.foxglove.listen} in the Foxglove app", file=sys.stderr)
@@ -675,17 +728,39 @@ def replay(args: argparse.Namespace) -> int:
                         args.recording, config, args.date, args.workers, config.zenoh.prefix
                     )
                 )
-            service = stack.enter_context(open_service(config, mcap_dir, radar_stage=workers))
+            service = stack.enter_context(
+                open_service(
+                    config,
+                    mcap_dir,
+                    output_process=output_process,
+                    supervised=False,
+                    radar_stage=workers,
+                )
+            )
             service.set_input_counters(source.counters)
             _replay_datagrams(service, source, speed, stop)
-            log_files = [] if service.log is None else list(service.log.files)
-    except RadarStageFailed as exc:
+    except (RadarStageFailed, OutputProcessFailed) as exc:
         print(f"tracker-service replay: {exc}", file=sys.stderr)
         return 1
-    except (ZenohConfigError, OSError) as exc:
+    except (ZenohConfigError, OutputStartFailed, OSError) as exc:
         print(f"tracker-service replay: {exc}", file=sys.stderr)
         return 2
-    counts = service.counts
+    if isinstance(service.outputs, OutputProcess):
+        if service.outputs.summary is None:
+            print(
+                "tracker-service replay: the output process ended without its totals",
+                file=sys.stderr,
+            )
+            return 1
+        summary = service.outputs.summary
+        cpu = [f"outputs {summary.cpu_s:.1f}"]
+    else:
+        files = [] if service.log is None else list(service.log.files)
+        summary = OutputSummary(service.counts, files, 0.0)
+        cpu = []
+    if workers is not None:
+        cpu.append("radar workers " + " + ".join(f"{s:.1f}" for s in workers.cpu_s))
+    counts = summary.counts
     duplicates = sum(c.duplicates for c in source.counters.values())
     print(
         f"replayed {counts.datagrams} datagrams ({duplicates} duplicates dropped): "
@@ -693,8 +768,12 @@ def replay(args: argparse.Namespace) -> int:
         f"({counts.system_updates} updates), {counts.errors} errors",
         file=sys.stderr,
     )
-    for path in log_files:
+    for path in summary.log_files:
         print(f"log: {path}", file=sys.stderr)
+    if cpu:
+        # Where the CPU went: the balance of the processes (docs/deployment.md).
+        cpu.insert(0, f"this process {time.process_time():.1f}")
+        print(f"cpu seconds: {', '.join(cpu)}", file=sys.stderr)
     return 0
 
 

@@ -885,6 +885,7 @@ class TrackerService:
         self._closed = False
         self._warn = RateLimitedLog(log)
         self.periodic_failures = 0
+        self._input_counters: dict[str, InputCounters] | None = None
         self.core = CoreState()
         """The daemon's part of the status (lag, restarts of the output process)."""
 
@@ -915,7 +916,11 @@ class TrackerService:
         return self.local.status()
 
     def set_input_counters(self, counters: dict[str, InputCounters]) -> None:
-        """Per input name, what the input stage counted (duplicates, drops, malformed)."""
+        """Per input name, what the input stage counted (duplicates, drops, malformed).
+        The replay's input keeps counting into the same ``counters``: sent again with each
+        status, so that an output process (which got a copy) reports them as ``Outputs``
+        in this process does."""
+        self._input_counters = counters
         self.outputs.set_input_counters(counters)
 
     @property
@@ -1016,8 +1021,14 @@ class TrackerService:
             self._guarded("status", self._publish_status)
 
     def _publish_status(self) -> None:
-        self.outputs.set_core_state(self.core_state())
+        self._send_state()
         self.outputs.publish_status()
+
+    def _send_state(self) -> None:
+        """What a status needs of this side, current (see ``set_input_counters``)."""
+        if self._input_counters is not None:
+            self.outputs.set_input_counters(self._input_counters)
+        self.outputs.set_core_state(self.core_state())
 
     def core_state(self) -> CoreState:
         """What the status needs of the core; the daemon adds the lag and the restarts."""
@@ -1051,5 +1062,5 @@ class TrackerService:
         if self._closed:
             return
         self._closed = True
-        self.outputs.set_core_state(self.core_state())
+        self._send_state()
         self.outputs.close()

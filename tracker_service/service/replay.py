@@ -304,7 +304,8 @@ class Progress:
         self.enabled = out.isatty()
         self._last_draw = 0.0
 
-    def update(self, now: float, datagrams: int, tracks: int, force: bool = False) -> None:
+    def update(self, now: float, datagrams: int, tracks: int | None, force: bool = False) -> None:
+        """``tracks`` None: unknown here (the outputs run in a process of their own)."""
         if not self.enabled:
             return
         wall = time.monotonic()
@@ -317,7 +318,8 @@ class Progress:
             done = min(max((now - self.span[0]) / (self.span[1] - self.span[0]), 0.0), 1.0)
             filled = round(done * self.WIDTH)
             bar = f"[{'#' * filled}{'.' * (self.WIDTH - filled)}] {done:4.0%} "
-        self.out.write(f"\r{bar}{stamp} {datagrams} datagrams, {tracks} live tracks ")
+        live = "" if tracks is None else f", {tracks} live tracks"
+        self.out.write(f"\r{bar}{stamp} {datagrams} datagrams{live} ")
         self.out.flush()
 
     def finish(self) -> None:
