@@ -4,46 +4,13 @@ docs/association.md "Session 9"."""
 
 from __future__ import annotations
 
-from typing import Any
-
-import numpy as np
-import numpy.typing as npt
-
+from tests.fuser_inputs import east_batch, system_of
 from tracker_service.fusion import FusionConfig, SystemTracker
-from tracker_service.tracking import CONFIRMED, PLOT_DTYPE, LocalTracker
 
 T0 = 1.7e9
 SPEED = 200.0
 APART = 1000.0
 YOUNG_S = 12.0
-
-
-def _batch(
-    numbers: list[int], t: float, ys: list[float], sigma: float, first_id: int
-) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
-    """One radar's primary-only local tracks flying east at ``ys``, and their plots."""
-    k = len(numbers)
-    u = np.zeros(k, dtype=LocalTracker().output_dtype)
-    u["track_number"], u["time"], u["status"] = numbers, t, CONFIRMED
-    u["plot_id"] = np.arange(first_id, first_id + k)
-    u["x"], u["y"] = SPEED * (t - T0), ys
-    u["vx"], u["vy"] = SPEED, 0.0
-    u["P"] = np.diag([sigma**2, sigma**2, 9.0, 9.0]).reshape(16)
-    u["flight_level"] = u["climb_rate_fl_per_s"] = np.nan
-    u["mode3a"] = u["address"] = -1
-    u["model_probabilities"][:, 0] = 1.0
-    p = np.zeros(k, dtype=PLOT_DTYPE)
-    p["time"], p["x"], p["y"], p["plot_id"] = t, u["x"], u["y"], u["plot_id"]
-    p["R"] = np.diag([sigma**2, sigma**2])
-    p["flight_level"], p["mode3a"], p["address"], p["typ"] = np.nan, -1, -1, 1
-    return u, p
-
-
-def _system_of(fuser: SystemTracker, radar: int, number: int) -> int:
-    u = np.zeros(1, dtype=LocalTracker().output_dtype)
-    u["track_number"], u["status"] = number, CONFIRMED
-    row = int(fuser.state.local.find(radar, u, create=False)[0])
-    return int(fuser.state.local.rows["system"][row])
 
 
 def _crosswise_moments(margin: float) -> int:
@@ -61,14 +28,22 @@ def _crosswise_moments(margin: float) -> int:
     for plot_id, (t, radar) in enumerate(events):
         young = radar == 1 and t - T0 < YOUNG_S
         ys = [300.0, 200.0] if young else [0.0, APART]
-        u, p = _batch([10 + radar, 20 + radar], t, ys, 400.0 if young else 150.0, 2 * plot_id)
+        u, p = east_batch(
+            [10 + radar, 20 + radar],
+            t,
+            SPEED * (t - T0),
+            ys,
+            400.0 if young else 150.0,
+            2 * plot_id,
+            SPEED,
+        )
         fuser.process(radar, u, p)
         if radar == 1:
-            a, b = _system_of(fuser, 1, 11), _system_of(fuser, 1, 21)
-            crosswise += (a > 0 and a == _system_of(fuser, 0, 20)) or (
-                b > 0 and b == _system_of(fuser, 0, 10)
+            a, b = system_of(fuser, 1, 11), system_of(fuser, 1, 21)
+            crosswise += (a > 0 and a == system_of(fuser, 0, 20)) or (
+                b > 0 and b == system_of(fuser, 0, 10)
             )
-    assert _system_of(fuser, 0, 10) != _system_of(fuser, 0, 20)
+    assert system_of(fuser, 0, 10) != system_of(fuser, 0, 20)
     return crosswise
 
 
@@ -88,9 +63,9 @@ def test_the_wait_ends_after_the_found_delay() -> None:
         t = T0 + 2.5 * k
         radar = k % 2
         ys = [500.0, 500.0] if radar == 1 else [0.0, APART]
-        u, p = _batch([10 + radar, 20 + radar], t, ys, 600.0, 2 * k)
+        u, p = east_batch([10 + radar, 20 + radar], t, SPEED * (t - T0), ys, 600.0, 2 * k, SPEED)
         fuser.process(radar, u, p)
-        if radar == 1 and _system_of(fuser, 1, 11) > 0 and _system_of(fuser, 1, 21) > 0:
+        if radar == 1 and system_of(fuser, 1, 11) > 0 and system_of(fuser, 1, 21) > 0:
             joined_at.append(t)
     # First seen at T0 + 2.5 s; every 5 s since; joined at the first update 20 s later.
     assert joined_at and joined_at[0] == T0 + 22.5

@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tests.fuser_inputs import east_batch, system_of
 from tracker_service.fusion import FusionConfig, SystemTracker
-from tracker_service.tracking import CONFIRMED, PLOT_DTYPE, LocalTracker
 
 T0 = 1.7e9
 SIGMA = 150.0
@@ -27,31 +27,11 @@ def _batch(
     first_id: int,
     sigma: float = SIGMA,
 ) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
-    """One radar's batch: local-track updates (steady filters, position ``sigma``,
-    speed 3 m/s) at ``ys`` abeam, flying east, and their plots."""
+    """One radar's batch at ``ys`` abeam, 20 m of noise on each coordinate."""
     k = len(numbers)
-    u = np.zeros(k, dtype=LocalTracker().output_dtype)
-    u["track_number"], u["time"], u["status"] = numbers, t, CONFIRMED
-    u["plot_id"] = np.arange(first_id, first_id + k)
-    u["x"] = SPEED * (t - T0) + rng.normal(0, 20, k)
-    u["y"] = np.array(ys) + rng.normal(0, 20, k)
-    u["vx"], u["vy"] = SPEED, 0.0
-    u["P"] = np.diag([sigma**2, sigma**2, 9.0, 9.0]).reshape(16)
-    u["flight_level"] = u["climb_rate_fl_per_s"] = np.nan
-    u["mode3a"] = u["address"] = -1
-    u["model_probabilities"][:, 0] = 1.0
-    p = np.zeros(k, dtype=PLOT_DTYPE)
-    p["time"], p["x"], p["y"], p["plot_id"] = t, u["x"], u["y"], u["plot_id"]
-    p["R"] = np.diag([sigma**2, sigma**2])
-    p["flight_level"], p["mode3a"], p["address"], p["typ"] = np.nan, -1, -1, 1
-    return u, p
-
-
-def _system_of(fuser: SystemTracker, radar: int, number: int) -> int:
-    u = np.zeros(1, dtype=LocalTracker().output_dtype)
-    u["track_number"], u["status"] = number, CONFIRMED
-    row = int(fuser.state.local.find(radar, u, create=False)[0])
-    return int(fuser.state.local.rows["system"][row])
+    x = SPEED * (t - T0) + rng.normal(0, 20, k)
+    y = np.array(ys) + rng.normal(0, 20, k)
+    return east_batch(numbers, t, x, y, sigma, first_id, SPEED)
 
 
 def _crosswise(margin: float, kappa: float = 1e9, sigma: float = SIGMA) -> SystemTracker:
@@ -79,8 +59,8 @@ def _crosswise(margin: float, kappa: float = 1e9, sigma: float = SIGMA) -> Syste
 
 def _assert_right(fuser: SystemTracker) -> None:
     # Radar 0's track 10 now follows B: it feeds B's system track (radar 1's 21's).
-    assert _system_of(fuser, 0, 10) == _system_of(fuser, 1, 21) == _system_of(fuser, 2, 22)
-    assert _system_of(fuser, 0, 20) == _system_of(fuser, 1, 11) == _system_of(fuser, 2, 12)
+    assert system_of(fuser, 0, 10) == system_of(fuser, 1, 21) == system_of(fuser, 2, 22)
+    assert system_of(fuser, 0, 20) == system_of(fuser, 1, 11) == system_of(fuser, 2, 12)
 
 
 def test_a_radars_two_tracks_joined_crosswise_are_exchanged() -> None:
@@ -91,7 +71,7 @@ def test_a_radars_two_tracks_joined_crosswise_are_exchanged() -> None:
     # Off: each blocks the other's system track, so they never get there.
     off = _crosswise(margin=0.0)
     assert off.state.stats.exchanges == 0
-    assert _system_of(off, 0, 10) != _system_of(off, 1, 21)
+    assert system_of(off, 0, 10) != system_of(off, 1, 21)
 
 
 def test_given_back_tracks_join_the_right_system_tracks() -> None:
@@ -111,5 +91,5 @@ def test_two_tracks_that_never_swapped_are_not_exchanged() -> None:
         u, p = _batch([10 + radar, 20 + radar], T0 + 1.5 * k, [0.0, APART], rng, 2 * k)
         fuser.process(radar, u, p)
     assert fuser.state.stats.exchanges == 0
-    assert _system_of(fuser, 0, 10) == _system_of(fuser, 1, 11) == _system_of(fuser, 2, 12)
-    assert _system_of(fuser, 0, 10) != _system_of(fuser, 0, 20)
+    assert system_of(fuser, 0, 10) == system_of(fuser, 1, 11) == system_of(fuser, 2, 12)
+    assert system_of(fuser, 0, 10) != system_of(fuser, 0, 20)

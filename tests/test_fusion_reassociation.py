@@ -3,37 +3,15 @@ system track, inside the gate but consistently off, gives itself back to associa
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
-import numpy.typing as npt
 import pytest
 
+from tests.fuser_inputs import east_batch
 from tracker_service.fusion import ENDED, FusionConfig, SystemTracker
-from tracker_service.tracking import CONFIRMED, PLOT_DTYPE, LocalTracker
 
 T0 = 1.7e9
 SIGMA = 60.0
 SPEED = 200.0
-
-
-def _batch(
-    number: int, t: float, x: float, y: float, plot_id: int
-) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
-    """One local-track update (a steady filter: position sigma 60 m, speed 3 m/s) and
-    its plot."""
-    u = np.zeros(1, dtype=LocalTracker().output_dtype)
-    u["track_number"], u["time"], u["status"], u["plot_id"] = number, t, CONFIRMED, plot_id
-    u["x"], u["y"], u["vx"], u["vy"] = x, y, SPEED, 0.0
-    u["P"] = np.diag([SIGMA**2, SIGMA**2, 9.0, 9.0]).reshape(16)
-    u["flight_level"] = u["climb_rate_fl_per_s"] = np.nan
-    u["mode3a"] = u["address"] = -1
-    u["model_probabilities"][0, 0] = 1.0
-    p = np.zeros(1, dtype=PLOT_DTYPE)
-    p["time"], p["x"], p["y"], p["plot_id"] = t, x, y, plot_id
-    p["R"] = np.diag([SIGMA**2, SIGMA**2])
-    p["flight_level"], p["mode3a"], p["address"], p["typ"] = np.nan, -1, -1, 1
-    return u, p
 
 
 def _run(kappa: float, offset_m: float) -> int:
@@ -47,7 +25,7 @@ def _run(kappa: float, offset_m: float) -> int:
         k = int((t - T0) // 5.0)
         y = offset_m if radar == 1 and k >= 6 else 0.0
         x, y = SPEED * (t - T0) + rng.normal(0, 20), y + rng.normal(0, 20)
-        u, p = _batch(1 if radar == 0 else 7, t, x, y, plot_id)
+        u, p = east_batch([1 if radar == 0 else 7], t, x, y, SIGMA, plot_id, SPEED)
         fuser.process(radar, u, p)
     return fuser.stats.reassociations
 
@@ -80,7 +58,7 @@ def test_a_lone_radars_track_keeps_its_system_track_through_jumps() -> None:
     for k in range(20):
         t = T0 + 5.0 * k
         y = 500.0 * min(max(k - 8, 0), 4)
-        u, p = _batch(3, t, SPEED * (t - T0), y, k)
+        u, p = east_batch([3], t, SPEED * (t - T0), y, SIGMA, k, SPEED)
         rows = fuser.process(0, u, p)
         numbers += rows["system_number"][rows["status"] != ENDED].tolist()
         assert not (rows["status"] == ENDED).any(), k
