@@ -7,6 +7,11 @@ import numpy as np
 from tracker_service.tracking.plots import BoolArray, IntArray
 
 
+def kernel_indices(indices: IntArray) -> IntArray:
+    """Row indices as the compiled kernels (fusion/kernels.py) take them: contiguous int64."""
+    return np.ascontiguousarray(indices, dtype=np.int64)
+
+
 def last_of_each(keys: IntArray) -> IntArray:
     """Index of the last occurrence of each distinct key (sorted by key)."""
     _, first_reversed = np.unique(keys[::-1], return_index=True)

@@ -10,7 +10,7 @@ import itertools
 import numpy as np
 
 from tracker_service.fusion import consider, nearby
-from tracker_service.fusion.arrays import is_member
+from tracker_service.fusion.arrays import is_member, kernel_indices
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import TrackFusionEstimator
 from tracker_service.fusion.ml import predict_cv
@@ -245,8 +245,8 @@ def track_distance(state: FusionState, a: IntArray, b: IntArray) -> FloatArray:
             loc["x"],
             loc["P"],
             loc["extra"],
-            np.ascontiguousarray(a, dtype=np.int64),
-            np.ascontiguousarray(b, dtype=np.int64),
+            kernel_indices(a),
+            kernel_indices(b),
             state.config.q,
         )
     xb, pb = predict_cv(loc["x"][b], loc["P"][b], loc["t"][a] - loc["t"][b], state.config.q)
@@ -420,8 +420,8 @@ def distance(
             loc["P"],
             loc["extra"],
             loc["radar"],
-            np.ascontiguousarray(local, dtype=np.int64),
-            np.ascontiguousarray(system, dtype=np.int64),
+            kernel_indices(local),
+            kernel_indices(system),
             c.omega,
             c.q,
             c.sojourn,

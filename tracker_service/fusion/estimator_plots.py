@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion import consider, plot_daps
-from tracker_service.fusion.arrays import last_of_each, positions, rank_within
+from tracker_service.fusion.arrays import kernel_indices, last_of_each, positions, rank_within
 from tracker_service.fusion.state import FusionState
 from tracker_service.tracking import imm
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray, PlotArrays
@@ -44,7 +44,7 @@ def combined_prediction(
             sys["mP"],
             sys["mM"],
             sys["mu"],
-            np.ascontiguousarray(numbers, dtype=np.int64),
+            kernel_indices(numbers),
             np.ascontiguousarray(dt, dtype=np.float64),
             c.omega,
             c.q,
@@ -163,7 +163,7 @@ def _filter_round(
             sys["M"],
             sys["B"],
             sys["t"],
-            np.ascontiguousarray(numbers, dtype=np.int64),
+            kernel_indices(numbers),
             np.ascontiguousarray(p.time, dtype=np.float64),
             z.astype(np.float64, copy=False),
             np.ascontiguousarray(p.R, dtype=np.float64),

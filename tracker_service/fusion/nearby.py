@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tracker_service.fusion.arrays import kernel_indices
 from tracker_service.fusion.table import Columns
 from tracker_service.tracking import imm
 from tracker_service.tracking.associate import candidate_pairs
@@ -113,7 +114,7 @@ def system_reach(
             sys["mu"],
             sys["M"],
             sys["t"],
-            _indices(numbers),
+            kernel_indices(numbers),
             from_models,
             bias_scale,
             t_mid,
@@ -137,11 +138,7 @@ def system_largest_bias(B: FloatArray, numbers: IntArray, compiled: bool) -> flo
         return largest_bias(B[numbers])
     from tracker_service.fusion.kernels import largest_bias_trace
 
-    return float(largest_bias_trace(B, _indices(numbers)))
-
-
-def _indices(numbers: IntArray) -> IntArray:
-    return np.ascontiguousarray(numbers, dtype=np.int64)
+    return float(largest_bias_trace(B, kernel_indices(numbers)))
 
 
 def near_pairs(
