@@ -11,7 +11,7 @@ that keeps up shows a flat lag; one that does not, a lag growing with the data t
     python benchmarks/bench_load.py simulate [--scenario artas] [--duration 120]
         [--out /tmp/artas-slice.mcap]       # the slice, once (minutes for artas)
     python benchmarks/bench_load.py replay /tmp/artas-slice.mcap [--speed 1]
-        [--sample-s 5] [--samples FILE.jsonl] [--max-wall 600]
+        [--sample-s 5] [--samples FILE.jsonl] [--max-wall 600] [--workers N]
 
 ``--max-wall``: a replay that falls far behind is stopped (SIGTERM, a clean stop) after
 that many seconds; the figures are then of what it did by then (data seconds replayed
@@ -71,6 +71,8 @@ def replay(args: argparse.Namespace) -> int:
     command = [sys.executable, "-m", "tracker_service.cli", "replay", args.recording]
     command += ["--speed", str(args.speed), "--mcap-dir", str(work / "log")]
     command += ["--zenoh-listen", endpoint]
+    if args.workers:
+        command += ["--workers", str(args.workers)]
     # The subscriber is ready before the replay starts: connect retries until it listens.
     arrivals: list[tuple[float, float]] = []
     config = zenoh.Config()
@@ -166,6 +168,9 @@ def main() -> int:
     rep.add_argument("--sample-s", type=float, default=5.0)
     rep.add_argument("--samples", help="write the samples here (JSON lines)")
     rep.add_argument("--max-wall", type=float, default=600.0, help="stop it after (s)")
+    rep.add_argument(
+        "--workers", type=int, default=0, help="radar worker processes (replay --workers)"
+    )
     args = parser.parse_args()
     return simulate(args) if args.command == "simulate" else replay(args)
 
