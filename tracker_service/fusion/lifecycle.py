@@ -151,10 +151,16 @@ def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]
     ):
         pair = (min(a, b), max(a, b))
         count = counts[pair] = state.merge_counts.get(pair, 0) + 1
-        if count >= state.config.merge_after and a not in young and b not in young:
+        # A track that took another in this batch now holds that one's radars too: two
+        # local tracks of one radar are two aircraft, never one system track (a radar's
+        # two tracks that founded together next to a third radar's system track merged
+        # both into it: `encounters` seed 2, CLIMB primary only).
+        shared = bool(np.any(radars_of[a] & radars_of[b]))
+        if count >= state.config.merge_after and a not in young and b not in young and not shared:
             keep, leave = (a, b) if sys["born"][a] <= sys["born"][b] else (b, a)
             old.append(keep)
             young.append(leave)
+            radars_of[keep] |= radars_of[leave]
     gone = set(young)
     state.merge_counts = {p: c for p, c in counts.items() if not gone & set(p)}
     if not young:
