@@ -844,11 +844,17 @@ class LocalTracker:
         limit = np.where(status == CONFIRMED, cfg.delete_misses, cfg.tentative_delete_misses)
         position_var = pred.P_comb[:, 0, 0] + pred.P_comb[:, 1, 1]
         spread = position_var > cfg.max_position_variance_m2
+        missed = n_miss >= limit
         if isinstance(self.associator, MultipleHypothesisTracking):
             # A track of a live cluster is not deleted for its spread: its hypotheses
             # (other histories, other plots) decide it, and deleting it would drop them.
-            spread &= ~np.isin(cols["number"][idle], self.associator.clustered_numbers)
-        dead = (n_miss >= limit) | spread
+            # Nor is a tentative one for the misses of the best hypothesis (a young
+            # track's wide prediction loses a single scan's plot to a confirmed
+            # neighbour's hypothesis; the scans after tell them apart).
+            clustered = np.isin(cols["number"][idle], self.associator.clustered_numbers)
+            spread &= ~clustered
+            missed &= ~(clustered & (status == TENTATIVE))
+        dead = missed | spread
         coasting = (status == CONFIRMED) & ~dead
         report = np.flatnonzero(dead | coasting)
         if report.size:
