@@ -848,12 +848,15 @@ class LocalTracker:
         if isinstance(self.associator, MultipleHypothesisTracking):
             # A track of a live cluster is not deleted for its spread: its hypotheses
             # (other histories, other plots) decide it, and deleting it would drop them.
-            # Nor is a tentative one for the misses of the best hypothesis (a young
-            # track's wide prediction loses a single scan's plot to a confirmed
-            # neighbour's hypothesis; the scans after tell them apart).
+            # Nor is a tentative one for the best hypothesis's misses while N-scan
+            # pruning may still revise them: a young track's wide prediction loses one
+            # scan's plot to a confirmed neighbour's hypothesis, and the scans after
+            # tell them apart (`encounters` seed 13, three abreast on the 12 s radar:
+            # deleted, its aircraft's plots went to the neighbours, which shifted over).
             clustered = np.isin(cols["number"][idle], self.associator.clustered_numbers)
             spread &= ~clustered
-            missed &= ~(clustered & (status == TENTATIVE))
+            revisable = n_miss < limit + cfg.mht_n_scan - 1
+            missed &= ~(clustered & (status == TENTATIVE) & revisable)
         dead = missed | spread
         coasting = (status == CONFIRMED) & ~dead
         report = np.flatnonzero(dead | coasting)
