@@ -1,7 +1,7 @@
 """The fuser's first join of a local track that two system tracks could take alike waits
-(``FusionConfig.join_ambiguity_margin``, fusion/associate.py ``_ambiguous_joins``), and
-joins on the whole wait when it runs out; a radar's two tracks that founded together
-never merge into one system track (docs/association.md "Session 9", "Session 10")."""
+(``FusionConfig.join_ambiguity_margin``, fusion/associate.py ``_ambiguous_joins``); a
+radar's two tracks that founded together never merge into one system track
+(docs/association.md "Session 9", "Session 10")."""
 
 from __future__ import annotations
 
@@ -70,27 +70,6 @@ def test_the_wait_ends_after_the_found_delay() -> None:
             joined_at.append(t)
     # First seen at T0 + 2.5 s; every 5 s since; joined at the first update 20 s later.
     assert joined_at and joined_at[0] == T0 + 22.5
-
-
-def test_a_wait_that_runs_out_joins_on_the_whole_wait() -> None:
-    """Radar 1's young tracks (600 m) stay ambiguous through their wait, each slightly
-    nearer its own aircraft at every update but the one at which the wait runs out,
-    where each is nearer the other's (a moment's pull, such as a third radar's track
-    holding both aircraft joining one system track): they join on their mean costs over
-    the wait, the right system tracks (on that last update alone: crosswise)."""
-    fuser = SystemTracker(2, FusionConfig(join_ambiguity_margin=4.0, found_delay_s=20.0))
-    for k in range(10):
-        t = T0 + 2.5 * k
-        radar = k % 2
-        pulled = t - T0 >= 20.0
-        ys = [0.0, APART] if radar == 0 else [600.0, 400.0] if pulled else [400.0, 600.0]
-        u, p = east_batch([10 + radar, 20 + radar], t, SPEED * (t - T0), ys, 600.0, 2 * k, SPEED)
-        fuser.process(radar, u, p)
-        if radar == 1 and t - T0 < 20.0:
-            assert system_of(fuser, 1, 11) == system_of(fuser, 1, 21) == 0  # waiting
-    assert system_of(fuser, 1, 11) == system_of(fuser, 0, 10) > 0
-    assert system_of(fuser, 1, 21) == system_of(fuser, 0, 20) > 0
-    assert not fuser.state.join_evidence  # the evidence goes with the wait
 
 
 def test_two_tracks_of_one_radar_never_merge_into_one_system_track() -> None:

@@ -29,10 +29,9 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     cfg = state.config
     loc = state.local.rows
     live: IntArray = touched[loc["status"][touched] != LOCAL_DELETED]
-    deleted = loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]].tolist()
-    state.exchange_evidence.drop(deleted)
-    for key in deleted:
-        state.join_evidence.pop(key, None)
+    state.exchange_evidence.drop(
+        loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]].tolist()
+    )
     # Only confirmed local tracks feed system tracks: one that its tracker took back
     # to tentative (a slow primary-only track: clutter) leaves its system track.
     demoted = live[(loc["system"][live] > 0) & (loc["status"][live] == LOCAL_TENTATIVE)]
@@ -295,8 +294,7 @@ def assign(
     cost = d2 + identity_cost(
         loc["address"][li], sys["address"][sj], loc["mode3a"][li], sys["mode3a"][sj], state.config
     )
-    ambiguous, waiting = _ambiguous_joins(state, li, sj, cost)
-    cost = _wait_evidence(state, li, sj, cost, free, ambiguous, waiting)
+    waiting = _ambiguous_joins(state, li, sj, cost)
     if waiting.size:
         keep = ~np.isin(li, waiting)
         li, sj, cost = li[keep], sj[keep], cost[keep]
@@ -306,63 +304,16 @@ def assign(
     return li[chosen], sj[chosen], waiting
 
 
-def _wait_evidence(
-    state: FusionState,
-    li: IntArray,
-    sj: IntArray,
-    cost: FloatArray,
-    free: IntArray,
-    ambiguous: IntArray,
-    waiting: IntArray,
-) -> FloatArray:
-    """The join costs GNN decides on: a waiting track's costs are added up per candidate
-    (``FusionState.join_evidence``); a track still ambiguous when its wait runs out
-    takes each candidate it was weighed against while waiting at its mean cost over the
-    wait (this update's included), the rest at this update's. Decided on its last
-    update alone, the join went with a moment's bias: a third radar's track that holds
-    both aircraft (0.5 km apart) joined one candidate during the wait and pulled that
-    system track's state towards the other aircraft, and the join at the end went
-    crosswise where every earlier update had favoured the right one (`encounters` seed
-    13, PAR05 primary only, JPDA; docs/association.md "Session 10"). A wait that ends
-    because one candidate has become the clear choice keeps that update's costs: the
-    earlier ones were taken before the biases were known."""
-    evidence = state.join_evidence
-    if not evidence and waiting.size == 0:
-        return cost
-    keys = state.local.rows["key"]
-    cost = cost.copy()
-    waits = set(waiting.tolist())
-    ran_out = set(ambiguous.tolist()) - waits
-    for i, (row, number) in enumerate(zip(li.tolist(), sj.tolist(), strict=True)):
-        key = int(keys[row])
-        held = evidence.get(key)
-        if row in waits:
-            total, n = (held or {}).get(number, (0.0, 0))
-            evidence.setdefault(key, {})[number] = (total + float(cost[i]), n + 1)
-        elif row in ran_out and held is not None and number in held:
-            total, n = held[number]
-            cost[i] = (total + cost[i]) / (n + 1)
-    # A free track that does not wait now joins, founds or stays out of reach (no
-    # gated pair): its wait is over.
-    for row in free.tolist():
-        if row not in waits:
-            evidence.pop(int(keys[row]), None)
-    return cost
-
-
-def _ambiguous_joins(
-    state: FusionState, li: IntArray, sj: IntArray, cost: FloatArray
-) -> tuple[IntArray, IntArray]:
-    """The local tracks (rows) among the gated pairs that are ambiguous: one of two
+def _ambiguous_joins(state: FusionState, li: IntArray, sj: IntArray, cost: FloatArray) -> IntArray:
+    """The local tracks (rows) among the gated pairs whose join waits: one of two
     candidates within ``join_ambiguity_margin`` of each other, for a local track (its two
-    likeliest system tracks) or for a system track (its two likeliest local tracks); and
-    those of them whose join waits, not waiting for longer than ``found_delay`` yet (the
-    wait is counted from ``t_founder``, the first time the track could have founded a
-    system track)."""
+    likeliest system tracks) or for a system track (its two likeliest local tracks), and
+    not waiting for longer than ``found_delay`` yet (the wait is counted from
+    ``t_founder``, the first time the track could have founded a system track)."""
     margin = state.config.join_ambiguity_margin
     empty = np.zeros(0, dtype=np.int64)
     if margin <= 0 or li.size < 2:
-        return empty, empty
+        return empty
     close: set[int] = set()
     for keys, others in ((li, sj), (sj, li)):
         order = np.lexsort((cost, keys))
@@ -376,12 +327,12 @@ def _ambiguous_joins(
             close.update(o[near].tolist())
             close.update(o[near + 1].tolist())
     if not close:
-        return empty, empty
+        return empty
     rows = np.array(sorted(close), dtype=np.int64)
     loc = state.local.rows
     first = np.isnan(loc["t_founder"][rows])
     loc["t_founder"][rows[first]] = state.now
-    return rows, rows[state.now - loc["t_founder"][rows] < state.config.found_delay]
+    return rows[state.now - loc["t_founder"][rows] < state.config.found_delay]
 
 
 STRAIGHT_LINE = TrackFusionEstimator()

@@ -96,9 +96,6 @@ class FusionState:
     """Consecutive joint gate passes of each pair of system tracks (track life's merge)."""
     exchange_evidence: PairEvidence = field(default_factory=PairEvidence)
     """Per pair of local-track keys of one radar in two system tracks."""
-    join_evidence: dict[int, dict[int, tuple[float, int]]] = field(default_factory=dict)
-    """Per local-track key waiting to join (``associate._ambiguous_joins``): per candidate
-    system number, the sum of its join costs over the wait and their count."""
 
     @property
     def compiled(self) -> bool:
