@@ -39,11 +39,13 @@ from tracker_service.bias.reception import ReceptionEvidence
 from tracker_service.fixed_targets import FixedTargetConfig, FixedTargets, FixedTransponder
 from tracker_service.geodesy import (
     Atmosphere,
+    ConvertedPlots,
     HeightModel,
     RadarSite,
     SystemPlane,
     convert_plots,
 )
+from tracker_service.geodesy.compiled import PlaneSteps, convert_batch_plots
 from tracker_service.geodesy.unknown_height import (
     HeightBand,
     height_jacobian,
@@ -280,7 +282,7 @@ def convert_batch(
     psr_only = raw["typ"] == 1
     sigma_rho = np.where(psr_only, info.psr_sigma_range_m, info.sigma_range_m)
     sigma_theta = np.where(psr_only, info.psr_sigma_azimuth_deg, info.sigma_azimuth_deg)
-    converted = convert_plots(
+    converted, steps = _convert(
         info.site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
     )
     c = np.zeros((n, 2, 4))
@@ -292,7 +294,7 @@ def convert_batch(
 
     batch = empty_plots(n)
     table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
-    implausible_daps = _fill_daps(batch, table, raw, plane, converted)
+    implausible_daps = _fill_daps(batch, table, raw, plane, converted, steps)
     batch["time"] = times
     batch["x"] = converted.x
     batch["y"] = converted.y
@@ -350,12 +352,34 @@ def convert_batch(
     return batch, table, c
 
 
+def _convert(
+    site: RadarSite,
+    plane: SystemPlane,
+    rho_m: FloatArray,
+    theta: FloatArray,
+    height: FloatArray,
+    height_sigma: FloatArray,
+    sigma_rho: FloatArray,
+    sigma_theta: FloatArray,
+) -> tuple[ConvertedPlots, PlaneSteps | None]:
+    """``convert_plots`` of one batch: in compiled passes in the stereographic plane
+    (``geodesy.compiled``, the same values), with the projections it made."""
+    if plane.kind != "stereographic":
+        converted = convert_plots(
+            site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
+        )
+        return converted, None
+    columns = (rho_m, theta, height, height_sigma, sigma_rho, sigma_theta)
+    return convert_batch_plots(site, plane, *(np.ascontiguousarray(c) for c in columns))
+
+
 def _fill_daps(
     batch: npt.NDArray[Any],
     table: npt.NDArray[Any],
     raw: npt.NDArray[Any],
     plane: SystemPlane,
-    converted: Any,
+    converted: ConvertedPlots,
+    steps: PlaneSteps | None,
 ) -> npt.NDArray[np.bool_]:
     """The plots' Mode S DAPs into the tracker's batch (``tracking.daps.plot_daps``) and
     the plot table (for the outputs); per plot, whether one was implausible. Batches
@@ -364,7 +388,7 @@ def _fill_daps(
     if not any(name in names and np.isfinite(raw[name]).any() for name in DAP_COLUMNS):
         return np.zeros(len(raw), dtype=bool)
     columns, implausible = plot_daps(
-        raw, plane, converted.lat_deg, converted.lon_deg, converted.height_m
+        raw, plane, converted.lat_deg, converted.lon_deg, converted.height_m, steps
     )
     for name, values in columns.items():
         batch[name] = values

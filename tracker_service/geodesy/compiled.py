@@ -1,0 +1,380 @@
+"""``convert_plots`` in a few compiled passes, for the radar stage's batches: the same
+values to the bit, in the stereographic plane.
+
+A radar's batch is a few dozen plots, and ``convert_plots`` spends most of its time in the
+set-up of its ~120 numpy calls. Here the arithmetic runs as numba loops over the batch
+(``cache=True``), in the order of operations of the numpy code, and what is not plain
+arithmetic stays where it was computed before, so that every value is the same:
+
+- numpy computes ``arcsin``, ``arctan2`` and ``power`` with its own SIMD routines, which
+  differ from the C library's that numba calls in the last bit of about one value in ten:
+  those stay numpy calls on whole arrays, between the compiled passes (``sin``, ``cos``,
+  ``sqrt`` and ``hypot`` are the same in both, and are compiled);
+- PROJ's geodetic and stereographic transforms stay pyproj calls, each made once: the
+  plane's position and the Jacobian's base point are one projection (``convert_plots``
+  projected it twice);
+- numpy's 2x2 matrix products (``@``) go through BLAS, whose kernel sums the two products
+  with a fused multiply-add (``_fma`` reproduces it), and its ``einsum`` of the radar turn
+  adds its three products in the order (0 + 2) + 1.
+
+``tests/test_geodesy_compiled.py`` holds every output to ``convert_plots``'s, bit for bit,
+on drawn and recorded batches. The tangent plane, and any caller outside the radar stage,
+uses ``convert_plots`` itself.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import numpy.typing as npt
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
+
+from tracker_service.geodesy.convert import ConvertedPlots
+from tracker_service.geodesy.ellipsoid import E2, A, FloatArray, ecef_to_geodetic
+from tracker_service.geodesy.plane import STEP_DEG, SystemPlane
+from tracker_service.geodesy.plots import MIN_COS_ELEVATION, MIN_RANGE_M
+from tracker_service.geodesy.sites import RadarSite
+
+__all__ = ["PlaneSteps", "convert_batch_plots", "dap_jacobian"]
+
+IntArray = npt.NDArray[np.int64]
+
+_MERIDIAN_NUMERATOR = A * (1.0 - E2)
+"""As ``radii_m`` computes it: one Python constant, then divided by w^1.5."""
+_STEP_RAD = float(np.radians(STEP_DEG))
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """a * b + c rounded once, as BLAS's 2x2 kernel sums its products."""
+    signature = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
+        double = ir.DoubleType()
+        fused = builder.module.declare_intrinsic(
+            "llvm.fma", [double], ir.FunctionType(double, [double, double, double])
+        )
+        return builder.call(fused, args)
+
+    return signature, codegen
+
+
+@numba.njit(cache=True, inline="always")
+def _maximum(a: float, b: float) -> float:  # pragma: no cover - compiled
+    """``np.maximum`` of two floats: NaN when either is."""
+    if a != a or b != b:
+        return a + b
+    return a if a >= b else b
+
+
+@numba.njit(cache=True, inline="always")
+def _minimum(a: float, b: float) -> float:  # pragma: no cover - compiled
+    """``np.minimum`` of two floats: NaN when either is."""
+    if a != a or b != b:
+        return a + b
+    return a if a <= b else b
+
+
+@numba.njit(cache=True)
+def _slant(
+    rho: FloatArray,
+    height: FloatArray,
+    rc: float,
+    site_alt: float,
+    sin_psi: FloatArray,
+    ground: FloatArray,
+    gamma_x: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """``slant_geometry`` up to its ``arcsin`` and ``arctan2``: sin psi, the ground range
+    and the second argument of gamma's arctan2 (k + rho sin psi)."""
+    k = rc + site_alt
+    for i in range(rho.shape[0]):
+        r = rho[i]
+        h = height[i]
+        rho_safe = _maximum(r, MIN_RANGE_M)
+        s = ((h - site_alt) * (2.0 * rc + h + site_alt) - rho_safe * rho_safe) / (
+            2.0 * rho_safe * k
+        )
+        if s < -1.0:
+            s = -1.0
+        elif s > 1.0:
+            s = 1.0
+        sin_psi[i] = s
+        ground[i] = r * np.sqrt(1.0 - s * s)
+        gamma_x[i] = k + r * s
+
+
+@numba.njit(cache=True)
+def _ecef(
+    rho: FloatArray,
+    theta: FloatArray,
+    north_offset: float,
+    ground: FloatArray,
+    elevation: FloatArray,
+    s: FloatArray,
+    t: FloatArray,
+    sin_az: FloatArray,
+    cos_az: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    z: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """The true azimuth's sine and cosine, the local ENU position
+    (``local_from_azimuth``) and ECEF (``local_to_ecef``, ``s`` the site's ENU rotation,
+    ``t`` its ECEF position)."""
+    for i in range(rho.shape[0]):
+        azimuth = np.radians(theta[i] + north_offset)
+        sa = np.sin(azimuth)
+        ca = np.cos(azimuth)
+        sin_az[i] = sa
+        cos_az[i] = ca
+        east = ground[i] * sa
+        north = ground[i] * ca
+        up = rho[i] * np.sin(elevation[i])
+        x[i] = s[0, 0] * east + s[1, 0] * north + s[2, 0] * up + t[0]
+        y[i] = s[0, 1] * east + s[1, 1] * north + s[2, 1] * up + t[1]
+        z[i] = s[0, 2] * east + s[1, 2] * north + s[2, 2] * up + t[2]
+
+
+@numba.njit(cache=True)
+def _turn_terms(
+    lat: FloatArray,
+    lon: FloatArray,
+    site_rotation: FloatArray,
+    w: FloatArray,
+    turn_y: FloatArray,
+    turn_x: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """Per point: w = 1 - e^2 sin^2 lat of ``radii_m`` (numpy raises it to 1.5), and the
+    arguments of ``SystemPlane.radar_turn``'s arctan2 (M10 - M01, M00 + M11, M the
+    target's east and north against the radar's, by ``einsum``'s order of sums)."""
+    q = site_rotation
+    for i in range(lat.shape[0]):
+        lat_r = np.radians(lat[i])
+        lon_r = np.radians(lon[i])
+        sin_lat = np.sin(lat_r)
+        w[i] = 1.0 - E2 * sin_lat * sin_lat
+        cos_lat = np.cos(lat_r)
+        sin_lon = np.sin(lon_r)
+        cos_lon = np.cos(lon_r)
+        # enu_rotation's first two rows.
+        e0, e1, e2 = -sin_lon, cos_lon, 0.0
+        n0, n1, n2 = -sin_lat * cos_lon, -sin_lat * sin_lon, cos_lat
+        m00 = e0 * q[0, 0] + e2 * q[0, 2] + e1 * q[0, 1]
+        m01 = e0 * q[1, 0] + e2 * q[1, 2] + e1 * q[1, 1]
+        m10 = n0 * q[0, 0] + n2 * q[0, 2] + n1 * q[0, 1]
+        m11 = n0 * q[1, 0] + n2 * q[1, 2] + n1 * q[1, 1]
+        turn_y[i] = m10 - m01
+        turn_x[i] = m00 + m11
+
+
+@numba.njit(cache=True)
+def _plane_terms(
+    rho: FloatArray,
+    height_sigma: FloatArray,
+    sigma_rho: FloatArray,
+    sigma_theta_deg: FloatArray,
+    sin_psi: FloatArray,
+    elevation: FloatArray,
+    gamma: FloatArray,
+    ground: FloatArray,
+    sin_az: FloatArray,
+    cos_az: FloatArray,
+    lat: FloatArray,
+    h: FloatArray,
+    w15: FloatArray,
+    w: FloatArray,
+    e0: FloatArray,
+    n0: FloatArray,
+    e_north: FloatArray,
+    n_north: FloatArray,
+    e_east: FloatArray,
+    n_east: FloatArray,
+    angle: FloatArray,
+    covariance: FloatArray,
+    polar_jacobian: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """The rest of ``convert_plots``: the gains at the target, the horizontal covariance
+    (``covariance_from_gains``), the plane's Jacobian (``SystemPlane.jacobian``, from
+    the projections given), the radar turn, R and the polar Jacobian."""
+    for i in range(rho.shape[0]):
+        r = rho[i]
+        psi = elevation[i]
+        at_target = psi + gamma[i]
+        cos_at_target = _maximum(np.cos(at_target), MIN_COS_ELEVATION)
+        range_gain = 1.0 / cos_at_target
+        height_gain = -np.sin(at_target) / cos_at_target
+        # covariance_from_gains, its height sigma 0.
+        sr = sigma_rho[i]
+        t1 = range_gain * sr
+        t2 = height_gain * 0.0
+        along = t1 * t1 + t2 * t2
+        along = _minimum(along, r * r + sr * sr)
+        spread = np.radians(sigma_theta_deg[i])
+        t3 = r * np.cos(psi) * spread
+        cross = t3 * t3
+        s = sin_az[i]
+        c = cos_az[i]
+        h00 = along * s * s + cross * c * c
+        h11 = along * c * c + cross * s * s
+        h01 = (along - cross) * s * c
+        # SystemPlane.jacobian (stereographic: its up column is zero).
+        meridian = _MERIDIAN_NUMERATOR / w15[i]
+        prime_vertical = A / np.sqrt(w[i])
+        north_m = (meridian + h[i]) * _STEP_RAD
+        east_m = (prime_vertical + h[i]) * np.cos(np.radians(lat[i])) * _STEP_RAD
+        j00 = (e_east[i] - e0[i]) / east_m
+        j10 = (n_east[i] - n0[i]) / east_m
+        j01 = (e_north[i] - e0[i]) / north_m
+        j11 = (n_north[i] - n0[i]) / north_m
+        # a = jacobian[:2] @ radar_turn.
+        ca = np.cos(angle[i])
+        sa = np.sin(angle[i])
+        a00 = _fma(j01, sa, j00 * ca)
+        a01 = _fma(j01, ca, j00 * -sa)
+        a10 = _fma(j11, sa, j10 * ca)
+        a11 = _fma(j11, ca, j10 * -sa)
+        # a @ horizontal @ a^T.
+        b00 = _fma(a01, h01, a00 * h00)
+        b01 = _fma(a01, h11, a00 * h01)
+        b10 = _fma(a11, h01, a10 * h00)
+        b11 = _fma(a11, h11, a10 * h01)
+        c00 = _fma(b01, a01, b00 * a00)
+        c01 = _fma(b01, a11, b00 * a10)
+        c10 = _fma(b11, a01, b10 * a00)
+        c11 = _fma(b11, a11, b10 * a10)
+        # The height error's slide along the line of sight (the up column adds 0 * sigma).
+        hs = height_sigma[i]
+        slide = _minimum(_maximum(height_gain * hs, -r), r)
+        u0 = s * slide
+        u1 = c * slide
+        shift0 = a00 * u0 + a01 * u1 + 0.0 * hs
+        shift1 = a10 * u0 + a11 * u1 + 0.0 * hs
+        covariance[i, 0, 0] = c00 + shift0 * shift0
+        covariance[i, 0, 1] = c01 + shift0 * shift1
+        covariance[i, 1, 0] = c10 + shift1 * shift0
+        covariance[i, 1, 1] = c11 + shift1 * shift1
+        v0 = s * range_gain
+        v1 = c * range_gain
+        polar_jacobian[i, 0, 0] = a00 * v0 + a01 * v1
+        polar_jacobian[i, 1, 0] = a10 * v0 + a11 * v1
+        g = ground[i]
+        v0 = c * g
+        v1 = -s * g
+        polar_jacobian[i, 0, 1] = a00 * v0 + a01 * v1
+        polar_jacobian[i, 1, 1] = a10 * v0 + a11 * v1
+
+
+@dataclass(frozen=True)
+class PlaneSteps:
+    """What the conversion projected: each plot's point and its steps north and east
+    (``SystemPlane.jacobian``'s differences) and the radii's w and w^1.5, for the DAPs'
+    velocity turned at another height (``dap_jacobian``)."""
+
+    e0: FloatArray
+    n0: FloatArray
+    e_north: FloatArray
+    n_north: FloatArray
+    e_east: FloatArray
+    n_east: FloatArray
+    w: FloatArray
+    w15: FloatArray
+
+
+def convert_batch_plots(
+    site: RadarSite,
+    plane: SystemPlane,
+    rho: FloatArray,
+    theta: FloatArray,
+    height: FloatArray,
+    height_sigma: FloatArray,
+    sigma_rho: FloatArray,
+    sigma_theta: FloatArray,
+) -> tuple[ConvertedPlots, PlaneSteps]:
+    """``convert_plots(site, plane, rho, theta, height, height_sigma, sigma_rho,
+    sigma_theta)`` of 1-D float64 arrays of one length, in a stereographic plane, with
+    what it projected (``PlaneSteps``)."""
+    assert plane.kind == "stereographic"
+    n = rho.shape[0]
+    sin_psi, ground, gamma_x = np.empty(n), np.empty(n), np.empty(n)
+    _slant(rho, height, site.earth_radius_m, site.alt_m, sin_psi, ground, gamma_x)
+    elevation = np.arcsin(sin_psi)
+    gamma = np.arctan2(ground, gamma_x)
+    sin_az, cos_az = np.empty(n), np.empty(n)
+    x, y, z = np.empty(n), np.empty(n), np.empty(n)
+    _ecef(
+        rho, theta, site.north_offset_deg, ground, elevation, site.enu_rotation, site.ecef_m,
+        sin_az, cos_az, x, y, z,
+    )  # fmt: skip
+    lat, lon, h = ecef_to_geodetic(x, y, z)
+    project = plane._stereographic.transform
+    e0, n0 = project(lon, lat)
+    e_north, n_north = project(lon, lat + STEP_DEG)
+    e_east, n_east = project(lon + STEP_DEG, lat)
+    w, turn_y, turn_x = np.empty(n), np.empty(n), np.empty(n)
+    _turn_terms(lat, lon, site.enu_rotation, w, turn_y, turn_x)
+    w15 = w**1.5
+    angle = np.arctan2(turn_y, turn_x)
+    covariance = np.empty((n, 2, 2))
+    polar_jacobian = np.empty((n, 2, 2))
+    _plane_terms(
+        rho, height_sigma, sigma_rho, sigma_theta, sin_psi, elevation, gamma, ground, sin_az,
+        cos_az, lat, h, w15, w, e0, n0, e_north, n_north, e_east, n_east, angle, covariance,
+        polar_jacobian,
+    )  # fmt: skip
+    converted = ConvertedPlots(
+        x=e0,
+        y=n0,
+        height_m=np.array(height),
+        height_sigma_m=np.array(height_sigma),
+        R=covariance,
+        lat_deg=lat,
+        lon_deg=lon,
+        elevation_rad=elevation,
+        polar_jacobian=polar_jacobian,
+    )
+    return converted, PlaneSteps(e0, n0, e_north, n_north, e_east, n_east, w, w15)
+
+
+@numba.njit(cache=True)
+def _jacobian_rows(
+    rows: IntArray,
+    lat: FloatArray,
+    h: FloatArray,
+    w15: FloatArray,
+    w: FloatArray,
+    e0: FloatArray,
+    n0: FloatArray,
+    e_north: FloatArray,
+    n_north: FloatArray,
+    e_east: FloatArray,
+    n_east: FloatArray,
+    out: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """``SystemPlane.jacobian(lat[rows], lon[rows], h[rows])[..., :2]`` from the
+    projections already made."""
+    for k in range(rows.shape[0]):
+        i = rows[k]
+        meridian = _MERIDIAN_NUMERATOR / w15[i]
+        prime_vertical = A / np.sqrt(w[i])
+        north_m = (meridian + h[i]) * _STEP_RAD
+        east_m = (prime_vertical + h[i]) * np.cos(np.radians(lat[i])) * _STEP_RAD
+        out[k, 0, 0] = (e_east[i] - e0[i]) / east_m
+        out[k, 1, 0] = (n_east[i] - n0[i]) / east_m
+        out[k, 0, 1] = (e_north[i] - e0[i]) / north_m
+        out[k, 1, 1] = (n_north[i] - n0[i]) / north_m
+
+
+def dap_jacobian(steps: PlaneSteps, rows: IntArray, lat: FloatArray, h: FloatArray) -> FloatArray:
+    """(k, 2, 2): the plane's Jacobian at the plots ``rows`` at heights ``h`` (per plot
+    of the batch), as ``SystemPlane.jacobian(lat[rows], lon[rows], h[rows])[..., :2]``."""
+    out = np.empty((rows.shape[0], 2, 2))
+    s = steps
+    _jacobian_rows(
+        rows, lat, h, s.w15, s.w, s.e0, s.n0, s.e_north, s.n_north, s.e_east, s.n_east, out
+    )
+    return out
