@@ -298,8 +298,11 @@ class FixedTargets:
         period_s: float,
         transponders: Sequence[FixedTransponder] = (),
         config: FixedTargetConfig | None = None,
+        compiled: bool = True,
     ) -> None:
         self.config = config or FixedTargetConfig()
+        self.compiled = compiled
+        """Detection by ``fixed_target_kernels.detect`` (the same verdicts), not numpy."""
         self.period_s = period_s
         self.transponders = tuple(transponders)
         t = self.transponders
@@ -392,8 +395,45 @@ class FixedTargets:
             keys = identity_keys(address, mode3a, mode3a_valid | monitor)
             rows = np.flatnonzero(candidates & ~configured & (keys != NO_KEY))
             if rows.size:
-                fixed[rows] = self._detect(table[rows], keys[rows], monitor[rows])
+                detect = self._detect_compiled if self.compiled else self._detect
+                fixed[rows] = detect(table[rows], keys[rows], monitor[rows])
         return Classification(fixed, reference)
+
+    def _detect_compiled(
+        self, plots: npt.NDArray[Any], keys: IntArray, monitor: BoolArray
+    ) -> BoolArray:
+        """``_detect`` in one compiled pass (``fixed_target_kernels``)."""
+        from tracker_service.fixed_target_kernels import detect
+
+        cfg, c = self.config, self._candidates
+        taken, c.key, c.values, c.fixed = detect(
+            np.ascontiguousarray(plots["time"], np.float64),
+            np.ascontiguousarray(plots["x"], np.float64),
+            np.ascontiguousarray(plots["y"], np.float64),
+            np.ascontiguousarray(plots["R"], np.float64),
+            np.ascontiguousarray(keys, np.int64),
+            np.ascontiguousarray(monitor, np.bool_),
+            c.key,
+            c.values,
+            c.fixed,
+            float(self.period_s),
+            float(cfg.fixed_memory_s),
+            float(cfg.stale_periods * self.period_s),
+            float(cfg.halo_m**2),
+            float(cfg.min_radius_m),
+            float(cfg.gate_sigmas),
+            float(cfg.site_monitor_max_speed_kt * KT),
+            float(cfg.site_monitor_reach_kt * KT),
+            float(cfg.site_monitor_moving_steps),
+            float(cfg.site_monitor_min_plots),
+            float(cfg.min_plots),
+            float(cfg.min_duration_s),
+            float(cfg.site_monitor_max_speed_kt * KT),
+            float(cfg.max_speed_kt * KT),
+            float(cfg.site_monitor_speed_sigmas),
+            float(cfg.speed_sigmas),
+        )
+        return taken
 
     def _detect(self, plots: npt.NDArray[Any], keys: IntArray, monitor: BoolArray) -> BoolArray:
         """Each plot joins the nearest candidate of its identity whose area it falls in,

@@ -63,7 +63,7 @@ def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]  # pragma: no cove
     return signature, codegen
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _maximum(a: float, b: float) -> float:  # pragma: no cover - compiled
     """``np.maximum`` of two floats: NaN when either is."""
     if a != a or b != b:
@@ -71,7 +71,7 @@ def _maximum(a: float, b: float) -> float:  # pragma: no cover - compiled
     return a if a >= b else b
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _minimum(a: float, b: float) -> float:  # pragma: no cover - compiled
     """``np.minimum`` of two floats: NaN when either is."""
     if a != a or b != b:
@@ -79,7 +79,7 @@ def _minimum(a: float, b: float) -> float:  # pragma: no cover - compiled
     return a if a <= b else b
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _slant(
     rho: FloatArray,
     height: FloatArray,
@@ -108,7 +108,7 @@ def _slant(
         gamma_x[i] = k + r * s
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _ecef(
     rho: FloatArray,
     theta: FloatArray,
@@ -140,7 +140,7 @@ def _ecef(
         z[i] = s[0, 2] * east + s[1, 2] * north + s[2, 2] * up + t[2]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _turn_terms(
     lat: FloatArray,
     lon: FloatArray,
@@ -172,7 +172,7 @@ def _turn_terms(
         turn_x[i] = m00 + m11
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _plane_terms(
     rho: FloatArray,
     height_sigma: FloatArray,
@@ -340,7 +340,7 @@ def convert_batch_plots(
     return converted, PlaneSteps(e0, n0, e_north, n_north, e_east, n_east, w, w15)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _jacobian_rows(
     rows: IntArray,
     lat: FloatArray,

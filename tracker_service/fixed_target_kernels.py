@@ -1,0 +1,211 @@
+"""``FixedTargets``' detection (``fixed_targets._detect``, the numpy reference) as one
+compiled pass per batch: the same candidates, sums and verdicts, to the bit.
+
+A radar's batch is a few dozen plots and the reference spends most of its time in the
+set-up of its ~80 numpy calls. Here every step runs in the reference's order of
+operations (the least-squares sums added plot by plot, as ``np.add.at`` adds them; the
+candidates kept sorted by a stable sort of their identity), so that the candidate table
+and the verdicts are identical; ``tests/test_fixed_targets.py`` holds the two to it on
+drawn and recorded batches.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["detect"]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+# The columns of ``fixed_targets._Candidates.values``.
+N, T0, X0, Y0, LAST, ST, SX, SY, STT, STX, STY, VAR, MOVES = range(13)
+N_FIELDS = 13
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _maximum(a: float, b: float) -> float:  # pragma: no cover - compiled
+    """``np.maximum``: NaN when either is."""
+    if a != a or b != b:
+        return a + b
+    return a if a >= b else b
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _median(values: FloatArray) -> float:  # pragma: no cover - compiled
+    """``small_arrays.median``."""
+    ordered = np.sort(values)
+    if np.isnan(ordered[-1]):
+        return math.nan
+    middle = ordered.shape[0] // 2
+    if ordered.shape[0] % 2:
+        return float(ordered[middle])
+    return float((ordered[middle - 1] + ordered[middle]) / 2.0)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _speed_bound(v: FloatArray, sigmas: float) -> float:  # pragma: no cover - compiled
+    """``_Candidates.speed_bound`` of one candidate's row ``v``."""
+    n = v[N]
+    st = v[ST]
+    s_tt = v[STT] - st**2 / n
+    vx = (v[STX] - st * v[SX] / n) / s_tt
+    vy = (v[STY] - st * v[SY] / n) / s_tt
+    sigma_v = np.sqrt(v[VAR] / n / s_tt)
+    bound = np.hypot(vx, vy) + sigmas * sigma_v
+    return bound if s_tt > 1e-6 else np.inf
+
+
+@numba.njit(cache=True, error_model="numpy")
+def detect(
+    t: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    r: FloatArray,
+    keys: IntArray,
+    monitor: BoolArray,
+    key: IntArray,
+    values: FloatArray,
+    fixed: BoolArray,
+    period_s: float,
+    fixed_memory_s: float,
+    stale_s: float,
+    halo2: float,
+    min_radius_m: float,
+    gate_sigmas: float,
+    slowest_m_s: float,
+    reach_m_s: float,
+    moving_steps: float,
+    monitor_min_plots: float,
+    min_plots: float,
+    min_duration_s: float,
+    monitor_max_speed_m_s: float,
+    max_speed_m_s: float,
+    monitor_speed_sigmas: float,
+    speed_sigmas: float,
+) -> tuple[BoolArray, IntArray, FloatArray, BoolArray]:  # pragma: no cover - compiled
+    """``FixedTargets._detect`` of plots (time, x, y, R, identity key, wears a
+    site-monitor code) against the candidates (``key``, ``values``, ``fixed``): per plot
+    whether it is taken as fixed, and the candidates' new table."""
+    k = t.shape[0]
+    sigma = np.empty(k)
+    for i in range(k):
+        a, b, d = r[i, 0, 0], r[i, 0, 1], r[i, 1, 1]
+        half = 0.5 * (a + d)
+        sigma[i] = np.sqrt(half + np.sqrt(_maximum(0.25 * (a - d) ** 2 + b * b, 0.0)))
+    now = _median(t)
+    # Forget the quiet candidates; the others sorted by identity (stably).
+    live = np.empty(key.shape[0], np.int64)
+    m = 0
+    for c in range(key.shape[0]):
+        memory = fixed_memory_s if fixed[c] else stale_s
+        if values[c, LAST] >= now - memory:
+            live[m] = c
+            m += 1
+    order = live[:m][np.argsort(key[live[:m]], kind="mergesort")]
+    # Room for one new candidate per plot.
+    new_key = np.empty(m + k, np.int64)
+    new_values = np.empty((m + k, N_FIELDS))
+    new_fixed = np.empty(m + k, np.bool_)
+    for j in range(m):
+        new_key[j] = key[order[j]]
+        new_values[j] = values[order[j]]
+        new_fixed[j] = fixed[order[j]]
+    sorted_keys = new_key[:m]
+    rows = np.full(k, -1, np.int64)
+    halo = np.zeros(k, np.bool_)
+    moves = np.zeros(k)
+    for i in range(k):
+        first = np.searchsorted(sorted_keys, keys[i], "left")
+        last = np.searchsorted(sorted_keys, keys[i], "right")
+        radius = _maximum(min_radius_m, gate_sigmas * sigma[i])
+        best = np.inf
+        best_slot = -1
+        near = False
+        steps = -np.inf
+        for s in range(first, last):
+            v = new_values[s]
+            n = _maximum(v[N], 1.0)
+            mx = v[X0] + v[SX] / n
+            my = v[Y0] + v[SY] / n
+            d2 = (x[i] - mx) ** 2 + (y[i] - my) ** 2
+            if new_fixed[s] and d2 <= halo2:
+                near = True
+            # np.argmin over the areas: the first of the smallest, NaN never inside.
+            if d2 <= radius**2 and d2 < best:
+                best = d2
+                best_slot = s
+            # _moves: a move from a previous scan's open candidate of its identity.
+            dt = t[i] - v[LAST]
+            slow = (slowest_m_s * dt) ** 2
+            fast = (reach_m_s * dt) ** 2
+            moved = not new_fixed[s] and dt >= 0.5 * period_s and d2 > slow and d2 <= fast
+            step = v[MOVES] + 1.0 if moved else 0.0
+            if step > steps:
+                steps = step
+        if last > first:
+            halo[i] = near and monitor[i]
+            inside = best_slot >= 0
+            if inside:
+                rows[i] = best_slot
+            moves[i] = steps * (1.0 if monitor[i] and not inside else 0.0)
+    # New candidates, one per plot outside every area of its identity.
+    size = m
+    for i in range(k):
+        if rows[i] < 0:
+            new_key[size] = keys[i]
+            new_values[size] = 0.0
+            new_values[size, T0] = t[i]
+            new_values[size, LAST] = t[i]
+            new_values[size, X0] = x[i]
+            new_values[size, Y0] = y[i]
+            new_fixed[size] = False
+            new_values[size, MOVES] = moves[i]
+            rows[i] = size
+            size += 1
+    # The sums, plot by plot (np.add.at's order when a candidate takes two plots).
+    for i in range(k):
+        v = new_values[rows[i]]
+        dt = t[i] - v[T0]
+        dx = x[i] - v[X0]
+        dy = y[i] - v[Y0]
+        v[N] += 1.0
+        v[ST] += dt
+        v[SX] += dx
+        v[SY] += dy
+        v[STT] += dt * dt
+        v[STX] += dt * dx
+        v[STY] += dt * dy
+        v[VAR] += sigma[i] ** 2
+        v[LAST] = _maximum(v[LAST], t[i])
+    stationary = np.empty(k, np.bool_)
+    for i in range(k):
+        v = new_values[rows[i]]
+        mon = monitor[i]
+        mover = mon and v[MOVES] >= moving_steps
+        enough = v[N] >= (monitor_min_plots if mon else min_plots)
+        enough = enough and v[LAST] - v[T0] >= (0.0 if mon else min_duration_s)
+        bound = _speed_bound(v, monitor_speed_sigmas if mon else speed_sigmas)
+        limit = monitor_max_speed_m_s if mon else max_speed_m_s
+        stationary[i] = enough and bound <= limit and not mover
+    for i in range(k):
+        new_fixed[rows[i]] = stationary[i]
+    fitted = np.zeros(k, np.bool_)
+    for i in range(k):
+        v = new_values[rows[i]]
+        if monitor[i] and not stationary[i] and v[N] >= monitor_min_plots:
+            if v[LAST] - v[T0] >= 0.5 * period_s:
+                fitted[i] = _speed_bound(v, -monitor_speed_sigmas) > monitor_max_speed_m_s
+    for i in range(k):
+        if fitted[i]:
+            new_values[rows[i], MOVES] = moving_steps
+    taken = np.empty(k, np.bool_)
+    for i in range(k):
+        undecided = monitor[i] and new_values[rows[i], MOVES] < moving_steps
+        taken[i] = stationary[i] or halo[i] or undecided
+    return taken, new_key[:size].copy(), new_values[:size].copy(), new_fixed[:size].copy()
