@@ -430,6 +430,55 @@ _ROW_FIELDS = {
 }
 
 
+@dataclass(frozen=True)
+class _Layout:
+    """Every column of one category at once: per field (one per ``_FIELDS`` entry) its
+    item's slot, its octets' offset, the weights that make the big-endian value of its
+    octets (``_READ`` octets read from its start, those past its own weighted 0), the
+    shift and mask of its bits, the sign bit's value of the signed ones (0 for the
+    others), and whether it sits in an extent; the float fields with their LSBs."""
+
+    slots: npt.NDArray[np.int64]
+    offsets: npt.NDArray[np.int64]
+    weights: npt.NDArray[np.uint64]
+    shifts: npt.NDArray[np.uint64]
+    masks: npt.NDArray[np.uint64]
+    halves: npt.NDArray[np.int64]
+    extended: npt.NDArray[np.bool_]
+    float_fields: npt.NDArray[np.intp]
+    lsbs: npt.NDArray[np.float64]
+    float_names: tuple[str, ...]
+    int_fields: npt.NDArray[np.intp]
+    int_names: tuple[str, ...]
+
+
+def _layout(cat: int) -> _Layout:
+    fields = _FIELDS[cat]
+    read = max(f.octets for f in fields)
+    weights = np.zeros((len(fields), read), np.uint64)
+    for k, f in enumerate(fields):
+        weights[k, : f.octets] = [256 ** (f.octets - 1 - i) for i in range(f.octets)]
+    floats = [k for k, f in enumerate(fields) if f.lsb is not None]
+    ints = [k for k, f in enumerate(fields) if f.lsb is None]
+    return _Layout(
+        slots=np.array([_SLOTS[cat][f.column.item] for f in fields], np.int64),
+        offsets=np.array([f.offset for f in fields], np.int64),
+        weights=weights,
+        shifts=np.array([f.shift for f in fields], np.uint64),
+        masks=np.array([(1 << f.bits) - 1 for f in fields], np.uint64),
+        halves=np.array([1 << (f.bits - 1) if f.signed else 0 for f in fields], np.int64),
+        extended=np.array([f.extent > 0 for f in fields], np.bool_),
+        float_fields=np.array(floats, np.intp),
+        lsbs=np.array([fields[k].lsb for k in floats], np.float64),
+        float_names=tuple(fields[k].column.name for k in floats),
+        int_fields=np.array(ints, np.intp),
+        int_names=tuple(fields[k].column.name for k in ints),
+    )
+
+
+_LAYOUTS = {cat: _layout(cat) for cat in _FIELDS}
+
+
 def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) -> Any:
     slots = _SLOTS[cat]
     starts = np.frombuffer(rows, dtype=np.int64).reshape(-1, len(_ITEMS[cat]) + 1)
@@ -441,8 +490,7 @@ def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) 
             plots[name] = _BLANK[name]
         plots["offset"] = starts[:, 0]
         plots["category"] = cat
-        for f in _FIELDS[cat]:
-            plots[f.column.name] = _column(buf, starts[:, slots[f.column.item]], f)
+        _read_columns(plots, buf, starts, _LAYOUTS[cat])
         if "240" in slots:
             plots["callsign"] = _callsigns(buf, starts[:, slots["240"]])
         if "250" in slots:
@@ -453,8 +501,40 @@ def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) 
     return plots
 
 
+def _read_columns(
+    plots: npt.NDArray[Any],
+    buf: npt.NDArray[np.uint8],
+    starts: npt.NDArray[np.int64],
+    layout: _Layout,
+) -> None:
+    """Every field of the records (``starts``: per record, where each item starts) into
+    ``plots``: all fields at once, a few array operations whatever their number."""
+    item_starts = starts[:, layout.slots]
+    present = item_starts >= 0
+    at = item_starts + layout.offsets
+    read = layout.weights.shape[1]
+    # Absent items and a field's octets past the buffer read some octet: weighted 0, or
+    # the field is masked out as absent below.
+    positions = np.clip(at[:, :, None] + np.arange(read), 0, len(buf) - 1)
+    value = (buf[positions].astype(np.uint64) * layout.weights).sum(axis=2)
+    values = ((value >> layout.shifts) & layout.masks).astype(np.int64)
+    values = (values ^ layout.halves) - layout.halves
+    if layout.extended.any():
+        # An extent is there only when the FX bit closing the one before it is set.
+        fx_set = (buf[np.clip(at - 1, 0, len(buf) - 1)] & 1).astype(bool)
+        present &= fx_set | ~layout.extended
+    floats = np.where(
+        present[:, layout.float_fields], values[:, layout.float_fields] * layout.lsbs, np.nan
+    )
+    ints = np.where(present[:, layout.int_fields], values[:, layout.int_fields], -1)
+    for k, name in enumerate(layout.float_names):
+        plots[name] = floats[:, k]
+    for k, name in enumerate(layout.int_names):
+        plots[name] = ints[:, k]
+
+
 def _plots_by_record(cat: int, data: bytes, starts: list[list[int]]) -> Any:
-    """The same columns as ``_column`` and ``_callsigns`` give, one record at a time."""
+    """The same columns as ``_read_columns`` and ``_callsigns`` give, one record at a time."""
     callsign = _SLOTS[cat].get("240", -1)
     callsign_column = (PLOT_DTYPE.names or ()).index("callsign")
     dap_slot = _SLOTS[cat].get("250", -1)
@@ -491,28 +571,6 @@ def _octets(buf: npt.NDArray[np.uint8], at: npt.NDArray[np.int64], count: int) -
     for i in range(count):
         value = (value << np.uint64(8)) | buf[at + i]
     return value
-
-
-def _column(buf: npt.NDArray[np.uint8], starts: npt.NDArray[np.int64], f: _Field) -> Any:
-    present = starts >= 0
-    at = starts[present] + f.offset
-    if f.extent:
-        # An extent is there only when the FX bit closing the one before it is set.
-        fx_set = (buf[at - 1] & 1).astype(bool)
-        present[np.flatnonzero(present)[~fx_set]] = False
-        at = at[fx_set]
-    raw = (_octets(buf, at, f.octets) >> np.uint64(f.shift)) & np.uint64((1 << f.bits) - 1)
-    values = raw.astype(np.int64)
-    if f.signed:
-        half = 1 << (f.bits - 1)
-        values = (values ^ half) - half
-    if f.lsb is not None:
-        out = np.full(len(starts), np.nan)
-        out[present] = values * f.lsb
-        return out
-    out_int = np.full(len(starts), -1, dtype=np.int64)
-    out_int[present] = values
-    return out_int
 
 
 _ICAO_TABLE = np.array(list(ICAO_CHARACTERS))
