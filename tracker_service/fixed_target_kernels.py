@@ -48,6 +48,30 @@ def _median(values: FloatArray) -> float:  # pragma: no cover - compiled
     return float((ordered[middle - 1] + ordered[middle]) / 2.0)
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _stable_order(key: IntArray, live: IntArray) -> IntArray:  # pragma: no cover - compiled
+    """``live[np.argsort(key[live], kind="stable")]`` without sorting the whole table:
+    the table is its previous sorted candidates followed by those the last batch added,
+    so its longest ordered prefix is merged with the rest, sorted (ties: prefix first,
+    as a stable sort keeps them)."""
+    m = live.shape[0]
+    p = 1 if m else 0
+    while p < m and key[live[p]] >= key[live[p - 1]]:
+        p += 1
+    rest = live[p:][np.argsort(key[live[p:]], kind="mergesort")]
+    order = np.empty(m, np.int64)
+    a = 0
+    b = 0
+    for j in range(m):
+        if b >= rest.shape[0] or (a < p and key[live[a]] <= key[rest[b]]):
+            order[j] = live[a]
+            a += 1
+        else:
+            order[j] = rest[b]
+            b += 1
+    return order
+
+
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _speed_bound(v: FloatArray, sigmas: float) -> float:  # pragma: no cover - compiled
     """``_Candidates.speed_bound`` of one candidate's row ``v``."""
@@ -107,15 +131,17 @@ def detect(
         if values[c, LAST] >= now - memory:
             live[m] = c
             m += 1
-    order = live[:m][np.argsort(key[live[:m]], kind="mergesort")]
+    order = _stable_order(key, live[:m])
     # Room for one new candidate per plot.
     new_key = np.empty(m + k, np.int64)
     new_values = np.empty((m + k, N_FIELDS))
     new_fixed = np.empty(m + k, np.bool_)
     for j in range(m):
-        new_key[j] = key[order[j]]
-        new_values[j] = values[order[j]]
-        new_fixed[j] = fixed[order[j]]
+        o = order[j]
+        new_key[j] = key[o]
+        for f in range(N_FIELDS):
+            new_values[j, f] = values[o, f]
+        new_fixed[j] = fixed[o]
     sorted_keys = new_key[:m]
     rows = np.full(k, -1, np.int64)
     halo = np.zeros(k, np.bool_)
@@ -208,4 +234,4 @@ def detect(
     for i in range(k):
         undecided = monitor[i] and new_values[rows[i], MOVES] < moving_steps
         taken[i] = stationary[i] or halo[i] or undecided
-    return taken, new_key[:size].copy(), new_values[:size].copy(), new_fixed[:size].copy()
+    return taken, new_key[:size], new_values[:size], new_fixed[:size]
