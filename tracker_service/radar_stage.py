@@ -56,7 +56,11 @@ from tracker_service.sources import DEFAULT_MAX_UNKNOWN, SourceAdmission
 from tracker_service.stage_messages import RadarBatch
 from tracker_service.time_sanity import TimeBase, TimeSanity, TimeSanityConfig
 from tracker_service.tracking import LocalTracker, TrackerConfig
+from tracker_service.tracking.dap_kernels import INPUTS as DAP_INPUTS
+from tracker_service.tracking.dap_kernels import PUBLISHED as PUBLISHED_DAPS
+from tracker_service.tracking.dap_kernels import fill_daps
 from tracker_service.tracking.daps import plot_daps
+from tracker_service.tracking.plots import DAP_FIELDS
 from tracker_service.tracking.plots import PUBLISHED_DAP_FIELDS as DAP_NAMES
 from tracker_service.tracking.plots import empty_plots
 
@@ -381,14 +385,27 @@ def _fill_daps(
     converted: ConvertedPlots,
     steps: PlaneSteps | None,
 ) -> npt.NDArray[np.bool_]:
-    """The plots' Mode S DAPs into the tracker's batch (``tracking.daps.plot_daps``) and
-    the plot table (for the outputs); per plot, whether one was implausible. Batches
-    without any DAP (CAT001, Mode A/C) cost one look."""
+    """The plots' Mode S DAPs into the tracker's batch (``tracking.daps.plot_daps``, or
+    its compiled pass when the conversion's projections are at hand) and the plot table
+    (for the outputs); per plot, whether one was implausible. Batches without any DAP
+    (CAT001, Mode A/C) cost one look."""
     names = raw.dtype.names or ()
+    if steps is not None and all(name in names for name in DAP_INPUTS):
+        found = fill_daps(raw, converted.lat_deg, converted.height_m, steps)
+        if found is None:
+            return np.zeros(len(raw), dtype=bool)
+        out, flags, implausible = found
+        for k, name in enumerate(DAP_FIELDS):
+            batch[name] = out[:, k]
+        batch["dap_flags"] = flags
+        for name, k in zip(DAP_NAMES, PUBLISHED_DAPS, strict=True):
+            table[name] = out[:, k]
+        table["has_daps"] = np.isfinite(out[:, PUBLISHED_DAPS]).any(axis=1)
+        return implausible
     if not any(name in names and np.isfinite(raw[name]).any() for name in DAP_COLUMNS):
         return np.zeros(len(raw), dtype=bool)
     columns, implausible = plot_daps(
-        raw, plane, converted.lat_deg, converted.lon_deg, converted.height_m, steps
+        raw, plane, converted.lat_deg, converted.lon_deg, converted.height_m
     )
     for name, values in columns.items():
         batch[name] = values

@@ -28,7 +28,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-import numpy.typing as npt
 from llvmlite import ir
 from numba.core import types
 from numba.extending import intrinsic
@@ -39,9 +38,7 @@ from tracker_service.geodesy.plane import STEP_DEG, SystemPlane
 from tracker_service.geodesy.plots import MIN_COS_ELEVATION, MIN_RANGE_M
 from tracker_service.geodesy.sites import RadarSite
 
-__all__ = ["PlaneSteps", "convert_batch_plots", "dap_jacobian"]
-
-IntArray = npt.NDArray[np.int64]
+__all__ = ["PlaneSteps", "convert_batch_plots", "plane_jacobian_at"]
 
 _MERIDIAN_NUMERATOR = A * (1.0 - E2)
 """As ``radii_m`` computes it: one Python constant, then divided by w^1.5."""
@@ -77,6 +74,34 @@ def _minimum(a: float, b: float) -> float:  # pragma: no cover - compiled
     if a != a or b != b:
         return a + b
     return a if a <= b else b
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def plane_jacobian_at(
+    i: int,
+    lat: FloatArray,
+    h: float,
+    w15: FloatArray,
+    w: FloatArray,
+    e0: FloatArray,
+    n0: FloatArray,
+    e_north: FloatArray,
+    n_north: FloatArray,
+    e_east: FloatArray,
+    n_east: FloatArray,
+) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
+    """``SystemPlane.jacobian``'s horizontal block (j00, j01, j10, j11) at point ``i``
+    and height ``h``, from the projections made (``PlaneSteps``)."""
+    meridian = _MERIDIAN_NUMERATOR / w15[i]
+    prime_vertical = A / np.sqrt(w[i])
+    north_m = (meridian + h) * _STEP_RAD
+    east_m = (prime_vertical + h) * np.cos(np.radians(lat[i])) * _STEP_RAD
+    return (
+        (e_east[i] - e0[i]) / east_m,
+        (e_north[i] - e0[i]) / north_m,
+        (n_east[i] - n0[i]) / east_m,
+        (n_north[i] - n0[i]) / north_m,
+    )
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -223,14 +248,9 @@ def _plane_terms(
         h11 = along * c * c + cross * s * s
         h01 = (along - cross) * s * c
         # SystemPlane.jacobian (stereographic: its up column is zero).
-        meridian = _MERIDIAN_NUMERATOR / w15[i]
-        prime_vertical = A / np.sqrt(w[i])
-        north_m = (meridian + h[i]) * _STEP_RAD
-        east_m = (prime_vertical + h[i]) * np.cos(np.radians(lat[i])) * _STEP_RAD
-        j00 = (e_east[i] - e0[i]) / east_m
-        j10 = (n_east[i] - n0[i]) / east_m
-        j01 = (e_north[i] - e0[i]) / north_m
-        j11 = (n_north[i] - n0[i]) / north_m
+        j00, j01, j10, j11 = plane_jacobian_at(
+            i, lat, h[i], w15, w, e0, n0, e_north, n_north, e_east, n_east
+        )
         # a = jacobian[:2] @ radar_turn.
         ca = np.cos(angle[i])
         sa = np.sin(angle[i])
@@ -273,7 +293,7 @@ def _plane_terms(
 class PlaneSteps:
     """What the conversion projected: each plot's point and its steps north and east
     (``SystemPlane.jacobian``'s differences) and the radii's w and w^1.5, for the DAPs'
-    velocity turned at another height (``dap_jacobian``)."""
+    velocity turned at another height (``plane_jacobian_at``)."""
 
     e0: FloatArray
     n0: FloatArray
@@ -338,43 +358,3 @@ def convert_batch_plots(
         polar_jacobian=polar_jacobian,
     )
     return converted, PlaneSteps(e0, n0, e_north, n_north, e_east, n_east, w, w15)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _jacobian_rows(
-    rows: IntArray,
-    lat: FloatArray,
-    h: FloatArray,
-    w15: FloatArray,
-    w: FloatArray,
-    e0: FloatArray,
-    n0: FloatArray,
-    e_north: FloatArray,
-    n_north: FloatArray,
-    e_east: FloatArray,
-    n_east: FloatArray,
-    out: FloatArray,
-) -> None:  # pragma: no cover - compiled
-    """``SystemPlane.jacobian(lat[rows], lon[rows], h[rows])[..., :2]`` from the
-    projections already made."""
-    for k in range(rows.shape[0]):
-        i = rows[k]
-        meridian = _MERIDIAN_NUMERATOR / w15[i]
-        prime_vertical = A / np.sqrt(w[i])
-        north_m = (meridian + h[i]) * _STEP_RAD
-        east_m = (prime_vertical + h[i]) * np.cos(np.radians(lat[i])) * _STEP_RAD
-        out[k, 0, 0] = (e_east[i] - e0[i]) / east_m
-        out[k, 1, 0] = (n_east[i] - n0[i]) / east_m
-        out[k, 0, 1] = (e_north[i] - e0[i]) / north_m
-        out[k, 1, 1] = (n_north[i] - n0[i]) / north_m
-
-
-def dap_jacobian(steps: PlaneSteps, rows: IntArray, lat: FloatArray, h: FloatArray) -> FloatArray:
-    """(k, 2, 2): the plane's Jacobian at the plots ``rows`` at heights ``h`` (per plot
-    of the batch), as ``SystemPlane.jacobian(lat[rows], lon[rows], h[rows])[..., :2]``."""
-    out = np.empty((rows.shape[0], 2, 2))
-    s = steps
-    _jacobian_rows(
-        rows, lat, h, s.w15, s.w, s.e0, s.n0, s.e_north, s.n_north, s.e_east, s.n_east, out
-    )
-    return out

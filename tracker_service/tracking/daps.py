@@ -39,7 +39,6 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.geodesy.compiled import PlaneSteps, dap_jacobian
 from tracker_service.geodesy.plane import SystemPlane
 from tracker_service.tracking import imm
 from tracker_service.tracking.config import KNOT_M_S, TrackerConfig
@@ -90,12 +89,10 @@ def plot_daps(
     lat_deg: FloatArray,
     lon_deg: FloatArray,
     height_m: FloatArray,
-    steps: PlaneSteps | None = None,
 ) -> tuple[dict[str, npt.NDArray[Any]], BoolArray]:
     """The DAP columns of one batch of plot rows (``asterix.plots`` rows with the
     ``asterix.daps`` columns), ``dap_flags`` among them, and per plot whether some DAP
-    was implausible (dropped). ``steps``: the plots' projections, when the conversion
-    made them (``geodesy.compiled``): the plane's Jacobian then needs no projection."""
+    was implausible (dropped)."""
     n = len(raw)
     out = {name: np.array(raw[name], dtype=np.float64) for name in _COPIED}
     mcp = np.asarray(raw["selected_altitude_mcp_ft"], dtype=np.float64)
@@ -128,10 +125,7 @@ def plot_daps(
     if len(has):
         psi = np.radians(track[has])
         east, north = speed[has] * np.sin(psi), speed[has] * np.cos(psi)
-        if steps is None:
-            jac = plane.jacobian(lat_deg[has], lon_deg[has], height_m[has])[..., :2]
-        else:
-            jac = dap_jacobian(steps, has, lat_deg, height_m)
+        jac = plane.jacobian(lat_deg[has], lon_deg[has], height_m[has])[..., :2]
         vx[has] = jac[:, 0, 0] * east + jac[:, 0, 1] * north
         vy[has] = jac[:, 1, 0] * east + jac[:, 1, 1] * north
     out["dap_vx"], out["dap_vy"] = vx, vy
