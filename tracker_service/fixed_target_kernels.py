@@ -224,9 +224,9 @@ def detect(
     fitted = np.zeros(k, np.bool_)
     for i in range(k):
         v = new_values[rows[i]]
-        if monitor[i] and not stationary[i] and v[N] >= monitor_min_plots:
-            if v[LAST] - v[T0] >= 0.5 * period_s:
-                fitted[i] = _speed_bound(v, -monitor_speed_sigmas) > monitor_max_speed_m_s
+        enough = v[N] >= monitor_min_plots and v[LAST] - v[T0] >= 0.5 * period_s
+        if monitor[i] and not stationary[i] and enough:
+            fitted[i] = _speed_bound(v, -monitor_speed_sigmas) > monitor_max_speed_m_s
     for i in range(k):
         if fitted[i]:
             new_values[rows[i], MOVES] = moving_steps

@@ -60,9 +60,8 @@ from tracker_service.tracking.dap_kernels import INPUTS as DAP_INPUTS
 from tracker_service.tracking.dap_kernels import PUBLISHED as PUBLISHED_DAPS
 from tracker_service.tracking.dap_kernels import fill_daps
 from tracker_service.tracking.daps import plot_daps
-from tracker_service.tracking.plots import DAP_FIELDS
+from tracker_service.tracking.plots import DAP_FIELDS, empty_plots
 from tracker_service.tracking.plots import PUBLISHED_DAP_FIELDS as DAP_NAMES
-from tracker_service.tracking.plots import empty_plots
 
 __all__ = [
     "KIND_UNKNOWN",

@@ -13,9 +13,12 @@ arithmetic stays where it was computed before, so that every value is the same:
 - PROJ's geodetic and stereographic transforms stay pyproj calls, each made once: the
   plane's position and the Jacobian's base point are one projection (``convert_plots``
   projected it twice);
-- numpy's 2x2 matrix products (``@``) go through BLAS, whose kernel sums the two products
-  with a fused multiply-add (``_fma`` reproduces it), and its ``einsum`` of the radar turn
-  adds its three products in the order (0 + 2) + 1.
+- numpy's 2x2 matrix products (``@``) go through BLAS, whose kernel accumulates the two
+  products from 0 with fused multiply-adds (``_fma`` reproduces it); its ``einsum`` sums
+  from 0 too (0 + -0 is +0), the radar turn's three products in the order (0 + 2) + 1.
+
+NaN results (a plot without a range) may differ in their sign bit: no output tells them
+apart.
 
 ``tests/test_geodesy_compiled.py`` holds every output to ``convert_plots``'s, bit for bit,
 on drawn and recorded batches. The tangent plane, and any caller outside the radar stage,
@@ -24,7 +27,9 @@ uses ``convert_plots`` itself.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 import numba
 import numpy as np
@@ -46,7 +51,7 @@ _STEP_RAD = float(np.radians(STEP_DEG))
 
 
 @intrinsic
-def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def _fused_multiply_add(typingctx, a, b, c):  # type: ignore[no-untyped-def]  # pragma: no cover
     """a * b + c rounded once, as BLAS's 2x2 kernel sums its products."""
     signature = types.float64(types.float64, types.float64, types.float64)
 
@@ -58,6 +63,9 @@ def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]  # pragma: no cove
         return builder.call(fused, args)
 
     return signature, codegen
+
+
+_fma = cast(Callable[[float, float, float], float], _fused_multiply_add)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -189,10 +197,10 @@ def _turn_terms(
         # enu_rotation's first two rows.
         e0, e1, e2 = -sin_lon, cos_lon, 0.0
         n0, n1, n2 = -sin_lat * cos_lon, -sin_lat * sin_lon, cos_lat
-        m00 = e0 * q[0, 0] + e2 * q[0, 2] + e1 * q[0, 1]
-        m01 = e0 * q[1, 0] + e2 * q[1, 2] + e1 * q[1, 1]
-        m10 = n0 * q[0, 0] + n2 * q[0, 2] + n1 * q[0, 1]
-        m11 = n0 * q[1, 0] + n2 * q[1, 2] + n1 * q[1, 1]
+        m00 = 0.0 + e0 * q[0, 0] + e2 * q[0, 2] + e1 * q[0, 1]
+        m01 = 0.0 + e0 * q[1, 0] + e2 * q[1, 2] + e1 * q[1, 1]
+        m10 = 0.0 + n0 * q[0, 0] + n2 * q[0, 2] + n1 * q[0, 1]
+        m11 = 0.0 + n0 * q[1, 0] + n2 * q[1, 2] + n1 * q[1, 1]
         turn_y[i] = m10 - m01
         turn_x[i] = m00 + m11
 
@@ -254,39 +262,39 @@ def _plane_terms(
         # a = jacobian[:2] @ radar_turn.
         ca = np.cos(angle[i])
         sa = np.sin(angle[i])
-        a00 = _fma(j01, sa, j00 * ca)
-        a01 = _fma(j01, ca, j00 * -sa)
-        a10 = _fma(j11, sa, j10 * ca)
-        a11 = _fma(j11, ca, j10 * -sa)
+        a00 = _fma(j01, sa, _fma(j00, ca, 0.0))
+        a01 = _fma(j01, ca, _fma(j00, -sa, 0.0))
+        a10 = _fma(j11, sa, _fma(j10, ca, 0.0))
+        a11 = _fma(j11, ca, _fma(j10, -sa, 0.0))
         # a @ horizontal @ a^T.
-        b00 = _fma(a01, h01, a00 * h00)
-        b01 = _fma(a01, h11, a00 * h01)
-        b10 = _fma(a11, h01, a10 * h00)
-        b11 = _fma(a11, h11, a10 * h01)
-        c00 = _fma(b01, a01, b00 * a00)
-        c01 = _fma(b01, a11, b00 * a10)
-        c10 = _fma(b11, a01, b10 * a00)
-        c11 = _fma(b11, a11, b10 * a10)
+        b00 = _fma(a01, h01, _fma(a00, h00, 0.0))
+        b01 = _fma(a01, h11, _fma(a00, h01, 0.0))
+        b10 = _fma(a11, h01, _fma(a10, h00, 0.0))
+        b11 = _fma(a11, h11, _fma(a10, h01, 0.0))
+        c00 = _fma(b01, a01, _fma(b00, a00, 0.0))
+        c01 = _fma(b01, a11, _fma(b00, a10, 0.0))
+        c10 = _fma(b11, a01, _fma(b10, a00, 0.0))
+        c11 = _fma(b11, a11, _fma(b10, a10, 0.0))
         # The height error's slide along the line of sight (the up column adds 0 * sigma).
         hs = height_sigma[i]
         slide = _minimum(_maximum(height_gain * hs, -r), r)
         u0 = s * slide
         u1 = c * slide
-        shift0 = a00 * u0 + a01 * u1 + 0.0 * hs
-        shift1 = a10 * u0 + a11 * u1 + 0.0 * hs
+        shift0 = 0.0 + a00 * u0 + a01 * u1 + 0.0 * hs
+        shift1 = 0.0 + a10 * u0 + a11 * u1 + 0.0 * hs
         covariance[i, 0, 0] = c00 + shift0 * shift0
         covariance[i, 0, 1] = c01 + shift0 * shift1
         covariance[i, 1, 0] = c10 + shift1 * shift0
         covariance[i, 1, 1] = c11 + shift1 * shift1
         v0 = s * range_gain
         v1 = c * range_gain
-        polar_jacobian[i, 0, 0] = a00 * v0 + a01 * v1
-        polar_jacobian[i, 1, 0] = a10 * v0 + a11 * v1
+        polar_jacobian[i, 0, 0] = 0.0 + a00 * v0 + a01 * v1
+        polar_jacobian[i, 1, 0] = 0.0 + a10 * v0 + a11 * v1
         g = ground[i]
         v0 = c * g
         v1 = -s * g
-        polar_jacobian[i, 0, 1] = a00 * v0 + a01 * v1
-        polar_jacobian[i, 1, 1] = a10 * v0 + a11 * v1
+        polar_jacobian[i, 0, 1] = 0.0 + a00 * v0 + a01 * v1
+        polar_jacobian[i, 1, 1] = 0.0 + a10 * v0 + a11 * v1
 
 
 @dataclass(frozen=True)
