@@ -433,14 +433,14 @@ _ROW_FIELDS = {
 @dataclass(frozen=True)
 class _Layout:
     """Every column of one category at once: per field (one per ``_FIELDS`` entry) its
-    item's slot, its octets' offset, the weights that make the big-endian value of its
-    octets (``_READ`` octets read from its start, those past its own weighted 0), the
-    shift and mask of its bits, the sign bit's value of the signed ones (0 for the
-    others), and whether it sits in an extent; the float fields with their LSBs."""
+    item's slot, its octets' offset, the shift and mask of its bits in the big-endian
+    word of ``read`` octets from its start (the octets past its own shifted out), the
+    sign bit's value of the signed ones (0 for the others), and whether it sits in an
+    extent; the float fields with their LSBs."""
 
     slots: npt.NDArray[np.int64]
     offsets: npt.NDArray[np.int64]
-    weights: npt.NDArray[np.uint64]
+    word: np.dtype[Any]
     shifts: npt.NDArray[np.uint64]
     masks: npt.NDArray[np.uint64]
     halves: npt.NDArray[np.int64]
@@ -454,17 +454,14 @@ class _Layout:
 
 def _layout(cat: int) -> _Layout:
     fields = _FIELDS[cat]
-    read = max(f.octets for f in fields)
-    weights = np.zeros((len(fields), read), np.uint64)
-    for k, f in enumerate(fields):
-        weights[k, : f.octets] = [256 ** (f.octets - 1 - i) for i in range(f.octets)]
+    read = 4 if max(f.octets for f in fields) <= 4 else 8
     floats = [k for k, f in enumerate(fields) if f.lsb is not None]
     ints = [k for k, f in enumerate(fields) if f.lsb is None]
     return _Layout(
         slots=np.array([_SLOTS[cat][f.column.item] for f in fields], np.int64),
         offsets=np.array([f.offset for f in fields], np.int64),
-        weights=weights,
-        shifts=np.array([f.shift for f in fields], np.uint64),
+        word=np.dtype(f">u{read}"),
+        shifts=np.array([f.shift + 8 * (read - f.octets) for f in fields], np.uint64),
         masks=np.array([(1 << f.bits) - 1 for f in fields], np.uint64),
         halves=np.array([1 << (f.bits - 1) if f.signed else 0 for f in fields], np.int64),
         extended=np.array([f.extent > 0 for f in fields], np.bool_),
@@ -479,6 +476,10 @@ def _layout(cat: int) -> _Layout:
 _LAYOUTS = {cat: _layout(cat) for cat in _FIELDS}
 
 
+_PADDING = b"\0" * 8
+"""Octets after a datagram, so that a word read at a field near its end stays inside."""
+
+
 def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) -> Any:
     slots = _SLOTS[cat]
     starts = np.frombuffer(rows, dtype=np.int64).reshape(-1, len(_ITEMS[cat]) + 1)
@@ -490,9 +491,10 @@ def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) 
             plots[name] = _BLANK[name]
         plots["offset"] = starts[:, 0]
         plots["category"] = cat
-        _read_columns(plots, buf, starts, _LAYOUTS[cat])
+        padded = np.frombuffer(data + _PADDING, dtype=np.uint8)
+        _read_columns(plots, padded, starts, _LAYOUTS[cat])
         if "240" in slots:
-            plots["callsign"] = _callsigns(buf, starts[:, slots["240"]])
+            plots["callsign"] = _callsigns(padded, starts[:, slots["240"]])
         if "250" in slots:
             for name, values in daps.decode_columns(buf, starts[:, slots["250"]]).items():
                 plots[name] = values
@@ -508,20 +510,20 @@ def _read_columns(
     layout: _Layout,
 ) -> None:
     """Every field of the records (``starts``: per record, where each item starts) into
-    ``plots``: all fields at once, a few array operations whatever their number."""
+    ``plots``: all fields at once, a few array operations whatever their number. ``buf``
+    is the data with ``_PADDING`` after it."""
     item_starts = starts[:, layout.slots]
     present = item_starts >= 0
+    # An absent item's fields read the octets at -1 (the padding) or 0: masked below.
     at = item_starts + layout.offsets
-    read = layout.weights.shape[1]
-    # Absent items and a field's octets past the buffer read some octet: weighted 0, or
-    # the field is masked out as absent below.
-    positions = np.clip(at[:, :, None] + np.arange(read), 0, len(buf) - 1)
-    value = (buf[positions].astype(np.uint64) * layout.weights).sum(axis=2)
-    values = ((value >> layout.shifts) & layout.masks).astype(np.int64)
+    read = layout.word.itemsize
+    octets = buf[at[:, :, None] + np.arange(read)]
+    word = octets.view(layout.word)[:, :, 0].astype(np.uint64)
+    values = ((word >> layout.shifts) & layout.masks).astype(np.int64)
     values = (values ^ layout.halves) - layout.halves
     if layout.extended.any():
         # An extent is there only when the FX bit closing the one before it is set.
-        fx_set = (buf[np.clip(at - 1, 0, len(buf) - 1)] & 1).astype(bool)
+        fx_set = (buf[at - 1] & 1).astype(bool)
         present &= fx_set | ~layout.extended
     floats = np.where(
         present[:, layout.float_fields], values[:, layout.float_fields] * layout.lsbs, np.nan
@@ -566,13 +568,6 @@ def _shifted(error: DecodeError, offset: int) -> DecodeError:
     return DecodeError(error.offset + offset, error.category, error.reason)
 
 
-def _octets(buf: npt.NDArray[np.uint8], at: npt.NDArray[np.int64], count: int) -> Any:
-    value = np.zeros(len(at), dtype=np.uint64)
-    for i in range(count):
-        value = (value << np.uint64(8)) | buf[at + i]
-    return value
-
-
 _ICAO_TABLE = np.array(list(ICAO_CHARACTERS))
 
 
@@ -580,7 +575,8 @@ def _callsigns(buf: npt.NDArray[np.uint8], starts: npt.NDArray[np.int64]) -> Any
     out = np.full(len(starts), "", dtype="U8")
     present = starts >= 0
     if present.any():
-        raw = _octets(buf, starts[present], 6)
+        # Six octets, from the big-endian word of eight (``buf`` padded after the data).
+        raw = buf[starts[present][:, None] + np.arange(8)].view(">u8")[:, 0] >> np.uint64(16)
         shifts = np.arange(42, -1, -6, dtype=np.uint64)
         codes = (raw[:, None] >> shifts) & np.uint64(63)
         out[present] = np.ascontiguousarray(_ICAO_TABLE[codes]).view("U8")[:, 0]
