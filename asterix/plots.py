@@ -406,11 +406,11 @@ _ABSENT = {
     for cat, fields in _FIELDS.items()
 }
 """The number columns a category never fills (NaN or -1 in all its rows)."""
-SMALL_BATCH = 24
+SMALL_BATCH = 14
 """Up to this many records of a category, a datagram's plots are read record by record in
-Python: numpy's per-call cost (a few calls per column, for some 25 columns) outweighs its
-per-row gain. Measured crossover: 30-50 records (CAT048 and CAT001). Many CAT001 radars
-send one plot a datagram."""
+Python: numpy's per-call cost outweighs its per-row gain. Measured crossover (every field
+at once, ``_read_columns``): 12-16 records of CAT048. Many CAT001 radars send one plot a
+datagram."""
 _ROW_FIELDS = {
     cat: tuple(
         (
