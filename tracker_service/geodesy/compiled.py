@@ -10,9 +10,9 @@ arithmetic stays where it was computed before, so that every value is the same:
   differ from the C library's that numba calls in the last bit of about one value in ten:
   those stay numpy calls on whole arrays, between the compiled passes (``sin``, ``cos``,
   ``sqrt`` and ``hypot`` are the same in both, and are compiled);
-- PROJ's geodetic and stereographic transforms stay pyproj calls, each made once: the
-  plane's position and the Jacobian's base point are one projection (``convert_plots``
-  projected it twice);
+- PROJ's geodetic and stereographic transforms stay PROJ calls (pyproj's, on the arrays
+  in place), each made once: the plane's position and the Jacobian's base point are one
+  projection (``convert_plots`` projected it twice);
 - numpy's 2x2 matrix products (``@``) go through BLAS, whose kernel accumulates the two
   products from 0 with fused multiply-adds (``_fma`` reproduces it); its ``einsum`` sums
   from 0 too (0 + -0 is +0), the radar turn's three products in the order (0 + 2) + 1.
@@ -29,16 +29,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import cast
+from typing import Any, cast
 
 import numba
 import numpy as np
 from llvmlite import ir
 from numba.core import types
 from numba.extending import intrinsic
+from pyproj.enums import TransformDirection
 
 from tracker_service.geodesy.convert import ConvertedPlots
-from tracker_service.geodesy.ellipsoid import E2, A, FloatArray, ecef_to_geodetic
+from tracker_service.geodesy.ellipsoid import E2, A, FloatArray, ecef_to_geodetic_transformer
 from tracker_service.geodesy.plane import STEP_DEG, SystemPlane
 from tracker_service.geodesy.plots import MIN_COS_ELEVATION, MIN_RANGE_M
 from tracker_service.geodesy.sites import RadarSite
@@ -297,6 +298,23 @@ def _plane_terms(
         polar_jacobian[i, 1, 1] = 0.0 + a10 * v0 + a11 * v1
 
 
+def _transform(transformer: Any, *columns: FloatArray) -> None:
+    """``transformer.transform(*columns)`` written into the columns (float64, C order, of
+    this module's own): pyproj's public call first tries its scalar path (an exception
+    for arrays) and copies every input, which costs more than PROJ's work on a batch.
+    The same PROJ call (pyproj 3.7, pinned in constraints.txt)."""
+    x, y, *z = columns
+    transformer._transformer._transform(
+        inx=x,
+        iny=y,
+        inz=z[0] if z else None,
+        intime=None,
+        direction=TransformDirection.FORWARD,
+        radians=False,
+        errcheck=False,
+    )
+
+
 @dataclass(frozen=True)
 class PlaneSteps:
     """What the conversion projected: each plot's point and its steps north and east
@@ -338,11 +356,16 @@ def convert_batch_plots(
         rho, theta, site.north_offset_deg, ground, elevation, site.enu_rotation, site.ecef_m,
         sin_az, cos_az, x, y, z,
     )  # fmt: skip
-    lat, lon, h = ecef_to_geodetic(x, y, z)
-    project = plane._stereographic.transform
-    e0, n0 = project(lon, lat)
-    e_north, n_north = project(lon, lat + STEP_DEG)
-    e_east, n_east = project(lon + STEP_DEG, lat)
+    # PROJ in place: x, y, z become lon, lat, h.
+    _transform(ecef_to_geodetic_transformer(), x, y, z)
+    lon, lat, h = x, y, z
+    project = plane._stereographic
+    e0, n0 = lon.copy(), lat.copy()
+    _transform(project, e0, n0)
+    e_north, n_north = lon.copy(), lat + STEP_DEG
+    _transform(project, e_north, n_north)
+    e_east, n_east = lon + STEP_DEG, lat.copy()
+    _transform(project, e_east, n_east)
     w, turn_y, turn_x = np.empty(n), np.empty(n), np.empty(n)
     _turn_terms(lat, lon, site.enu_rotation, w, turn_y, turn_x)
     w15 = w**1.5
