@@ -4,6 +4,8 @@ and the two trackers run side by side on the same plots."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -12,7 +14,9 @@ from hypothesis import strategies as st
 
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 from tracker_service.tracking.imm import ImmFilter, ImmPrediction, make_imm
+from tracker_service.tracking.initiate import TwoPointInitiator
 from tracker_service.tracking.models import ModelSet
+from tracker_service.tracking.plots import PlotArrays
 
 FloatArray = npt.NDArray[np.float64]
 TOLERANCE = 1e-9
@@ -220,3 +224,29 @@ def test_trackers_agree_on_a_stream() -> None:
 def test_unknown_implementation_is_refused() -> None:
     with pytest.raises(ValueError, match="implementation"):
         TrackerConfig(implementation="fortran")
+
+
+@pytest.mark.parametrize("targets", [12, 60, 200])
+def test_compiled_initiation_pairs_as_the_reference(targets: int) -> None:
+    """Two-point initiation from its compiled candidate pairs: the same pairs in the same
+    order (the k-d trees' of the reference, with batches and waiting plots of one leaf and
+    of many) and the same plots left waiting, with identities that agree, differ and are
+    shared codes."""
+    config = TrackerConfig(scan_period_s=5.0)
+    reference = TwoPointInitiator(dataclasses.replace(config, implementation="numpy"))
+    compiled = TwoPointInitiator(config)
+    rng = np.random.default_rng(targets)
+    started = 0
+    for batch in sector_stream(targets, targets, 6):
+        batch = batch.copy()
+        batch["mode3a"] = rng.choice([-1, 0o1200, 0o4321, 0o4322], len(batch))
+        batch["mode3a_valid"] = rng.random(len(batch)) < 0.9
+        batch["address"] = np.where(rng.random(len(batch)) < 0.1, 7, batch["address"])
+        plots = PlotArrays(batch)
+        now = float(batch["time"].max()) if len(batch) else 0.0
+        a, b = reference.pair(plots, now), compiled.pair(plots, now)
+        for want, got in zip(a, b, strict=True):
+            assert want.rows.tobytes() == got.rows.tobytes()
+        assert reference.pending.rows.tobytes() == compiled.pending.rows.tobytes()
+        started += len(a[0])
+    assert started >= targets // 2

@@ -567,3 +567,87 @@ def record_updates(
             address[row] = plot_address[n]
         if plot_mode3a_valid[n] and plot_mode3a[n] >= 0:
             mode3a[row] = plot_mode3a[n]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def initiation_pairs(
+    at: FloatArray,
+    ax: FloatArray,
+    ay: FloatArray,
+    ar: FloatArray,
+    a_address: IntArray,
+    a_code: IntArray,
+    a_code_valid: BoolArray,
+    bt: FloatArray,
+    bx: FloatArray,
+    by: FloatArray,
+    br: FloatArray,
+    b_address: IntArray,
+    b_code: IntArray,
+    b_code_valid: BoolArray,
+    max_speed: float,
+    min_speed: float,
+    min_dt: float,
+    max_dt: float,
+    noise_sigmas: float,
+    shared_codes: IntArray,
+    address_mismatch_penalty: float,
+    address_bonus: float,
+    mode3a_bonus: float,
+    identity_scale: float,
+) -> tuple[IntArray, IntArray, FloatArray, float]:  # pragma: no cover - compiled
+    """``TwoPointInitiator.pair``'s candidate pairs of waiting plots a and new plots b, in
+    (a, b) order: those within the search radius (returned: the largest speed over
+    ``max_dt`` plus ``noise_sigmas`` of both sets' largest position sigma) whose time step
+    and distance fit a plausible speed, with their cost (distance over the largest
+    speed's reach, plus the identity cost scaled by ``identity_scale``, as
+    ``identity.identity_cost``). The numpy reference: ``pair`` with ``implementation =
+    "numpy"``."""
+    na = at.shape[0]
+    nb = bt.shape[0]
+    noise_a = -np.inf
+    for i in range(na):
+        noise_a = max(noise_a, np.sqrt(ar[i, 0, 0] + ar[i, 1, 1]))
+    noise_b = -np.inf
+    for j in range(nb):
+        noise_b = max(noise_b, np.sqrt(br[j, 0, 0] + br[j, 1, 1]))
+    reach = max_speed * max_dt + noise_sigmas * (noise_a + noise_b)
+    first = np.empty(na * nb, np.int64)
+    second = np.empty(na * nb, np.int64)
+    cost = np.empty(na * nb)
+    k = 0
+    for i in range(na):
+        trace_a = ar[i, 0, 0] + ar[i, 1, 1]
+        for j in range(nb):
+            d0 = ax[i] - bx[j]
+            d1 = ay[i] - by[j]
+            dist = np.sqrt(d0 * d0 + d1 * d1)
+            if not dist <= reach:
+                continue
+            dt = bt[j] - at[i]
+            sigma = np.sqrt(trace_a + (br[j, 0, 0] + br[j, 1, 1]))
+            if not (dt >= min_dt and dt <= max_dt):
+                continue
+            if not (
+                dist <= max_speed * dt + noise_sigmas * sigma
+                and dist >= min_speed * dt - noise_sigmas * sigma
+            ):
+                continue
+            both = a_address[i] >= 0 and b_address[j] >= 0
+            code_match = a_code[i] >= 0 and a_code[i] == b_code[j]
+            code_match = code_match and a_code_valid[i] and b_code_valid[j]
+            for shared in shared_codes:
+                if a_code[i] == shared:
+                    code_match = False
+            mismatch = 1.0 if both and a_address[i] != b_address[j] else 0.0
+            same = 1.0 if both and a_address[i] == b_address[j] else 0.0
+            identity = (
+                address_mismatch_penalty * mismatch
+                - address_bonus * same
+                - mode3a_bonus * (1.0 if code_match else 0.0)
+            )
+            first[k] = i
+            second[k] = j
+            cost[k] = dist / (max_speed * dt) + identity_scale * identity
+            k += 1
+    return first[:k], second[:k], cost[:k], reach
