@@ -651,3 +651,20 @@ def initiation_pairs(
             cost[k] = dist / (max_speed * dt) + identity_scale * identity
             k += 1
     return first[:k], second[:k], cost[:k], reach
+
+
+@numba.njit(cache=True)
+def valid_plots(
+    t: FloatArray, x: FloatArray, y: FloatArray, r: FloatArray
+) -> BoolArray:  # pragma: no cover - compiled
+    """Plots the tracker can take: finite time, position and covariance, R positive
+    definite (R00 > 0, det R > 0). The numpy reference: ``LocalTracker.process``."""
+    valid = np.empty(t.shape[0], np.bool_)
+    for i in range(t.shape[0]):
+        finite = np.isfinite(t[i]) and np.isfinite(x[i]) and np.isfinite(y[i])
+        for a in range(2):
+            for b in range(2):
+                finite = finite and np.isfinite(r[i, a, b])
+        positive = r[i, 0, 0] > 0 and r[i, 0, 0] * r[i, 1, 1] - r[i, 0, 1] * r[i, 1, 0] > 0
+        valid[i] = finite and positive
+    return valid

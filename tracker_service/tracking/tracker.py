@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.small_arrays import is_one_of
 from tracker_service.tracking import imm, kernels, vertical
 from tracker_service.tracking.association import (
     Gate,
@@ -211,14 +212,17 @@ class LocalTracker:
         p = as_plot_arrays(plots)
         self.stats.plots += len(p)
         r = p.R
-        valid = (
-            np.isfinite(p.time)
-            & np.isfinite(p.x)
-            & np.isfinite(p.y)
-            & np.all(np.isfinite(r), axis=(1, 2))
-            & (r[:, 0, 0] > 0)
-            & (r[:, 0, 0] * r[:, 1, 1] - r[:, 0, 1] * r[:, 1, 0] > 0)
-        )
+        if self._compiled:
+            valid = kernels.valid_plots(p.time, p.x, p.y, r)
+        else:
+            valid = (
+                np.isfinite(p.time)
+                & np.isfinite(p.x)
+                & np.isfinite(p.y)
+                & np.all(np.isfinite(r), axis=(1, 2))
+                & (r[:, 0, 0] > 0)
+                & (r[:, 0, 0] * r[:, 1, 1] - r[:, 0, 1] * r[:, 1, 0] > 0)
+            )
         n_valid = int(np.count_nonzero(valid))
         self.stats.invalid_plots += len(p) - n_valid
         if n_valid < len(p):
@@ -465,7 +469,7 @@ class LocalTracker:
         if self.clutter is None:
             return
         taken = [r["plot_id"][r["status"] == CONFIRMED] for r in rows]
-        free = ~np.isin(p.plot_id, np.concatenate(taken)) if taken else np.ones(len(p), bool)
+        free = ~is_one_of(p.plot_id, np.concatenate(taken)) if taken else np.ones(len(p), bool)
         free |= ~secondary_reply(p.typ, p.address, p.mode3a)
         self.clutter.learn(p.x[free], p.y[free], p.time[free])
 
