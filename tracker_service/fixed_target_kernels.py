@@ -17,7 +17,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["detect"]
+__all__ = ["classify", "detect"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -26,6 +26,9 @@ BoolArray = npt.NDArray[np.bool_]
 # The columns of ``fixed_targets._Candidates.values``.
 N, T0, X0, Y0, LAST, ST, SX, SY, STT, STX, STY, VAR, MOVES = range(13)
 N_FIELDS = 13
+CODE_KEY = 1 << 24
+NO_KEY = -1
+"""As ``fixed_targets``' identity keys."""
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -83,6 +86,76 @@ def _speed_bound(v: FloatArray, sigmas: float) -> float:  # pragma: no cover - c
     sigma_v = np.sqrt(v[VAR] / n / s_tt)
     bound = np.hypot(vx, vy) + sigmas * sigma_v
     return bound if s_tt > 1e-6 else np.inf
+
+
+@numba.njit(cache=True, error_model="numpy")
+def classify(
+    t: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    r: FloatArray,
+    address: IntArray,
+    mode3a: IntArray,
+    code_valid: BoolArray,
+    eligible: BoolArray,
+    monitor_codes: IntArray,
+    unkeyed_codes: IntArray,
+    key: IntArray,
+    values: FloatArray,
+    fixed: BoolArray,
+    period_s: float,
+    fixed_memory_s: float,
+    stale_s: float,
+    halo2: float,
+    min_radius_m: float,
+    gate_sigmas: float,
+    slowest_m_s: float,
+    reach_m_s: float,
+    moving_steps: float,
+    monitor_min_plots: float,
+    min_plots: float,
+    min_duration_s: float,
+    monitor_max_speed_m_s: float,
+    max_speed_m_s: float,
+    monitor_speed_sigmas: float,
+    speed_sigmas: float,
+) -> tuple[BoolArray, IntArray, FloatArray, BoolArray]:  # pragma: no cover - compiled
+    """``FixedTargets.classify``'s detection over a table's plots: each plot's identity
+    (``identity_keys``: its address, else its usable code unless shared or an emergency;
+    a site monitor's code counts even garbled) and whether it wears a site-monitor code,
+    then ``detect`` of the ``eligible`` plots with an identity. Returns, per plot,
+    whether it is taken as fixed, and the candidates' new table."""
+    n = t.shape[0]
+    keys = np.empty(n, np.int64)
+    monitor = np.zeros(n, np.bool_)
+    rows = np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        code = mode3a[i]
+        for c in monitor_codes:
+            if code >= 0 and code == c:
+                monitor[i] = True
+        usable = (code_valid[i] or monitor[i]) and code >= 0
+        for c in unkeyed_codes:
+            if code == c:
+                usable = False
+        keys[i] = address[i] if address[i] >= 0 else (CODE_KEY + code if usable else NO_KEY)
+        if eligible[i] and keys[i] != NO_KEY:
+            rows[k] = i
+            k += 1
+    rows = rows[:k]
+    taken = np.zeros(n, np.bool_)
+    if not k:
+        return taken, key, values, fixed
+    found, new_key, new_values, new_fixed = detect(
+        t[rows], x[rows], y[rows], r[rows], keys[rows], monitor[rows], key, values, fixed,
+        period_s, fixed_memory_s, stale_s, halo2, min_radius_m, gate_sigmas, slowest_m_s,
+        reach_m_s, moving_steps, monitor_min_plots, min_plots, min_duration_s,
+        monitor_max_speed_m_s, max_speed_m_s, monitor_speed_sigmas, speed_sigmas,
+    )  # fmt: skip
+    for j in range(k):
+        taken[rows[j]] = found[j]
+    return taken, new_key, new_values, new_fixed
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -388,51 +388,45 @@ class FixedTargets:
         fixed |= configured
         surveyed = (candidates | table["rab"]) & (which >= 0)
         reference[surveyed] = self._xy[which[surveyed]]
-        if self.config.detect:
+        if self.config.detect and self.compiled:
+            fixed |= self._classify_compiled(
+                table, candidates & ~configured, address, mode3a, mode3a_valid
+            )
+        elif self.config.detect:
             # A site monitor's code counts even garbled or not validated: replies that
             # overlap its own are often flagged so (canalA.gps: 89 of one monitor's 716).
             monitor = (mode3a >= 0) & is_one_of(mode3a, self._monitor_codes)
             keys = identity_keys(address, mode3a, mode3a_valid | monitor)
             rows = np.flatnonzero(candidates & ~configured & (keys != NO_KEY))
             if rows.size:
-                detect = self._detect_compiled if self.compiled else self._detect
-                fixed[rows] = detect(table[rows], keys[rows], monitor[rows])
+                fixed[rows] = self._detect(table[rows], keys[rows], monitor[rows])
         return Classification(fixed, reference)
 
-    def _detect_compiled(
-        self, plots: npt.NDArray[Any], keys: IntArray, monitor: BoolArray
+    def _classify_compiled(
+        self,
+        table: npt.NDArray[Any],
+        eligible: BoolArray,
+        address: IntArray,
+        mode3a: IntArray,
+        mode3a_valid: BoolArray,
     ) -> BoolArray:
-        """``_detect`` in one compiled pass (``fixed_target_kernels``)."""
-        from tracker_service.fixed_target_kernels import detect
+        """The identities and ``_detect`` of the ``eligible`` plots in one compiled pass
+        (``fixed_target_kernels.classify``): which are fixed."""
+        from tracker_service.fixed_target_kernels import classify
 
         cfg, c = self.config, self._candidates
-        taken, c.key, c.values, c.fixed = detect(
-            np.ascontiguousarray(plots["time"], np.float64),
-            np.ascontiguousarray(plots["x"], np.float64),
-            np.ascontiguousarray(plots["y"], np.float64),
-            np.ascontiguousarray(plots["R"], np.float64),
-            np.ascontiguousarray(keys, np.int64),
-            np.ascontiguousarray(monitor, np.bool_),
-            c.key,
-            c.values,
-            c.fixed,
-            float(self.period_s),
-            float(cfg.fixed_memory_s),
-            float(cfg.stale_periods * self.period_s),
-            float(cfg.halo_m**2),
-            float(cfg.min_radius_m),
-            float(cfg.gate_sigmas),
-            float(cfg.site_monitor_max_speed_kt * KT),
-            float(cfg.site_monitor_reach_kt * KT),
-            float(cfg.site_monitor_moving_steps),
-            float(cfg.site_monitor_min_plots),
-            float(cfg.min_plots),
-            float(cfg.min_duration_s),
-            float(cfg.site_monitor_max_speed_kt * KT),
-            float(cfg.max_speed_kt * KT),
-            float(cfg.site_monitor_speed_sigmas),
-            float(cfg.speed_sigmas),
-        )
+        taken, c.key, c.values, c.fixed = classify(
+            table["time"], table["x"], table["y"], table["R"], address, mode3a,
+            np.asarray(mode3a_valid, np.bool_), eligible, self._monitor_codes, _UNKEYED_CODES,
+            c.key, c.values, c.fixed, float(self.period_s), float(cfg.fixed_memory_s),
+            float(cfg.stale_periods * self.period_s), float(cfg.halo_m**2),
+            float(cfg.min_radius_m), float(cfg.gate_sigmas),
+            float(cfg.site_monitor_max_speed_kt * KT), float(cfg.site_monitor_reach_kt * KT),
+            float(cfg.site_monitor_moving_steps), float(cfg.site_monitor_min_plots),
+            float(cfg.min_plots), float(cfg.min_duration_s),
+            float(cfg.site_monitor_max_speed_kt * KT), float(cfg.max_speed_kt * KT),
+            float(cfg.site_monitor_speed_sigmas), float(cfg.speed_sigmas),
+        )  # fmt: skip
         return taken
 
     def _detect(self, plots: npt.NDArray[Any], keys: IntArray, monitor: BoolArray) -> BoolArray:
