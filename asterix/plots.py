@@ -190,7 +190,10 @@ class PlotBatch:
 
 
 _Step = tuple[int, int, Skipper | None]
-_Plan = tuple[_Step, ...]
+_Segment = tuple[tuple[tuple[int, int], ...], int, Skipper | None]
+"""A run of fixed-size items and the variable-size one that may close it: the wanted
+items' (slot, octets from the run's start), the run's size, the closing item's skipper."""
+_Plan = tuple[_Segment, ...]
 
 
 @dataclass(frozen=True)
@@ -254,7 +257,7 @@ class _Walker:
                     plan.append(step)
         if not plan:
             raise Malformed(p, "empty FSPEC")
-        return tuple(plan)
+        return _segments(plan)
 
     def plan(self, fspec: bytes, p: int) -> _Plan:
         """The steps of an FSPEC (single-UAP categories)."""
@@ -296,6 +299,25 @@ class _Walker:
         if plan is None:
             raise Malformed(p, f"FSPEC names items the UAP selected by {value} does not have")
         return plan
+
+
+def _segments(steps: list[_Step]) -> _Plan:
+    """A record's steps (slot, size, skipper) as runs of fixed-size items each closed by a
+    variable-size one (or the record's end): one addition per run instead of per item."""
+    segments: list[_Segment] = []
+    assignments: list[tuple[int, int]] = []
+    size = 0
+    for slot, step, fn in steps:
+        if slot >= 0:
+            assignments.append((slot, size))
+        if fn is None:
+            size += step
+            continue
+        segments.append((tuple(assignments), size, fn))
+        assignments, size = [], 0
+    if assignments or size or not segments:
+        segments.append((tuple(assignments), size, None))
+    return tuple(segments)
 
 
 _WALKERS: dict[int, _Walker] = {}
@@ -347,10 +369,12 @@ def _walk(b: bytes, rows: dict[int, array[int]], errors: list[DecodeError]) -> N
                     plan = walker.select(b, q, p, selection)
                 row = blank.copy()
                 row[0] = p
-                for slot, step, fn in plan:
-                    if slot >= 0:
-                        row[slot] = q
-                    q = q + step if fn is None else fn(b, q, end)
+                for assignments, run, fn in plan:
+                    for slot, offset in assignments:
+                        row[slot] = q + offset
+                    q += run
+                    if fn is not None:
+                        q = fn(b, q, end)
                 if q > end:
                     raise Malformed(p, "record runs past its block")
                 out.extend(row)
