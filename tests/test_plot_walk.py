@@ -25,9 +25,7 @@ def test_a_cut_block_after_the_plots_is_reported() -> None:
         while last + int.from_bytes(unit.payload[last + 1 : last + 3]) < len(unit.payload):
             last += int.from_bytes(unit.payload[last + 1 : last + 3])
         cut = extract_plots(unit.payload[:-1])
-        assert [(e.offset, e.reason) for e in cut.errors] == [
-            (last, "block length does not fit")
-        ]
+        assert [(e.offset, e.reason) for e in cut.errors] == [(last, "block length does not fit")]
         whole = extract_plots(unit.payload)
         assert not whole.errors
         assert cut.plots.tobytes() == whole.plots[: len(cut.plots)].tobytes()
