@@ -250,3 +250,32 @@ def test_compiled_initiation_pairs_as_the_reference(targets: int) -> None:
         assert reference.pending.rows.tobytes() == compiled.pending.rows.tobytes()
         started += len(a[0])
     assert started >= targets // 2
+
+
+@pytest.mark.parametrize("use_daps", [True, False])
+def test_compiled_vertical_measurements_as_the_reference(use_daps: bool) -> None:
+    """The level's variance, the downlinked rates and the selected level of plots (Mode S
+    and Mode C, whole and quarter levels, rates and selected altitudes present, absent and
+    unflagged) from the compiled pass and from numpy: the same bits."""
+    rng = np.random.default_rng(5)
+    n = 200
+    rows = np.zeros(n, dtype=PLOT_DTYPE)
+    rows["flight_level"] = rng.integers(0, 1600, n) / np.where(rng.random(n) < 0.5, 4.0, 1.0)
+    rows["typ"] = rng.choice([1, 2, 5, 6], n)
+    rows["dap_flags"] = rng.integers(0, 16, n)
+    for name in ("baro_rate_fpm", "inertial_rate_fpm"):
+        rows[name] = np.where(rng.random(n) < 0.4, np.nan, rng.uniform(-3000.0, 3000.0, n))
+    rows["selected_altitude_ft"] = np.where(rng.random(n) < 0.3, np.nan, 32000.0)
+    plots = PlotArrays(rows)
+    for mode_s in (rows["typ"] >= 4, np.ones(n, bool)):
+        if mode_s.all():
+            rows["typ"] = 5
+        found = [
+            LocalTracker(
+                TrackerConfig(use_daps=use_daps, implementation=kind)
+            )._vertical_measurements(plots)
+            for kind in ("numpy", "compiled")
+        ]
+        for name in ("level_variance", "rate", "rate_variance", "selected_level"):
+            want, got = (getattr(f, name) for f in found)
+            assert np.asarray(want).tobytes() == np.asarray(got).tobytes(), name

@@ -19,6 +19,7 @@ import math
 
 import numba
 import numpy as np
+import numpy.typing as npt
 
 from tracker_service.tracking.imm import ImmPrediction, ImmUpdate
 from tracker_service.tracking.models import ModelSet
@@ -668,3 +669,53 @@ def valid_plots(
         positive = r[i, 0, 0] > 0 and r[i, 0, 0] * r[i, 1, 1] - r[i, 0, 1] * r[i, 1, 0] > 0
         valid[i] = finite and positive
     return valid
+
+
+@numba.njit(cache=True)
+def vertical_measurements(
+    level: FloatArray,
+    typ: IntArray,
+    flags: npt.NDArray[np.uint8],
+    baro_fpm: FloatArray,
+    inertial_fpm: FloatArray,
+    selected_ft: FloatArray,
+    use_daps: bool,
+    mode_s_typ_min: int,
+    step_mode_s: float,
+    step_mode_c: float,
+    fpm_per_fl_s: float,
+    baro_variance: float,
+    inertial_variance: float,
+    rate_bit: int,
+    selected_bit: int,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """Per plot with a level: its variance (the quantisation step's, 25 ft for Mode S or a
+    level that is no whole FL), the downlinked climb rate (FL/s, the inertial one where
+    present) and its variance, and the selected level (FL); NaN where absent or without
+    ``use_daps``. The numpy reference: ``LocalTracker._vertical_measurements``."""
+    n = level.shape[0]
+    variance = np.empty(n)
+    rate = np.full(n, np.nan)
+    rate_variance = np.full(n, np.nan)
+    selected = np.full(n, np.nan)
+    all_mode_s = True
+    for i in range(n):
+        if typ[i] < mode_s_typ_min:
+            all_mode_s = False
+    for i in range(n):
+        fine = all_mode_s or typ[i] >= mode_s_typ_min
+        fine = fine or abs(level[i] - np.round(level[i])) > 1e-6
+        step = step_mode_s if fine else step_mode_c
+        variance[i] = step * step / 12.0
+        if not use_daps:
+            continue
+        if flags[i] & rate_bit:
+            if np.isfinite(baro_fpm[i]):
+                rate[i] = baro_fpm[i] / fpm_per_fl_s
+                rate_variance[i] = baro_variance
+            if np.isfinite(inertial_fpm[i]):
+                rate[i] = inertial_fpm[i] / fpm_per_fl_s
+                rate_variance[i] = inertial_variance
+        if flags[i] & selected_bit:
+            selected[i] = selected_ft[i] / 100.0
+    return variance, rate, rate_variance, selected

@@ -620,6 +620,20 @@ class LocalTracker:
         """The vertical measurements of plots with a valid level: the level, and the
         downlinked rates and selected altitude where the plot columns exist."""
         names = p.rows.dtype.names or ()
+        if self._compiled and "selected_altitude_ft" in names:
+            cfg = self.config
+            rows = p.rows
+            variance, rate, rate_variance, selected = kernels.vertical_measurements(
+                p.flight_level, p.typ, rows["dap_flags"], rows["baro_rate_fpm"],
+                rows["inertial_rate_fpm"], rows["selected_altitude_ft"], cfg.use_daps,
+                vertical.MODE_S_TYP_MIN, cfg.fl_step_mode_s, cfg.fl_step_mode_c,
+                vertical.FPM_PER_FL_S, (cfg.baro_rate_sigma_fpm / vertical.FPM_PER_FL_S) ** 2,
+                (cfg.inertial_rate_sigma_fpm / vertical.FPM_PER_FL_S) ** 2, DAP_VERTICAL_RATE,
+                DAP_SELECTED_ALTITUDE,
+            )  # fmt: skip
+            return vertical.VerticalMeasurements(
+                p.time, p.flight_level, variance, rate, rate_variance, selected
+            )
         level_variance = vertical.measurement_variance(p.flight_level, p.typ, self.config)
         if "selected_altitude_ft" not in names or not self.config.use_daps:
             # Plots without DAP columns: one NaN column stands for all three (read only).
