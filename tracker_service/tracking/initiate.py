@@ -10,7 +10,12 @@ from __future__ import annotations
 import numpy as np
 
 from tracker_service.tracking import kernels
-from tracker_service.tracking.associate import global_nearest_neighbour, pairs_within
+from tracker_service.tracking.associate import (
+    KDTREE_LEAF_SIZE,
+    global_nearest_neighbour,
+    leaf_order,
+    pairs_within,
+)
 from tracker_service.tracking.config import SHARED_MODE3A_CODES, TrackerConfig
 from tracker_service.tracking.identity import identity_cost
 from tracker_service.tracking.plots import FloatArray, IntArray, PlotArrays
@@ -66,17 +71,20 @@ class TwoPointInitiator:
         )  # fmt: skip
         chosen = global_nearest_neighbour(i, j, cost)
         first, second = i[chosen], j[chosen]
-        if chosen.size >= 2:
-            found, partner, _ = pairs_within(
-                np.column_stack([pending.x, pending.y]), np.column_stack([plots.x, plots.y]), reach
-            )
-            rank = np.argsort(found * len(plots) + partner, kind="stable")
-            keys = (found * len(plots) + partner)[rank]
-            at = np.searchsorted(keys, first * len(plots) + second)
-            assert (keys[at] == first * len(plots) + second).all(), "the searches disagree"
-            order = np.argsort(rank[at], kind="stable")
-            first, second = first[order], second[order]
-        return first, second
+        if chosen.size < 2 or max(len(pending), len(plots)) <= KDTREE_LEAF_SIZE:
+            return first, second  # both searches in (pending, plot) order
+        pending_xy = np.column_stack([pending.x, pending.y])
+        if len(plots) <= KDTREE_LEAF_SIZE:
+            # pairs_within's order: by the waiting plots' leaves (each chosen once).
+            order = np.argsort(leaf_order(pending_xy)[first], kind="stable")
+            return first[order], second[order]
+        found, partner, _ = pairs_within(pending_xy, np.column_stack([plots.x, plots.y]), reach)
+        rank = np.argsort(found * len(plots) + partner, kind="stable")
+        keys = (found * len(plots) + partner)[rank]
+        at = np.searchsorted(keys, first * len(plots) + second)
+        assert (keys[at] == first * len(plots) + second).all(), "the searches disagree"
+        order = np.argsort(rank[at], kind="stable")
+        return first[order], second[order]
 
     def _pairs(
         self, pending: PlotArrays, plots: PlotArrays, max_dt: float
