@@ -421,15 +421,9 @@ def _blank() -> Any:
 _BLANK = _blank()
 _FIRST_DAP_COLUMN = (PLOT_DTYPE.names or ()).index(daps.DAP_COLUMNS[0])
 _BLANK_VALUES = tuple(_BLANK.tolist())
-_ABSENT = {
-    cat: [
-        n
-        for n in PLOT_DTYPE.names or ()
-        if n not in {f.column.name for f in fields} and PLOT_DTYPE[n] in (np.float64, np.int32)
-    ]
-    for cat, fields in _FIELDS.items()
-}
-"""The number columns a category never fills (NaN or -1 in all its rows)."""
+_BLANK_ROW = np.array([_BLANK], dtype=PLOT_DTYPE).view(np.dtype((np.void, PLOT_DTYPE.itemsize)))
+"""The blank row as opaque bytes: repeated, the rows a batch starts from (the columns its
+category never fills stay NaN, -1, "" or False)."""
 SMALL_BATCH = 14
 """Up to this many records of a category, a datagram's plots are read record by record in
 Python: numpy's per-call cost outweighs its per-row gain. Measured crossover (every field
@@ -510,9 +504,7 @@ def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) 
     if len(starts) <= SMALL_BATCH:
         plots = _plots_by_record(cat, data, starts.tolist())
     else:
-        plots = np.zeros(len(starts), dtype=PLOT_DTYPE)
-        for name in _ABSENT[cat]:
-            plots[name] = _BLANK[name]
+        plots = np.repeat(_BLANK_ROW, len(starts)).view(PLOT_DTYPE)
         plots["offset"] = starts[:, 0]
         plots["category"] = cat
         padded = np.frombuffer(data + _PADDING, dtype=np.uint8)
