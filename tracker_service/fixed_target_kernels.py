@@ -11,17 +11,40 @@ drawn and recorded batches.
 
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["classify", "detect"]
+from tracker_service.compiled_arrays import maximum, median
+
+__all__ = ["SETTINGS", "classify", "detect"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
+
+SETTINGS = (
+    "period_s",
+    "fixed_memory_s",
+    "stale_s",
+    "halo2",
+    "min_radius_m",
+    "gate_sigmas",
+    "slowest_m_s",
+    "reach_m_s",
+    "moving_steps",
+    "monitor_min_plots",
+    "min_plots",
+    "min_duration_s",
+    "monitor_max_speed_m_s",
+    "max_speed_m_s",
+    "monitor_speed_sigmas",
+    "speed_sigmas",
+)
+"""The kernels' ``settings`` tuple, in this order: ``FixedTargetConfig`` for one radar
+(its antenna period, the memories in seconds, the halo squared, the speeds in m/s, the
+counts as floats; ``FixedTargets`` builds it)."""
+
 
 # The columns of ``fixed_targets._Candidates.values``.
 N, T0, X0, Y0, LAST, ST, SX, SY, STT, STX, STY, VAR, MOVES = range(13)
@@ -29,26 +52,6 @@ N_FIELDS = 13
 CODE_KEY = 1 << 24
 NO_KEY = -1
 """As ``fixed_targets``' identity keys."""
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _maximum(a: float, b: float) -> float:  # pragma: no cover - compiled
-    """``np.maximum``: NaN when either is."""
-    if a != a or b != b:
-        return a + b
-    return a if a >= b else b
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _median(values: FloatArray) -> float:  # pragma: no cover - compiled
-    """``small_arrays.median``."""
-    ordered = np.sort(values)
-    if np.isnan(ordered[-1]):
-        return math.nan
-    middle = ordered.shape[0] // 2
-    if ordered.shape[0] % 2:
-        return float(ordered[middle])
-    return float((ordered[middle - 1] + ordered[middle]) / 2.0)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -103,22 +106,7 @@ def classify(
     key: IntArray,
     values: FloatArray,
     fixed: BoolArray,
-    period_s: float,
-    fixed_memory_s: float,
-    stale_s: float,
-    halo2: float,
-    min_radius_m: float,
-    gate_sigmas: float,
-    slowest_m_s: float,
-    reach_m_s: float,
-    moving_steps: float,
-    monitor_min_plots: float,
-    min_plots: float,
-    min_duration_s: float,
-    monitor_max_speed_m_s: float,
-    max_speed_m_s: float,
-    monitor_speed_sigmas: float,
-    speed_sigmas: float,
+    settings: tuple[float, ...],
 ) -> tuple[BoolArray, IntArray, FloatArray, BoolArray]:  # pragma: no cover - compiled
     """``FixedTargets.classify``'s detection over a table's plots: each plot's identity
     (``identity_keys``: its address, else its usable code unless shared or an emergency;
@@ -148,11 +136,17 @@ def classify(
     if not k:
         return taken, key, values, fixed
     found, new_key, new_values, new_fixed = detect(
-        t[rows], x[rows], y[rows], r[rows], keys[rows], monitor[rows], key, values, fixed,
-        period_s, fixed_memory_s, stale_s, halo2, min_radius_m, gate_sigmas, slowest_m_s,
-        reach_m_s, moving_steps, monitor_min_plots, min_plots, min_duration_s,
-        monitor_max_speed_m_s, max_speed_m_s, monitor_speed_sigmas, speed_sigmas,
-    )  # fmt: skip
+        t[rows],
+        x[rows],
+        y[rows],
+        r[rows],
+        keys[rows],
+        monitor[rows],
+        key,
+        values,
+        fixed,
+        settings,
+    )
     for j in range(k):
         taken[rows[j]] = found[j]
     return taken, new_key, new_values, new_fixed
@@ -169,33 +163,23 @@ def detect(
     key: IntArray,
     values: FloatArray,
     fixed: BoolArray,
-    period_s: float,
-    fixed_memory_s: float,
-    stale_s: float,
-    halo2: float,
-    min_radius_m: float,
-    gate_sigmas: float,
-    slowest_m_s: float,
-    reach_m_s: float,
-    moving_steps: float,
-    monitor_min_plots: float,
-    min_plots: float,
-    min_duration_s: float,
-    monitor_max_speed_m_s: float,
-    max_speed_m_s: float,
-    monitor_speed_sigmas: float,
-    speed_sigmas: float,
+    settings: tuple[float, ...],
 ) -> tuple[BoolArray, IntArray, FloatArray, BoolArray]:  # pragma: no cover - compiled
     """``FixedTargets._detect`` of plots (time, x, y, R, identity key, wears a
     site-monitor code) against the candidates (``key``, ``values``, ``fixed``): per plot
     whether it is taken as fixed, and the candidates' new table."""
+    (
+        period_s, fixed_memory_s, stale_s, halo2, min_radius_m, gate_sigmas, slowest_m_s,
+        reach_m_s, moving_steps, monitor_min_plots, min_plots, min_duration_s,
+        monitor_max_speed_m_s, max_speed_m_s, monitor_speed_sigmas, speed_sigmas,
+    ) = settings  # fmt: skip
     k = t.shape[0]
     sigma = np.empty(k)
     for i in range(k):
         a, b, d = r[i, 0, 0], r[i, 0, 1], r[i, 1, 1]
         half = 0.5 * (a + d)
-        sigma[i] = np.sqrt(half + np.sqrt(_maximum(0.25 * (a - d) ** 2 + b * b, 0.0)))
-    now = _median(t)
+        sigma[i] = np.sqrt(half + np.sqrt(maximum(0.25 * (a - d) ** 2 + b * b, 0.0)))
+    now = median(t)
     # Forget the quiet candidates; the others sorted by identity (stably).
     live = np.empty(key.shape[0], np.int64)
     m = 0
@@ -222,14 +206,14 @@ def detect(
     for i in range(k):
         first = np.searchsorted(sorted_keys, keys[i], "left")
         last = np.searchsorted(sorted_keys, keys[i], "right")
-        radius = _maximum(min_radius_m, gate_sigmas * sigma[i])
+        radius = maximum(min_radius_m, gate_sigmas * sigma[i])
         best = np.inf
         best_slot = -1
         near = False
         steps = -np.inf
         for s in range(first, last):
             v = new_values[s]
-            n = _maximum(v[N], 1.0)
+            n = maximum(v[N], 1.0)
             mx = v[X0] + v[SX] / n
             my = v[Y0] + v[SY] / n
             d2 = (x[i] - mx) ** 2 + (y[i] - my) ** 2
@@ -281,7 +265,7 @@ def detect(
         v[STX] += dt * dx
         v[STY] += dt * dy
         v[VAR] += sigma[i] ** 2
-        v[LAST] = _maximum(v[LAST], t[i])
+        v[LAST] = maximum(v[LAST], t[i])
     stationary = np.empty(k, np.bool_)
     for i in range(k):
         v = new_values[rows[i]]

@@ -302,7 +302,27 @@ class FixedTargets:
     ) -> None:
         self.config = config or FixedTargetConfig()
         self.compiled = compiled
-        """Detection by ``fixed_target_kernels.detect`` (the same verdicts), not numpy."""
+        """Detection by ``fixed_target_kernels`` (the same verdicts), not numpy."""
+        cfg = self.config
+        self._settings = (
+            float(period_s),
+            float(cfg.fixed_memory_s),
+            float(cfg.stale_periods * period_s),
+            float(cfg.halo_m**2),
+            float(cfg.min_radius_m),
+            float(cfg.gate_sigmas),
+            float(cfg.site_monitor_max_speed_kt * KT),
+            float(cfg.site_monitor_reach_kt * KT),
+            float(cfg.site_monitor_moving_steps),
+            float(cfg.site_monitor_min_plots),
+            float(cfg.min_plots),
+            float(cfg.min_duration_s),
+            float(cfg.site_monitor_max_speed_kt * KT),
+            float(cfg.max_speed_kt * KT),
+            float(cfg.site_monitor_speed_sigmas),
+            float(cfg.speed_sigmas),
+        )
+        """``fixed_target_kernels.SETTINGS``, in its order."""
         self.period_s = period_s
         self.transponders = tuple(transponders)
         t = self.transponders
@@ -414,18 +434,11 @@ class FixedTargets:
         (``fixed_target_kernels.classify``): which are fixed."""
         from tracker_service.fixed_target_kernels import classify
 
-        cfg, c = self.config, self._candidates
+        c = self._candidates
         taken, c.key, c.values, c.fixed = classify(
             table["time"], table["x"], table["y"], table["R"], address, mode3a,
             np.asarray(mode3a_valid, np.bool_), eligible, self._monitor_codes, _UNKEYED_CODES,
-            c.key, c.values, c.fixed, float(self.period_s), float(cfg.fixed_memory_s),
-            float(cfg.stale_periods * self.period_s), float(cfg.halo_m**2),
-            float(cfg.min_radius_m), float(cfg.gate_sigmas),
-            float(cfg.site_monitor_max_speed_kt * KT), float(cfg.site_monitor_reach_kt * KT),
-            float(cfg.site_monitor_moving_steps), float(cfg.site_monitor_min_plots),
-            float(cfg.min_plots), float(cfg.min_duration_s),
-            float(cfg.site_monitor_max_speed_kt * KT), float(cfg.max_speed_kt * KT),
-            float(cfg.site_monitor_speed_sigmas), float(cfg.speed_sigmas),
+            c.key, c.values, c.fixed, self._settings,
         )  # fmt: skip
         return taken
 

@@ -13,6 +13,8 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.compiled_arrays import median
+
 __all__ = ["judge_times"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -33,18 +35,6 @@ def _upper_median(values: FloatArray, toward: float, use_toward: bool) -> float:
         return float(upper)
     lower = ordered[n // 2 - 1]
     return float(lower if abs(lower - toward) < abs(upper - toward) else upper)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _median(values: FloatArray) -> float:  # pragma: no cover - compiled
-    """``small_arrays.median``."""
-    ordered = np.sort(values)
-    if np.isnan(ordered[-1]):
-        return math.nan
-    middle = ordered.shape[0] // 2
-    if ordered.shape[0] % 2:
-        return float(ordered[middle])
-    return float((ordered[middle - 1] + ordered[middle]) / 2.0)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -139,12 +129,12 @@ def judge_times(
             if recent[i]:
                 phase[k] = _wrap((times[i] - north_posix) / period - theta_deg[i] / 360.0)
                 k += 1
-        new_phase = _median(phase)
+        new_phase = median(phase)
         kept = phases[phases.shape[0] - phases_kept :]
         usual_of = np.empty(phases_kept + 1)
         usual_of[:phases_kept] = kept
         usual_of[phases_kept] = new_phase
-        usual = _median(usual_of)
+        usual = median(usual_of)
         k = 0
         for i in range(n):
             if recent[i]:

@@ -28,8 +28,7 @@ uses ``convert_plots`` itself.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any, NamedTuple, cast
 
 import numba
 import numpy as np
@@ -38,6 +37,7 @@ from numba.core import types
 from numba.extending import intrinsic
 from pyproj.enums import TransformDirection
 
+from tracker_service.compiled_arrays import maximum, minimum
 from tracker_service.geodesy.convert import ConvertedPlots
 from tracker_service.geodesy.ellipsoid import E2, A, FloatArray, ecef_to_geodetic_transformer
 from tracker_service.geodesy.plane import STEP_DEG, SystemPlane
@@ -69,47 +69,36 @@ def _fused_multiply_add(typingctx, a, b, c):  # type: ignore[no-untyped-def]  # 
 _fma = cast(Callable[[float, float, float], float], _fused_multiply_add)
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _maximum(a: float, b: float) -> float:  # pragma: no cover - compiled
-    """``np.maximum`` of two floats: NaN when either is."""
-    if a != a or b != b:
-        return a + b
-    return a if a >= b else b
+class PlaneSteps(NamedTuple):
+    """What the conversion projected: each plot's point and its steps north and east
+    (``SystemPlane.jacobian``'s differences) and the radii's w and w^1.5, for the DAPs'
+    velocity turned at another height (``plane_jacobian_at``)."""
 
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _minimum(a: float, b: float) -> float:  # pragma: no cover - compiled
-    """``np.minimum`` of two floats: NaN when either is."""
-    if a != a or b != b:
-        return a + b
-    return a if a <= b else b
+    e0: FloatArray
+    n0: FloatArray
+    e_north: FloatArray
+    n_north: FloatArray
+    e_east: FloatArray
+    n_east: FloatArray
+    w: FloatArray
+    w15: FloatArray
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def plane_jacobian_at(
-    i: int,
-    lat: FloatArray,
-    h: float,
-    w15: FloatArray,
-    w: FloatArray,
-    e0: FloatArray,
-    n0: FloatArray,
-    e_north: FloatArray,
-    n_north: FloatArray,
-    e_east: FloatArray,
-    n_east: FloatArray,
+    i: int, lat: FloatArray, h: float, steps: PlaneSteps
 ) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
     """``SystemPlane.jacobian``'s horizontal block (j00, j01, j10, j11) at point ``i``
     and height ``h``, from the projections made (``PlaneSteps``)."""
-    meridian = _MERIDIAN_NUMERATOR / w15[i]
-    prime_vertical = A / np.sqrt(w[i])
+    meridian = _MERIDIAN_NUMERATOR / steps.w15[i]
+    prime_vertical = A / np.sqrt(steps.w[i])
     north_m = (meridian + h) * _STEP_RAD
     east_m = (prime_vertical + h) * np.cos(np.radians(lat[i])) * _STEP_RAD
     return (
-        (e_east[i] - e0[i]) / east_m,
-        (e_north[i] - e0[i]) / north_m,
-        (n_east[i] - n0[i]) / east_m,
-        (n_north[i] - n0[i]) / north_m,
+        (steps.e_east[i] - steps.e0[i]) / east_m,
+        (steps.e_north[i] - steps.e0[i]) / north_m,
+        (steps.n_east[i] - steps.n0[i]) / east_m,
+        (steps.n_north[i] - steps.n0[i]) / north_m,
     )
 
 
@@ -129,7 +118,7 @@ def _slant(
     for i in range(rho.shape[0]):
         r = rho[i]
         h = height[i]
-        rho_safe = _maximum(r, MIN_RANGE_M)
+        rho_safe = maximum(r, MIN_RANGE_M)
         s = ((h - site_alt) * (2.0 * rc + h + site_alt) - rho_safe * rho_safe) / (
             2.0 * rho_safe * k
         )
@@ -220,14 +209,7 @@ def _plane_terms(
     cos_az: FloatArray,
     lat: FloatArray,
     h: FloatArray,
-    w15: FloatArray,
-    w: FloatArray,
-    e0: FloatArray,
-    n0: FloatArray,
-    e_north: FloatArray,
-    n_north: FloatArray,
-    e_east: FloatArray,
-    n_east: FloatArray,
+    steps: PlaneSteps,
     angle: FloatArray,
     covariance: FloatArray,
     polar_jacobian: FloatArray,
@@ -239,7 +221,7 @@ def _plane_terms(
         r = rho[i]
         psi = elevation[i]
         at_target = psi + gamma[i]
-        cos_at_target = _maximum(np.cos(at_target), MIN_COS_ELEVATION)
+        cos_at_target = maximum(np.cos(at_target), MIN_COS_ELEVATION)
         range_gain = 1.0 / cos_at_target
         height_gain = -np.sin(at_target) / cos_at_target
         # covariance_from_gains, its height sigma 0.
@@ -247,7 +229,7 @@ def _plane_terms(
         t1 = range_gain * sr
         t2 = height_gain * 0.0
         along = t1 * t1 + t2 * t2
-        along = _minimum(along, r * r + sr * sr)
+        along = minimum(along, r * r + sr * sr)
         spread = np.radians(sigma_theta_deg[i])
         t3 = r * np.cos(psi) * spread
         cross = t3 * t3
@@ -257,9 +239,7 @@ def _plane_terms(
         h11 = along * c * c + cross * s * s
         h01 = (along - cross) * s * c
         # SystemPlane.jacobian (stereographic: its up column is zero).
-        j00, j01, j10, j11 = plane_jacobian_at(
-            i, lat, h[i], w15, w, e0, n0, e_north, n_north, e_east, n_east
-        )
+        j00, j01, j10, j11 = plane_jacobian_at(i, lat, h[i], steps)
         # a = jacobian[:2] @ radar_turn.
         ca = np.cos(angle[i])
         sa = np.sin(angle[i])
@@ -278,7 +258,7 @@ def _plane_terms(
         c11 = _fma(b11, a11, _fma(b10, a10, 0.0))
         # The height error's slide along the line of sight (the up column adds 0 * sigma).
         hs = height_sigma[i]
-        slide = _minimum(_maximum(height_gain * hs, -r), r)
+        slide = minimum(maximum(height_gain * hs, -r), r)
         u0 = s * slide
         u1 = c * slide
         shift0 = 0.0 + a00 * u0 + a01 * u1 + 0.0 * hs
@@ -313,22 +293,6 @@ def _transform(transformer: Any, *columns: FloatArray) -> None:
         radians=False,
         errcheck=False,
     )
-
-
-@dataclass(frozen=True)
-class PlaneSteps:
-    """What the conversion projected: each plot's point and its steps north and east
-    (``SystemPlane.jacobian``'s differences) and the radii's w and w^1.5, for the DAPs'
-    velocity turned at another height (``plane_jacobian_at``)."""
-
-    e0: FloatArray
-    n0: FloatArray
-    e_north: FloatArray
-    n_north: FloatArray
-    e_east: FloatArray
-    n_east: FloatArray
-    w: FloatArray
-    w15: FloatArray
 
 
 def convert_batch_plots(
@@ -368,14 +332,13 @@ def convert_batch_plots(
     _transform(project, e_east, n_east)
     w, turn_y, turn_x = np.empty(n), np.empty(n), np.empty(n)
     _turn_terms(lat, lon, site.enu_rotation, w, turn_y, turn_x)
-    w15 = w**1.5
+    steps = PlaneSteps(e0, n0, e_north, n_north, e_east, n_east, w, w**1.5)
     angle = np.arctan2(turn_y, turn_x)
     covariance = np.empty((n, 2, 2))
     polar_jacobian = np.empty((n, 2, 2))
     _plane_terms(
         rho, height_sigma, sigma_rho, sigma_theta, sin_psi, elevation, gamma, ground, sin_az,
-        cos_az, lat, h, w15, w, e0, n0, e_north, n_north, e_east, n_east, angle, covariance,
-        polar_jacobian,
+        cos_az, lat, h, steps, angle, covariance, polar_jacobian,
     )  # fmt: skip
     converted = ConvertedPlots(
         x=e0,
@@ -388,4 +351,4 @@ def convert_batch_plots(
         elevation_rad=elevation,
         polar_jacobian=polar_jacobian,
     )
-    return converted, PlaneSteps(e0, n0, e_north, n_north, e_east, n_east, w, w15)
+    return converted, steps

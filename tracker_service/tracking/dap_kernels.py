@@ -39,20 +39,13 @@ from tracker_service.tracking.plots import (
 __all__ = ["INPUTS", "PUBLISHED", "fill_daps"]
 
 INPUTS = (
-    "roll_deg",
-    "true_track_deg",
-    "ground_speed_kt",
-    "track_angle_rate_deg_s",
-    "magnetic_heading_deg",
-    "indicated_airspeed_kt",
-    "mach",
-    "baro_rate_fpm",
-    "inertial_rate_fpm",
+    *DAP_FIELDS[:9],
     "selected_altitude_mcp_ft",
     "selected_altitude_fms_ft",
     "true_airspeed_kt",
 )
-"""The decoded register columns (``asterix.daps``) the pass reads, in its order."""
+"""The decoded register columns (``asterix.daps``) the pass reads, in its order: the
+first nine are ``DAP_FIELDS``' first nine, copied."""
 ROLL, TRACK, GS, RATE, HEADING, IAS, MACH, BARO, INERTIAL, MCP, FMS, TAS = range(len(INPUTS))
 SELECTED, VX, VY, TURN = 9, 10, 11, 12
 """Columns of the pass's output (``DAP_FIELDS`` order): the first nine as the inputs'."""
@@ -79,14 +72,7 @@ def _daps(
     limits: FloatArray,
     lat: FloatArray,
     height: FloatArray,
-    w15: FloatArray,
-    w: FloatArray,
-    e0: FloatArray,
-    n0: FloatArray,
-    e_north: FloatArray,
-    n_north: FloatArray,
-    e_east: FloatArray,
-    n_east: FloatArray,
+    steps: PlaneSteps,
     out: FloatArray,
     flags: npt.NDArray[np.uint8],
     implausible: BoolArray,
@@ -124,9 +110,7 @@ def _daps(
             psi = np.radians(o[TRACK])
             east = speed * np.sin(psi)
             north = speed * np.cos(psi)
-            j00, j01, j10, j11 = plane_jacobian_at(
-                i, lat, height[i], w15, w, e0, n0, e_north, n_north, e_east, n_east
-            )
+            j00, j01, j10, j11 = plane_jacobian_at(i, lat, height[i], steps)
             o[VX] = j00 * east + j01 * north
             o[VY] = j10 * east + j11 * north
         bits = DAP_VELOCITY if np.isfinite(o[VX]) else 0
@@ -155,9 +139,5 @@ def fill_daps(
     flags = np.empty(n, np.uint8)
     implausible = np.empty(n, np.bool_)
     tan_roll = np.tan(np.radians(registers[:, ROLL]))
-    s = steps
-    _daps(
-        registers, tan_roll, _LIMIT, lat, height, s.w15, s.w, s.e0, s.n0, s.e_north,
-        s.n_north, s.e_east, s.n_east, out, flags, implausible,
-    )  # fmt: skip
+    _daps(registers, tan_roll, _LIMIT, lat, height, steps, out, flags, implausible)
     return out, flags, implausible
