@@ -67,7 +67,7 @@ def _roll_rate(gs_kt: float, tan_roll: float) -> float:  # pragma: no cover - co
 
 @numba.njit(cache=True, error_model="numpy")
 def _daps(
-    registers: FloatArray,
+    registers: tuple[FloatArray, ...],
     tan_roll: FloatArray,
     limits: FloatArray,
     lat: FloatArray,
@@ -76,11 +76,21 @@ def _daps(
     out: FloatArray,
     flags: npt.NDArray[np.uint8],
     implausible: BoolArray,
-) -> None:  # pragma: no cover - compiled
-    """``plot_daps`` of the registers (n, ``INPUTS``) into ``out`` (n, ``DAP_FIELDS``),
-    ``flags`` and ``implausible``."""
-    for i in range(registers.shape[0]):
-        r = registers[i]
+) -> bool:  # pragma: no cover - compiled
+    """``plot_daps`` of the registers (``INPUTS``' columns) into ``out`` (n,
+    ``DAP_FIELDS``), ``flags`` and ``implausible``; False (and nothing written) when no
+    plot has any register."""
+    n = out.shape[0]
+    found = False
+    for column in registers:
+        for i in range(n):
+            found = found or np.isfinite(column[i])
+    if not found:
+        return False
+    r = np.empty(len(INPUTS))
+    for i in range(n):
+        for c, column in enumerate(registers):
+            r[c] = column[i]
         o = out[i]
         for c in range(9):
             o[c] = r[c]
@@ -119,6 +129,7 @@ def _daps(
         bits |= DAP_VERTICAL_RATE if vertical else 0
         bits |= DAP_SELECTED_ALTITUDE if np.isfinite(o[SELECTED]) else 0
         flags[i] = bits
+    return True
 
 
 def fill_daps(
@@ -131,13 +142,12 @@ def fill_daps(
     conversion's latitudes, heights above MSL and projections: (the ``DAP_FIELDS``
     columns (n, 13), ``dap_flags``, which plots had an implausible DAP); None when no
     plot has any register."""
-    registers = np.column_stack([raw[name] for name in INPUTS])
-    if not np.isfinite(registers).any():
-        return None
-    n = registers.shape[0]
+    n = len(raw)
     out = np.empty((n, len(DAP_FIELDS)))
     flags = np.empty(n, np.uint8)
     implausible = np.empty(n, np.bool_)
-    tan_roll = np.tan(np.radians(registers[:, ROLL]))
-    _daps(registers, tan_roll, _LIMIT, lat, height, steps, out, flags, implausible)
+    tan_roll = np.tan(np.radians(raw["roll_deg"]))
+    registers = tuple(raw[name] for name in INPUTS)
+    if not _daps(registers, tan_roll, _LIMIT, lat, height, steps, out, flags, implausible):
+        return None
     return out, flags, implausible
