@@ -96,13 +96,20 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     )
     confirmed = held[loc["status"][held] == LOCAL_CONFIRMED]
     tested = set(loc["key"][confirmed].tolist())
-    if np.unique(used["radar"][feeding]).size < 2:
+    feeding_radar = used["radar"][feeding]
+    if feeding.size == 0 or bool((feeding_radar == feeding_radar[0]).all()):
         # One radar feeds the picture (canalA): no other radar's track can tell the two
         # assignments apart, so the pair search is skipped (a quarter of the fuser's cost
         # there); the tested tracks' evidence ends as below.
         evidence.drop(tested)
         return
-    li, sj = _near(state, estimator, confirmed, np.unique(used["system"][feeding]))
+    # Only a system track that a track of the batch's radar feeds can hold the l' of a
+    # pair (``_exchange_witnesses``): the pre-selection reaches those alone (a fifth of
+    # the fed ones on ``scale``), with the bias bound of every fed one as before, so
+    # that each pair it finds is one it found among them all.
+    fed = np.unique(used["system"][feeding])
+    own = np.unique(used["system"][feeding[feeding_radar == loc["radar"][held[0]]]])
+    li, sj = _near(state, estimator, confirmed, own, bias_over=fed)
     other = sj != loc["system"][li]
     li, sj = li[other], sj[other]
     involved = feeding[is_member(used["system"][feeding], np.union1d(sj, loc["system"][li]))]
@@ -340,10 +347,15 @@ STRAIGHT_LINE = TrackFusionEstimator()
 
 
 def _near(
-    state: FusionState, estimator: SystemEstimator, free: IntArray, candidates: IntArray
+    state: FusionState,
+    estimator: SystemEstimator,
+    free: IntArray,
+    candidates: IntArray,
+    bias_over: IntArray | None = None,
 ) -> tuple[IntArray, IntArray]:
     """The (local row, system number) pairs the gate may pass (``nearby.py``), in the
-    order of (local row, number)."""
+    order of (local row, number); the radii's bias bound from the system tracks
+    ``bias_over`` (default: the candidates), a superset of the candidates."""
     empty = np.zeros(0, dtype=np.int64)
     if free.size == 0 or candidates.size == 0:
         return empty, empty
@@ -351,7 +363,9 @@ def _near(
     t_local = loc["t"][free]
     t_mid, spread = nearby.time_span(t_local)
     b = max(
-        nearby.system_largest_bias(sys["B"], candidates, state.compiled),
+        nearby.system_largest_bias(
+            sys["B"], candidates if bias_over is None else bias_over, state.compiled
+        ),
         nearby.largest_bias(loc["extra"][free]),
     )
     q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max

@@ -41,8 +41,8 @@ def may_found(state: FusionState, candidates: IntArray) -> BoolArray:
     address, code = loc["address"][candidates], loc["mode3a"][candidates]
     live = sys["alive"].copy()
     live[0] = False
-    known = (np.isin(address, sys["address"][live]) & (address >= 0)) | (
-        np.isin(code, sys["mode3a"][live]) & (code >= 0) & ~is_shared_code(code)
+    known = (is_member(address, sys["address"][live]) & (address >= 0)) | (
+        is_member(code, sys["mode3a"][live]) & (code >= 0) & ~is_shared_code(code)
     )
     waited = state.now - loc["t_founder"][candidates]
     return np.asarray(~known | (waited >= state.config.found_delay), dtype=bool)
@@ -374,7 +374,7 @@ def _release(state: FusionState, numbers: IntArray, moved_to: IntArray | None = 
     sys = state.sys
     loc = state.local.used
     if moved_to is None:
-        loc["system"][np.isin(loc["system"], numbers)] = 0
+        loc["system"][is_member(loc["system"], numbers)] = 0
     else:
         for number, target in zip(numbers.tolist(), moved_to.tolist(), strict=True):
             loc["system"][loc["system"] == number] = target
