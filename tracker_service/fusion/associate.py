@@ -10,11 +10,11 @@ import itertools
 import numpy as np
 
 from tracker_service.fusion import consider, nearby
-from tracker_service.fusion.arrays import is_member, kernel_indices
+from tracker_service.fusion.arrays import is_member, kernel_indices, numbers_in
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import TrackFusionEstimator
 from tracker_service.fusion.ml import predict_cv
-from tracker_service.fusion.state import ExchangeEvidence, FusionState
+from tracker_service.fusion.state import FusionState
 from tracker_service.tracking.associate import global_nearest_neighbour
 from tracker_service.tracking.identity import identity_cost
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
@@ -69,6 +69,8 @@ def _consistency(state: FusionState, held: IntArray, d2: FloatArray) -> BoolArra
     return np.asarray((n >= cfg.reassociate_window) & (mean > cfg.reassociate_kappa * dof) & ~solo)
 
 
+NO_EVIDENCE = (0, 0.0, 0.0)
+"""A pair's evidence before its first test."""
 EXCHANGE_AGREEMENT = 0.75
 """The share (running mean over the window) of the exchange test's updates in which every
 other radar's local track favoured the exchange."""
@@ -107,8 +109,8 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     # pair (``_exchange_witnesses``): the pre-selection reaches those alone (a fifth of
     # the fed ones on ``scale``), with the bias bound of every fed one as before, so
     # that each pair it finds is one it found among them all.
-    fed = np.unique(used["system"][feeding])
-    own = np.unique(used["system"][feeding[feeding_radar == loc["radar"][held[0]]]])
+    fed = numbers_in(used["system"][feeding])
+    own = numbers_in(used["system"][feeding[feeding_radar == loc["radar"][held[0]]]])
     li, sj = _near(state, estimator, confirmed, own, bias_over=fed)
     other = sj != loc["system"][li]
     li, sj = li[other], sj[other]
@@ -117,46 +119,38 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     # batched calls (one call per pair cost 60 % of the whole chain on ``scale``, the
     # pairs built in Python a third of the fuser).
     pair_a, pair_b, closer, farther, witness, ends = _exchange_witnesses(state, li, sj, involved)
-    rows_of = {
-        (min(ka, kb), max(ka, kb)): (a, b)
-        for a, b, ka, kb in zip(
-            pair_a.tolist(),
-            pair_b.tolist(),
-            loc["key"][pair_a].tolist(),
-            loc["key"][pair_b].tolist(),
-            strict=True,
-        )
-    }
-    deltas: list[float] = []
-    favoured: list[bool] = []
-    if witness.size:
+    ka, kb = loc["key"][pair_a], loc["key"][pair_b]
+    pairs = list(zip(np.minimum(ka, kb).tolist(), np.maximum(ka, kb).tolist(), strict=True))
+    if pairs:
         all_votes = track_distance(state, closer, witness)
         all_votes -= track_distance(state, farther, witness)
-        deltas = _segment_sums(state, all_votes, ends).tolist()
-        favoured = np.logical_and.reduceat(all_votes > 0, ends[:-1]).tolist()
-    fresh: dict[tuple[int, int], ExchangeEvidence] = {}
-    for pair, delta, all_favour in zip(rows_of, deltas, favoured, strict=True):
+        deltas = _segment_sums(state, all_votes, ends)
+        favoured = np.logical_and.reduceat(all_votes > 0, ends[:-1])
+        # Each pair's running means, over the batch's pairs at once (the arithmetic of
+        # one pair at a time: the same bits).
+        before = np.array([evidence.get(pair) or NO_EVIDENCE for pair in pairs])
+        n = before[:, 0].astype(np.int64) + 1
+        weight = 1.0 / np.minimum(n, cfg.reassociate_window)
+        mean = before[:, 1] + (deltas - before[:, 1]) * weight
         # Every other radar's track must favour it (in EXCHANGE_AGREEMENT of the
         # updates): where the system tracks are mixtures (each radar's first joins made
         # at one moment), an exchange that one of them opposes moves the mixture around
         # instead of undoing it (PAR10 with a shared code).
-        n, mean, agree = evidence.get(pair) or (0, 0.0, 0.0)
-        n += 1
-        weight = 1.0 / min(n, cfg.reassociate_window)
-        mean += (delta - mean) * weight
-        agree += (float(all_favour) - agree) * weight
-        fresh[pair] = (n, mean, agree)
+        agree = before[:, 2] + (favoured.astype(np.float64) - before[:, 2]) * weight
+    else:
+        n, mean, agree = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
     # A pair's evidence lives while it is tested in a row: a pair of a tested track not
     # tested now is out of reach (a coasting update, no plot, tests nothing).
     evidence.drop(tested)
-    for pair, value in fresh.items():
-        evidence.set(pair, value)
+    evidence.set_many(pairs, zip(n.tolist(), mean.tolist(), agree.tolist(), strict=True))
+    weak = (mean <= cfg.exchange_margin) | (agree < EXCHANGE_AGREEMENT)
+    ready = (n >= cfg.reassociate_window) & ~weak
     done: set[int] = set()
-    for pair, (n, mean, agree) in fresh.items():
-        weak = mean <= cfg.exchange_margin or agree < EXCHANGE_AGREEMENT
-        if n < cfg.reassociate_window or weak or pair[0] in done or pair[1] in done:
+    for k in np.flatnonzero(ready).tolist():
+        pair = pairs[k]
+        if pair[0] in done or pair[1] in done:
             continue
-        a, b = rows_of[pair]
+        a, b = int(pair_a[k]), int(pair_b[k])
         loc["system"][a], loc["system"][b] = loc["system"][b], loc["system"][a]
         _restart_tests(state, np.array([a, b]))
         done.update(pair)

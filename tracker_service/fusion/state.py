@@ -64,10 +64,18 @@ class PairEvidence:
     def get(self, pair: tuple[int, int]) -> ExchangeEvidence | None:
         return self._of_pair.get(pair)
 
-    def set(self, pair: tuple[int, int], evidence: ExchangeEvidence) -> None:
-        self._of_pair[pair] = evidence
-        for key in pair:
-            self._pairs_of.setdefault(key, set()).add(pair)
+    def set_many(
+        self, pairs: list[tuple[int, int]], evidence: Iterable[ExchangeEvidence]
+    ) -> None:
+        """Each pair's evidence, in order."""
+        self._of_pair.update(zip(pairs, evidence, strict=True))
+        pairs_of = self._pairs_of
+        for pair in pairs:
+            for key in pair:
+                if (known := pairs_of.get(key)) is None:
+                    pairs_of[key] = {pair}
+                else:
+                    known.add(pair)
 
     def drop(self, keys: Iterable[int]) -> None:
         """Forget every pair with one of ``keys``."""

@@ -13,7 +13,7 @@ from typing import Any, overload
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.fusion.arrays import last_of_each, rank_within
+from tracker_service.fusion.arrays import is_member, last_of_each, rank_within
 from tracker_service.fusion.messages import MAX_SOURCES, MAX_SYSTEM_NUMBER
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
@@ -174,7 +174,13 @@ class LocalTrackTable:
             fresh["t_founder"] = np.nan
             fresh["fl"] = np.nan
             fresh["address"] = fresh["mode3a"] = -1
-            self.reindex()
+            # Into the index where they sort (the keys of the live rows are distinct):
+            # the index ``reindex`` would build, without sorting every live key again.
+            at = np.searchsorted(self._index_keys, new_keys)
+            self._index_keys = np.insert(self._index_keys, at, new_keys)
+            self._index_rows = np.insert(
+                self._index_rows, at, np.arange(start, start + new_keys.size, dtype=np.int64)
+            )
             rows = self._lookup(keys)
         return rows
 
@@ -206,7 +212,9 @@ class LocalTrackTable:
         if rows.size:
             self.rows["alive"][rows] = False
             self.rows["system"][rows] = 0
-            self.reindex()
+            kept = ~is_member(self._index_rows, rows)
+            self._index_keys = self._index_keys[kept]
+            self._index_rows = self._index_rows[kept]
 
     def compact(self) -> None:
         """Drop deleted local tracks once they are half the table (rows move: reindex)."""
