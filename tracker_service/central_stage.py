@@ -451,7 +451,9 @@ class CentralStage:
             self._absolute_references[radar] += len(adsb)
             observations.append(adsb)
         if observations:
-            self.bias.update(concatenate(observations))
+            self.bias.update(
+                observations[0] if len(observations) == 1 else concatenate(observations)
+            )
             self._record_bias(radar, message.source, float(table["time"].max()))
         # Each local update's share of the residual bias, at its plot.
         extra = np.zeros((len(local), 2, 2))

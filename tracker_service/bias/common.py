@@ -10,7 +10,7 @@ so they keep their prior.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -256,12 +256,7 @@ class BiasFilterBase(ABC):
         self._absolute_seen[obs.radar[~traffic]] = True
         self._monitor_seen[obs.radar[obs.kind == ObservationKind.FIELD_MONITOR]] = True
         self._clock_seen[obs.radar[obs.kind == ObservationKind.ADSB]] = True
-        ordered = obs.subset(np.argsort(obs.time, kind="stable"))
-        self._process(
-            replace(
-                ordered, C=ordered.C * self.scale, contributor_C=ordered.contributor_C * self.scale
-            )
-        )
+        self._process(obs.subset(np.argsort(obs.time, kind="stable"), scale_c=self.scale))
 
     def walk_rate(self) -> FloatArray:
         """Random-walk variance per second (L,4) on the free components (the rest keep the

@@ -89,11 +89,19 @@ class BiasObservations:
     def n_radars(self) -> int:
         return int(self.contributors.shape[1])
 
-    def subset(self, index: IntArray | BoolArray) -> BiasObservations:
-        """The rows selected by a mask or an index array, in that order."""
-        return BiasObservations(
-            **{name: getattr(self, name)[index] for name in self.__dataclass_fields__}
-        )
+    def subset(
+        self, index: IntArray | BoolArray, scale_c: FloatArray | None = None
+    ) -> BiasObservations:
+        """The rows selected by a mask or an index array, in that order (a mask that
+        keeps every row: these observations, not a copy); ``scale_c``: their C and
+        contributor_C multiplied by it (the filters' scaled biases, ``BiasFilterBase``)."""
+        if scale_c is None and index.dtype == np.bool_ and index.all():
+            return self
+        fields = {name: getattr(self, name)[index] for name in self.__dataclass_fields__}
+        if scale_c is not None:
+            fields["C"] = fields["C"] * scale_c
+            fields["contributor_C"] = fields["contributor_C"] * scale_c
+        return BiasObservations(**fields)
 
 
 def make_observations(
