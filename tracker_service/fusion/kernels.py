@@ -139,6 +139,34 @@ def _combine_sensitivities(
                 out[r, sensor, a, b] = acc
 
 
+@numba.njit(cache=True, inline="always")
+def _sensitive(mM: FloatArray, n: int, radar: int, active: BoolArray) -> None:  # pragma: no cover - compiled
+    """active[l]: radar l is ``radar`` or system track n holds a sensitivity to its bias
+    in some model. The others' are exactly zero, and stay zero through the prediction,
+    the update and the combination (each is linear in them, every sum starting from
+    +0.0): the kernels write +0.0 for them without the arithmetic (on ``scale`` a track
+    is sensitive to 4 of 20 radars)."""
+    m, n_radars = mM.shape[1], mM.shape[2]
+    for sensor in range(n_radars):
+        found = sensor == radar
+        j = 0
+        while not found and j < m:
+            for a in range(4):
+                if mM[n, j, sensor, a, 0] != 0.0 or mM[n, j, sensor, a, 1] != 0.0:
+                    found = True
+            j += 1
+        active[sensor] = found
+
+
+@numba.njit(cache=True, inline="always")
+def _zero_inactive(mp: FloatArray, active: BoolArray) -> None:  # pragma: no cover - compiled
+    """Row 0's sensitivities to the radars not ``active`` (``_sensitive``): +0.0."""
+    for j in range(mp.shape[1]):
+        for sensor in range(mp.shape[2]):
+            if not active[sensor]:
+                mp[0, j, sensor, :, :] = 0.0
+
+
 @numba.njit(cache=True)
 def consider_predict(
     mx: FloatArray,
@@ -165,12 +193,14 @@ def consider_predict(
     one_p = np.empty((1, 4, 4))
     one_m = np.empty((1, n_radars, 4, 2))
     d = np.empty(4)
-    every = np.ones(n_radars, dtype=np.bool_)
+    active = np.empty(n_radars, dtype=np.bool_)
     for r in range(k):
+        _sensitive(mM, numbers[r], -1, active)
         _predict_track(
-            mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, every
+            mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, active
         )
         _combine_row(xp, pp, c, 0, one_x, one_p, d)
+        _zero_inactive(mp, active)
         _combine_sensitivities(mp, c, 0, one_m)
         xc[r] = one_x[0]
         pc[r] = one_p[0]
@@ -396,11 +426,12 @@ def filter_round(
     joseph = np.empty((4, 4))
     log_post = np.empty(m)
     d = np.empty(4)
-    every = np.ones(n_radars, dtype=np.bool_)
+    active = np.empty(n_radars, dtype=np.bool_)
     for r in range(k):
         n = numbers[r]
+        _sensitive(mM, n, radar, active)
         _predict_track(
-            mx, mP, mM, mu, n, time[r] - t[n], omega, q, sojourn, xp, pp, mp, c, 0, every
+            mx, mP, mM, mu, n, time[r] - t[n], omega, q, sojourn, xp, pp, mp, c, 0, active
         )
         r00, r01, r10, r11 = R[r, 0, 0], R[r, 0, 1], R[r, 1, 0], R[r, 1, 1]
         for j in range(m):
@@ -413,6 +444,8 @@ def filter_round(
                 cross[a, 0] = pp[0, j, a, 0]
                 cross[a, 1] = pp[0, j, a, 1]
             for sensor in range(n_radars):
+                if not active[sensor]:
+                    continue
                 for a in range(2):
                     for b in range(2):
                         g[sensor, a, b] = mp[0, j, sensor, a, b]
@@ -467,6 +500,9 @@ def filter_round(
                     p_new[0, j, a, b] = 0.5 * (joseph[a, b] + joseph[b, a])
             # M_l -= K G_l.
             for sensor in range(n_radars):
+                if not active[sensor]:
+                    m_new[0, j, sensor, :, :] = 0.0
+                    continue
                 for a in range(4):
                     for b in range(2):
                         m_new[0, j, sensor, a, b] = mp[0, j, sensor, a, b] - (
