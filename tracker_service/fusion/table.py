@@ -126,6 +126,27 @@ class Columns:
             column[key] = value[name]
 
 
+class Head:
+    """The first ``n`` rows of a ``Columns`` table, a field at a time: each field asked
+    for is a view of its column's first rows (a ``Columns`` slice makes views of every
+    column, twenty-odd, for the field or two a caller reads)."""
+
+    __slots__ = ("_columns", "_n")
+
+    def __init__(self, table: Columns, n: int) -> None:
+        self._columns = table._columns
+        self._n = n
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, name: str) -> npt.NDArray[Any]:
+        return self._columns[name][: self._n]
+
+    def __setitem__(self, name: str, value: Any) -> None:
+        self._columns[name][: self._n] = value
+
+
 def new_system_table(n_models: int, n_radars: int) -> Columns:
     """Column by column (``Columns``): a row holds every radar's sensitivities, about
     10 kB, so that a field view of packed rows would touch a page per row."""
@@ -150,9 +171,9 @@ class LocalTrackTable:
         self._index_rows = np.zeros(0, dtype=np.int64)
 
     @property
-    def used(self) -> Columns:
-        """The rows in use (a view)."""
-        return self.rows[: self.n]
+    def used(self) -> Head:
+        """The rows in use (views, field by field)."""
+        return Head(self.rows, self.n)
 
     def find(self, radar: int, u: npt.NDArray[Any], create: bool = True) -> IntArray:
         """Row of each update's local track (-1: unknown, and not created: a deleted
