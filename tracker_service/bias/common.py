@@ -157,16 +157,18 @@ class BiasFilterBase(ABC):
         var[N_BIAS * self.n_radars :][np.repeat(self.is_reference, self.clock.n_extra)] = 0.0
         return s, np.diag(var)
 
-    def state_free(self) -> BoolArray:
+    def state_free(self, free: BoolArray | None = None) -> BoolArray:
         """``free`` per radar over its biases and extra clock states (L, n_state): the
-        clock states are free with the time offset."""
-        free = self.free()
+        clock states are free with the time offset. ``free``: ``free()`` if known."""
+        free = self.free() if free is None else free
         return np.concatenate([free, np.repeat(free[:, TIME:], self.clock.n_extra, axis=1)], 1)
 
-    def state_walk_rate(self) -> FloatArray:
-        """``walk_rate`` per radar over its biases and extra clock states (L, n_state)."""
-        clock = np.where(self.free()[:, TIME, None], self.clock.walk_var[None, :], 0.0)
-        return np.concatenate([self.walk_rate(), clock], axis=1)
+    def state_walk_rate(self, free: BoolArray | None = None) -> FloatArray:
+        """``walk_rate`` per radar over its biases and extra clock states (L, n_state).
+        ``free``: ``free()`` if known (it costs a few dozen array operations)."""
+        free = self.free() if free is None else free
+        clock = np.where(free[:, TIME, None], self.clock.walk_var[None, :], 0.0)
+        return np.concatenate([self.walk_rate(free), clock], axis=1)
 
     def joint_free(self) -> BoolArray:
         """``state_free`` in the layout of ``prior``."""
@@ -258,10 +260,10 @@ class BiasFilterBase(ABC):
         self._clock_seen[obs.radar[obs.kind == ObservationKind.ADSB]] = True
         self._process(obs.subset(np.argsort(obs.time, kind="stable"), scale_c=self.scale))
 
-    def walk_rate(self) -> FloatArray:
+    def walk_rate(self, free: BoolArray | None = None) -> FloatArray:
         """Random-walk variance per second (L,4) on the free components (the rest keep the
-        prior)."""
-        return np.where(self.free(), self._walk_var, 0.0)
+        prior); ``free``: ``free()`` if known."""
+        return np.where(self.free() if free is None else free, self._walk_var, 0.0)
 
     def count(self, radar: IntArray, accepted: BoolArray) -> None:
         np.add.at(self.n_used, radar[accepted], 1)

@@ -81,8 +81,9 @@ class SeparatedBiasFilter(BiasFilterBase):
             self.reception_rejected[radar] += not used
 
     def _process(self, obs: BiasObservations) -> None:
-        free = self.state_free()
-        walk = self.state_walk_rate()
+        free_now = self.free()
+        free = self.state_free(free_now)
+        walk = self.state_walk_rate(free_now)
         for radar in np.unique(obs.radar):
             r = int(radar)
             self._update_radar(r, obs.subset(obs.radar == radar), free[r], walk[r])
