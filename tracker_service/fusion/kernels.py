@@ -781,6 +781,42 @@ def slots_of(
 
 
 @numba.njit(cache=True)
+def reference_sources(
+    slots: IntArray,
+    t: FloatArray,
+    loc_radar: IntArray,
+    loc_t_plot: FloatArray,
+    radar: int,
+    sources: int,
+    reference_age: float,
+    n_radars: int,
+) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_]]:  # pragma: no cover - compiled
+    """``references.references``' choice of sources per row, from the local table's
+    fields: its slots of sources below ``sources`` (order kept, -1 after), those of them
+    of other radars than ``radar`` with a plot within ``reference_age`` of t (the
+    same), and the radars of the recent ones (k, n_radars)."""
+    k, width = slots.shape
+    kept = np.full((k, width), -1, dtype=np.int64)
+    others = np.full((k, width), -1, dtype=np.int64)
+    seen = np.zeros((k, n_radars), dtype=np.bool_)
+    for r in range(k):
+        n_kept = 0
+        n_others = 0
+        for i in range(width):
+            s = slots[r, i]
+            if s < 0 or loc_radar[s] >= sources:
+                continue
+            kept[r, n_kept] = s
+            n_kept += 1
+            if t[r] - loc_t_plot[s] <= reference_age:
+                seen[r, loc_radar[s]] = True
+                if loc_radar[s] != radar:
+                    others[r, n_others] = s
+                    n_others += 1
+    return kept, others, seen
+
+
+@numba.njit(cache=True)
 def system_reach(
     x: FloatArray,
     P: FloatArray,

@@ -54,6 +54,8 @@ def references(
     at = positions(p.plot_id, with_plot["plot_id"])
     t = np.where(at >= 0, p.time[np.maximum(at, 0)], with_plot["time"])
     slots = state.local.slots(numbers, state.config.max_sources)
+    if state.compiled:
+        return _compiled(state, radar, with_plot, numbers, t, slots, sources)
     if sources is not None:
         slots = compact_slots(slots, loc["radar"][np.maximum(slots, 0)] < sources)
     s = np.maximum(slots, 0)
@@ -74,5 +76,44 @@ def references(
         others_v=x_o[:, 2:],
         all_xy=x_a[:, :2],
         all_P=p_a[:, :2, :2],
+        radars_seen=seen,
+    )
+
+
+def _compiled(
+    state: FusionState,
+    radar: int,
+    with_plot: npt.NDArray[Any],
+    numbers: IntArray,
+    t: FloatArray,
+    slots: IntArray,
+    sources: int | None,
+) -> References:
+    """``references`` past the slots by the compiled kernels: the sources chosen in one
+    pass, both fusions in one call (its rows are independent)."""
+    from tracker_service.fusion.kernels import reference_sources  # numba only when compiled
+
+    loc, k = state.local.rows, numbers.size
+    kept, others, seen = reference_sources(
+        slots,
+        t,
+        loc["radar"],
+        loc["t_plot"],
+        radar,
+        state.n_radars if sources is None else sources,
+        state.config.reference_age_s,
+        state.n_radars,
+    )
+    x, p = fuse_local_tracks(state, np.concatenate([others, kept]), np.concatenate([t, t]))
+    return References(
+        plot_id=with_plot["plot_id"].astype(np.int64),
+        system_number=numbers,
+        time=t,
+        others_valid=others[:, 0] >= 0,
+        others_xy=x[:k, :2],
+        others_P=p[:k, :2, :2],
+        others_v=x[:k, 2:],
+        all_xy=x[k:, :2],
+        all_P=p[k:, :2, :2],
         radars_seen=seen,
     )
