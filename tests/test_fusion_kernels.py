@@ -27,7 +27,7 @@ from tracker_service.fusion import (
 )
 from tracker_service.fusion.estimator_tracks import fuse_local_tracks
 from tracker_service.fusion.state import FusionState
-from tracker_service.fusion.table import LocalTrackTable
+from tracker_service.fusion.table import Columns, LocalTrackTable
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
@@ -69,6 +69,12 @@ def _states(
     sys["mP"][n] = _spd(rng, (k, m), np.array([300.0, 300.0, 20.0, 20.0]))
     sys["mu"][n] = rng.dirichlet(np.full(m, 0.5), k)
     sys["mM"][n] = rng.normal(0.0, 0.5, (k, m, n_radars, 4, 2))
+    # A system track holds no sensitivity to the radars none of whose plots updated it,
+    # which the kernels skip.
+    insensitive = rng.uniform(size=(k, n_radars)) < 0.4
+    mm = sys["mM"][n]
+    mm[np.broadcast_to(insensitive[:, None, :], (k, m, n_radars))] = 0.0
+    sys["mM"][n] = mm
     sys["B"][n] = _spd(rng, (k, n_radars), np.array([60.0, 60.0]))
     local = states[0].local
     rows = local.find(0, _local_updates(rng, k), create=True)
@@ -202,12 +208,18 @@ def test_compiled_and_numpy_fusers_give_the_same_rows(method: str) -> None:
     for ri, plots in scenario.batches[: len(scenario.batches) // 2]:
         updates = trackers[ri].process(plots)
         extra = np.broadcast_to(np.diag([40.0**2, 25.0**2]), (len(updates), 2, 2)).copy()
-        refs = {impl: f.references(ri, updates, plots) for impl, f in fusers.items()}
-        for name in ("others_xy", "others_P", "others_v", "all_xy", "all_P"):
-            a, b = getattr(refs["numpy"], name), getattr(refs["compiled"], name)
-            np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
-            valid = ~np.isnan(a).any(axis=tuple(range(1, a.ndim)))
-            close_per_track(a[valid], b[valid], name[-1])  # "P", or vectors by their size
+        # Every source, and the first two only (as the bias estimator takes the radars
+        # and not the ADS-B source).
+        for sources in (None, 2):
+            refs = {impl: f.references(ri, updates, plots, sources) for impl, f in fusers.items()}
+            for name in ("others_xy", "others_P", "others_v", "all_xy", "all_P"):
+                a, b = getattr(refs["numpy"], name), getattr(refs["compiled"], name)
+                np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+                valid = ~np.isnan(a).any(axis=tuple(range(1, a.ndim)))
+                close_per_track(a[valid], b[valid], name[-1])  # "P", or vectors by size
+            for name in ("plot_id", "system_number", "time", "others_valid", "radars_seen"):
+                a, b = getattr(refs["numpy"], name), getattr(refs["compiled"], name)
+                np.testing.assert_array_equal(a, b, err_msg=name)
         for impl, f in fusers.items():
             rows[impl].append(f.process(ri, updates, plots, extra))
     a, b = np.concatenate(rows["numpy"]), np.concatenate(rows["compiled"])
@@ -244,6 +256,42 @@ def test_slots_are_the_references(seed: int, k: int, max_sources: int) -> None:
     numbers = rng.integers(1, 14, int(rng.integers(0, 20)))
     want, got = (table.slots(numbers, max_sources) for table in tables)
     np.testing.assert_array_equal(want, got)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=0, max_value=30), n=st.integers(0, 60))
+def test_store_is_the_reference(seed: int, k: int, n: int) -> None:
+    """``LocalTrackTable.store`` by its kernel against the numpy path, every field equal:
+    rows updated several times a batch, unknown identities, flight levels missing or
+    with an infinite rate, updates with and without a plot, tracks without a state."""
+    rng = np.random.default_rng(seed)
+    tables = [LocalTrackTable(5, compiled=flag) for flag in (False, True)]
+    rows = tables[0].find(0, _local_updates(rng, max(k, 1)), create=True)
+    loc = tables[0].rows
+    loc["t"][rows] = np.where(rng.random(rows.size) < 0.3, np.nan, rng.uniform(0, 9, rows.size))
+    loc["address"][rows] = rng.integers(-1, 3, rows.size)
+    tables[1].rows = Columns(loc.dtype, {name: loc[name].copy() for name in loc.dtype.names or ()})
+    tables[1].n = tables[0].n
+    u = np.zeros(n, dtype=LocalTracker().output_dtype)
+    u["status"] = rng.integers(0, 4, n)
+    u["time"] = rng.uniform(0.0, 10.0, n)
+    for name in ("x", "y", "vx", "vy"):
+        u[name] = rng.normal(0.0, 1e4, n)
+    u["P"] = rng.normal(0.0, 100.0, (n, 16))
+    u["address"] = np.where(rng.random(n) < 0.5, -1, rng.integers(0, 1 << 24, n))
+    u["mode3a"] = np.where(rng.random(n) < 0.5, -1, rng.integers(0, 4096, n))
+    u["flight_level"] = np.where(rng.random(n) < 0.4, np.nan, rng.uniform(0.0, 400.0, n))
+    u["climb_rate_fl_per_s"] = rng.choice([np.nan, np.inf, -np.inf, 0.5, -1.0], n)
+    u["model_probabilities"] = rng.dirichlet(np.ones(5), n)
+    u["plot_id"] = rng.integers(0, 1000, n)
+    which = rng.integers(0, rows.size, n)
+    extra = _spd(rng, (n,), np.array([40.0, 40.0]))
+    has_plot = rng.random(n) < 0.6
+    for table in tables:
+        table.store(rows[which], u, extra, has_plot)
+    want, got = tables[0].rows, tables[1].rows
+    for name in want.dtype.names or ():
+        np.testing.assert_array_equal(want[name], got[name], err_msg=name)
 
 
 @settings(max_examples=25, deadline=None)

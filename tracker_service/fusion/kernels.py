@@ -34,6 +34,7 @@ from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
 LOG_2PI = math.log(2.0 * math.pi)
+FLOAT_MAX = float(np.finfo(np.float64).max)
 TINY = 1e-300
 
 
@@ -734,6 +735,86 @@ def _finish(
         for b in range(4):
             acc += p[a, b] * weighted[b]
         x[a] = acc
+
+
+@numba.njit(cache=True)
+def store_updates(
+    rows: IntArray,
+    u: npt.NDArray[Any],
+    extra: FloatArray,
+    has_plot: npt.NDArray[np.bool_],
+    with_mu: bool,
+    status: npt.NDArray[np.int8],
+    address: IntArray,
+    mode3a: IntArray,
+    fl: FloatArray,
+    rate: FloatArray,
+    t_fl: FloatArray,
+    t: FloatArray,
+    x: FloatArray,
+    P: FloatArray,
+    extra_of: FloatArray,
+    mu: FloatArray,
+    plot_id: IntArray,
+    t_plot: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """``table.LocalTrackTable.store`` into the local table's fields: per row, its
+    batch's last update (``u``, ``track_update_dtype``) gives the status, the identity
+    where known and the flight level where finite; its last update with a plot (or its
+    last, while it has no state) gives the state, the residual bias, the model
+    probabilities (``with_mu``) and the plot."""
+    k = rows.size
+    size = 1
+    for i in range(k):
+        size = max(size, rows[i] + 1)
+    stateless = np.empty(k, dtype=np.bool_)
+    for i in range(k):
+        stateless[i] = math.isnan(t[rows[i]])
+    done = np.zeros(size, dtype=np.bool_)
+    for i in range(k - 1, -1, -1):
+        r = rows[i]
+        if done[r]:
+            continue
+        done[r] = True
+        v = u[i]
+        status[r] = v["status"]
+        if v["address"] >= 0:
+            address[r] = v["address"]
+        if v["mode3a"] >= 0:
+            mode3a[r] = v["mode3a"]
+        level = v["flight_level"]
+        if math.isfinite(level):
+            fl[r] = level
+            climb = v["climb_rate_fl_per_s"]
+            # np.nan_to_num: NaN to 0, infinities to the largest finite values.
+            if math.isnan(climb):
+                climb = 0.0
+            elif math.isinf(climb):
+                climb = FLOAT_MAX if climb > 0.0 else -FLOAT_MAX
+            rate[r] = climb
+            t_fl[r] = v["time"]
+    done[:] = False
+    for i in range(k - 1, -1, -1):
+        r = rows[i]
+        if done[r] or not (has_plot[i] or stateless[i]):
+            continue
+        done[r] = True
+        v = u[i]
+        t[r] = v["time"]
+        x[r, 0] = v["x"]
+        x[r, 1] = v["y"]
+        x[r, 2] = v["vx"]
+        x[r, 3] = v["vy"]
+        for a in range(4):
+            for b in range(4):
+                P[r, a, b] = v["P"][4 * a + b]
+        extra_of[r] = extra[i]
+        if with_mu:
+            for m in range(mu.shape[1]):
+                mu[r, m] = v["model_probabilities"][m]
+        if has_plot[i]:
+            plot_id[r] = v["plot_id"]
+            t_plot[r] = v["time"]
 
 
 @numba.njit(cache=True)

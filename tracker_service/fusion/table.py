@@ -22,6 +22,24 @@ KEY_SHIFT = 32
 """Local-track key: radar << KEY_SHIFT | local track number."""
 
 
+STORED = (
+    "status",
+    "address",
+    "mode3a",
+    "fl",
+    "rate",
+    "t_fl",
+    "t",
+    "x",
+    "P",
+    "extra",
+    "mu",
+    "plot_id",
+    "t_plot",
+)
+"""The local table's fields ``store`` writes, in the order its kernel takes them."""
+
+
 def local_dtype(n_models: int) -> np.dtype[Any]:
     return np.dtype(
         [
@@ -253,6 +271,18 @@ class LocalTrackTable:
         """The latest row of each local track: its status and identity; the latest row
         with a plot (or any row of a track without state yet): its state."""
         loc = self.rows
+        if self.compiled:
+            from tracker_service.fusion.kernels import store_updates
+
+            store_updates(
+                rows,
+                u,
+                extra,
+                has_plot,
+                u.dtype["model_probabilities"].shape == (self.n_models,),
+                *(loc[name] for name in STORED),
+            )
+            return
         last = last_of_each(rows)
         r, v = rows[last], u[last]
         loc["status"][r] = v["status"]
