@@ -238,6 +238,13 @@ def test_compiled_and_numpy_fusers_give_the_same_rows(method: str) -> None:
         else:
             np.testing.assert_array_equal(a[name], b[name], err_msg=name)
     assert fusers["numpy"].stats == fusers["compiled"].stats
+    # The pre-selection's terms kept by every writer are those the live tracks hold now.
+    sys = fusers["compiled"].state.sys
+    alive = np.flatnonzero(sys["alive"])
+    kept = {name: sys[name][alive].copy() for name in ("moments", "sensitivity", "largest_bias")}
+    nearby.refresh(sys, alive, compiled=True)
+    for name, value in kept.items():
+        np.testing.assert_array_equal(value, sys[name][alive], err_msg=name)
 
 
 @settings(max_examples=25, deadline=None)
@@ -307,6 +314,8 @@ def test_pre_selection_reads_sensitivities_and_biases_as_the_reference(
     sys["M"][1 : k + 1] = rng.normal(0.0, 0.5, (k, n_radars, 4, 2))
     sys["x"][1 : k + 1] = sys["mx"][1 : k + 1, 0]
     sys["P"][1 : k + 1] = sys["mP"][1 : k + 1, -1]
+    # As every writer of the models, sensitivities and biases does.
+    nearby.refresh(sys, np.arange(1, k + 1), compiled=True)
     numbers = rng.integers(1, k + 1, k) if k else np.zeros(0, dtype=np.int64)
     t_mid, spread = float(rng.uniform(0.0, 10.0)), float(rng.uniform(0.0, 3.0))
     for from_models in (True, False):
@@ -315,10 +324,10 @@ def test_pre_selection_reads_sensitivities_and_biases_as_the_reference(
         want_xy, want_r = nearby.system_reach(sys, numbers, *args, compiled=False)
         np.testing.assert_allclose(got_xy, want_xy, rtol=TOLERANCE, atol=0.0)
         np.testing.assert_allclose(got_r, want_r, rtol=TOLERANCE, atol=0.0)
-    got_b = nearby.system_largest_bias(sys["B"], numbers, compiled=True)
+    got_b = nearby.system_largest_bias(sys, numbers, compiled=True)
     want_b = nearby.largest_bias(sys["B"][numbers])
     assert got_b == pytest.approx(want_b, rel=TOLERANCE, abs=0.0)
-    assert nearby.system_largest_bias(sys["B"], numbers, compiled=False) == want_b
+    assert nearby.system_largest_bias(sys, numbers, compiled=False) == want_b
 
 
 @settings(max_examples=25, deadline=None)

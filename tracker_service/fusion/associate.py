@@ -358,7 +358,7 @@ def _near(
     t_mid, spread = nearby.time_span(t_local)
     b = max(
         nearby.system_largest_bias(
-            sys["B"], candidates if bias_over is None else bias_over, state.compiled
+            sys, candidates if bias_over is None else bias_over, state.compiled
         ),
         nearby.largest_bias(loc["extra"][free]),
     )

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.fusion import consider, plot_daps
+from tracker_service.fusion import consider, nearby, plot_daps
 from tracker_service.fusion.arrays import (
     is_member,
     kernel_indices,
@@ -188,3 +188,4 @@ def _filter_round(
         sys["M"][numbers] = consider.combine(mm, mu)
     if state.daps is not None:
         plot_daps.apply(state, state.daps, numbers, p)
+    nearby.refresh(sys, numbers, state.compiled)

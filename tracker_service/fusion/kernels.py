@@ -898,13 +898,67 @@ def reference_sources(
 
 
 @numba.njit(cache=True)
-def system_reach(
-    x: FloatArray,
-    P: FloatArray,
+def refresh_moments(
     mx: FloatArray,
     mP: FloatArray,
     mu: FloatArray,
     M: FloatArray,
+    B: FloatArray,
+    numbers: IntArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
+    largest_bias: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """The pre-selection's per-track terms of system tracks ``numbers`` into the table's
+    fields ``moments`` (the IMM's combined state and the entries of its covariance that
+    ``nearby.reach`` reads: x (4), P00 + P11, P02 + P13, P22 + P33), ``sensitivity`` (the
+    squared norms of M's position and velocity rows, over every radar) and
+    ``largest_bias`` (the largest trace of the radars' B, from 0): what
+    ``system_reach`` read from each candidate's models and sensitivities per call (a
+    kilobyte or more a track, every open system track each batch)."""
+    m = mu.shape[1]
+    for i in range(numbers.size):
+        r = numbers[i]
+        for a in range(4):
+            acc = 0.0
+            for j in range(m):
+                acc += mu[r, j] * mx[r, j, a]
+            moments[r, a] = acc
+        pos = 0.0
+        cross = 0.0
+        vel = 0.0
+        for j in range(m):
+            d0 = mx[r, j, 0] - moments[r, 0]
+            d1 = mx[r, j, 1] - moments[r, 1]
+            d2 = mx[r, j, 2] - moments[r, 2]
+            d3 = mx[r, j, 3] - moments[r, 3]
+            w = mu[r, j]
+            pos += w * (mP[r, j, 0, 0] + d0 * d0) + w * (mP[r, j, 1, 1] + d1 * d1)
+            cross += w * (mP[r, j, 0, 2] + d0 * d2) + w * (mP[r, j, 1, 3] + d1 * d3)
+            vel += w * (mP[r, j, 2, 2] + d2 * d2) + w * (mP[r, j, 3, 3] + d3 * d3)
+        moments[r, 4] = pos
+        moments[r, 5] = cross
+        moments[r, 6] = vel
+        m_position = 0.0
+        m_velocity = 0.0
+        largest = 0.0
+        for radar in range(M.shape[1]):
+            for j in range(2):
+                for c in range(2):
+                    m_position += M[r, radar, j, c] * M[r, radar, j, c]
+                    m_velocity += M[r, radar, j + 2, c] * M[r, radar, j + 2, c]
+            largest = max(largest, B[r, radar, 0, 0] + B[r, radar, 1, 1])
+        sensitivity[r, 0] = m_position
+        sensitivity[r, 1] = m_velocity
+        largest_bias[r] = largest
+
+
+@numba.njit(cache=True)
+def system_reach(
+    x: FloatArray,
+    P: FloatArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
     t: FloatArray,
     numbers: IntArray,
     from_models: bool,
@@ -915,11 +969,11 @@ def system_reach(
     q_max: float,
     turn_max: float,
 ) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
-    """``nearby.system_reach`` read in place from the system table's fields: the coarse
-    state (the IMM's moment-matched combination of mx, mP, mu when ``from_models``, else
-    x, P), the sensitivity norm of M and ``nearby.reach``, for every candidate, with no
-    gather of the rows' models and sensitivities (association takes every open system
-    track, each batch)."""
+    """``nearby.system_reach`` from the system table's fields in place: the coarse state
+    (the IMM's moment-matched combination, ``moments``, when ``from_models``, else x and
+    P), the sensitivity norm and ``nearby.reach``, for every candidate (association takes
+    every open system track, each batch); ``moments`` and ``sensitivity`` as
+    ``refresh_moments`` keeps them."""
     k = numbers.size
     xy = np.empty((k, 2))
     radius = np.empty(k)
@@ -929,44 +983,19 @@ def system_reach(
         # The entries of the covariance that ``reach`` reads: P00 + P11, P02 + P13,
         # P22 + P33.
         if from_models:
-            xc[:] = 0.0
-            for m in range(mu.shape[1]):
-                for a in range(4):
-                    xc[a] += mu[r, m] * mx[r, m, a]
-            pos = 0.0
-            cross = 0.0
-            vel = 0.0
-            for m in range(mu.shape[1]):
-                d0 = mx[r, m, 0] - xc[0]
-                d1 = mx[r, m, 1] - xc[1]
-                d2 = mx[r, m, 2] - xc[2]
-                d3 = mx[r, m, 3] - xc[3]
-                w = mu[r, m]
-                pos += w * (mP[r, m, 0, 0] + d0 * d0) + w * (mP[r, m, 1, 1] + d1 * d1)
-                cross += w * (mP[r, m, 0, 2] + d0 * d2) + w * (mP[r, m, 1, 3] + d1 * d3)
-                vel += w * (mP[r, m, 2, 2] + d2 * d2) + w * (mP[r, m, 3, 3] + d3 * d3)
+            xc[:] = moments[r, :4]
+            pos = moments[r, 4]
+            cross = moments[r, 5]
+            vel = moments[r, 6]
         else:
             xc[:] = x[r]
             pos = P[r, 0, 0] + P[r, 1, 1]
             cross = P[r, 0, 2] + P[r, 1, 3]
             vel = P[r, 2, 2] + P[r, 3, 3]
-        m_position = 0.0
-        m_velocity = 0.0
-        for radar in range(M.shape[1]):
-            for j in range(2):
-                for c in range(2):
-                    m_position += M[r, radar, j, c] * M[r, radar, j, c]
-                    m_velocity += M[r, radar, j + 2, c] * M[r, radar, j + 2, c]
         dt = t_mid - t[r]
         a = abs(dt) + spread
-        sensitivity = 2.0 * (m_position + a * a * m_velocity)
-        var = (
-            pos
-            + 2.0 * a * abs(cross)
-            + a * a * vel
-            + 2.0 * q_max * a**3 / 3.0
-            + bias_scale * sensitivity
-        )
+        norm = 2.0 * (sensitivity[r, 0] + a * a * sensitivity[r, 1])
+        var = pos + 2.0 * a * abs(cross) + a * a * vel + 2.0 * q_max * a**3 / 3.0 + bias_scale * norm
         speed = math.hypot(xc[2], xc[3])
         turn = 0.5 * speed * turn_max * a * a
         var += turn * turn
@@ -979,17 +1008,6 @@ def system_reach(
         xy[i, 0] = xc[0] + xc[2] * dt
         xy[i, 1] = xc[1] + xc[3] * dt
     return xy, radius
-
-
-@numba.njit(cache=True)
-def largest_bias_trace(B: FloatArray, numbers: IntArray) -> float:  # pragma: no cover - compiled
-    """``nearby.largest_bias`` of the rows ``numbers`` of the table's field B (N, L, 2, 2),
-    read in place."""
-    largest = 0.0
-    for k in range(numbers.size):
-        for radar in range(B.shape[1]):
-            largest = max(largest, B[numbers[k], radar, 0, 0] + B[numbers[k], radar, 1, 1])
-    return largest
 
 
 class ModelConstants:

@@ -91,6 +91,7 @@ def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -
     mu = loc["mu"][founders]
     known = mu.sum(axis=1) > 0.0
     sys["mu"][numbers] = np.where(known[:, None], mu, state.models.initial_probabilities)
+    nearby.refresh(sys, numbers, state.compiled)
     loc["system"][founders] = numbers
     loc["fails"][founders] = 0
     loc["nis_n"][founders] = 0
@@ -179,8 +180,8 @@ def _merge_tests(
         return empty, empty, np.zeros(0)
     t_mid, spread = nearby.time_span(sys["t"][touched])
     b_max = max(
-        nearby.system_largest_bias(sys["B"], alive, state.compiled),
-        nearby.system_largest_bias(sys["B"], touched, state.compiled),
+        nearby.system_largest_bias(sys, alive, state.compiled),
+        nearby.system_largest_bias(sys, touched, state.compiled),
     )
     q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
 

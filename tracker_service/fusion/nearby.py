@@ -109,10 +109,8 @@ def system_reach(
         return kernel(
             sys["x"],
             sys["P"],
-            sys["mx"],
-            sys["mP"],
-            sys["mu"],
-            sys["M"],
+            sys["moments"],
+            sys["sensitivity"],
             sys["t"],
             kernel_indices(numbers),
             from_models,
@@ -132,13 +130,34 @@ def system_reach(
     return reach(x, p, t, bias_scale * sensitivity, t_mid, spread, gate, q_max, turn_max)
 
 
-def system_largest_bias(B: FloatArray, numbers: IntArray, compiled: bool) -> float:
-    """``largest_bias`` of the rows ``numbers`` of the table's field B (N, radars, 2, 2)."""
+def system_largest_bias(sys: Columns, numbers: IntArray, compiled: bool) -> float:
+    """``largest_bias`` of the system tracks ``numbers`` (their field B (N, radars, 2, 2));
+    compiled: from each track's ``largest_bias`` field (``refresh``)."""
     if not compiled:
-        return largest_bias(B[numbers])
-    from tracker_service.fusion.kernels import largest_bias_trace
+        return largest_bias(sys["B"][numbers])
+    return float(sys["largest_bias"][numbers].max(initial=0.0))
 
-    return float(largest_bias_trace(B, kernel_indices(numbers)))
+
+def refresh(sys: Columns, numbers: IntArray, compiled: bool) -> None:
+    """After the models, sensitivities or residual biases of system tracks ``numbers``
+    changed: their terms of the compiled pre-selection (the fields ``moments``,
+    ``sensitivity`` and ``largest_bias``, ``kernels.refresh_moments``), which every
+    writer of mx, mP, mu, M or B calls; the numpy path reads the fields themselves."""
+    if not compiled or numbers.size == 0:
+        return
+    from tracker_service.fusion.kernels import refresh_moments
+
+    refresh_moments(
+        sys["mx"],
+        sys["mP"],
+        sys["mu"],
+        sys["M"],
+        sys["B"],
+        kernel_indices(numbers),
+        sys["moments"],
+        sys["sensitivity"],
+        sys["largest_bias"],
+    )
 
 
 DENSE_PAIRS_MAX = 1 << 20
