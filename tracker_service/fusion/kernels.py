@@ -818,6 +818,77 @@ def store_updates(
 
 
 @numba.njit(cache=True)
+def fill_system_rows(
+    out: npt.NDArray[Any],
+    numbers: IntArray,
+    t: FloatArray,
+    x: FloatArray,
+    p: FloatArray,
+    status: npt.NDArray[np.int8],
+    slots: IntArray,
+    loc_radar: IntArray,
+    loc_number: IntArray,
+    loc_plot_id: IntArray,
+    loc_fl: FloatArray,
+    loc_rate: FloatArray,
+    loc_t_fl: FloatArray,
+    loc_address: IntArray,
+    loc_mode3a: IntArray,
+    sys_address: IntArray,
+    sys_mode3a: IntArray,
+) -> None:  # pragma: no cover - compiled
+    """``rows.system_rows`` into ``out`` (zeros of ``SYSTEM_UPDATE_DTYPE``): each row's
+    state and status, its local tracks (``slots``, valid first), the flight level and
+    rate of the first of them with a level (extrapolated to t), the identity of the first
+    that knows it (else the system track's)."""
+    width = slots.shape[1]
+    for r in range(numbers.size):
+        row = out[r]
+        row["system_number"] = numbers[r]
+        row["time"] = t[r]
+        row["x"] = x[r, 0]
+        row["y"] = x[r, 1]
+        row["vx"] = x[r, 2]
+        row["vy"] = x[r, 3]
+        for a in range(4):
+            for b in range(4):
+                row["P"][4 * a + b] = p[r, a, b]
+        row["status"] = status[r]
+        row["plot_id"] = -1
+        n = 0
+        level = -1
+        address = -1
+        mode3a = -1
+        for i in range(width):
+            s = slots[r, i]
+            if s < 0:
+                row["local_radars"][i] = -1
+                row["local_numbers"][i] = -1
+                row["local_plot_ids"][i] = -1
+                continue
+            n += 1
+            row["local_radars"][i] = loc_radar[s]
+            row["local_numbers"][i] = loc_number[s]
+            row["local_plot_ids"][i] = loc_plot_id[s]
+            if level < 0 and math.isfinite(loc_fl[s]):
+                level = s
+            if address < 0 and loc_address[s] >= 0:
+                address = loc_address[s]
+            if mode3a < 0 and loc_mode3a[s] >= 0:
+                mode3a = loc_mode3a[s]
+        row["n_sources"] = n
+        if level >= 0:
+            rate = loc_rate[level]
+            row["flight_level"] = loc_fl[level] + rate * (t[r] - loc_t_fl[level])
+            row["climb_rate_fl_per_s"] = rate if math.isfinite(row["flight_level"]) else np.nan
+        else:
+            row["flight_level"] = np.nan
+            row["climb_rate_fl_per_s"] = np.nan
+        row["address"] = address if address >= 0 else sys_address[numbers[r]]
+        row["mode3a"] = mode3a if mode3a >= 0 else sys_mode3a[numbers[r]]
+
+
+@numba.njit(cache=True)
 def slots_of(
     numbers: IntArray,
     system: IntArray,

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.fusion.arrays import first_where, is_member, last_of_each
+from tracker_service.fusion.arrays import first_where, is_member, kernel_indices, last_of_each
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.messages import COASTING, CONFIRMED, SYSTEM_UPDATE_DTYPE
 from tracker_service.fusion.state import FusionState
@@ -75,6 +75,24 @@ def system_rows(
     rows ``slots``: their flight level and identity from those local tracks."""
     loc = state.local.rows
     out = np.zeros(numbers.size, dtype=SYSTEM_UPDATE_DTYPE)
+    if state.compiled:
+        from tracker_service.fusion.kernels import fill_system_rows  # numba only when compiled
+
+        fill_system_rows(
+            out,
+            kernel_indices(numbers),
+            np.ascontiguousarray(t, dtype=np.float64),
+            np.ascontiguousarray(x, dtype=np.float64),
+            np.ascontiguousarray(p, dtype=np.float64),
+            status,
+            slots,
+            *(loc[name] for name in ("radar", "number", "plot_id", "fl", "rate", "t_fl")),
+            loc["address"],
+            loc["mode3a"],
+            state.sys["address"],
+            state.sys["mode3a"],
+        )
+        return out
     out["system_number"] = numbers
     out["time"] = t
     out["x"], out["y"], out["vx"], out["vy"] = x.T
