@@ -301,6 +301,20 @@ def test_store_is_the_reference(seed: int, k: int, n: int) -> None:
         np.testing.assert_array_equal(want[name], got[name], err_msg=name)
 
 
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, n_a=st.integers(0, 60), n_b=st.integers(0, 60))
+def test_near_pairs_are_the_reference(seed: int, n_a: int, n_b: int) -> None:
+    """The pre-selection's pairs by the kernel: the same pairs in the same order, either
+    set the larger, points spread beyond the box and radii of every size."""
+    rng = np.random.default_rng(seed)
+    xy_a, xy_b = rng.normal(0.0, 3e4, (n_a, 2)), rng.normal(0.0, 3e4, (n_b, 2))
+    r_a, r_b = rng.exponential(5e3, n_a), rng.exponential(5e3, n_b)
+    got = nearby.near_pairs(xy_a, r_a, xy_b, r_b, compiled=True)
+    want = nearby.near_pairs(xy_a, r_a, xy_b, r_b, compiled=False)
+    for a, b in zip(want, got, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 @settings(max_examples=25, deadline=None)
 @given(seed=SEEDS, k=st.integers(min_value=0, max_value=40), n_radars=st.integers(1, 5))
 def test_pre_selection_reads_sensitivities_and_biases_as_the_reference(

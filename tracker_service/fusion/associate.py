@@ -386,7 +386,7 @@ def _near(
         q,
         turn,
     )
-    i, j = nearby.near_pairs(xy_l, r_l, xy_s, r_s)
+    i, j = nearby.near_pairs(xy_l, r_l, xy_s, r_s, state.compiled)
     return free[i], candidates[j]
 
 

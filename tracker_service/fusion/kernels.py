@@ -889,6 +889,57 @@ def fill_system_rows(
 
 
 @numba.njit(cache=True)
+def near_pairs(
+    xy_a: FloatArray, radius_a: FloatArray, xy_b: FloatArray, radius_b: FloatArray
+) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled
+    """``nearby.near_pairs``: the larger set's points in the box around the smaller one,
+    then each pair's distance (as ``pairs_within`` computes it) against the sum of the
+    radii; found in (i, j) order."""
+    a_larger = xy_a.shape[0] >= xy_b.shape[0]
+    big, r_big, small, r_small = xy_a, radius_a, xy_b, radius_b
+    if not a_larger:
+        big, r_big, small, r_small = xy_b, radius_b, xy_a, radius_a
+    n_small = small.shape[0]
+    if n_small == 0 or big.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    reach = r_big.max() + r_small.max()
+    lo0, lo1 = small[:, 0].min() - reach, small[:, 1].min() - reach
+    hi0, hi1 = small[:, 0].max() + reach, small[:, 1].max() + reach
+    near = np.empty(big.shape[0], dtype=np.int64)
+    n_near = 0
+    for k in range(big.shape[0]):
+        if lo0 <= big[k, 0] <= hi0 and lo1 <= big[k, 1] <= hi1:
+            near[n_near] = k
+            n_near += 1
+    passing = np.zeros((n_near, n_small), dtype=np.bool_)
+    count = 0
+    for q in range(n_near):
+        k = near[q]
+        for m in range(n_small):
+            dx = big[k, 0] - small[m, 0]
+            dy = big[k, 1] - small[m, 1]
+            if math.sqrt(dx * dx + dy * dy) <= r_big[k] + r_small[m]:
+                passing[q, m] = True
+                count += 1
+    i = np.empty(count, dtype=np.int64)
+    j = np.empty(count, dtype=np.int64)
+    at = 0
+    if a_larger:
+        for q in range(n_near):
+            for m in range(n_small):
+                if passing[q, m]:
+                    i[at], j[at] = near[q], m
+                    at += 1
+    else:
+        for m in range(n_small):
+            for q in range(n_near):
+                if passing[q, m]:
+                    i[at], j[at] = m, near[q]
+                    at += 1
+    return i, j
+
+
+@numba.njit(cache=True)
 def slots_of(
     numbers: IntArray,
     system: IntArray,

@@ -191,7 +191,7 @@ def _merge_tests(
             sys, numbers, False, 2.0 * b_max, t_mid, spread, cfg.gate, q, turn, state.compiled
         )
 
-    i, j = nearby.near_pairs(*reach(touched), *reach(alive))
+    i, j = nearby.near_pairs(*reach(touched), *reach(alive), state.compiled)
     a, b = touched[i], alive[j]
     apart = (a != b) & ~np.any(radars_of[a] & radars_of[b], axis=1)
     a, b = a[apart], b[apart]

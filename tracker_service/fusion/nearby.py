@@ -165,9 +165,14 @@ DENSE_PAIRS_MAX = 1 << 20
 
 
 def near_pairs(
-    xy_a: FloatArray, radius_a: FloatArray, xy_b: FloatArray, radius_b: FloatArray
+    xy_a: FloatArray,
+    radius_a: FloatArray,
+    xy_b: FloatArray,
+    radius_b: FloatArray,
+    compiled: bool = False,
 ) -> tuple[IntArray, IntArray]:
-    """(i, j) with a[i] and b[j] closer than the sum of their radii, sorted by (i, j).
+    """(i, j) with a[i] and b[j] closer than the sum of their radii, sorted by (i, j);
+    compiled: in one pass (``kernels.near_pairs``), the same pairs.
 
     A box around the smaller set (a batch's few local or touched tracks) leaves the
     larger set's tracks near it; their distances to the smaller set are then computed
@@ -175,6 +180,15 @@ def near_pairs(
     the same numbers: the same pairs as its k-d trees, whose construction cost more than
     the fuser's tests per batch), or by ``candidate_pairs`` when the matrix would be
     large."""
+    if compiled:
+        from tracker_service.fusion.kernels import near_pairs as kernel  # numba on use
+
+        return kernel(
+            np.ascontiguousarray(xy_a, dtype=np.float64),
+            np.ascontiguousarray(radius_a, dtype=np.float64),
+            np.ascontiguousarray(xy_b, dtype=np.float64),
+            np.ascontiguousarray(radius_b, dtype=np.float64),
+        )
     empty = np.zeros(0, dtype=np.int64)
     a_larger = xy_a.shape[0] >= xy_b.shape[0]
     big, r_big, small, r_small = (
