@@ -55,22 +55,17 @@ def _predict_track(
     c: FloatArray,
     r: int,
     active: BoolArray,
+    scratch: tuple[FloatArray, ...],
 ) -> None:  # pragma: no cover - compiled
     """``consider.predict`` of system track n (rows of the table's fields mx, mP, mM, mu)
     over ``step``: per-model states, covariances, sensitivities and predicted
     probabilities into row r of xp (k, M, 4), pp (k, M, 4, 4), mp (k, M, L, 4, 2), c (k, M);
-    the sensitivities only to the radars ``active`` (L,) (the others' left unset)."""
+    the sensitivities only to the radars ``active`` (L,) (the others' left unset);
+    ``scratch``: ``_prediction_scratch``'s arrays, allocated once per kernel call."""
     m = mx.shape[1]
     n_radars = mM.shape[2]
     t = abs(step)
-    pi = np.empty((m, m))
-    w = np.empty((m, m))
-    x0 = np.empty(4)
-    p0 = np.empty((4, 4))
-    m0 = np.empty((n_radars, 4, 2))
-    fp = np.empty((4, 4))
-    f = np.empty((4, 4))
-    d = np.empty(4)
+    pi, w, x0, p0, m0, fp, f, d = scratch
     # Markov switching by mean sojourn times (models.ModelSet.switching).
     for i in range(m):
         if m == 1:
@@ -125,6 +120,22 @@ def _predict_track(
                     mp[r, j, sensor, a, b] = acc
 
 
+@numba.njit(cache=True)
+def _prediction_scratch(m: int, n_radars: int) -> tuple[FloatArray, ...]:  # pragma: no cover
+    """The working arrays of ``_predict_track`` (a few allocations per track and pair
+    cost as much as its arithmetic)."""
+    return (
+        np.empty((m, m)),
+        np.empty((m, m)),
+        np.empty(4),
+        np.empty((4, 4)),
+        np.empty((n_radars, 4, 2)),
+        np.empty((4, 4)),
+        np.empty((4, 4)),
+        np.empty(4),
+    )
+
+
 @numba.njit(cache=True, inline="always")
 def _combine_sensitivities(
     mp: FloatArray, w: FloatArray, r: int, out: FloatArray
@@ -141,7 +152,9 @@ def _combine_sensitivities(
 
 
 @numba.njit(cache=True, inline="always")
-def _sensitive(mM: FloatArray, n: int, radar: int, active: BoolArray) -> None:  # pragma: no cover - compiled
+def _sensitive(
+    mM: FloatArray, n: int, radar: int, active: BoolArray
+) -> None:  # pragma: no cover - compiled
     """active[l]: radar l is ``radar`` or system track n holds a sensitivity to its bias
     in some model. The others' are exactly zero, and stay zero through the prediction,
     the update and the combination (each is linear in them, every sum starting from
@@ -195,10 +208,11 @@ def consider_predict(
     one_m = np.empty((1, n_radars, 4, 2))
     d = np.empty(4)
     active = np.empty(n_radars, dtype=np.bool_)
+    scratch = _prediction_scratch(m, n_radars)
     for r in range(k):
         _sensitive(mM, numbers[r], -1, active)
         _predict_track(
-            mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, active
+            mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, active, scratch
         )
         _combine_row(xp, pp, c, 0, one_x, one_p, d)
         _zero_inactive(mp, active)
@@ -246,6 +260,7 @@ def gate_distances(
     gb = np.empty((4, 2))
     out = np.empty(k)
     active = np.empty(n_radars, dtype=np.bool_)
+    scratch = _prediction_scratch(m, n_radars)
     for r in range(k):
         n, row = system[r], local[r]
         radar = loc_radar[row]
@@ -259,7 +274,22 @@ def gate_distances(
                 or B[n, sensor, 1, 1] != 0.0
             )
         _predict_track(
-            mx, mP, mM, mu, n, loc_t[row] - sys_t[n], omega, q, sojourn, xp, pp, mp, c, 0, active
+            mx,
+            mP,
+            mM,
+            mu,
+            n,
+            loc_t[row] - sys_t[n],
+            omega,
+            q,
+            sojourn,
+            xp,
+            pp,
+            mp,
+            c,
+            0,
+            active,
+            scratch,
         )
         _combine_row(xp, pp, c, 0, one_x, one_p, d)
         for a in range(4):
@@ -428,11 +458,12 @@ def filter_round(
     log_post = np.empty(m)
     d = np.empty(4)
     active = np.empty(n_radars, dtype=np.bool_)
+    scratch = _prediction_scratch(m, n_radars)
     for r in range(k):
         n = numbers[r]
         _sensitive(mM, n, radar, active)
         _predict_track(
-            mx, mP, mM, mu, n, time[r] - t[n], omega, q, sojourn, xp, pp, mp, c, 0, active
+            mx, mP, mM, mu, n, time[r] - t[n], omega, q, sojourn, xp, pp, mp, c, 0, active, scratch
         )
         r00, r01, r10, r11 = R[r, 0, 0], R[r, 0, 1], R[r, 1, 0], R[r, 1, 1]
         for j in range(m):
@@ -1117,7 +1148,9 @@ def system_reach(
         dt = t_mid - t[r]
         a = abs(dt) + spread
         norm = 2.0 * (sensitivity[r, 0] + a * a * sensitivity[r, 1])
-        var = pos + 2.0 * a * abs(cross) + a * a * vel + 2.0 * q_max * a**3 / 3.0 + bias_scale * norm
+        var = (
+            pos + 2.0 * a * abs(cross) + a * a * vel + 2.0 * q_max * a**3 / 3.0 + bias_scale * norm
+        )
         speed = math.hypot(xc[2], xc[3])
         turn = 0.5 * speed * turn_max * a * a
         var += turn * turn
