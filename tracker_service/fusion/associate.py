@@ -70,8 +70,6 @@ def _consistency(state: FusionState, held: IntArray, d2: FloatArray) -> BoolArra
     return np.asarray((n >= cfg.reassociate_window) & (mean > cfg.reassociate_kappa * dof) & ~solo)
 
 
-NO_EVIDENCE = (0, 0.0, 0.0)
-"""A pair's evidence before its first test."""
 EXCHANGE_AGREEMENT = 0.75
 """The share (running mean over the window) of the exchange test's updates in which every
 other radar's local track favoured the exchange."""
@@ -133,7 +131,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         favoured = np.logical_and.reduceat(all_votes > 0, ends[:-1])
         # Each pair's running means, over the batch's pairs at once (the arithmetic of
         # one pair at a time: the same bits).
-        before = np.array([evidence.get(pair) or NO_EVIDENCE for pair in pairs])
+        before = evidence.table(pairs)
         n = before[:, 0].astype(np.int64) + 1
         weight = 1.0 / np.minimum(n, cfg.reassociate_window)
         mean = before[:, 1] + (deltas - before[:, 1]) * weight
