@@ -26,7 +26,7 @@ The stages and what each wraps:
 | decode | ``extract_plots`` and the service messages' ``decode_blocks`` (radar stage) |
 | clock + conversion | ``convert_batch`` (plot clock, geodesy), time sanity, fixed targets |
 | local tracking | ``LocalTracker.process`` |
-| central stage | ``CentralStage.process`` and ``feed_adsb`` less the three below: time consensus, bias correction, cover, heights, renumbering |
+| central stage | ``CentralStage.process``, ``feed_adsb`` less the three below (its own work) |
 | bias | ``CentralStage._estimate_biases`` (observations, the estimator's update) |
 | bias references | ``SystemTracker.references`` (the fuser's references for the bias) |
 | fusion | ``SystemTracker.process`` |

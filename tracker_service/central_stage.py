@@ -312,7 +312,9 @@ class CentralStage:
         numbers = kept["track_number"].tolist()
         deleted = kept["status"] == LOCAL_DELETED
         if not deleted.any():
-            live.update(zip(numbers, zip(itertools.repeat(kept), range(len(numbers)))))
+            n = len(numbers)
+            at = zip(itertools.repeat(kept, n), range(n), strict=True)
+            live.update(zip(numbers, at, strict=True))
             return
         for k, (number, gone) in enumerate(zip(numbers, deleted.tolist(), strict=True)):
             if gone:

@@ -10,7 +10,7 @@ import itertools
 import numpy as np
 
 from tracker_service.fusion import consider, nearby
-from tracker_service.fusion.arrays import is_member, kernel_indices, numbers_in
+from tracker_service.fusion.arrays import kernel_indices, numbers_in
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import TrackFusionEstimator
 from tracker_service.fusion.messages import MAX_SYSTEM_NUMBER

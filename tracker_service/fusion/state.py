@@ -74,9 +74,7 @@ class PairEvidence:
         flat = np.fromiter(itertools.chain.from_iterable(found), np.float64, 3 * len(pairs))
         return flat.reshape(-1, 3)
 
-    def set_many(
-        self, pairs: list[tuple[int, int]], evidence: Iterable[ExchangeEvidence]
-    ) -> None:
+    def set_many(self, pairs: list[tuple[int, int]], evidence: Iterable[ExchangeEvidence]) -> None:
         """Each pair's evidence, in order."""
         self._of_pair.update(zip(pairs, evidence, strict=True))
         pairs_of = self._pairs_of
