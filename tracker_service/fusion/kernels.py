@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion.nearby import RADIUS_MARGIN_M, RADIUS_SAFETY
+from tracker_service.fusion.table import KEY_SHIFT
 from tracker_service.tracking.kernels import (
     _combine_row,
     _transition,
@@ -968,6 +969,24 @@ def near_pairs(
                     i[at], j[at] = m, near[q]
                     at += 1
     return i, j
+
+
+@numba.njit(cache=True)
+def lookup_rows(
+    index_keys: IntArray, index_rows: IntArray, radar: int, numbers: IntArray
+) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled
+    """``table.LocalTrackTable.find``'s lookup: each local track's key (radar <<
+    ``KEY_SHIFT`` | number) and its row by binary search in the sorted index (-1: none)."""
+    k = numbers.size
+    keys = np.empty(k, dtype=np.int64)
+    rows = np.full(k, -1, dtype=np.int64)
+    for i in range(k):
+        key = (np.int64(radar) << KEY_SHIFT) | np.int64(numbers[i])
+        keys[i] = key
+        at = np.searchsorted(index_keys, key)
+        if at < index_keys.size and index_keys[at] == key:
+            rows[i] = index_rows[at]
+    return keys, rows
 
 
 @numba.njit(cache=True)

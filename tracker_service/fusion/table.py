@@ -179,6 +179,18 @@ def new_system_table(n_models: int, n_radars: int) -> Columns:
     return table
 
 
+FRESH = {
+    "alive": True,
+    "t": np.nan,  # no state yet
+    "t_plot": -np.inf,
+    "t_founder": np.nan,
+    "fl": np.nan,
+    "address": -1,
+    "mode3a": -1,
+}
+"""A new local track's fields (the others zero)."""
+
+
 class LocalTrackTable:
     """``rows[:n]``: every local track seen and not yet compacted away (``alive`` false
     once deleted). ``rows`` may be replaced when it grows: read it afresh, never keep it
@@ -201,31 +213,34 @@ class LocalTrackTable:
     def find(self, radar: int, u: npt.NDArray[Any], create: bool = True) -> IntArray:
         """Row of each update's local track (-1: unknown, and not created: a deleted
         track never seen before, or ``create`` false)."""
-        keys = (np.int64(radar) << KEY_SHIFT) | u["track_number"].astype(np.int64)
-        rows = self._lookup(keys)
+        if self.compiled:
+            from tracker_service.fusion.kernels import lookup_rows
+
+            keys, rows = lookup_rows(self._index_keys, self._index_rows, radar, u["track_number"])
+        else:
+            keys = (np.int64(radar) << KEY_SHIFT) | u["track_number"].astype(np.int64)
+            rows = self._lookup(keys)
         missing = (rows < 0) & (u["status"] != LOCAL_DELETED)
         if create and missing.any():
-            new_keys, first = np.unique(keys[missing], return_index=True)
+            new_keys, first, new_row = np.unique(
+                keys[missing], return_index=True, return_inverse=True
+            )
             start = self._grow(new_keys.size)
-            fresh = self.rows[start : start + new_keys.size]
-            fresh[...] = np.zeros(1, dtype=self.rows.dtype)
-            fresh["key"] = new_keys
-            fresh["radar"] = radar
-            fresh["number"] = u["track_number"][missing][first]
-            fresh["alive"] = True
-            fresh["t"] = np.nan  # no state yet
-            fresh["t_plot"] = -np.inf
-            fresh["t_founder"] = np.nan
-            fresh["fl"] = np.nan
-            fresh["address"] = fresh["mode3a"] = -1
+            end = start + new_keys.size
+            columns = self.rows
+            for name in columns.dtype.names or ():
+                columns[name][start:end] = FRESH.get(name, 0)
+            columns["key"][start:end] = new_keys
+            columns["radar"][start:end] = radar
+            columns["number"][start:end] = u["track_number"][missing][first]
             # Into the index where they sort (the keys of the live rows are distinct):
             # the index ``reindex`` would build, without sorting every live key again.
             at = np.searchsorted(self._index_keys, new_keys)
             self._index_keys = np.insert(self._index_keys, at, new_keys)
             self._index_rows = np.insert(
-                self._index_rows, at, np.arange(start, start + new_keys.size, dtype=np.int64)
+                self._index_rows, at, np.arange(start, end, dtype=np.int64)
             )
-            rows = self._lookup(keys)
+            rows[missing] = start + new_row.reshape(-1)
         return rows
 
     def _lookup(self, keys: IntArray) -> IntArray:
