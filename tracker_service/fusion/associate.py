@@ -92,24 +92,19 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     if cfg.exchange_margin <= 0 or held.size == 0:
         return
     used = state.local.used
-    feeding = np.flatnonzero(
-        used["alive"] & (used["system"] > 0) & (used["status"] == LOCAL_CONFIRMED)
-    )
     confirmed = held[loc["status"][held] == LOCAL_CONFIRMED]
     tested = set(loc["key"][confirmed].tolist())
-    feeding_radar = used["radar"][feeding]
-    if feeding.size == 0 or bool((feeding_radar == feeding_radar[0]).all()):
+    # Only a system track that a track of the batch's radar feeds can hold the l' of a
+    # pair (``_exchange_witnesses``): the pre-selection reaches those alone (a fifth of
+    # the fed ones on ``scale``), with the bias bound of every fed one as before, so
+    # that each pair it finds is one it found among them all.
+    feeding, several, fed, own = _feeding(state, int(loc["radar"][held[0]]))
+    if not several:
         # One radar feeds the picture (canalA): no other radar's track can tell the two
         # assignments apart, so the pair search is skipped (a quarter of the fuser's cost
         # there); the tested tracks' evidence ends as below.
         evidence.drop(tested)
         return
-    # Only a system track that a track of the batch's radar feeds can hold the l' of a
-    # pair (``_exchange_witnesses``): the pre-selection reaches those alone (a fifth of
-    # the fed ones on ``scale``), with the bias bound of every fed one as before, so
-    # that each pair it finds is one it found among them all.
-    fed = numbers_in(used["system"][feeding])
-    own = numbers_in(used["system"][feeding[feeding_radar == loc["radar"][held[0]]]])
     li, sj = _near(state, estimator, confirmed, own, bias_over=fed)
     other = sj != loc["system"][li]
     li, sj = li[other], sj[other]
@@ -159,6 +154,33 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         done.update(pair)
         state.stats.exchanges += 1
     evidence.drop(done)
+
+
+def _feeding(state: FusionState, radar: int) -> tuple[IntArray, bool, IntArray, IntArray]:
+    """The confirmed live local rows feeding a system track (ascending), whether more
+    than one radar's are among them, the system tracks they feed and those that
+    ``radar``'s feed (ascending)."""
+    used = state.local.used
+    if state.compiled:
+        from tracker_service.fusion.kernels import exchange_feeding  # numba only when compiled
+
+        return exchange_feeding(
+            used["alive"],
+            used["system"],
+            used["status"],
+            used["radar"],
+            LOCAL_CONFIRMED,
+            radar,
+            MAX_SYSTEM_NUMBER + 1,
+        )
+    feeding = np.flatnonzero(
+        used["alive"] & (used["system"] > 0) & (used["status"] == LOCAL_CONFIRMED)
+    )
+    feeding_radar = used["radar"][feeding]
+    several = feeding.size > 0 and not bool((feeding_radar == feeding_radar[0]).all())
+    fed = numbers_in(used["system"][feeding])
+    own = numbers_in(used["system"][feeding[feeding_radar == radar]])
+    return feeding, several, fed, own
 
 
 def _exchange_witnesses(

@@ -990,6 +990,50 @@ def lookup_rows(
 
 
 @numba.njit(cache=True)
+def exchange_feeding(
+    alive: npt.NDArray[np.bool_],
+    system: IntArray,
+    status: npt.NDArray[np.int8],
+    radar: IntArray,
+    confirmed: int,
+    own_radar: int,
+    size: int,
+) -> tuple[IntArray, bool, IntArray, IntArray]:  # pragma: no cover - compiled
+    """``associate._exchange``'s sets in one pass over the local table: the confirmed
+    live rows feeding a system track (ascending), whether they come from more than one
+    radar, the system tracks they feed and those fed by ``own_radar``'s (ascending,
+    numbers below ``size``)."""
+    feeding = np.empty(system.size, dtype=np.int64)
+    fed = np.zeros(size, dtype=np.bool_)
+    own = np.zeros(size, dtype=np.bool_)
+    n = 0
+    several = False
+    for r in range(system.size):
+        if alive[r] and system[r] > 0 and status[r] == confirmed:
+            feeding[n] = r
+            if n and radar[r] != radar[feeding[0]]:
+                several = True
+            n += 1
+            fed[system[r]] = True
+            if radar[r] == own_radar:
+                own[system[r]] = True
+    return feeding[:n].copy(), several, np.flatnonzero(fed), np.flatnonzero(own)
+
+
+@numba.njit(cache=True)
+def radars_feeding(
+    alive: npt.NDArray[np.bool_], system: IntArray, radar: IntArray, size: int, n_radars: int
+) -> npt.NDArray[np.bool_]:  # pragma: no cover - compiled
+    """``lifecycle.merge``'s table of the radars feeding each system track (size,
+    n_radars), from the live local rows in one pass."""
+    out = np.zeros((size, n_radars), dtype=np.bool_)
+    for r in range(system.size):
+        if alive[r] and system[r] > 0:
+            out[system[r], radar[r]] = True
+    return out
+
+
+@numba.njit(cache=True)
 def slots_of(
     numbers: IntArray,
     system: IntArray,

@@ -127,9 +127,16 @@ def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]
     ``FusionConfig.merge_after``); returns the ended rows of the merged-away ones."""
     sys, loc = state.sys, state.local.used
     touched = touched[(touched > 0) & sys["alive"][touched]]
-    fed = loc["alive"] & (loc["system"] > 0)
-    radars_of = np.zeros((MAX_SYSTEM_NUMBER + 1, state.n_radars), dtype=bool)
-    radars_of[loc["system"][fed], loc["radar"][fed]] = True
+    if state.compiled:
+        from tracker_service.fusion.kernels import radars_feeding  # numba only when compiled
+
+        radars_of = radars_feeding(
+            loc["alive"], loc["system"], loc["radar"], MAX_SYSTEM_NUMBER + 1, state.n_radars
+        )
+    else:
+        fed = loc["alive"] & (loc["system"] > 0)
+        radars_of = np.zeros((MAX_SYSTEM_NUMBER + 1, state.n_radars), dtype=bool)
+        radars_of[loc["system"][fed], loc["radar"][fed]] = True
     # An orphan is taken up through the gate only (``associate.assign``), where its
     # identity must agree: merged, its number would pass to a track it never gated.
     alive = np.flatnonzero(sys["alive"] & np.isnan(sys["orphaned"]))
