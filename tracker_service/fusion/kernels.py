@@ -256,6 +256,8 @@ def gate_distances(
     one_x = np.empty((1, 4))
     one_p = np.empty((1, 4, 4))
     d = np.empty(4)
+    y = np.empty(4)
+    solution = np.empty(4)
     s = np.empty((4, 4))
     g = np.empty((4, 2))
     gb = np.empty((4, 2))
@@ -322,7 +324,7 @@ def gate_distances(
                     s[a, b] += gb[a, 0] * g[b, 0] + gb[a, 1] * g[b, 1]
         for a in range(4):
             d[a] = loc_x[row, a] - one_x[0, a]
-        out[r] = _quadratic_form_lu(s, d)
+        out[r] = _quadratic_form_lu(s, d, y, solution)
     return out
 
 
@@ -345,6 +347,8 @@ def track_distances(
     xb = np.empty(4)
     s = np.empty((4, 4))
     d = np.empty(4)
+    y = np.empty(4)
+    solution = np.empty(4)
     for r in range(a.size):
         i, j = a[r], b[r]
         step = t[i] - t[j]
@@ -359,15 +363,18 @@ def track_distances(
         for e in range(2):
             for c in range(2):
                 s[e, c] += extra[i, e, c] + extra[j, e, c]
-        out[r] = _quadratic_form_lu(s, d)
+        out[r] = _quadratic_form_lu(s, d, y, solution)
     return out
 
 
 @numba.njit(cache=True)
-def _quadratic_form_lu(s: FloatArray, d: FloatArray) -> float:  # pragma: no cover - compiled
+def _quadratic_form_lu(
+    s: FloatArray, d: FloatArray, y: FloatArray, solution: FloatArray
+) -> float:  # pragma: no cover - compiled
     """d^T s^-1 d for a 4x4 s by Gaussian elimination with partial pivoting (LAPACK's
-    gesv, as ``np.linalg.solve``); s is overwritten."""
-    y = d.copy()
+    gesv, as ``np.linalg.solve``); s is overwritten; y and solution: working arrays (4,)
+    (allocated per pair, they cost as much as the elimination)."""
+    y[:] = d
     for col in range(4):
         pivot = col
         for r in range(col + 1, 4):
@@ -383,7 +390,6 @@ def _quadratic_form_lu(s: FloatArray, d: FloatArray) -> float:  # pragma: no cov
                 s[r, b] -= factor * s[col, b]
             y[r] -= factor * y[col]
     total = 0.0
-    solution = np.empty(4)
     for a in range(3, -1, -1):
         acc = y[a]
         for b in range(a + 1, 4):
