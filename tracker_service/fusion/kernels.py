@@ -593,6 +593,16 @@ def fuse_local_tracks(
     dt = np.empty(width)
     f = np.empty((4, 4))
     fp = np.empty((4, 4))
+    # Working arrays for the largest joint covariance, sliced per row (allocated per
+    # row, they cost as much as the arithmetic of a row of two or three sources).
+    sigma_of = np.empty((4 * width, 4 * width))
+    low_of = np.empty((4 * width, 4 * width))
+    y_of = np.empty((4 * width, 4))
+    wz_of = np.empty(4 * width)
+    z_of = np.empty(4 * width)
+    block = np.empty((4, 4))
+    info = np.empty((4, 4))
+    weighted = np.empty(4)
     for r in range(k):
         n = 0
         for i in range(width):
@@ -609,7 +619,8 @@ def fuse_local_tracks(
             f[0, 2] = f[1, 3] = step
             propagate(f, loc_x[s], loc_P[s], fp, states[i], own[i])
         size = 4 * n
-        sigma = np.zeros((size, size))
+        sigma = sigma_of[:size, :size]
+        sigma[:, :] = 0.0
         for i in range(n):
             for a in range(4):
                 for b in range(4):
@@ -625,7 +636,6 @@ def fuse_local_tracks(
                             for e in range(4):
                                 acc += roots[i, a, e] * roots[j, b, e]
                             sigma[4 * i + a, 4 * j + b] += correlation * acc
-        block = np.empty((4, 4))
         for i in range(n):
             for j in range(n):
                 same_way = np.sign(dt[i]) == np.sign(dt[j])
@@ -639,7 +649,11 @@ def fuse_local_tracks(
                 for a in range(4):
                     for b in range(4):
                         sigma[4 * i + a, 4 * j + b] += block[a, b]
-        _ml_solve(sigma, states[:n].copy().reshape(size), out_x[r], out_p[r])
+        z = z_of[:size]
+        for i in range(n):
+            for a in range(4):
+                z[4 * i + a] = states[i, a]
+        _ml_solve(sigma, z, out_x[r], out_p[r], low_of, y_of, wz_of, info, weighted)
     return out_x, out_p
 
 
@@ -694,20 +708,30 @@ def _symmetric_sqrt4(a: FloatArray, root: FloatArray) -> None:  # pragma: no cov
 
 @numba.njit(cache=True)
 def _ml_solve(
-    sigma: FloatArray, z: FloatArray, x: FloatArray, p: FloatArray
+    sigma: FloatArray,
+    z: FloatArray,
+    x: FloatArray,
+    p: FloatArray,
+    low_of: FloatArray,
+    y_of: FloatArray,
+    wz_of: FloatArray,
+    info: FloatArray,
+    weighted: FloatArray,
 ) -> None:  # pragma: no cover - compiled
     """``ml.ml_fuse``'s estimate from the joint covariance sigma (4n, 4n) of the stacked
     estimates z (4n,): P = (H^T sigma^-1 H)^-1, x = P H^T sigma^-1 z, H the stacked
     identities; by a Cholesky factor sigma = L L^T (Y = L^-1 H, info = Y^T Y), and by
-    LAPACK's LU, as the reference, when sigma is not numerically positive definite."""
+    LAPACK's LU, as the reference, when sigma is not numerically positive definite.
+    ``low_of``, ``y_of``, ``wz_of`` (sliced), ``info`` and ``weighted``: working arrays."""
     size = sigma.shape[0]
-    low = np.zeros((size, size))
+    low = low_of[:size, :size]
+    low[:, :] = 0.0
     for j in range(size):
         acc = sigma[j, j]
         for e in range(j):
             acc -= low[j, e] * low[j, e]
         if not acc > 0.0:
-            _ml_solve_lu(sigma, z, x, p)
+            _ml_solve_lu(np.ascontiguousarray(sigma), z, x, p)
             return
         low[j, j] = math.sqrt(acc)
         for i in range(j + 1, size):
@@ -715,8 +739,9 @@ def _ml_solve(
             for e in range(j):
                 acc -= low[i, e] * low[j, e]
             low[i, j] = acc / low[j, j]
-    y = np.zeros((size, 4))
-    wz = np.empty(size)
+    y = y_of[:size]
+    y[:, :] = 0.0
+    wz = wz_of[:size]
     for i in range(size):
         for b in range(4):
             acc = 1.0 if i % 4 == b else 0.0
@@ -727,8 +752,8 @@ def _ml_solve(
         for e in range(i):
             acc -= low[i, e] * wz[e]
         wz[i] = acc / low[i, i]
-    info = np.zeros((4, 4))
-    weighted = np.zeros(4)
+    info[:, :] = 0.0
+    weighted[:] = 0.0
     for a in range(4):
         for i in range(size):
             weighted[a] += y[i, a] * wz[i]
