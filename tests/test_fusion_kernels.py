@@ -302,6 +302,39 @@ def test_store_is_the_reference(seed: int, k: int, n: int) -> None:
 
 
 @settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, n=st.integers(1, 60), candidates=st.integers(0, 80))
+def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int) -> None:
+    """The exchange test's pairs and votes by the kernel against the numpy path, every
+    array equal: local rows of four radars feeding eight system tracks, candidates
+    repeating pairs from either side, near system tracks with and without a row of the
+    candidate's radar or of another."""
+    rng = np.random.default_rng(seed)
+    states = [
+        FusionState(
+            FusionConfig(implementation=impl), 4, ModelSet.from_config(FusionConfig().plot_filter)
+        )
+        for impl in ("compiled", "numpy")
+    ]
+    radar = rng.integers(0, 4, n)
+    for state in states:
+        for r in range(4):
+            u = _local_updates(rng, n)
+            state.local.find(r, u[radar == r], create=True)
+    loc = states[0].local.rows
+    system = rng.integers(1, 9, states[0].local.n)
+    for state in states:
+        state.local.rows["system"][: state.local.n] = system
+    involved = np.flatnonzero(rng.random(states[0].local.n) < 0.8)
+    li = rng.choice(involved, candidates) if involved.size else np.zeros(0, dtype=np.int64)
+    # As in use, S' is fed by an involved row (of the candidate's radar or not).
+    sj = rng.choice(system[involved], li.size) if involved.size else li
+    got, want = (associate._exchange_witnesses(state, li, sj, involved) for state in states)
+    assert np.array_equal(loc["key"], states[1].local.rows["key"])
+    for a, b in zip(want, got, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=50, deadline=None)
 @given(seed=SEEDS, n_a=st.integers(0, 60), n_b=st.integers(0, 60))
 def test_near_pairs_are_the_reference(seed: int, n_a: int, n_b: int) -> None:
     """The pre-selection's pairs by the kernel: the same pairs in the same order, either

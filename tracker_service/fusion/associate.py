@@ -198,6 +198,18 @@ def _exchange_witnesses(
     empty = np.zeros(0, dtype=np.int64)
     if li.size == 0 or involved.size == 0:
         return empty, empty, empty, empty, empty, np.zeros(1, dtype=np.int64)
+    if state.compiled:
+        from tracker_service.fusion.kernels import exchange_witnesses  # numba when compiled
+
+        return exchange_witnesses(
+            kernel_indices(li),
+            kernel_indices(sj),
+            kernel_indices(involved),
+            loc["system"],
+            loc["radar"],
+            loc["key"],
+            MAX_SYSTEM_NUMBER + 1,
+        )
     radars = np.int64(state.n_radars)
     system, radar = loc["system"][involved], loc["radar"][involved]
     here, own = loc["system"][li], loc["radar"][li]

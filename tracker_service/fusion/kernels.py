@@ -1065,6 +1065,79 @@ def radars_feeding(
 
 
 @numba.njit(cache=True)
+def exchange_witnesses(
+    li: IntArray,
+    sj: IntArray,
+    involved: IntArray,
+    loc_system: IntArray,
+    loc_radar: IntArray,
+    loc_key: IntArray,
+    size: int,
+) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray, IntArray]:  # pragma: no cover
+    """``associate._exchange_witnesses`` from the local table's fields: ``involved``'s rows
+    grouped by system track (ascending within each), each candidate's l' (the first row
+    of its radar in S') and the other radars' rows of S and S', the pairs kept the first
+    time they come (a dictionary of their keys), then the votes pair by pair."""
+    count = np.zeros(size + 1, dtype=np.int64)
+    for q in range(involved.size):
+        count[loc_system[involved[q]] + 1] += 1
+    start = np.cumsum(count)
+    fill = start[:-1].copy()
+    grouped = np.empty(involved.size, dtype=np.int64)
+    for q in range(involved.size):
+        g = loc_system[involved[q]]
+        grouped[fill[g]] = involved[q]
+        fill[g] += 1
+    k = li.size
+    pair_a = np.empty(k, dtype=np.int64)
+    pair_b = np.empty(k, dtype=np.int64)
+    pair_s = np.empty(k, dtype=np.int64)
+    n_pairs = 0
+    n_votes = 0
+    seen = dict()
+    for i in range(k):
+        here, there, radar = loc_system[li[i]], sj[i], loc_radar[li[i]]
+        partner = -1
+        others_there = 0
+        for q in range(start[there], start[there + 1]):
+            if loc_radar[grouped[q]] != radar:
+                others_there += 1
+            elif partner < 0:
+                partner = grouped[q]
+        others_here = 0
+        for q in range(start[here], start[here + 1]):
+            if loc_radar[grouped[q]] != radar:
+                others_here += 1
+        if partner < 0 or others_there == 0 or others_here == 0:
+            continue
+        ka, kb = loc_key[li[i]], loc_key[partner]
+        key = (min(ka, kb), max(ka, kb))
+        if key in seen:
+            continue
+        seen[key] = True
+        pair_a[n_pairs], pair_b[n_pairs], pair_s[n_pairs] = li[i], partner, there
+        n_pairs += 1
+        n_votes += others_here + others_there
+    closer = np.empty(n_votes, dtype=np.int64)
+    farther = np.empty(n_votes, dtype=np.int64)
+    witness = np.empty(n_votes, dtype=np.int64)
+    ends = np.zeros(n_pairs + 1, dtype=np.int64)
+    at = 0
+    for p in range(n_pairs):
+        a, b = pair_a[p], pair_b[p]
+        radar = loc_radar[a]
+        # S's feeders vote for a, then S''s for b.
+        for number, near, far in ((loc_system[a], a, b), (pair_s[p], b, a)):
+            for q in range(start[number], start[number + 1]):
+                row = grouped[q]
+                if loc_radar[row] != radar:
+                    closer[at], farther[at], witness[at] = near, far, row
+                    at += 1
+        ends[p + 1] = at
+    return pair_a[:n_pairs].copy(), pair_b[:n_pairs].copy(), closer, farther, witness, ends
+
+
+@numba.njit(cache=True)
 def slots_of(
     numbers: IntArray,
     system: IntArray,
