@@ -23,6 +23,7 @@ from tracker_service.fusion import (
     associate,
     consider,
     estimator_plots,
+    lifecycle,
     nearby,
 )
 from tracker_service.fusion.estimator_tracks import fuse_local_tracks
@@ -332,6 +333,26 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
     assert np.array_equal(loc["key"], states[1].local.rows["key"])
     for a, b in zip(want, got, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, touched=st.integers(0, 12), alive=st.integers(0, 60))
+def test_identity_candidates_are_the_reference(seed: int, touched: int, alive: int) -> None:
+    """Merging's identity pre-filter by the kernel: the same tracks, addresses and codes
+    drawn from few values, unknown (-1) in both sets."""
+    rng = np.random.default_rng(seed)
+    states = [
+        FusionState(
+            FusionConfig(implementation=impl), 2, ModelSet.from_config(FusionConfig().plot_filter)
+        )
+        for impl in ("compiled", "numpy")
+    ]
+    address, code = rng.integers(-1, 6, 99), rng.integers(-1, 6, 99)
+    for state in states:
+        state.sys["address"][1:100], state.sys["mode3a"][1:100] = address, code
+    numbers = rng.integers(1, 100, touched), np.sort(rng.choice(99, alive, replace=False) + 1)
+    got, want = (lifecycle._identity_candidates(state, *numbers) for state in states)
+    np.testing.assert_array_equal(want, got)
 
 
 @settings(max_examples=50, deadline=None)

@@ -1138,6 +1138,35 @@ def exchange_witnesses(
 
 
 @numba.njit(cache=True)
+def identity_candidates(
+    address: IntArray, mode3a: IntArray, touched: IntArray, alive: IntArray
+) -> IntArray:  # pragma: no cover - compiled
+    """``lifecycle._identity_candidates`` from the system table's fields: the live tracks
+    ``alive`` whose address is unknown or some touched track's (any, when a touched
+    track's is unknown), and likewise their Mode 3/A code."""
+    addresses = np.sort(address[touched])
+    codes = np.sort(mode3a[touched])
+    any_address = addresses.size > 0 and addresses[0] < 0
+    any_code = codes.size > 0 and codes[0] < 0
+    keep = np.empty(alive.size, dtype=np.int64)
+    n = 0
+    for i in range(alive.size):
+        a, c = address[alive[i]], mode3a[alive[i]]
+        address_ok = any_address or a < 0
+        if not address_ok and addresses.size:
+            at = np.searchsorted(addresses, a)
+            address_ok = at < addresses.size and addresses[at] == a
+        code_ok = any_code or c < 0
+        if not code_ok and codes.size:
+            at = np.searchsorted(codes, c)
+            code_ok = at < codes.size and codes[at] == c
+        if address_ok and code_ok:
+            keep[n] = alive[i]
+            n += 1
+    return keep[:n].copy()
+
+
+@numba.njit(cache=True)
 def slots_of(
     numbers: IntArray,
     system: IntArray,

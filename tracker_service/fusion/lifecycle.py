@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion import consider, nearby
-from tracker_service.fusion.arrays import is_member
+from tracker_service.fusion.arrays import is_member, kernel_indices
 from tracker_service.fusion.associate import compatible_pairs
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import cv_prediction
@@ -222,6 +222,12 @@ def _identity_candidates(state: FusionState, touched: IntArray, alive: IntArray)
     do not tell apart from it: a cheap superset of the pairs ``compatible_pairs`` keeps
     (with Mode S traffic, mostly the tracks of the touched tracks' own addresses)."""
     sys = state.sys
+    if state.compiled:
+        from tracker_service.fusion.kernels import identity_candidates  # numba when compiled
+
+        return identity_candidates(
+            sys["address"], sys["mode3a"], kernel_indices(touched), kernel_indices(alive)
+        )
     address, code = sys["address"][touched], sys["mode3a"][touched]
     other_address, other_code = sys["address"][alive], sys["mode3a"][alive]
     address_ok = (other_address < 0) | is_member(other_address, address) | bool((address < 0).any())
