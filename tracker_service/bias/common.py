@@ -266,8 +266,9 @@ class BiasFilterBase(ABC):
         return np.where(self.free() if free is None else free, self._walk_var, 0.0)
 
     def count(self, radar: IntArray, accepted: BoolArray) -> None:
-        np.add.at(self.n_used, radar[accepted], 1)
-        np.add.at(self.n_rejected, radar[~accepted], 1)
+        # bincount rather than np.add.at, which costs tens of microseconds a call.
+        self.n_used += np.bincount(radar[accepted], minlength=self.n_radars)
+        self.n_rejected += np.bincount(radar[~accepted], minlength=self.n_radars)
 
     def estimates(self) -> BiasEstimates:
         s, P = self._unscaled()
