@@ -570,6 +570,126 @@ def filter_round(
 
 
 @numba.njit(cache=True)
+def _fusion_scratch(width: int) -> tuple[FloatArray, ...]:  # pragma: no cover - compiled
+    """The working arrays of ``_predict_sources`` and ``_fuse_sources`` for rows of up to
+    ``width`` sources, allocated once per call and sliced per row (allocated per row,
+    they cost as much as the arithmetic of a row of two or three sources)."""
+    return (
+        np.empty((width, 4)),
+        np.empty((width, 4, 4)),
+        np.empty((width, 4, 4)),
+        np.empty(width),
+        np.empty((4, 4)),
+        np.empty((4, 4)),
+        np.empty((4 * width, 4 * width)),
+        np.empty((4 * width, 4 * width)),
+        np.empty((4 * width, 4)),
+        np.empty(4 * width),
+        np.empty(4 * width),
+        np.empty((4, 4)),
+        np.empty((4, 4)),
+        np.empty(4),
+    )
+
+
+@numba.njit(cache=True)
+def _predict_sources(
+    sources: IntArray,
+    n: int,
+    t: float,
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    correlation: float,
+    scratch: tuple[FloatArray, ...],
+) -> None:  # pragma: no cover - compiled
+    """The local tracks ``sources[:n]`` CV-predicted to t: states, covariances, steps
+    and (with a correlation) the covariances' symmetric square roots, into ``scratch``."""
+    states, own, roots, dt, f, fp = (
+        scratch[0],
+        scratch[1],
+        scratch[2],
+        scratch[3],
+        scratch[4],
+        scratch[5],
+    )
+    for i in range(n):
+        s = sources[i]
+        step = t - loc_t[s]
+        dt[i] = step
+        f[:, :] = 0.0
+        f[0, 0] = f[1, 1] = f[2, 2] = f[3, 3] = 1.0
+        f[0, 2] = f[1, 3] = step
+        propagate(f, loc_x[s], loc_P[s], fp, states[i], own[i])
+    if correlation > 0.0:
+        for i in range(n):
+            _symmetric_sqrt4(own[i], roots[i])
+
+
+@numba.njit(cache=True)
+def _fuse_sources(
+    sources: IntArray,
+    chosen: IntArray,
+    n: int,
+    loc_extra: FloatArray,
+    q: float,
+    correlation: float,
+    scratch: tuple[FloatArray, ...],
+    x: FloatArray,
+    p: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """ML fusion into x, p of the predicted sources ``chosen[:n]`` (positions in
+    ``_predict_sources``' arrays of the local rows ``sources``): the joint covariance
+    (own errors, their correlation, the shared prediction noise and each source's
+    residual bias), then ``_ml_solve``."""
+    states, own, roots, dt = scratch[0], scratch[1], scratch[2], scratch[3]
+    sigma_of, low_of, y_of, wz_of, z_of = (
+        scratch[6],
+        scratch[7],
+        scratch[8],
+        scratch[9],
+        scratch[10],
+    )
+    block, info, weighted = scratch[11], scratch[12], scratch[13]
+    size = 4 * n
+    sigma = sigma_of[:size, :size]
+    sigma[:, :] = 0.0
+    for i in range(n):
+        ci = chosen[i]
+        for a in range(4):
+            for b in range(4):
+                sigma[4 * i + a, 4 * i + b] = (1.0 - correlation) * own[ci, a, b]
+    if correlation > 0.0:
+        for i in range(n):
+            for j in range(n):
+                for a in range(4):
+                    for b in range(4):
+                        acc = 0.0
+                        for e in range(4):
+                            acc += roots[chosen[i], a, e] * roots[chosen[j], b, e]
+                        sigma[4 * i + a, 4 * j + b] += correlation * acc
+    for i in range(n):
+        for j in range(n):
+            di, dj = dt[chosen[i]], dt[chosen[j]]
+            same_way = np.sign(di) == np.sign(dj)
+            overlap = min(abs(di), abs(dj)) if same_way else 0.0
+            block[:, :] = 0.0
+            add_white_acceleration_q(block, overlap, q)
+            if i == j:
+                for a in range(2):
+                    for b in range(2):
+                        block[a, b] += loc_extra[sources[chosen[i]], a, b]
+            for a in range(4):
+                for b in range(4):
+                    sigma[4 * i + a, 4 * j + b] += block[a, b]
+    z = z_of[:size]
+    for i in range(n):
+        for a in range(4):
+            z[4 * i + a] = states[chosen[i], a]
+    _ml_solve(sigma, z, x, p, low_of, y_of, wz_of, info, weighted)
+
+
+@numba.njit(cache=True)
 def fuse_local_tracks(
     slots: IntArray,
     t: FloatArray,
@@ -587,22 +707,8 @@ def fuse_local_tracks(
     k, width = slots.shape
     out_x = np.full((k, 4), np.nan)
     out_p = np.full((k, 4, 4), np.nan)
-    states = np.empty((width, 4))
-    own = np.empty((width, 4, 4))
-    roots = np.empty((width, 4, 4))
-    dt = np.empty(width)
-    f = np.empty((4, 4))
-    fp = np.empty((4, 4))
-    # Working arrays for the largest joint covariance, sliced per row (allocated per
-    # row, they cost as much as the arithmetic of a row of two or three sources).
-    sigma_of = np.empty((4 * width, 4 * width))
-    low_of = np.empty((4 * width, 4 * width))
-    y_of = np.empty((4 * width, 4))
-    wz_of = np.empty(4 * width)
-    z_of = np.empty(4 * width)
-    block = np.empty((4, 4))
-    info = np.empty((4, 4))
-    weighted = np.empty(4)
+    scratch = _fusion_scratch(width)
+    order = np.arange(width)
     for r in range(k):
         n = 0
         for i in range(width):
@@ -610,51 +716,52 @@ def fuse_local_tracks(
                 n += 1
         if n == 0:
             continue
-        for i in range(n):
-            s = slots[r, i]
-            step = t[r] - loc_t[s]
-            dt[i] = step
-            f[:, :] = 0.0
-            f[0, 0] = f[1, 1] = f[2, 2] = f[3, 3] = 1.0
-            f[0, 2] = f[1, 3] = step
-            propagate(f, loc_x[s], loc_P[s], fp, states[i], own[i])
-        size = 4 * n
-        sigma = sigma_of[:size, :size]
-        sigma[:, :] = 0.0
-        for i in range(n):
-            for a in range(4):
-                for b in range(4):
-                    sigma[4 * i + a, 4 * i + b] = (1.0 - correlation) * own[i, a, b]
-        if correlation > 0.0:
-            for i in range(n):
-                _symmetric_sqrt4(own[i], roots[i])
-            for i in range(n):
-                for j in range(n):
-                    for a in range(4):
-                        for b in range(4):
-                            acc = 0.0
-                            for e in range(4):
-                                acc += roots[i, a, e] * roots[j, b, e]
-                            sigma[4 * i + a, 4 * j + b] += correlation * acc
-        for i in range(n):
-            for j in range(n):
-                same_way = np.sign(dt[i]) == np.sign(dt[j])
-                overlap = min(abs(dt[i]), abs(dt[j])) if same_way else 0.0
-                block[:, :] = 0.0
-                add_white_acceleration_q(block, overlap, q)
-                if i == j:
-                    for a in range(2):
-                        for b in range(2):
-                            block[a, b] += loc_extra[slots[r, i], a, b]
-                for a in range(4):
-                    for b in range(4):
-                        sigma[4 * i + a, 4 * j + b] += block[a, b]
-        z = z_of[:size]
-        for i in range(n):
-            for a in range(4):
-                z[4 * i + a] = states[i, a]
-        _ml_solve(sigma, z, out_x[r], out_p[r], low_of, y_of, wz_of, info, weighted)
+        _predict_sources(slots[r], n, t[r], loc_t, loc_x, loc_P, correlation, scratch)
+        _fuse_sources(slots[r], order, n, loc_extra, q, correlation, scratch, out_x[r], out_p[r])
     return out_x, out_p
+
+
+@numba.njit(cache=True)
+def fuse_references(
+    others: IntArray,
+    kept: IntArray,
+    t: FloatArray,
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    loc_extra: FloatArray,
+    q: float,
+    correlation: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """``fuse_local_tracks`` of both of ``references``' sets of each row at once: its
+    sources (``kept``, valid first) predicted once, and fused as a whole and without
+    those ``others`` leaves out (a subsequence of ``kept``); the others' x and P, then
+    all's."""
+    k, width = kept.shape
+    out = np.full((2, k, 4), np.nan)
+    out_p = np.full((2, k, 4, 4), np.nan)
+    scratch = _fusion_scratch(width)
+    order = np.arange(width)
+    chosen = np.empty(width, dtype=np.int64)
+    for r in range(k):
+        n = 0
+        for i in range(width):
+            if kept[r, i] >= 0:
+                n += 1
+        if n == 0:
+            continue
+        _predict_sources(kept[r], n, t[r], loc_t, loc_x, loc_P, correlation, scratch)
+        m = 0
+        for i in range(n):
+            if m < width and others[r, m] == kept[r, i]:
+                chosen[m] = i
+                m += 1
+        if m:
+            _fuse_sources(
+                kept[r], chosen, m, loc_extra, q, correlation, scratch, out[0, r], out_p[0, r]
+            )
+        _fuse_sources(kept[r], order, n, loc_extra, q, correlation, scratch, out[1, r], out_p[1, r])
+    return out[0], out_p[0], out[1], out_p[1]
 
 
 @numba.njit(cache=True)

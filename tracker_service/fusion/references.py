@@ -90,10 +90,10 @@ def _compiled(
     sources: int | None,
 ) -> References:
     """``references`` past the slots by the compiled kernels: the sources chosen in one
-    pass, both fusions in one call (its rows are independent)."""
-    from tracker_service.fusion.kernels import reference_sources  # numba only when compiled
+    pass, both fusions of each row from one prediction of its sources."""
+    from tracker_service.fusion.kernels import fuse_references, reference_sources
 
-    loc, k = state.local.rows, numbers.size
+    loc = state.local.rows
     kept, others, seen = reference_sources(
         slots,
         t,
@@ -104,16 +104,19 @@ def _compiled(
         state.config.reference_age_s,
         state.n_radars,
     )
-    x, p = fuse_local_tracks(state, np.concatenate([others, kept]), np.concatenate([t, t]))
+    cfg = state.config
+    x_o, p_o, x_a, p_a = fuse_references(
+        others, kept, t, loc["t"], loc["x"], loc["P"], loc["extra"], cfg.q, cfg.correlation
+    )
     return References(
         plot_id=with_plot["plot_id"].astype(np.int64),
         system_number=numbers,
         time=t,
         others_valid=others[:, 0] >= 0,
-        others_xy=x[:k, :2],
-        others_P=p[:k, :2, :2],
-        others_v=x[:k, 2:],
-        all_xy=x[k:, :2],
-        all_P=p[k:, :2, :2],
+        others_xy=x_o[:, :2],
+        others_P=p_o[:, :2, :2],
+        others_v=x_o[:, 2:],
+        all_xy=x_a[:, :2],
+        all_P=p_a[:, :2, :2],
         radars_seen=seen,
     )
