@@ -20,7 +20,6 @@ is untimed (numba loads or compiles the kernels there).
 
 from __future__ import annotations
 
-import argparse
 import copy
 import cProfile
 import hashlib
@@ -37,10 +36,10 @@ import numpy as np
 import tracker_service
 from tracker_service.central_stage import BatchOutput, CentralStage
 from tracker_service.fusion import SystemTracker
-from tracker_service.service.core import TrackerService
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_stages import StageClock, slice_of
+from bench_fusion_calls import record_replay_parser, run_service
+from bench_stages import StageClock
 
 Call = tuple[Any, ...]
 CALLS = ("process", "feed_adsb")
@@ -68,13 +67,7 @@ def record(path: str, seconds: float) -> tuple[list[Call], int]:
     for name in originals:
         setattr(CentralStage, name, recorder(name))
     try:
-        replay, datagrams = slice_of(path, seconds)
-        service = TrackerService(replay.config, None, None)
-        for name, datagram in datagrams:
-            service.process(name, datagram)
-        service.local.drain()
-        plots = service.chain.stats.plots
-        service.close()
+        plots = run_service(path, seconds)
     finally:
         for name, method in originals.items():
             setattr(CentralStage, name, method)
@@ -132,17 +125,7 @@ def restore(saved: list[tuple[type, str, Any]]) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    rec = sub.add_parser("record", help="record the central stage's calls over a recording")
-    rec.add_argument("recording")
-    rec.add_argument("--seconds", type=float, default=20.0)
-    rec.add_argument("-o", "--output", required=True)
-    rep = sub.add_parser("replay", help="replay recorded calls into a fresh central stage")
-    rep.add_argument("calls")
-    rep.add_argument("--repeats", type=int, default=3)
-    rep.add_argument("--profile", help="cProfile (CPU time) of the timed passes into FILE")
-    args = parser.parse_args()
+    args = record_replay_parser(__doc__, "the central stage").parse_args()
     if args.command == "record":
         calls, plots = record(args.recording, args.seconds)
         with open(args.output, "wb") as out:

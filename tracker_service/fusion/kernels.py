@@ -569,6 +569,16 @@ def filter_round(
         t[n] = time[r]
 
 
+@numba.njit(cache=True, inline="always")
+def _count_sources(row: IntArray) -> int:  # pragma: no cover - compiled
+    """The valid slots (>= 0) of a row of slots."""
+    n = 0
+    for slot in row:
+        if slot >= 0:
+            n += 1
+    return n
+
+
 @numba.njit(cache=True)
 def _fusion_scratch(width: int) -> tuple[FloatArray, ...]:  # pragma: no cover - compiled
     """The working arrays of ``_predict_sources`` and ``_fuse_sources`` for rows of up to
@@ -710,10 +720,7 @@ def fuse_local_tracks(
     scratch = _fusion_scratch(width)
     order = np.arange(width)
     for r in range(k):
-        n = 0
-        for i in range(width):
-            if slots[r, i] >= 0:
-                n += 1
+        n = _count_sources(slots[r])
         if n == 0:
             continue
         _predict_sources(slots[r], n, t[r], loc_t, loc_x, loc_P, correlation, scratch)
@@ -744,10 +751,7 @@ def fuse_references(
     order = np.arange(width)
     chosen = np.empty(width, dtype=np.int64)
     for r in range(k):
-        n = 0
-        for i in range(width):
-            if kept[r, i] >= 0:
-                n += 1
+        n = _count_sources(kept[r])
         if n == 0:
             continue
         _predict_sources(kept[r], n, t[r], loc_t, loc_x, loc_P, correlation, scratch)
