@@ -52,7 +52,8 @@ class RadarCover:
         """A batch's plots (``PLOT_DTYPE`` rows) of ``radar``."""
         if not len(plots):
             return
-        self._first.setdefault(radar, float(plots["time"].min()))
+        if radar not in self._first:
+            self._first[radar] = float(plots["time"].min())
         # Column by column: the rows of a plot table are wide.
         x, y = plots["x"], plots["y"]
         counted = np.isfinite(x) & np.isfinite(y)
