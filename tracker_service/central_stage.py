@@ -327,7 +327,9 @@ class CentralStage:
         out_of_step = self.consensus.out_of_step(
             source, message.effective_offset_s, message.received
         )
-        report = replace(message.time, out_of_step_s=out_of_step)
+        report = message.time
+        if out_of_step != report.out_of_step_s:
+            report = replace(report, out_of_step_s=out_of_step)
         local, batch = message.local, message.tracked
         bias = bias_cov = None
         if self.bias is not None and index is not None:

@@ -287,8 +287,9 @@ class BiasFilterBase(ABC):
 
     def correction(self, radar: int) -> tuple[FloatArray, FloatArray]:
         """The bias (4,) to take off radar's plots (y - C s) and its covariance (4,4)."""
-        s, P = self._unscaled()
-        return s[radar], P[radar]
+        s, P = self.bias_state()
+        # ``_unscaled``'s products, for this radar's rows only.
+        return s[radar] * self.scale, P[radar] * self.scale[:, None] * self.scale[None, :]
 
     def clock_correction(self, radar: int) -> tuple[FloatArray, FloatArray]:
         """The radar's extra clock states (clock_states - 1,) [drift s/s, drift rate
