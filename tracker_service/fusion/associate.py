@@ -304,6 +304,8 @@ def _restart_tests(state: FusionState, rows: IntArray) -> None:
 
 def _leave(state: FusionState, rows: IntArray) -> None:
     """The local tracks ``rows`` leave their system tracks, their tests restarted."""
+    if rows.size == 0:
+        return  # the usual batch: four writes of nothing saved
     state.local.rows["system"][rows] = 0
     _restart_tests(state, rows)
 
