@@ -157,16 +157,30 @@ def _tree_paths(
         end = stack_end[top]
         if end - start <= KDTREE_LEAF_SIZE:
             continue
-        first = indices[start]
-        same = True
+        # scipy's split (build.cxx, split_and_partition): the dimension of the widest
+        # spread (the first of equal ones), at its median value; the lesser child
+        # takes the points strictly below it (all those equal to the least value
+        # when none is).
+        lo_x = hi_x = x[indices[start]]
+        lo_y = hi_y = y[indices[start]]
         for p in range(start + 1, end):
             q = indices[p]
-            if x[q] != x[first] or y[q] != y[first]:
-                same = False
-                break
-        if same:
+            lo_x, hi_x = min(lo_x, x[q]), max(hi_x, x[q])
+            lo_y, hi_y = min(lo_y, y[q]), max(hi_y, y[q])
+        if hi_x - lo_x <= 0.0 and hi_y - lo_y <= 0.0:
             continue  # all points equal: scipy makes a leaf of them
-        middle = start + (end - start) // 2
+        values = y if hi_y - lo_y > hi_x - lo_x else x
+        node = np.empty(end - start)
+        for p in range(start, end):
+            node[p - start] = values[indices[p]]
+        node.sort()
+        split = node[(end - start) // 2]
+        if split == node[0]:
+            split = np.nextafter(split, np.inf)
+        middle = start
+        for p in range(start, end):
+            if node[p - start] < split:
+                middle += 1
         for p in range(start, end):
             q = indices[p]
             path[q] = 2 * path[q] + (1 if p >= middle else 0)
