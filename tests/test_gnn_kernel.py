@@ -13,7 +13,6 @@ from tracker_service.tracking.association.kernels import gnn_assignment
 
 @pytest.mark.parametrize("shape", [(1, 1), (3, 3), (2, 6), (7, 2), (12, 9), (30, 30)])
 def test_gnn_assignment_is_scipys(shape: tuple[int, int]) -> None:
-    n_rows, n_cols = shape
     for seed in range(40):
         rng = np.random.default_rng(seed)
         density = rng.uniform(0.2, 1.0)

@@ -553,7 +553,12 @@ class LocalTracker:
             self.clutter.learn_cells(batch.cell[free], p.time[free])
 
     def _apply_pairs(
-        self, ti: IntArray, p: PlotArrays, plot_index: IntArray, pred: imm.ImmPrediction, sel: IntArray
+        self,
+        ti: IntArray,
+        p: PlotArrays,
+        plot_index: IntArray,
+        pred: imm.ImmPrediction,
+        sel: IntArray,
     ) -> npt.NDArray[Any]:
         """``_apply`` of the tracks ``ti`` each with one plot, ``p``'s ``plot_index``, from
         their pairs' predictions ``pred``'s ``sel``: in two compiled passes

@@ -201,12 +201,16 @@ class Gate:
         if turn_prior is not None:
             pred, gate_nis = turn_prior(pred, nis, p, pj)
             same_address = (cols["address"][ti] >= 0) & (cols["address"][ti] == p.address[pj])
-            gated = np.flatnonzero(
-                gate_nis <= np.where(same_address, cfg.address_gate, cfg.gate)
-            )
+            gated = np.flatnonzero(gate_nis <= np.where(same_address, cfg.address_gate, cfg.gate))
             if gated.size == 0:
                 return GateResult(None, too_old)
-            ti, pj, nis, log_det, cost = ti[gated], pj[gated], nis[gated], log_det[gated], cost[gated]
+            ti, pj, nis, log_det, cost = (
+                ti[gated],
+                pj[gated],
+                nis[gated],
+                log_det[gated],
+                cost[gated],
+            )
             pred = pred.take(gated)
         pairs = GatedPairs(
             track=ti, plot=pj, nis=nis, log_det=log_det, identity_cost=cost, pred=pred

@@ -102,11 +102,11 @@ def preselect(
     k = 0
     near_max = -np.inf
     for r in range(n):
-        if coarse_x[r] >= lo_x and coarse_x[r] <= hi_x and coarse_y[r] >= lo_y:
-            if coarse_y[r] <= hi_y:
-                near[k] = r
-                near_max = _nan_max(near_max, radius[r])
-                k += 1
+        inside_x = coarse_x[r] >= lo_x and coarse_x[r] <= hi_x
+        if inside_x and coarse_y[r] >= lo_y and coarse_y[r] <= hi_y:
+            near[k] = r
+            near_max = _nan_max(near_max, radius[r])
+            k += 1
     near = near[:k]
     return near, coarse_x[near], coarse_y[near], radius[near], near_max + plot_reach
 
