@@ -719,3 +719,198 @@ def vertical_measurements(
         if flags[i] & selected_bit:
             selected[i] = selected_ft[i] / 100.0
     return variance, rate, rate_variance, selected
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_count(value: int) -> int:  # pragma: no cover - compiled
+    count = 0
+    while value:
+        value &= value - 1
+        count += 1
+    return count
+
+
+@numba.njit(cache=True)
+def record_pairs(
+    ti: IntArray,
+    pj: IntArray,
+    sel: IntArray,
+    xp: FloatArray,
+    pp: FloatArray,
+    c: FloatArray,
+    plots: npt.NDArray[np.void],
+    reply: BoolArray,
+    x: FloatArray,
+    P: FloatArray,
+    mu: FloatArray,
+    xc: FloatArray,
+    pc: FloatArray,
+    t_state: FloatArray,
+    t_hit: FloatArray,
+    hist: IntArray,
+    due: FloatArray,
+    misses: IntArray,
+    address: IntArray,
+    mode3a: IntArray,
+    secondary: BoolArray,
+    status: npt.NDArray[np.int8],
+    dense_seed: BoolArray,
+    xv: FloatArray,
+    pvm: FloatArray,
+    muv: FloatArray,
+    fl: FloatArray,
+    rate: FloatArray,
+    pv: FloatArray,
+    t_fl: FloatArray,
+    fl_ok: BoolArray,
+    fl_rejects: IntArray,
+    vertical_q: FloatArray,
+    vertical_sojourn: FloatArray,
+    vertical_mu0: FloatArray,
+    constants: FloatArray,
+    masks: IntArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, bool]:  # pragma: no cover - compiled
+    """``LocalTracker._apply`` of one plot per track up to the M-of-N test: the tracks
+    ``ti`` updated by the IMM with the batch's plots ``plots[pj]`` from their pairs'
+    predictions ``xp[sel]``, ``pp[sel]``, ``c[sel]`` (``imm_update``), written into the
+    track table (``record_updates``), their vertical filters (``vertical_measurements``
+    over the plots with a level, then ``vertical_update``) and their secondary-reply flag
+    (``reply``: the batch plots'). ``constants``: the configuration's floats in
+    ``LocalTracker._record_constants``' order; ``masks``: the M-of-N window's masks and
+    counts. Returns the new model probabilities and combined states, and whether a
+    tentative track among them reached its M of N (``LocalTracker._confirm`` decides)."""
+    k = ti.size
+    z = np.empty((k, 2))
+    r = np.empty((k, 2, 2))
+    time = np.empty(k)
+    plot_address = np.empty(k, np.int64)
+    plot_code = np.empty(k, np.int64)
+    plot_code_valid = np.empty(k, np.bool_)
+    n_level = 0
+    for s in range(k):
+        row = plots[pj[s]]
+        z[s, 0] = row.x
+        z[s, 1] = row.y
+        for a in range(2):
+            for b in range(2):
+                r[s, a, b] = row.R[a, b]
+        time[s] = row.time
+        plot_address[s] = row.address
+        plot_code[s] = row.mode3a
+        plot_code_valid[s] = row.mode3a_valid
+        if row.fl_valid and np.isfinite(row.flight_level):
+            n_level += 1
+    x_new, p_new, mu_new, xc_new, pc_new = imm_update(xp[sel], pp[sel], c[sel], z, r)
+    record_updates(
+        ti, time, plot_address, plot_code, plot_code_valid, x_new, p_new, mu_new, xc_new,
+        pc_new, x, P, mu, xc, pc, t_state, t_hit, hist, due, misses, address, mode3a,
+        constants[0], masks[0], constants[1],
+    )  # fmt: skip
+    if n_level:
+        level_rows = np.empty(n_level, np.int64)
+        level_time = np.empty(n_level)
+        level = np.empty(n_level)
+        typ = np.empty(n_level, np.int64)
+        flags = np.empty(n_level, np.uint8)
+        baro = np.empty(n_level)
+        inertial = np.empty(n_level)
+        selected_ft = np.empty(n_level)
+        n = 0
+        for s in range(k):
+            row = plots[pj[s]]
+            if row.fl_valid and np.isfinite(row.flight_level):
+                level_rows[n] = ti[s]
+                level_time[n] = row.time
+                level[n] = row.flight_level
+                typ[n] = row.typ
+                flags[n] = row.dap_flags
+                baro[n] = row.baro_rate_fpm
+                inertial[n] = row.inertial_rate_fpm
+                selected_ft[n] = row.selected_altitude_ft
+                n += 1
+        variance, climb, climb_variance, selected = vertical_measurements(
+            level, typ, flags, baro, inertial, selected_ft, constants[2] != 0.0, masks[3],
+            constants[3], constants[4], constants[5], constants[6], constants[7], masks[4],
+            masks[5],
+        )  # fmt: skip
+        vertical_update(
+            level_rows, level_time, level, variance, climb, climb_variance, selected, xv,
+            pvm, muv, fl, rate, pv, t_fl, fl_ok, fl_rejects, vertical_q, vertical_sojourn,
+            vertical_mu0, constants[8], masks[6], constants[9], constants[10],
+        )  # fmt: skip
+    candidates = False
+    for s in range(k):
+        row = ti[s]
+        secondary[row] = secondary[row] or reply[pj[s]]
+        dense = dense_seed[row]
+        hits = _bit_count(hist[row] & (masks[1] if dense else masks[2]))
+        if status[row] == 0 and hits >= masks[7] + (masks[8] if dense else 0):
+            candidates = True
+    return mu_new, xc_new, pc_new, candidates
+
+
+@numba.njit(cache=True)
+def finish_pairs(
+    ti: IntArray,
+    pj: IntArray,
+    track_status: npt.NDArray[np.int8],
+    mu_new: FloatArray,
+    xc_new: FloatArray,
+    pc_new: FloatArray,
+    plots: npt.NDArray[np.void],
+    plot_cell: IntArray,
+    plot_dense: BoolArray,
+    use_clutter: bool,
+    min_speed: float,
+    number: IntArray,
+    address: IntArray,
+    mode3a: IntArray,
+    clutter_cell: IntArray,
+    status: npt.NDArray[np.int8],
+    fl: FloatArray,
+    rate: FloatArray,
+    t_fl: FloatArray,
+    fl_ok: BoolArray,
+    out: npt.NDArray[np.void],
+) -> None:  # pragma: no cover - compiled
+    """The rest of ``LocalTracker._apply``: a confirmed primary-only track that has
+    slowed below ``min_speed`` or is stuck in a dense clutter cell (``_in_clutter``: the
+    plot's cell ``plot_cell[pj]``, dense, as its previous plot's) goes back to tentative,
+    each track's clutter cell recorded; the statuses (``track_status``: after the M-of-N
+    test) written into the table; and the output rows (``_rows``) into ``out``."""
+    for s in range(ti.size):
+        row = ti[s]
+        plot = plots[pj[s]]
+        new_status = track_status[s]
+        stuck = False
+        if use_clutter:
+            cell = plot_cell[pj[s]]
+            stuck = cell == clutter_cell[row] and plot_dense[pj[s]]
+            clutter_cell[row] = cell
+        if address[row] < 0 and mode3a[row] < 0 and new_status == 1:
+            speed = np.hypot(xc_new[s, 2], xc_new[s, 3])
+            if speed < min_speed or stuck:
+                new_status = 0
+        status[row] = new_status
+        o = out[s]
+        o.track_number = number[row]
+        o.time = plot.time
+        o.x = xc_new[s, 0]
+        o.y = xc_new[s, 1]
+        o.vx = xc_new[s, 2]
+        o.vy = xc_new[s, 3]
+        for a in range(4):
+            for b in range(4):
+                o.P[4 * a + b] = pc_new[s, a, b]
+        if fl_ok[row]:
+            o.flight_level = fl[row] + rate[row] * (plot.time - t_fl[row])
+            o.climb_rate_fl_per_s = rate[row]
+        else:
+            o.flight_level = np.nan
+            o.climb_rate_fl_per_s = np.nan
+        o.status = new_status
+        o.plot_id = plot.plot_id
+        o.mode3a = mode3a[row]
+        o.address = address[row]
+        for j in range(mu_new.shape[1]):
+            o.model_probabilities[j] = mu_new[s, j]
