@@ -14,6 +14,13 @@ I140). Both clocks are this host's.
         [--speed 1] [--duration 180] [--holding-window 0.02] [--no-mcap] [--profile FILE]
         [--radar-processes N]
 
+A long slice (``artas`` for 30 minutes: minutes of simulation) is simulated ahead, dated
+in the future, then sent by a second run, so that the wait is not spent idle::
+
+    python benchmarks/bench_latency.py --scenario artas --duration 1800 --lead 2400 \
+        --write-recording /tmp/artas-future.mcap
+    python benchmarks/bench_latency.py --speed 1 --recording /tmp/artas-future.mcap
+
 ``scale`` (20 radars, 2,000 aircraft, about 1,460 plots/s in real time, some 31 plots per
 datagram) is the realistic load: its real time sped up about 1.37 times. ``three_sites``
 (4.5 plots per datagram) compressed to the same plot rate is a per-datagram stress test
@@ -180,6 +187,18 @@ def main() -> int:
         help="run the daemon as this many `run --role radar` processes (the radars dealt "
         "round robin) and one `run --role fusion`, over a stage session on 127.0.0.1",
     )
+    parser.add_argument(
+        "--write-recording",
+        metavar="PATH",
+        help="only simulate the scenario (starting --lead s from now) into PATH: a long "
+        "slice is then simulated ahead of the run that sends it (--recording)",
+    )
+    parser.add_argument(
+        "--recording",
+        metavar="PATH",
+        help="send this recording (from --write-recording, starting in the future) instead "
+        "of simulating one",
+    )
     parser.add_argument("--serve", help=argparse.SUPPRESS)
     parser.add_argument("--role", help=argparse.SUPPRESS)
     parser.add_argument("--stage", help=argparse.SUPPRESS)
@@ -188,8 +207,23 @@ def main() -> int:
         return serve(args.serve, args.profile, args.role, args.stage)
 
     work = Path(tempfile.mkdtemp(prefix="bench_latency_"))
-    recording = read_recording(simulate(args.scenario, args.duration, work, args.lead))
+    if args.write_recording is not None:
+        simulated = simulate(args.scenario, args.duration, work, args.lead)
+        shutil.move(simulated, args.write_recording)
+        shutil.rmtree(work, ignore_errors=True)
+        return 0
+    if args.recording is not None:
+        recording = read_recording(Path(args.recording))
+    else:
+        recording = read_recording(simulate(args.scenario, args.duration, work, args.lead))
     datagrams = list(recording.datagrams())
+    if args.recording is not None and datagrams[0].time < time.time():
+        print(
+            f"the recording starts {time.time() - datagrams[0].time:.0f} s in the past: its "
+            "plots would be older than their reception; simulate it with a longer --lead",
+            file=sys.stderr,
+        )
+        return 2
     # Everything the send loop needs, worked out before it starts: its own CPU would
     # otherwise compete with the daemon's.
     keys_of = []
@@ -246,13 +280,15 @@ def main() -> int:
     time.sleep(1.0)
 
     sent: dict[tuple[str, int], float] = {}
+    # At the scenario's start (with --lead), else at once: the plots' times are real.
+    start_in = datagrams[0].time - time.time()
+    wall0 = time.monotonic() + max(0.1, start_in)
+    # The CPU shares are of the sending time only, not of the lead's idle wait.
+    time.sleep(max(0.0, wall0 - time.monotonic() - 0.05))
     cpu0 = {k: v for p in [daemon, *radar_processes] for k, v in cpu_per_process(p.pid).items()}
     own0 = time.process_time()
     cpu_wall0 = time.monotonic()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        # At the scenario's start (with --lead), else at once: the plots' times are real.
-        start_in = datagrams[0].time - time.time()
-        wall0 = time.monotonic() + max(0.1, start_in)
         first = datagrams[0].time
         for d, keys in zip(datagrams, keys_of, strict=True):
             delay = wall0 + (d.time - first) / speed - time.monotonic()
@@ -307,8 +343,9 @@ def main() -> int:
         print("no system track carried a plot sent here: did the subscriber connect?")
         return 1
     cpu = {pid: cpu1[pid] - cpu0.get(pid, 0.0) for pid in cpu1}
+    name = Path(args.recording).name if args.recording else args.scenario
     print(
-        f"{args.scenario}: {plots} plots in {len(datagrams)} datagrams, sent in {wall:.1f} s "
+        f"{name}: {plots} plots in {len(datagrams)} datagrams, sent in {wall:.1f} s "
         f"({plots / wall:.0f} plots/s, {len(datagrams) / wall:.0f} datagrams/s, speed "
         f"x{speed:.2f}), holding window {args.holding_window * 1000:.0f} ms, MCAP log "
         f"{'off' if mcap_dir is None else 'on'}"
