@@ -215,7 +215,9 @@ def main() -> None:
         with in_callers_thread(profiler is not None):
             cpu, by_thread, log, zenoh = replay(config, calls, not args.no_hash, profiler)
         seconds.append(cpu)
-        threads = ", ".join(f"{n} {s:.2f}" for n, s in sorted(by_thread.items(), key=lambda i: -i[1]))
+        threads = ", ".join(
+            f"{n} {s:.2f}" for n, s in sorted(by_thread.items(), key=lambda i: -i[1])
+        )
         print(
             f"run {repeat + 1}: {cpu:.2f} CPU s, {1e6 * cpu / plots:.1f} us per plot "
             f"({threads}); log {log[0]} {log[1]}; zenoh {zenoh[0]} {zenoh[1]}"

@@ -4,7 +4,7 @@ The chain runs once over the recording (not timed) and what it hands the outputs
 each radar batch's rows (``BatchOutput``) and the CAT062 cadence. Then each output stage
 runs over those rows, the way it ran before this change (one pydantic model per update,
 ``model_dump_json``, the generic codec, one sink call per message) and the way it runs
-now (``MessageMapper.local_updates``/``system_updates``, ``encode_system_documents``, one
+now (``MessageMapper.local_updates``/``system_updates``, ``encode_system_values``, one
 sink call per batch), interleaved, ``--repeats`` times; CPU time (``time.process_time``),
 medians, ratios.
 
@@ -44,7 +44,7 @@ from typing import Any
 
 from tracker_service.chain import BatchOutput
 from tracker_service.geodesy import SystemPlane
-from tracker_service.outputs.cat062 import encode_system_documents, encode_system_tracks_generic
+from tracker_service.outputs.cat062 import encode_system_tracks_generic, encode_system_values
 from tracker_service.outputs.mapping import MessageMapper, location_fix
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.mcap_sink import LOCATION_TOPIC, SYSTEM_TRACKS_TOPIC, McapSink
@@ -190,9 +190,9 @@ def run(c: Captured, repeats: int) -> dict[str, Any]:
     new_system = _system_new(c)
     systems = sum(len(s) for s in new_system)
     old_cat = _cat062_batches(c, old_system, lambda m: m.number)
-    new_cat = [[u.doc for u in b] for b in _cat062_batches(c, new_system, lambda u: u.number)]
+    new_cat = [[u.values for u in b] for b in _cat062_batches(c, new_system, lambda u: u.number)]
     assert all(
-        encode_system_tracks_generic(o, config.system) == encode_system_documents(n, config.system)
+        encode_system_tracks_generic(o, config.system) == encode_system_values(n, config.system)
         for o, n in zip(old_cat[:3], new_cat[:3], strict=True)
     ), "the two CAT062 paths differ"
     old_local = [
@@ -274,7 +274,7 @@ def run(c: Captured, repeats: int) -> dict[str, Any]:
         "system messages": (lambda: _system_old(c), lambda: _system_new(c)),
         "CAT062": (
             lambda: [encode_system_tracks_generic(b, config.system) for b in old_cat],
-            lambda: [encode_system_documents(b, config.system) for b in new_cat],
+            lambda: [encode_system_values(b, config.system) for b in new_cat],
         ),
         "MCAP": (mcap_old, mcap_new),
         "Zenoh": (zenoh_old, zenoh_new),

@@ -1,6 +1,7 @@
 """The batch path of the messages (``MessageMapper.local_updates``/``system_updates``)
-publishes what the pydantic path publishes for the same rows, field by field, in the
-models' field order, and valid against the models (the published JSON schemas)."""
+publishes what the pydantic path (``ModelMapper``) publishes for the same rows, byte for
+byte (``model_dump_json``), in the models' field order, and valid against the models
+(the published JSON schemas); its values (``SystemBatch``) are the messages'."""
 
 from __future__ import annotations
 
@@ -16,11 +17,11 @@ from mcap.reader import make_reader
 from tracker_service.chain import RAW_PLOT_DTYPE
 from tracker_service.fusion import COASTING, ENDED, SYSTEM_UPDATE_DTYPE
 from tracker_service.geodesy import SystemPlane
-from tracker_service.outputs.mapping import MessageMapper, location_fix
+from tracker_service.outputs.mapping import MessageMapper, ModelMapper, location_fix
 from tracker_service.outputs.mcap_log import McapLog, read_log_messages
 from tracker_service.outputs.mcap_sink import McapSink
 from tracker_service.outputs.messages import LocalTrackMessage, SystemTrackMessage
-from tracker_service.outputs.updates import LOCAL_FIELDS, SYSTEM_FIELDS
+from tracker_service.outputs.updates import LOCAL_FIELDS, SYSTEM_FIELDS, SystemValues
 from tracker_service.tracking.plots import PUBLISHED_DAP_FIELDS
 from tracker_service.tracking.tracker import track_update_dtype
 
@@ -104,7 +105,7 @@ def _valid(message: SystemTrackMessage) -> SystemTrackMessage:
     return SystemTrackMessage.model_validate_json(message.model_dump_json())
 
 
-def _pictures(mapper: MessageMapper) -> dict[int, SystemTrackMessage]:
+def _pictures(mapper: MessageMapper | ModelMapper) -> dict[int, SystemTrackMessage]:
     return {n: _valid(m) for n, m in mapper.picture().items()}
 
 
@@ -116,7 +117,7 @@ def test_writers_follow_the_models_field_order() -> None:
 @pytest.mark.parametrize("seed", range(5))
 def test_batch_path_publishes_what_the_models_publish(seed: int) -> None:
     rng = np.random.default_rng(seed)
-    models, batch = MessageMapper(PLANE), MessageMapper(PLANE)
+    models, batch = ModelMapper(PLANE), MessageMapper(PLANE)
     first_id = 0
     for step in range(12):
         t = NOON + 5.0 * step
@@ -128,17 +129,16 @@ def test_batch_path_publishes_what_the_models_publish(seed: int) -> None:
         updates = batch.local_updates(source, local)
         assert [u.number for u in updates] == local["track_number"].tolist()
         for want, update in zip(expected_local, updates, strict=True):
-            got = json.loads(update.payload)
-            assert list(got) == list(LOCAL_FIELDS)
-            assert got == json.loads(want)
+            assert list(json.loads(update.payload)) == list(LOCAL_FIELDS)
+            assert update.payload == want.encode()
             assert update.message() == LocalTrackMessage.model_validate_json(want)
         system = _system_rows(rng, 25, t, plots)
         expected = models.system(system, plots, SOURCES)
         system_updates = batch.system_updates(system, plots, SOURCES)
         for message, update in zip(expected, system_updates, strict=True):
-            got = json.loads(update.payload)
-            assert list(got) == list(SYSTEM_FIELDS)
-            assert got == json.loads(message.model_dump_json()), message.number
+            assert list(json.loads(update.payload)) == list(SYSTEM_FIELDS)
+            assert update.payload == message.model_dump_json().encode(), message.number
+            assert update.values == SystemValues.of_message(_valid(message))
             # Valid against the model (and so the published schema), as built.
             assert SystemTrackMessage.model_validate_json(update.payload) == _valid(message)
             assert _valid(update.message()) == _valid(message)
@@ -146,9 +146,7 @@ def test_batch_path_publishes_what_the_models_publish(seed: int) -> None:
             assert update.location() == location_fix(message)
         assert _pictures(batch) == _pictures(models)
     ended = batch.end_all_updates()
-    assert [SystemTrackMessage.model_validate_json(u.payload) for u in ended] == [
-        _valid(m) for m in models.end_all()
-    ]
+    assert [u.payload for u in ended] == [m.model_dump_json().encode() for m in models.end_all()]
     assert batch.live_tracks == models.live_tracks == []
 
 
@@ -156,11 +154,11 @@ def test_non_finite_values_are_null_as_pydantic_writes_them() -> None:
     rng = np.random.default_rng(9)
     local = _local_rows(rng, 3, NOON)
     local["x"][0], local["P"][1, 5] = np.inf, np.nan
-    models, batch = MessageMapper(PLANE), MessageMapper(PLANE)
+    models, batch = ModelMapper(PLANE), MessageMapper(PLANE)
     for message, update in zip(
         models.local("40/1", local), batch.local_updates("40/1", local), strict=True
     ):
-        assert json.loads(update.payload) == json.loads(message.model_dump_json())
+        assert update.payload == message.model_dump_json().encode()
 
 
 def test_non_finite_system_values_are_null_as_pydantic_writes_them() -> None:
@@ -169,10 +167,10 @@ def test_non_finite_system_values_are_null_as_pydantic_writes_them() -> None:
     system = _system_rows(rng, 4, NOON, plots)
     system["status"] = 0
     system["P"][1, 3] = np.inf
-    models, batch = MessageMapper(PLANE), MessageMapper(PLANE)
+    models, batch = ModelMapper(PLANE), MessageMapper(PLANE)
     expected = models.system(system, plots, SOURCES)
     for message, update in zip(expected, batch.system_updates(system, plots, SOURCES), strict=True):
-        assert json.loads(update.payload) == json.loads(message.model_dump_json())
+        assert update.payload == message.model_dump_json().encode()
 
 
 def test_batches_logged_read_back_by_mcap_and_the_streaming_reader(tmp_path: Path) -> None:

@@ -30,7 +30,7 @@ from __future__ import annotations
 import json
 import math
 from collections import deque
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,6 +38,7 @@ from pyproj import Geod
 
 from tracker_service.outputs.mcap_log import LOCATION_FIX_SCHEMA
 from tracker_service.outputs.messages import SystemTrackMessage
+from tracker_service.outputs.updates import SystemValues
 
 __all__ = [
     "CHANNELS",
@@ -118,64 +119,11 @@ class MapRadar:
     range_nm: float
 
 
-@dataclass(frozen=True, slots=True)
-class MapTrack:
-    """What the map shows of a system-track update: its message's values, read from the
-    model (:meth:`of_message`) or from an update's plain values (:meth:`of_values`, the
-    batch path: no model per update)."""
-
-    number: int
-    time: float
-    status: str
-    lat: float
-    lon: float
-    altitude_m: float | None
-    flight_level: float | None
-    vx_mps: float
-    vy_mps: float
-    ground_speed_mps: float
-    track_angle_deg: float
-    covariance: Sequence[Sequence[float]]
-    address: str | None
-    callsign: str | None
-    mode3a: str | None
-    duplicate_address: bool
-    radars: frozenset[str]
-    """The radars of its sources."""
-
-    @classmethod
-    def of_message(cls, m: SystemTrackMessage) -> MapTrack:
-        return cls.of_values(m.model_dump())
-
-    @classmethod
-    def of_values(cls, d: Mapping[str, Any]) -> MapTrack:
-        """From a system update's values (``updates.SystemUpdate.doc``)."""
-        return cls(
-            d["number"],
-            d["time"],
-            d["status"],
-            d["lat"],
-            d["lon"],
-            d["altitude_m"],
-            d["flight_level"],
-            d["vx_mps"],
-            d["vy_mps"],
-            d["ground_speed_mps"],
-            d["track_angle_deg"],
-            d["covariance"],
-            d["address"],
-            d["callsign"],
-            d["mode3a"],
-            d["duplicate_address"],
-            frozenset(s["radar"] for s in d["sources"]),
-        )
+def _map_track(track: SystemTrackMessage | SystemValues) -> SystemValues:
+    return track if isinstance(track, SystemValues) else SystemValues.of_message(track)
 
 
-def _map_track(track: SystemTrackMessage | MapTrack) -> MapTrack:
-    return track if isinstance(track, MapTrack) else MapTrack.of_message(track)
-
-
-def track_colour(track: SystemTrackMessage | MapTrack) -> Rgb:
+def track_colour(track: SystemTrackMessage | SystemValues) -> Rgb:
     """See the module docstring."""
     message = _map_track(track)
     if message.status == "ended":
@@ -184,10 +132,10 @@ def track_colour(track: SystemTrackMessage | MapTrack) -> Rgb:
         return _DUPLICATE
     if message.status == "coasting":
         return _COASTING
-    return _MULTI if len(message.radars) >= 2 else _SINGLE
+    return _MULTI if len(set(message.sources)) >= 2 else _SINGLE
 
 
-def track_label(track: SystemTrackMessage | MapTrack) -> str:
+def track_label(track: SystemTrackMessage | SystemValues) -> str:
     """What an ATC label shows: callsign, else Mode 3/A code, else the track number;
     flight level; ground speed in knots. E.g. "DLH65A FL350 452kt", "A7000 FL--- 120kt"."""
     message = _map_track(track)
@@ -222,7 +170,7 @@ _Point = tuple[float, float, float]
 
 @dataclass
 class _Track:
-    last: MapTrack
+    last: SystemValues
     trail: deque[_Point] = field(default_factory=deque)
     """(time, lon, lat), oldest first."""
     features: str | None = None
@@ -258,7 +206,9 @@ class MapScene:
     def live_tracks(self) -> list[int]:
         return sorted(self._tracks)
 
-    def update(self, update: SystemTrackMessage | MapTrack, time: float) -> list[FoxgloveMessage]:
+    def update(
+        self, update: SystemTrackMessage | SystemValues, time: float
+    ) -> list[FoxgloveMessage]:
         """A system-track message at data time ``time``: its fix (none for "ended", whose
         track leaves the picture), then whatever periodic message falls due."""
         message = _map_track(update)
@@ -288,13 +238,13 @@ class MapScene:
             out.append(FoxgloveMessage(PICTURE_TOPIC, GEOJSON, self.picture_geojson(), time))
         return out
 
-    def _extend_trail(self, trail: deque[_Point], m: MapTrack) -> None:
+    def _extend_trail(self, trail: deque[_Point], m: SystemValues) -> None:
         if not trail or m.time - trail[-1][0] >= self.trail_spacing_s:
             trail.append((m.time, round(m.lon, 5), round(m.lat, 5)))
         while trail and m.time - trail[0][0] > self.trail_s:
             trail.popleft()
 
-    def location_fix(self, track: SystemTrackMessage | MapTrack) -> bytes:
+    def location_fix(self, track: SystemTrackMessage | SystemValues) -> bytes:
         message = _map_track(track)
         p = message.covariance
         if message.altitude_m is not None:
@@ -312,7 +262,7 @@ class MapScene:
             "altitude": altitude,
             # The plane's axes are east and north near its centre; the vertical is not
             # estimated, so large rather than zero.
-            "position_covariance": [p[0][0], p[0][1], 0.0, p[1][0], p[1][1], 0.0, 0.0, 0.0, 1e6],
+            "position_covariance": [p[0], p[1], 0.0, p[4], p[5], 0.0, 0.0, 0.0, 1e6],
             "position_covariance_type": _COVARIANCE_KNOWN,
             "color": {"r": r, "g": g, "b": b, "a": 1.0},
             "metadata": [{"key": k, "value": v} for k, v in self._identity(message)],
@@ -320,7 +270,7 @@ class MapScene:
         return _dumps(fix)
 
     @staticmethod
-    def _identity(m: MapTrack) -> Iterator[tuple[str, str]]:
+    def _identity(m: SystemValues) -> Iterator[tuple[str, str]]:
         yield "label", track_label(m)
         yield "track", str(m.number)
         yield "status", m.status
@@ -334,7 +284,7 @@ class MapScene:
             yield "flight_level", f"{m.flight_level:.2f}"
         yield "ground_speed_kt", f"{m.ground_speed_mps * _KT_PER_MPS:.0f}"
         yield "track_angle_deg", f"{m.track_angle_deg:.0f}"
-        yield "sources", ",".join(sorted(m.radars))
+        yield "sources", ",".join(sorted(set(m.sources)))
 
     def picture_geojson(self) -> bytes:
         """Every live track's point, trail and vector, as one FeatureCollection; a track's
@@ -445,7 +395,7 @@ def _due(next_time: float | None, period: float, time: float) -> tuple[bool, flo
     return True, next_time + period * (math.floor((time - next_time) / period) + 1)
 
 
-def _ahead(m: MapTrack) -> list[float]:
+def _ahead(m: SystemValues) -> list[float]:
     """Where the track is in one minute at its velocity (the plane's axes taken as east
     and north: a display's speed vector, not a prediction)."""
     d_north = m.vy_mps * _SPEED_VECTOR_S

@@ -25,7 +25,6 @@ from tracker_service.outputs.foxglove_scene import (
     FoxgloveMessage,
     MapRadar,
     MapScene,
-    MapTrack,
 )
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.messages import (
@@ -201,7 +200,7 @@ class FoxgloveSink:
             for update in updates:
                 inner.system(update.message(), update.payload, time)
         for update in updates:
-            self._write(self.scene.update(MapTrack.of_values(update.doc), time))
+            self._write(self.scene.update(update.values, time))
 
     def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None:
         inner = self.inner

@@ -1,0 +1,415 @@
+"""JSON written for a whole batch of rows at once: the outputs' messages without a Python
+object, a dict or a writer call per message.
+
+A message's JSON is a ``Template``: its text with a slot (``%s``) wherever a value goes,
+and the kind of each slot. ``render`` fills a template for every row of a batch in one
+compiled pass (numba, ``cache=True``) from an (N, slots) matrix of values:
+
+- ``NUMBER``: a number's text, by index into ``Numbers``: a whole batch's numbers written
+  by one call of pydantic-core's JSON writer (``to_json``, which the message models'
+  ``model_dump_json`` uses: the same text, a non-finite number as null), split at its
+  commas by position;
+- ``LITERAL``: a text of the ``Literals`` table by its id (a status, a radar's JSON string,
+  a callsign's, ``true``, ``null``);
+- ``INTEGER``, ``INTEGER_OR_NULL``: an integer in decimal (a negative one null);
+- ``OCTAL4``, ``HEX6``: a Mode 3/A code (``"1234"``) or a Mode S address (``"3C660C"``),
+  a negative one null;
+- ``JOIN``: rows of another rendering (``Rendered``: the sources of a track, its DAPs),
+  ``counts`` of them from the index given, separated by commas (none: nothing);
+- ``PART_OR_NULL``: one row of another rendering (a track's last plot), or null.
+
+The compiled pass copies bytes: every number is written by pydantic-core, every string by
+``to_json`` when it enters the table, so the messages are byte for byte what the models
+write (``tests/test_outputs_updates.py`` holds each message to its model's
+``model_dump_json``). ``Rendered.rows()`` gives each row's bytes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import numpy.typing as npt
+from pydantic_core import to_json
+
+__all__ = [
+    "HEX6",
+    "INTEGER",
+    "INTEGER_OR_NULL",
+    "JOIN",
+    "LITERAL",
+    "NUMBER",
+    "OCTAL4",
+    "PART_OR_NULL",
+    "Literals",
+    "Numbers",
+    "Rendered",
+    "Template",
+    "render",
+]
+
+NUMBER = 0
+LITERAL = 1
+INTEGER = 2
+INTEGER_OR_NULL = 3
+OCTAL4 = 4
+HEX6 = 5
+JOIN = 6
+PART_OR_NULL = 7
+
+Bytes = npt.NDArray[np.uint8]
+IntArray = npt.NDArray[np.int64]
+
+
+class Literals:
+    """A table of JSON texts by id: a template's fixed pieces and the strings its slots
+    name (statuses, radars, callsigns). ``add`` gives a text's id (the same text, the
+    same id), appended to arrays that grow by doubling, which the renderer reads."""
+
+    def __init__(self) -> None:
+        self._ids: dict[bytes, int] = {}
+        self._texts: list[bytes] = []
+        self._data = np.zeros(1024, dtype=np.uint8)
+        self._starts = np.zeros(64, dtype=np.int64)
+        self._ends = np.zeros(64, dtype=np.int64)
+        self._size = 0
+
+    def __len__(self) -> int:
+        return len(self._texts)
+
+    def __getitem__(self, text_id: int) -> bytes:
+        return self._texts[text_id]
+
+    def add(self, text: bytes) -> int:
+        known = self._ids.get(text)
+        if known is not None:
+            return known
+        index = len(self._texts)
+        if index == self._starts.size:
+            self._starts = np.resize(self._starts, 2 * index)
+            self._ends = np.resize(self._ends, 2 * index)
+        end = self._size + len(text)
+        if end > self._data.size:
+            self._data = np.resize(self._data, max(2 * self._data.size, end))
+        self._data[self._size : end] = np.frombuffer(text, dtype=np.uint8)
+        self._starts[index], self._ends[index] = self._size, end
+        self._size = end
+        self._ids[text] = index
+        self._texts.append(text)
+        return index
+
+    def string(self, text: str) -> int:
+        """The id of ``text`` as a JSON string (pydantic-core's escaping)."""
+        return self.add(to_json(text))
+
+    def arrays(self) -> tuple[Bytes, IntArray, IntArray]:
+        """The texts one after another, and where each starts and ends."""
+        n = len(self._texts)
+        return self._data, self._starts[:n], self._ends[:n]
+
+
+@dataclass(frozen=True)
+class Numbers:
+    """Numbers' JSON texts, written at once: ``Numbers.of(values)``; number ``i``'s text
+    is ``data[starts[i]:ends[i]]``."""
+
+    data: Bytes
+    starts: IntArray
+    ends: IntArray
+
+    @classmethod
+    def of(cls, values: npt.NDArray[np.float64]) -> Numbers:
+        """``values`` (floats; NaN and infinities are null) as pydantic-core writes them,
+        non-finite ones as null (``inf_nan_mode="null"``, the models' serialisation)."""
+        if values.size == 0:
+            empty = np.zeros(0, dtype=np.int64)
+            return cls(np.zeros(1, dtype=np.uint8), empty, empty)
+        text = to_json(values.ravel().tolist(), inf_nan_mode="null")
+        data = np.frombuffer(text, dtype=np.uint8)
+        # "[a,b,...]": numbers, and null, hold no comma.
+        commas = np.flatnonzero(data == ord(","))
+        starts = np.empty(commas.size + 1, dtype=np.int64)
+        starts[0] = 1
+        starts[1:] = commas + 1
+        ends = np.empty_like(starts)
+        ends[:-1] = commas
+        ends[-1] = data.size - 1
+        return cls(data, starts, ends)
+
+
+@dataclass(frozen=True)
+class Template:
+    """A message's JSON with its slots: ``text`` split at each ``%s``, ``kinds`` the kind
+    of each slot in order. ``ids`` are its fixed pieces' ids in ``literals``."""
+
+    kinds: IntArray
+    ids: IntArray
+
+    @classmethod
+    def of(cls, text: str, kinds: Sequence[int], literals: Literals) -> Template:
+        pieces = text.split("%s")
+        if len(pieces) != len(kinds) + 1:
+            raise ValueError(f"{len(pieces) - 1} slots in the template, {len(kinds)} kinds")
+        ids = [literals.add(piece.encode()) for piece in pieces]
+        return cls(np.array(kinds, dtype=np.int64), np.array(ids, dtype=np.int64))
+
+    @property
+    def slots(self) -> int:
+        return len(self.kinds)
+
+
+@dataclass(frozen=True)
+class Rendered:
+    """Rows written: row ``i`` is ``data[starts[i]:ends[i]]``."""
+
+    data: Bytes
+    starts: IntArray
+    ends: IntArray
+
+    @classmethod
+    def empty(cls) -> Rendered:
+        none = np.zeros(0, dtype=np.int64)
+        return cls(np.zeros(1, dtype=np.uint8), none, none)
+
+    def rows(self) -> list[bytes]:
+        data = self.data.tobytes()
+        return [data[a:b] for a, b in zip(self.starts.tolist(), self.ends.tolist(), strict=True)]
+
+
+def render(
+    template: Template,
+    values: IntArray,
+    literals: Literals,
+    numbers: Numbers,
+    counts: IntArray | None = None,
+    parts: Rendered | None = None,
+) -> Rendered:
+    """Every row of ``values`` (N, slots) through ``template``; ``counts`` (N, slots):
+    how many rows of ``parts`` each ``JOIN`` slot takes."""
+    if values.ndim != 2 or values.shape[1] != template.slots:
+        raise ValueError(f"values of shape {values.shape} for {template.slots} slots")
+    if counts is None:
+        counts = np.zeros_like(values)
+    parts = parts or Rendered.empty()
+    data, starts, ends = _render(
+        template.kinds,
+        template.ids,
+        np.ascontiguousarray(values, dtype=np.int64),
+        np.ascontiguousarray(counts, dtype=np.int64),
+        *literals.arrays(),
+        numbers.data,
+        numbers.starts,
+        numbers.ends,
+        parts.data,
+        parts.starts,
+        parts.ends,
+    )
+    return Rendered(data, starts, ends)
+
+
+@numba.njit(cache=True)
+def _digits(value: int) -> int:
+    if value == 0:
+        return 1
+    n = 0
+    while value > 0:
+        n += 1
+        value //= 10
+    return n
+
+
+@numba.njit(cache=True)
+def _slot_size(
+    kind: int,
+    value: int,
+    count: int,
+    lit_starts: IntArray,
+    lit_ends: IntArray,
+    num_starts: IntArray,
+    num_ends: IntArray,
+    part_starts: IntArray,
+    part_ends: IntArray,
+) -> int:
+    if kind == NUMBER:
+        return int(num_ends[value] - num_starts[value])
+    if kind == LITERAL:
+        return int(lit_ends[value] - lit_starts[value])
+    if kind == INTEGER:
+        return _digits(value) if value >= 0 else 1 + _digits(-value)
+    if kind == JOIN:
+        size = max(count - 1, 0)
+        for i in range(value, value + count):
+            size += int(part_ends[i] - part_starts[i])
+        return size
+    if value < 0:
+        return 4  # null
+    if kind == INTEGER_OR_NULL:
+        return _digits(value)
+    if kind == PART_OR_NULL:
+        return int(part_ends[value] - part_starts[value])
+    if kind == OCTAL4:
+        return 2 + max(4, _octal_digits(value))
+    return 2 + max(6, _hex_digits(value))
+
+
+@numba.njit(cache=True)
+def _octal_digits(value: int) -> int:
+    n = 1
+    while value >= 8:
+        n += 1
+        value //= 8
+    return n
+
+
+@numba.njit(cache=True)
+def _hex_digits(value: int) -> int:
+    n = 1
+    while value >= 16:
+        n += 1
+        value //= 16
+    return n
+
+
+@numba.njit(cache=True)
+def _copy(out: Bytes, pos: int, source: Bytes, start: int, end: int) -> int:
+    for i in range(start, end):
+        out[pos] = source[i]
+        pos += 1
+    return pos
+
+
+@numba.njit(cache=True)
+def _write_digits(out: Bytes, pos: int, value: int, base: int, width: int) -> int:
+    """``value`` (>= 0) in ``base``, at least ``width`` digits (zeros first), upper case."""
+    if base == 10:
+        n = _digits(value)
+    elif base == 8:
+        n = _octal_digits(value)
+    else:
+        n = _hex_digits(value)
+    n = max(n, width)
+    for i in range(n - 1, -1, -1):
+        digit = value % base
+        out[pos + i] = 48 + digit if digit < 10 else 55 + digit
+        value //= base
+    return pos + n
+
+
+_NULL = np.frombuffer(b"null", dtype=np.uint8)
+
+
+@numba.njit(cache=True)
+def _write_slot(
+    out: Bytes,
+    pos: int,
+    kind: int,
+    value: int,
+    count: int,
+    lit: Bytes,
+    lit_starts: IntArray,
+    lit_ends: IntArray,
+    num: Bytes,
+    num_starts: IntArray,
+    num_ends: IntArray,
+    part: Bytes,
+    part_starts: IntArray,
+    part_ends: IntArray,
+) -> int:
+    if kind == NUMBER:
+        return _copy(out, pos, num, num_starts[value], num_ends[value])
+    if kind == LITERAL:
+        return _copy(out, pos, lit, lit_starts[value], lit_ends[value])
+    if kind == INTEGER:
+        if value < 0:
+            out[pos] = 45  # "-"
+            return _write_digits(out, pos + 1, -value, 10, 1)
+        return _write_digits(out, pos, value, 10, 1)
+    if kind == JOIN:
+        for i in range(value, value + count):
+            if i > value:
+                out[pos] = 44  # ","
+                pos += 1
+            pos = _copy(out, pos, part, part_starts[i], part_ends[i])
+        return pos
+    if value < 0:
+        for i in range(4):
+            out[pos + i] = _NULL[i]
+        return pos + 4
+    if kind == INTEGER_OR_NULL:
+        return _write_digits(out, pos, value, 10, 1)
+    if kind == PART_OR_NULL:
+        return _copy(out, pos, part, part_starts[value], part_ends[value])
+    out[pos] = 34  # '"'
+    if kind == OCTAL4:
+        pos = _write_digits(out, pos + 1, value, 8, 4)
+    else:
+        pos = _write_digits(out, pos + 1, value, 16, 6)
+    out[pos] = 34
+    return pos + 1
+
+
+@numba.njit(cache=True)
+def _render(
+    kinds: IntArray,
+    ids: IntArray,
+    values: IntArray,
+    counts: IntArray,
+    lit: Bytes,
+    lit_starts: IntArray,
+    lit_ends: IntArray,
+    num: Bytes,
+    num_starts: IntArray,
+    num_ends: IntArray,
+    part: Bytes,
+    part_starts: IntArray,
+    part_ends: IntArray,
+) -> tuple[Bytes, IntArray, IntArray]:
+    n, slots = values.shape
+    fixed = 0
+    for j in range(slots + 1):
+        fixed += lit_ends[ids[j]] - lit_starts[ids[j]]
+    starts = np.empty(n, dtype=np.int64)
+    ends = np.empty(n, dtype=np.int64)
+    total = 0
+    for r in range(n):
+        size = fixed
+        for j in range(slots):
+            size += _slot_size(
+                kinds[j],
+                values[r, j],
+                counts[r, j],
+                lit_starts,
+                lit_ends,
+                num_starts,
+                num_ends,
+                part_starts,
+                part_ends,
+            )
+        starts[r] = total
+        total += size
+        ends[r] = total
+    out = np.empty(max(total, 1), dtype=np.uint8)
+    for r in range(n):
+        pos = starts[r]
+        for j in range(slots):
+            pos = _copy(out, pos, lit, lit_starts[ids[j]], lit_ends[ids[j]])
+            pos = _write_slot(
+                out,
+                pos,
+                kinds[j],
+                values[r, j],
+                counts[r, j],
+                lit,
+                lit_starts,
+                lit_ends,
+                num,
+                num_starts,
+                num_ends,
+                part,
+                part_starts,
+                part_ends,
+            )
+        _copy(out, pos, lit, int(lit_starts[ids[slots]]), int(lit_ends[ids[slots]]))
+    return out, starts, ends
