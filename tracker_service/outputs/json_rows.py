@@ -16,7 +16,9 @@ compiled pass (numba, ``cache=True``) from an (N, slots) matrix of values:
   a negative one null;
 - ``JOIN``: rows of another rendering (``Rendered``: the sources of a track, its DAPs),
   ``counts`` of them from the index given, separated by commas (none: nothing);
-- ``PART_OR_NULL``: one row of another rendering (a track's last plot), or null.
+- ``PART_OR_NULL``: one row of another rendering (a track's last plot), or null;
+- ``NUMBERS``: ``counts`` numbers from the index given, separated by commas (a list of
+  numbers: model probabilities).
 
 The compiled pass copies bytes: every number is written by pydantic-core, every string by
 ``to_json`` when it enters the table, so the messages are byte for byte what the models
@@ -41,6 +43,7 @@ __all__ = [
     "JOIN",
     "LITERAL",
     "NUMBER",
+    "NUMBERS",
     "OCTAL4",
     "PART_OR_NULL",
     "Literals",
@@ -48,6 +51,7 @@ __all__ = [
     "Rendered",
     "Template",
     "render",
+    "render_rows",
 ]
 
 NUMBER = 0
@@ -58,6 +62,7 @@ OCTAL4 = 4
 HEX6 = 5
 JOIN = 6
 PART_OR_NULL = 7
+NUMBERS = 8
 
 Bytes = npt.NDArray[np.uint8]
 IntArray = npt.NDArray[np.int64]
@@ -193,7 +198,7 @@ def render(
     if counts is None:
         counts = np.zeros_like(values)
     parts = parts or Rendered.empty()
-    data, starts, ends = _render(
+    data, starts, ends = render_rows(
         template.kinds,
         template.ids,
         np.ascontiguousarray(values, dtype=np.int64),
@@ -242,6 +247,11 @@ def _slot_size(
         size = max(count - 1, 0)
         for i in range(value, value + count):
             size += int(part_ends[i] - part_starts[i])
+        return size
+    if kind == NUMBERS:
+        size = max(count - 1, 0)
+        for i in range(value, value + count):
+            size += int(num_ends[i] - num_starts[i])
         return size
     if value < 0:
         return 4  # null
@@ -333,6 +343,13 @@ def _write_slot(
                 pos += 1
             pos = _copy(out, pos, part, part_starts[i], part_ends[i])
         return pos
+    if kind == NUMBERS:
+        for i in range(value, value + count):
+            if i > value:
+                out[pos] = 44
+                pos += 1
+            pos = _copy(out, pos, num, num_starts[i], num_ends[i])
+        return pos
     if value < 0:
         for i in range(4):
             out[pos + i] = _NULL[i]
@@ -351,7 +368,7 @@ def _write_slot(
 
 
 @numba.njit(cache=True)
-def _render(
+def render_rows(
     kinds: IntArray,
     ids: IntArray,
     values: IntArray,
@@ -366,6 +383,8 @@ def _render(
     part_starts: IntArray,
     part_ends: IntArray,
 ) -> tuple[Bytes, IntArray, IntArray]:
+    """The compiled pass of :func:`render` (for other kernels, which build the values
+    themselves): the rows one after another, and where each starts and ends."""
     n, slots = values.shape
     fixed = 0
     for j in range(slots + 1):
@@ -376,17 +395,24 @@ def _render(
     for r in range(n):
         size = fixed
         for j in range(slots):
-            size += _slot_size(
-                kinds[j],
-                values[r, j],
-                counts[r, j],
-                lit_starts,
-                lit_ends,
-                num_starts,
-                num_ends,
-                part_starts,
-                part_ends,
-            )
+            kind, value = kinds[j], values[r, j]
+            # Numbers and literals (most slots) here; the others by the helper.
+            if kind == NUMBER:
+                size += num_ends[value] - num_starts[value]
+            elif kind == LITERAL:
+                size += lit_ends[value] - lit_starts[value]
+            else:
+                size += _slot_size(
+                    kind,
+                    value,
+                    counts[r, j],
+                    lit_starts,
+                    lit_ends,
+                    num_starts,
+                    num_ends,
+                    part_starts,
+                    part_ends,
+                )
         starts[r] = total
         total += size
         ends[r] = total
@@ -394,22 +420,36 @@ def _render(
     for r in range(n):
         pos = starts[r]
         for j in range(slots):
-            pos = _copy(out, pos, lit, lit_starts[ids[j]], lit_ends[ids[j]])
-            pos = _write_slot(
-                out,
-                pos,
-                kinds[j],
-                values[r, j],
-                counts[r, j],
-                lit,
-                lit_starts,
-                lit_ends,
-                num,
-                num_starts,
-                num_ends,
-                part,
-                part_starts,
-                part_ends,
-            )
-        _copy(out, pos, lit, int(lit_starts[ids[slots]]), int(lit_ends[ids[slots]]))
+            for i in range(lit_starts[ids[j]], lit_ends[ids[j]]):
+                out[pos] = lit[i]
+                pos += 1
+            kind, value = kinds[j], values[r, j]
+            if kind == NUMBER:
+                for i in range(num_starts[value], num_ends[value]):
+                    out[pos] = num[i]
+                    pos += 1
+            elif kind == LITERAL:
+                for i in range(lit_starts[value], lit_ends[value]):
+                    out[pos] = lit[i]
+                    pos += 1
+            else:
+                pos = _write_slot(
+                    out,
+                    pos,
+                    kind,
+                    value,
+                    counts[r, j],
+                    lit,
+                    lit_starts,
+                    lit_ends,
+                    num,
+                    num_starts,
+                    num_ends,
+                    part,
+                    part_starts,
+                    part_ends,
+                )
+        for i in range(lit_starts[ids[slots]], lit_ends[ids[slots]]):
+            out[pos] = lit[i]
+            pos += 1
     return out, starts, ends

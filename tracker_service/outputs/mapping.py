@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import repeat
 from typing import Any, Literal, cast
 
@@ -74,6 +74,18 @@ _SENSOR_TYPES = (
     ("adsb", _ADSB_TYPES),
 )
 """Each ``SensorAges`` key with the plot types (TYP) that update it."""
+_SENSOR_BITS = np.array(
+    [
+        sum(1 << bit for bit, (_, types) in enumerate(_SENSOR_TYPES) if typ in types)
+        for typ in range(max(ADSB_TYP, 7) + 1)
+    ],
+    dtype=np.int64,
+)
+"""Per plot type (TYP), bit i set when it updates ``_SENSOR_TYPES[i]``."""
+_STATUS_CODES = np.zeros(256, dtype=np.int64)
+"""The fuser's status codes as ``SystemBatch.status`` codes (``STATUSES``)."""
+_STATUS_CODES[COASTING] = STATUSES.index("coasting")
+_STATUS_CODES[ENDED] = STATUSES.index("ended")
 
 
 def _none_if_nan(value: float) -> float | None:
@@ -203,6 +215,7 @@ class MessageMapper:
         self._local_times: dict[tuple[str, int], float] = {}
         self._names: list[str | None] = []
         """Callsigns by the literal id of their JSON string (None: another literal)."""
+        self._callsigns: dict[str, int] = {}
         self._radars: dict[str, int] = {}
         """Radar names by id (``SystemBatch.radar_names``)."""
         self._radar_names: list[str] = []
@@ -264,12 +277,15 @@ class MessageMapper:
         """A batch's system rows as updates: its values (``SystemBatch``) and each
         message's JSON (``SystemTrackMessage``'s); ``plots`` is the batch's plot table,
         ``sources`` names the chain's radars by index."""
-        n = len(rows)
+        n, m = len(rows), len(plots)
         if not n:
             return []
         radar_ids = np.array([self._radar_id(name) for name in sources], dtype=np.int64)
-        lat, lon = self.plane.to_geodetic(rows["x"], rows["y"])
-        vx, vy, p = rows["vx"].tolist(), rows["vy"].tolist(), rows["P"]
+        # The rows' and the plots' positions in one call of the projection.
+        lat, lon = self.plane.to_geodetic(
+            np.concatenate((rows["x"], plots["x"])), np.concatenate((rows["y"], plots["y"]))
+        )
+        vx, vy, p = rows["vx"].tolist(), rows["vy"].tolist(), np.ascontiguousarray(rows["P"])
         # The derived numbers by the per-message path's own functions, to the bit.
         speed = np.array(list(map(math.hypot, vx, vy)), dtype=np.float64)
         angle = np.array(list(map(track_angle_deg, vx, vy)), dtype=np.float64)
@@ -278,46 +294,82 @@ class MessageMapper:
             dtype=np.float64,
         )
         climb = rows["climb_rate_fl_per_s"]
+        level = rows["flight_level"]
         n_sources = rows["n_sources"].astype(np.int64)
         local_radars = rows["local_radars"].astype(np.int64)
-        local_numbers = rows["local_numbers"]
+        number = rows["system_number"].astype(np.int64)
+        time = rows["time"].astype(np.float64)
+        status = rows["status"]
+        address = rows["address"].astype(np.int64)
+        mode3a = rows["mode3a"].astype(np.int64)
+        rho = plots["rho_m"]
+        theta = np.array([wrap_degrees(t) for t in plots["theta_deg"].tolist()], dtype=np.float64)
+        if "has_daps" in (plots.dtype.names or ()):
+            daps = np.column_stack([plots[name] for name in DAP_NAMES])
+            daps[~plots["has_daps"]] = np.nan
+        else:
+            daps = np.full((m, len(DAP_NAMES)), np.nan)
         step = self._state.step(
-            self._step_input(rows, plots, sources, radar_ids, n_sources, local_radars)
+            StepInput(
+                number=number,
+                time=time,
+                ended=status == ENDED,
+                address=address,
+                mode3a=mode3a,
+                plot_id=rows["plot_id"].astype(np.int64),
+                fresh=rows["fresh"].astype(np.bool_),
+                radar=radar_ids[rows["radar"].astype(np.int64)],
+                n_sources=n_sources,
+                local_time=self._local_times_of(rows, sources, n_sources, local_radars),
+                plot_ids=plots["plot_id"].astype(np.int64),
+                plot_time=plots["time"].astype(np.float64),
+                plot_callsign=np.array(
+                    [self._callsign_id(c) if c else -1 for c in plots["callsign"].tolist()],
+                    dtype=np.int64,
+                ),
+                plot_type=plots["typ"].astype(np.int64),
+                sensors=_SENSOR_BITS,
+                plot_daps=daps,
+                plot_position=np.column_stack(
+                    (
+                        plots["time"],
+                        lat[n:],
+                        lon[n:],
+                        np.where(np.isfinite(rho), rho, np.nan),
+                        np.where(np.isfinite(theta), theta, np.nan),
+                    )
+                ),
+            )
         )
-        plot_position = step.plot_position
         batch = SystemBatch(
-            number=rows["system_number"].astype(np.int64),
-            time=rows["time"],
-            lat=lat,
-            lon=(lon + 180.0) % 360.0 - 180.0,
-            x=rows["x"],
-            y=rows["y"],
-            vx=rows["vx"],
-            vy=rows["vy"],
+            number=number,
+            time=time,
+            lat=lat[:n],
+            lon=(lon[:n] + 180.0) % 360.0 - 180.0,
+            x=rows["x"].astype(np.float64),
+            y=rows["y"].astype(np.float64),
+            vx=rows["vx"].astype(np.float64),
+            vy=rows["vy"].astype(np.float64),
             covariance=p,
-            flight_level=np.where(np.isfinite(rows["flight_level"]), rows["flight_level"], np.nan),
+            flight_level=np.where(np.isfinite(level), level, np.nan),
             altitude_m=np.full(n, np.nan),
             climb_rate_fpm=np.where(np.isfinite(climb), climb * 6000.0, np.nan),
             ground_speed=speed,
             track_angle=angle,
-            status=np.where(
-                rows["status"] == ENDED,
-                STATUSES.index("ended"),
-                np.where(rows["status"] == COASTING, STATUSES.index("coasting"), 0),
-            ).astype(np.int64),
+            status=_STATUS_CODES[status],
             first=step.first,
             mode3a_changed=step.mode3a_changed,
             duplicate_address=step.duplicate_address,
             adsb_inconsistent=rows["adsb_inconsistent"].astype(np.bool_),
-            address=rows["address"].astype(np.int64),
-            mode3a=rows["mode3a"].astype(np.int64),
+            address=address,
+            mode3a=mode3a,
             callsign=step.callsign,
             n_sources=n_sources,
             source_radar=radar_ids[local_radars],
             ages=step.ages,
             plot_radar=step.plot_radar,
-            plot_range=plot_position[:, 3],
-            plot_azimuth=plot_position[:, 4],
+            plot_range=step.plot_position[:, 3],
+            plot_azimuth=step.plot_position[:, 4],
             has_dap=step.has_dap,
             dap_value=step.dap_value,
             dap_age=step.dap_age,
@@ -328,38 +380,61 @@ class MessageMapper:
             batch,
             np.array(self._radar_literals, dtype=np.int64),
             sigma,
-            local_numbers,
-            rows["local_plot_ids"],
+            rows["local_numbers"].astype(np.int64),
+            rows["local_plot_ids"].astype(np.int64),
             step.source_ages,
-            plot_position,
+            step.plot_position,
         )
-        numbers = batch.number.tolist()
+        numbers = number.tolist()
         updates = list(map(SystemUpdate, repeat(batch), range(n), numbers, payloads))
         last = self._last
         last.update(zip(numbers, updates, strict=True))
         # A track whose last row in the batch ends it is gone (a number may end and start
         # again within a batch).
-        for number in batch.number[batch.status == STATUSES.index("ended")].tolist():
-            if number in last and last[number].ended:
-                del last[number]
+        for ended in number[status == ENDED].tolist():
+            if ended in last and last[ended].ended:
+                del last[ended]
         return updates
+
+    def _local_times_of(
+        self,
+        rows: npt.NDArray[Any],
+        sources: Sequence[str],
+        n_sources: npt.NDArray[np.int64],
+        local_radars: npt.NDArray[np.int64],
+    ) -> npt.NDArray[np.float64]:
+        """Each source's local track's latest update (NaN: unknown), by the names the
+        local path keeps them under."""
+        used = np.arange(local_radars.shape[1]) < n_sources[:, None]
+        names = np.array(sources, dtype=object)[local_radars[used]].tolist()
+        local_time = np.full(local_radars.shape, np.nan)
+        local_time[used] = list(
+            map(
+                self._local_times.get,
+                zip(names, rows["local_numbers"][used].tolist(), strict=True),
+                repeat(math.nan),
+            )
+        )
+        return local_time
 
     def end_all_updates(self) -> list[SystemUpdate]:
         """An "ended" update for every live track (its last message, status "ended", not
         first), which are then forgotten."""
-        ended = []
-        for number in sorted(self._last):
-            last = self._last[number]
-            doc = last.doc | {"status": "ended", "first": False}
-            batch = last.batch.take([last.index])
-            batch = SystemBatch(
-                **{
-                    **batch.__dict__,
-                    "status": np.array([STATUSES.index("ended")]),
-                    "first": np.zeros(1, dtype=np.bool_),
-                }
+        if not self._last:
+            return []
+        last = [self._last[number] for number in sorted(self._last)]
+        batch = SystemBatch.gather(last)
+        batch = replace(
+            batch,
+            status=np.full(len(batch), STATUSES.index("ended"), dtype=np.int64),
+            first=np.zeros(len(batch), dtype=np.bool_),
+        )
+        ended = [
+            SystemUpdate(
+                batch, k, u.number, system_json(u.doc | {"status": "ended", "first": False})
             )
-            ended.append(SystemUpdate(batch, 0, number, system_json(doc)))
+            for k, u in enumerate(last)
+        ]
         self._last.clear()
         self._state.end_all()
         return ended
@@ -382,83 +457,16 @@ class MessageMapper:
         return known
 
     def _callsign_id(self, callsign: str) -> int:
-        """The literal id of a callsign's JSON string, -1 for none ("")."""
-        if not callsign:
-            return -1
-        text_id = self._writer.literals.string(callsign)
+        """The literal id of a callsign's JSON string."""
+        known = self._callsigns.get(callsign)
+        if known is not None:
+            return known
+        text_id = self._callsigns[callsign] = self._writer.literals.string(callsign)
         names = self._names
         if text_id >= len(names):
             names.extend([None] * (text_id + 1 - len(names)))
         names[text_id] = callsign
         return text_id
-
-    def _step_input(
-        self,
-        rows: npt.NDArray[Any],
-        plots: npt.NDArray[Any],
-        sources: Sequence[str],
-        radar_ids: npt.NDArray[np.int64],
-        n_sources: npt.NDArray[np.int64],
-        local_radars: npt.NDArray[np.int64],
-    ) -> StepInput:
-        n, m = len(rows), len(plots)
-        # Each row's fresh plot in the plot table (-1: none, or not there).
-        plot = np.full(n, -1, dtype=np.int64)
-        if m:
-            order = np.argsort(plots["plot_id"], kind="stable")
-            ids = plots["plot_id"][order]
-            at = np.minimum(np.searchsorted(ids, rows["plot_id"]), m - 1)
-            found = rows["fresh"].astype(np.bool_) & (ids[at] == rows["plot_id"])
-            plot[found] = order[at[found]]
-        lat, lon = self.plane.to_geodetic(plots["x"], plots["y"])
-        rho = plots["rho_m"]
-        theta = np.array([wrap_degrees(t) for t in plots["theta_deg"].tolist()], dtype=np.float64)
-        typ = plots["typ"]
-        sensors = np.zeros(m, dtype=np.int64)
-        for bit, (_, types) in enumerate(_SENSOR_TYPES):
-            sensors |= np.isin(typ, list(types)).astype(np.int64) << bit
-        if "has_daps" in (plots.dtype.names or ()):
-            daps = np.column_stack([plots[name] for name in DAP_NAMES])
-            daps[~plots["has_daps"]] = np.nan
-        else:
-            daps = np.full((m, len(DAP_NAMES)), np.nan)
-        # The sources' local tracks' latest updates, by the names the local path keeps.
-        used = np.arange(local_radars.shape[1]) < n_sources[:, None]
-        names = np.array(sources, dtype=object)[local_radars[used]].tolist()
-        local_time = np.full(local_radars.shape, np.nan)
-        local_time[used] = list(
-            map(
-                self._local_times.get,
-                zip(names, rows["local_numbers"][used].tolist(), strict=True),
-                repeat(math.nan),
-            )
-        )
-        return StepInput(
-            number=rows["system_number"].astype(np.int64),
-            time=rows["time"].astype(np.float64),
-            ended=rows["status"] == ENDED,
-            address=rows["address"].astype(np.int64),
-            mode3a=rows["mode3a"].astype(np.int64),
-            plot=plot,
-            radar=radar_ids[rows["radar"].astype(np.int64)],
-            n_sources=n_sources,
-            local_time=local_time,
-            plot_time=plots["time"].astype(np.float64),
-            plot_callsign=np.array(
-                [self._callsign_id(c) for c in plots["callsign"].tolist()], dtype=np.int64
-            ),
-            plot_sensors=sensors,
-            plot_daps=daps,
-            plot_position=np.column_stack(
-                (
-                    plots["time"],
-                    lat,
-                    lon,
-                    np.where(np.isfinite(rho), rho, np.nan),
-                    np.where(np.isfinite(theta), theta, np.nan),
-                )
-            ),
-        )
 
 
 class ModelMapper:

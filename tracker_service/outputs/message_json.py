@@ -1,12 +1,19 @@
 """The JSON of a batch's track messages, written from its columns (``json_rows``): one
 template per message type, filled for every update of the batch at once, byte for byte
 what the models' ``model_dump_json`` writes (``LocalTrackMessage``,
-``SystemTrackMessage``: ``tests/test_outputs_updates.py``)."""
+``SystemTrackMessage``: ``tests/test_outputs_updates.py``).
+
+A batch costs two calls: pydantic-core's JSON writer over every number of the batch
+(``json_rows.Numbers``, in the order the kernel takes them), then one compiled pass that
+lays the templates out (the slots' values, the sources, DAPs, last plots and ISO times of
+each row) and writes the rows. The outputs' batches are small (a radar's datagram: about
+20 local and 25 system updates on `scale`), so the work per batch outside the compiled
+code is kept to a few calls.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -17,13 +24,14 @@ from tracker_service.outputs.json_rows import (
     JOIN,
     LITERAL,
     NUMBER,
+    NUMBERS,
     OCTAL4,
     PART_OR_NULL,
     Literals,
     Numbers,
     Rendered,
     Template,
-    render,
+    render_rows,
 )
 from tracker_service.outputs.messages import DAP_NAMES
 from tracker_service.outputs.updates import STATUSES, SystemBatch
@@ -32,6 +40,8 @@ __all__ = ["MessageWriter", "iso_times"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+Bytes = npt.NDArray[np.uint8]
 
 _COVARIANCE = "[[%s,%s,%s,%s],[%s,%s,%s,%s],[%s,%s,%s,%s],[%s,%s,%s,%s]]"
 _LOCAL = (
@@ -39,6 +49,7 @@ _LOCAL = (
     f'"covariance":{_COVARIANCE},"flight_level":%s,"climb_rate_fpm":%s,"status":%s,'
     '"plot_id":%s,"mode3a":%s,"address":%s,"model_probabilities":[%s]}'
 )
+_LOCAL_KINDS = (LITERAL, INTEGER, *(NUMBER,) * 23, LITERAL, INTEGER_OR_NULL, OCTAL4, HEX6, NUMBERS)
 _LOCAL_NUMBERS = 23
 """time, x, y, vx, vy, the 16 of the covariance, flight level, climb rate (ft/min)."""
 _SYSTEM = (
@@ -50,22 +61,43 @@ _SYSTEM = (
     '"ages":{"psr":%s,"ssr":%s,"mode_s":%s,"adsb":%s},"duplicate_address":%s,'
     '"adsb_inconsistent":%s,"daps":[%s]}'
 )
-_SYSTEM_NUMBERS = 29
-"""time, lat, lon, altitude, flight level, x, y, vx, vy, ground speed, track angle, climb
-rate, the 16 of the covariance, position sigma: the state's numbers, in the template's
-order."""
+_STATE = 29
+"""A system update's state numbers, in the template's order: time, lat, lon, altitude,
+flight level, x, y, vx, vy, ground speed, track angle, climb rate, the 16 of the
+covariance, position sigma."""
+_SYSTEM_KINDS = (
+    INTEGER,
+    NUMBER,
+    PART_OR_NULL,
+    *(NUMBER,) * (_STATE - 1),
+    HEX6,
+    LITERAL,
+    OCTAL4,
+    LITERAL,
+    LITERAL,
+    JOIN,
+    LITERAL,
+    PART_OR_NULL,
+    *(NUMBER,) * 4,
+    LITERAL,
+    LITERAL,
+    JOIN,
+)
 _SOURCE = '{"radar":%s,"local_track":%s,"age_s":%s,"plot_id":%s}'
+_SOURCE_KINDS = (LITERAL, INTEGER, NUMBER, INTEGER_OR_NULL)
 _DAP = '{"name":%s,"value":%s,"age_s":%s}'
+_DAP_KINDS = (LITERAL, NUMBER, NUMBER)
 _LAST_PLOT = '{"radar":%s,"time":%s,"lat":%s,"lon":%s,"range_m":%s,"azimuth_deg":%s}'
+_LAST_PLOT_KINDS = (LITERAL, *(NUMBER,) * 5)
+_ISO_LENGTH = 27
+"""2026-06-01T10:00:00.500000Z"""
 
 
 def iso_times(posix: FloatArray) -> list[str]:
-    """``messages.iso_time`` of each time, at once: microseconds rounded half to even as
-    ``datetime.fromtimestamp`` rounds them (held to it by a test)."""
-    whole = np.floor(posix)
-    micro = whole.astype(np.int64) * 1_000_000 + np.rint((posix - whole) * 1e6).astype(np.int64)
-    text = np.datetime_as_string(micro.astype("datetime64[us]"), unit="us")
-    return [t + "Z" for t in text.tolist()]
+    """``messages.iso_time`` of each time, by the compiled writer (unquoted)."""
+    data, starts, ends = _iso_rows(np.ascontiguousarray(posix, dtype=np.float64))
+    text = data.tobytes().decode()
+    return [text[a + 1 : b - 1] for a, b in zip(starts.tolist(), ends.tolist(), strict=True)]
 
 
 class MessageWriter:
@@ -73,39 +105,26 @@ class MessageWriter:
 
     def __init__(self) -> None:
         literals = self.literals = Literals()
-        self._local = Template.of(
-            _LOCAL,
+        self._local = Template.of(_LOCAL, _LOCAL_KINDS, literals)
+        self._system = Template.of(_SYSTEM, _SYSTEM_KINDS, literals)
+        self._source = Template.of(_SOURCE, _SOURCE_KINDS, literals)
+        self._dap = Template.of(_DAP, _DAP_KINDS, literals)
+        self._last_plot = Template.of(_LAST_PLOT, _LAST_PLOT_KINDS, literals)
+        # Literal ids the kernels write: null, false and true, the statuses, DAP names.
+        self._words = np.array(
             [
-                LITERAL,
-                INTEGER,
-                *([NUMBER] * _LOCAL_NUMBERS),
-                LITERAL,
-                INTEGER_OR_NULL,
-                OCTAL4,
-                HEX6,
-                JOIN,
+                literals.add(b"null"),
+                literals.add(b"false"),
+                literals.add(b"true"),
+                *(literals.string(s) for s in STATUSES),
             ],
-            literals,
+            dtype=np.int64,
         )
-        self._probability = Template.of("%s", [NUMBER], literals)
-        self._system = Template.of(
-            _SYSTEM,
-            [INTEGER, NUMBER, PART_OR_NULL, *[NUMBER] * (_SYSTEM_NUMBERS - 1)]
-            + [HEX6, LITERAL, OCTAL4, LITERAL, LITERAL, JOIN, LITERAL, PART_OR_NULL]
-            + [NUMBER] * 4
-            + [LITERAL, LITERAL, JOIN],
-            literals,
-        )
-        self._source = Template.of(_SOURCE, [LITERAL, INTEGER, NUMBER, INTEGER_OR_NULL], literals)
-        self._dap = Template.of(_DAP, [LITERAL, NUMBER, NUMBER], literals)
-        self._last_plot = Template.of(_LAST_PLOT, [LITERAL, *[NUMBER] * 5], literals)
-        self._null = literals.add(b"null")
-        self._booleans = np.array([literals.add(b"false"), literals.add(b"true")])
         self._local_statuses = np.array(
-            [literals.string(s) for s in ("tentative", "confirmed", "coasting", "deleted")]
+            [literals.string(s) for s in ("tentative", "confirmed", "coasting", "deleted")],
+            dtype=np.int64,
         )
-        self._statuses = np.array([literals.string(s) for s in STATUSES])
-        self._dap_names = np.array([literals.string(name) for name in DAP_NAMES])
+        self._dap_names = np.array([literals.string(name) for name in DAP_NAMES], dtype=np.int64)
 
     def local(
         self,
@@ -120,159 +139,486 @@ class MessageWriter:
     ) -> list[bytes]:
         """Local-track messages: ``radar`` the literal id of the radar's JSON string,
         ``numbers`` (N, 23) as ``_LOCAL`` takes them, ``probabilities`` (N, models)."""
-        n, models = probabilities.shape
-        texts = Numbers.of(np.concatenate((numbers.ravel(), probabilities.ravel())))
-        values = np.empty((n, self._local.slots), dtype=np.int64)
-        values[:, 0] = radar
-        values[:, 1] = number
-        values[:, 2 : 2 + _LOCAL_NUMBERS] = np.arange(n * _LOCAL_NUMBERS).reshape(n, -1)
-        values[:, 25] = self._local_statuses[status]
-        values[:, 26] = plot_id
-        values[:, 27] = mode3a
-        values[:, 28] = address
-        values[:, 29] = np.arange(n) * models
-        counts = np.zeros_like(values)
-        counts[:, 29] = models
-        probability = np.arange(n * _LOCAL_NUMBERS, n * (_LOCAL_NUMBERS + models))
-        parts = render(self._probability, probability[:, None], self.literals, texts)
-        return render(self._local, values, self.literals, texts, counts, parts).rows()
+        texts = Numbers.of(np.concatenate((numbers, probabilities), axis=1))
+        data, starts, ends = _local_rows(
+            self._local.kinds,
+            self._local.ids,
+            *self.literals.arrays(),
+            texts.data,
+            texts.starts,
+            texts.ends,
+            radar,
+            number,
+            self._local_statuses[status],
+            plot_id,
+            mode3a,
+            address,
+            probabilities.shape[1],
+        )
+        return Rendered(data, starts, ends).rows()
 
     def system(
         self,
         batch: SystemBatch,
-        radar_ids: IntArray,
+        radar_literals: IntArray,
         sigma: FloatArray,
         local_numbers: IntArray,
         local_plot_ids: IntArray,
         source_ages: FloatArray,
         plot_position: FloatArray,
     ) -> list[bytes]:
-        """System-track messages: ``batch`` the updates' values, ``radar_ids`` the literal
-        id of each of its ``radar_names``' JSON string, ``sigma`` the position sigmas,
-        ``local_numbers``, ``local_plot_ids`` and ``source_ages`` of the sources (the
-        first ``n_sources`` of each row), ``plot_position`` the last plots' time, lat,
-        lon, range and azimuth (NaN where none)."""
-        n = len(batch)
-        state = np.column_stack(
-            (
-                batch.time,
-                batch.lat,
-                batch.lon,
-                batch.altitude_m,
-                batch.flight_level,
-                batch.x,
-                batch.y,
-                batch.vx,
-                batch.vy,
-                batch.ground_speed,
-                batch.track_angle,
-                batch.climb_rate_fpm,
-                batch.covariance,
+        """System-track messages: ``batch`` the updates' values, ``radar_literals`` the
+        literal id of each of its ``radar_names``' JSON string, ``sigma`` the position
+        sigmas, ``local_numbers``, ``local_plot_ids`` and ``source_ages`` of the sources
+        (the first ``n_sources`` of each row), ``plot_position`` the last plots' time, lat,
+        lon, range and azimuth; the callsigns' ids are their JSON strings' literal ids."""
+        b = batch
+        texts = Numbers.of(
+            _system_numbers(
+                b.time,
+                b.lat,
+                b.lon,
+                b.altitude_m,
+                b.flight_level,
+                b.x,
+                b.y,
+                b.vx,
+                b.vy,
+                b.ground_speed,
+                b.track_angle,
+                b.climb_rate_fpm,
+                b.covariance,
                 sigma,
+                b.n_sources,
+                source_ages,
+                b.ages,
+                b.has_dap,
+                b.dap_value,
+                b.dap_age,
+                b.plot_radar,
+                plot_position,
             )
         )
-        used = np.arange(source_ages.shape[1]) < batch.n_sources[:, None]
-        source_rows = used.nonzero()
-        sources = int(used.sum())
-        dap_rows, dap_columns = batch.has_dap.nonzero()
-        daps = dap_rows.size
-        has_plot = batch.plot_radar >= 0
-        plots = int(has_plot.sum())
-        # Every number of the batch in one list: the states, the sources' ages, the sensor
-        # ages, the DAPs' values and ages, the last plots.
-        blocks = (
-            state.ravel(),
-            source_ages[source_rows],
-            batch.ages.ravel(),
-            np.column_stack(
-                (batch.dap_value[dap_rows, dap_columns], batch.dap_age[dap_rows, dap_columns])
-            ).ravel(),
-            plot_position[has_plot].ravel(),
+        main, source, dap, plot = self._system, self._source, self._dap, self._last_plot
+        data, starts, ends = _system_rows(
+            main.kinds,
+            source.kinds,
+            dap.kinds,
+            plot.kinds,
+            main.ids,
+            source.ids,
+            dap.ids,
+            plot.ids,
+            *self.literals.arrays(),
+            texts.data,
+            texts.starts,
+            texts.ends,
+            self._words,
+            self._dap_names,
+            radar_literals,
+            b.number,
+            b.time,
+            b.address,
+            b.callsign,
+            b.mode3a,
+            b.mode3a_changed,
+            b.first,
+            b.duplicate_address,
+            b.adsb_inconsistent,
+            b.status,
+            b.n_sources,
+            b.source_radar,
+            local_numbers,
+            local_plot_ids,
+            b.has_dap,
+            b.plot_radar,
         )
-        starts = np.cumsum([0, *(block.size for block in blocks)])
-        texts = Numbers.of(np.concatenate(blocks))
-        first_source = np.cumsum(used.sum(axis=1)) - used.sum(axis=1)
-        first_dap = np.cumsum(batch.has_dap.sum(axis=1)) - batch.has_dap.sum(axis=1)
-        iso = iso_times(batch.time)
-        parts = _joined(
-            render(
-                self._source,
-                np.column_stack(
-                    (
-                        radar_ids[batch.source_radar[source_rows]],
-                        local_numbers[source_rows],
-                        starts[1] + np.arange(sources),
-                        local_plot_ids[source_rows],
-                    )
-                ),
-                self.literals,
-                texts,
-            ),
-            render(
-                self._dap,
-                np.column_stack(
-                    (
-                        self._dap_names[dap_columns],
-                        starts[3] + 2 * np.arange(daps),
-                        starts[3] + 2 * np.arange(daps) + 1,
-                    )
-                ),
-                self.literals,
-                texts,
-            ),
-            render(
-                self._last_plot,
-                np.column_stack(
-                    (
-                        radar_ids[batch.plot_radar[has_plot]],
-                        starts[4] + 5 * np.arange(plots)[:, None] + np.arange(5),
-                    )
-                ),
-                self.literals,
-                texts,
-            ),
-            _quoted(iso),
-        )
-        last_plot = np.full(n, -1, dtype=np.int64)
-        last_plot[has_plot] = sources + daps + np.arange(plots)
-        values = np.empty((n, self._system.slots), dtype=np.int64)
-        counts = np.zeros_like(values)
-        values[:, 0] = batch.number
-        values[:, 1] = _SYSTEM_NUMBERS * np.arange(n)
-        values[:, 2] = sources + daps + plots + np.arange(n)
-        values[:, 3 : 2 + _SYSTEM_NUMBERS] = values[:, 1:2] + np.arange(1, _SYSTEM_NUMBERS)
-        column = 2 + _SYSTEM_NUMBERS
-        values[:, column] = batch.address
-        # The mapper's callsign ids are the literal ids of their JSON strings.
-        values[:, column + 1] = np.where(batch.callsign >= 0, batch.callsign, self._null)
-        values[:, column + 2] = batch.mode3a
-        values[:, column + 3] = self._booleans[batch.mode3a_changed.view(np.int8)]
-        values[:, column + 4] = self._booleans[batch.first.view(np.int8)]
-        values[:, column + 5] = first_source
-        counts[:, column + 5] = batch.n_sources
-        values[:, column + 6] = self._statuses[batch.status]
-        values[:, column + 7] = last_plot
-        values[:, column + 8 : column + 12] = starts[2] + 4 * np.arange(n)[:, None] + np.arange(4)
-        values[:, column + 12] = self._booleans[batch.duplicate_address.view(np.int8)]
-        values[:, column + 13] = self._booleans[batch.adsb_inconsistent.view(np.int8)]
-        values[:, column + 14] = sources + first_dap
-        counts[:, column + 14] = batch.has_dap.sum(axis=1)
-        return render(self._system, values, self.literals, texts, counts, parts).rows()
+        return Rendered(data, starts, ends).rows()
 
 
-def _quoted(texts: Sequence[str]) -> Rendered:
-    """Strings that need no escaping (ISO times) as JSON strings, rows of a rendering."""
-    data = ('"' + '""'.join(texts) + '"').encode() if texts else b"\0"
-    lengths = np.fromiter(map(len, texts), dtype=np.int64, count=len(texts)) + 2
-    ends = np.cumsum(lengths)
-    return Rendered(np.frombuffer(data, dtype=np.uint8), ends - lengths, ends)
-
-
-def _joined(*parts: Rendered) -> Rendered:
-    """Renderings one after another: their rows renumbered in that order."""
-    offsets = np.cumsum([0, *(part.data.size for part in parts)])
-    return Rendered(
-        np.concatenate([part.data for part in parts]),
-        np.concatenate([part.starts + o for part, o in zip(parts, offsets, strict=False)]),
-        np.concatenate([part.ends + o for part, o in zip(parts, offsets, strict=False)]),
+@numba.njit(cache=True)
+def _local_rows(
+    kinds: IntArray,
+    ids: IntArray,
+    lit: Bytes,
+    lit_starts: IntArray,
+    lit_ends: IntArray,
+    num: Bytes,
+    num_starts: IntArray,
+    num_ends: IntArray,
+    radar: int,
+    number: IntArray,
+    status: IntArray,
+    plot_id: IntArray,
+    mode3a: IntArray,
+    address: IntArray,
+    models: int,
+) -> tuple[Bytes, IntArray, IntArray]:
+    n = number.size
+    width = _LOCAL_NUMBERS + models
+    values = np.empty((n, kinds.size), dtype=np.int64)
+    counts = np.zeros((n, kinds.size), dtype=np.int64)
+    for k in range(n):
+        values[k, 0] = radar
+        values[k, 1] = number[k]
+        for j in range(_LOCAL_NUMBERS):
+            values[k, 2 + j] = k * width + j
+        values[k, 25] = status[k]
+        values[k, 26] = plot_id[k]
+        values[k, 27] = mode3a[k]
+        values[k, 28] = address[k]
+        values[k, 29] = k * width + _LOCAL_NUMBERS
+        counts[k, 29] = models
+    none = np.zeros(0, dtype=np.int64)
+    return render_rows(
+        kinds,
+        ids,
+        values,
+        counts,
+        lit,
+        lit_starts,
+        lit_ends,
+        num,
+        num_starts,
+        num_ends,
+        np.zeros(1, dtype=np.uint8),
+        none,
+        none,
     )
+
+
+@numba.njit(cache=True)
+def _system_numbers(
+    time: FloatArray,
+    lat: FloatArray,
+    lon: FloatArray,
+    altitude: FloatArray,
+    flight_level: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    vx: FloatArray,
+    vy: FloatArray,
+    speed: FloatArray,
+    angle: FloatArray,
+    climb: FloatArray,
+    covariance: FloatArray,
+    sigma: FloatArray,
+    n_sources: IntArray,
+    source_ages: FloatArray,
+    ages: FloatArray,
+    has_dap: BoolArray,
+    dap_value: FloatArray,
+    dap_age: FloatArray,
+    plot_radar: IntArray,
+    plot_position: FloatArray,
+) -> FloatArray:
+    """Every number of a batch's system messages, in the order ``_system_rows`` reads
+    them: the states (``_STATE`` a row), the sources' ages, the sensor ages (4 a row),
+    the DAPs' values and ages, the last plots' (5 each)."""
+    n = time.size
+    size = n * (_STATE + 4) + n_sources.sum() + 2 * has_dap.sum() + 5 * (plot_radar >= 0).sum()
+    out = np.empty(size, dtype=np.float64)
+    i = 0
+    for k in range(n):
+        for value in (
+            time[k],
+            lat[k],
+            lon[k],
+            altitude[k],
+            flight_level[k],
+            x[k],
+            y[k],
+            vx[k],
+            vy[k],
+            speed[k],
+            angle[k],
+            climb[k],
+        ):
+            out[i] = value
+            i += 1
+        for j in range(16):
+            out[i] = covariance[k, j]
+            i += 1
+        out[i] = sigma[k]
+        i += 1
+    for k in range(n):
+        for j in range(n_sources[k]):
+            out[i] = source_ages[k, j]
+            i += 1
+    for k in range(n):
+        for j in range(4):
+            out[i] = ages[k, j]
+            i += 1
+    for k in range(n):
+        for d in range(has_dap.shape[1]):
+            if has_dap[k, d]:
+                out[i] = dap_value[k, d]
+                out[i + 1] = dap_age[k, d]
+                i += 2
+    for k in range(n):
+        if plot_radar[k] >= 0:
+            for j in range(5):
+                out[i] = plot_position[k, j]
+                i += 1
+    return out
+
+
+@numba.njit(cache=True)
+def _system_rows(
+    kinds: IntArray,
+    source_kinds: IntArray,
+    dap_kinds: IntArray,
+    plot_kinds: IntArray,
+    ids: IntArray,
+    source_ids: IntArray,
+    dap_ids: IntArray,
+    plot_ids: IntArray,
+    lit: Bytes,
+    lit_starts: IntArray,
+    lit_ends: IntArray,
+    num: Bytes,
+    num_starts: IntArray,
+    num_ends: IntArray,
+    words: IntArray,
+    dap_names: IntArray,
+    radar_literals: IntArray,
+    number: IntArray,
+    time: FloatArray,
+    address: IntArray,
+    callsign: IntArray,
+    mode3a: IntArray,
+    changed: BoolArray,
+    first: BoolArray,
+    duplicate: BoolArray,
+    adsb: BoolArray,
+    status: IntArray,
+    n_sources: IntArray,
+    source_radar: IntArray,
+    local_numbers: IntArray,
+    local_plot_ids: IntArray,
+    has_dap: BoolArray,
+    plot_radar: IntArray,
+) -> tuple[Bytes, IntArray, IntArray]:
+    n = number.size
+    null, false = words[0], words[1]
+    sources = n_sources.sum()
+    daps = has_dap.sum()
+    plots = (plot_radar >= 0).sum()
+    # The numbers' blocks (``_system_numbers``).
+    at_sources = n * _STATE
+    at_ages = at_sources + sources
+    at_daps = at_ages + 4 * n
+    at_plots = at_daps + 2 * daps
+    none = np.zeros(0, dtype=np.int64)
+    empty = np.zeros(1, dtype=np.uint8)
+    # The rows' parts, one rendering: sources, DAPs, last plots, ISO times.
+    source_values = np.empty((sources, 4), dtype=np.int64)
+    i = 0
+    for k in range(n):
+        for j in range(n_sources[k]):
+            source_values[i, 0] = radar_literals[source_radar[k, j]]
+            source_values[i, 1] = local_numbers[k, j]
+            source_values[i, 2] = at_sources + i
+            source_values[i, 3] = local_plot_ids[k, j]
+            i += 1
+    dap_values = np.empty((daps, 3), dtype=np.int64)
+    i = 0
+    for k in range(n):
+        for d in range(has_dap.shape[1]):
+            if has_dap[k, d]:
+                dap_values[i, 0] = dap_names[d]
+                dap_values[i, 1] = at_daps + 2 * i
+                dap_values[i, 2] = at_daps + 2 * i + 1
+                i += 1
+    plot_values = np.empty((plots, 6), dtype=np.int64)
+    i = 0
+    for k in range(n):
+        if plot_radar[k] >= 0:
+            plot_values[i, 0] = radar_literals[plot_radar[k]]
+            for j in range(5):
+                plot_values[i, 1 + j] = at_plots + 5 * i + j
+            i += 1
+    iso, iso_starts, iso_ends = _iso_rows(time)
+    parts = (
+        render_rows(
+            source_kinds,
+            source_ids,
+            source_values,
+            np.zeros_like(source_values),
+            lit,
+            lit_starts,
+            lit_ends,
+            num,
+            num_starts,
+            num_ends,
+            empty,
+            none,
+            none,
+        ),
+        render_rows(
+            dap_kinds,
+            dap_ids,
+            dap_values,
+            np.zeros_like(dap_values),
+            lit,
+            lit_starts,
+            lit_ends,
+            num,
+            num_starts,
+            num_ends,
+            empty,
+            none,
+            none,
+        ),
+        render_rows(
+            plot_kinds,
+            plot_ids,
+            plot_values,
+            np.zeros_like(plot_values),
+            lit,
+            lit_starts,
+            lit_ends,
+            num,
+            num_starts,
+            num_ends,
+            empty,
+            none,
+            none,
+        ),
+        (iso, iso_starts, iso_ends),
+    )
+    part, part_starts, part_ends = _joined(parts)
+    values = np.empty((n, kinds.size), dtype=np.int64)
+    counts = np.zeros((n, kinds.size), dtype=np.int64)
+    first_source, first_dap, next_plot = 0, 0, 0
+    at_iso = sources + daps + plots
+    column = 2 + _STATE
+    for k in range(n):
+        values[k, 0] = number[k]
+        values[k, 1] = k * _STATE
+        values[k, 2] = at_iso + k
+        for j in range(1, _STATE):
+            values[k, 2 + j] = k * _STATE + j
+        values[k, column] = address[k]
+        values[k, column + 1] = callsign[k] if callsign[k] >= 0 else null
+        values[k, column + 2] = mode3a[k]
+        values[k, column + 3] = false + changed[k]
+        values[k, column + 4] = false + first[k]
+        values[k, column + 5] = first_source
+        counts[k, column + 5] = n_sources[k]
+        first_source += n_sources[k]
+        values[k, column + 6] = words[3 + status[k]]
+        if plot_radar[k] >= 0:
+            values[k, column + 7] = sources + daps + next_plot
+            next_plot += 1
+        else:
+            values[k, column + 7] = -1
+        for j in range(4):
+            values[k, column + 8 + j] = at_ages + 4 * k + j
+        values[k, column + 12] = false + duplicate[k]
+        values[k, column + 13] = false + adsb[k]
+        row_daps = has_dap[k].sum()
+        values[k, column + 14] = sources + first_dap
+        counts[k, column + 14] = row_daps
+        first_dap += row_daps
+    return render_rows(
+        kinds,
+        ids,
+        values,
+        counts,
+        lit,
+        lit_starts,
+        lit_ends,
+        num,
+        num_starts,
+        num_ends,
+        part,
+        part_starts,
+        part_ends,
+    )
+
+
+@numba.njit(cache=True)
+def _joined(
+    parts: tuple[tuple[Bytes, IntArray, IntArray], ...],
+) -> tuple[Bytes, IntArray, IntArray]:
+    """Renderings one after another, their rows numbered on in that order."""
+    size, rows = 0, 0
+    for data, starts, _ in parts:
+        size += data.size
+        rows += starts.size
+    out = np.empty(max(size, 1), dtype=np.uint8)
+    out_starts = np.empty(rows, dtype=np.int64)
+    out_ends = np.empty(rows, dtype=np.int64)
+    offset, row = 0, 0
+    for data, starts, ends in parts:
+        out[offset : offset + data.size] = data
+        for i in range(starts.size):
+            out_starts[row] = starts[i] + offset
+            out_ends[row] = ends[i] + offset
+            row += 1
+        offset += data.size
+    return out, out_starts, out_ends
+
+
+@numba.njit(cache=True)
+def _civil(days: int) -> tuple[int, int, int]:
+    """Year, month, day of a day number since 1970-01-01 (proleptic Gregorian; H.
+    Hinnant's ``civil_from_days``)."""
+    z = days + 719468
+    era = (z if z >= 0 else z - 146096) // 146097
+    doe = z - era * 146097
+    yoe = (doe - doe // 1460 + doe // 36524 - doe // 146096) // 365
+    doy = doe - (365 * yoe + yoe // 4 - yoe // 100)
+    mp = (5 * doy + 2) // 153
+    day = doy - (153 * mp + 2) // 5 + 1
+    month = mp + 3 if mp < 10 else mp - 9
+    return yoe + era * 400 + (1 if month <= 2 else 0), month, day
+
+
+@numba.njit(cache=True)
+def _put(out: Bytes, pos: int, value: int, width: int) -> int:
+    for i in range(width - 1, -1, -1):
+        out[pos + i] = 48 + value % 10
+        value //= 10
+    return pos + width
+
+
+@numba.njit(cache=True)
+def _iso_rows(posix: FloatArray) -> tuple[Bytes, IntArray, IntArray]:
+    """``"2026-06-01T10:00:00.500000Z"`` (quoted) of each time: the microseconds of the
+    fractional part rounded half to even, as ``datetime.fromtimestamp`` rounds them."""
+    n = posix.size
+    out = np.empty(max(n * (_ISO_LENGTH + 2), 1), dtype=np.uint8)
+    starts = np.empty(n, dtype=np.int64)
+    ends = np.empty(n, dtype=np.int64)
+    for k in range(n):
+        whole = np.floor(posix[k])
+        micro = int(np.rint((posix[k] - whole) * 1e6))
+        seconds = int(whole)
+        if micro >= 1_000_000:
+            micro -= 1_000_000
+            seconds += 1
+        days = seconds // 86400
+        of_day = seconds - days * 86400
+        year, month, day = _civil(days)
+        pos = k * (_ISO_LENGTH + 2)
+        starts[k] = pos
+        out[pos] = 34  # '"'
+        pos = _put(out, pos + 1, year, 4)
+        out[pos] = 45  # "-"
+        pos = _put(out, pos + 1, month, 2)
+        out[pos] = 45
+        pos = _put(out, pos + 1, day, 2)
+        out[pos] = 84  # "T"
+        pos = _put(out, pos + 1, of_day // 3600, 2)
+        out[pos] = 58  # ":"
+        pos = _put(out, pos + 1, of_day // 60 % 60, 2)
+        out[pos] = 58
+        pos = _put(out, pos + 1, of_day % 60, 2)
+        out[pos] = 46  # "."
+        pos = _put(out, pos + 1, micro, 6)
+        out[pos] = 90  # "Z"
+        out[pos + 1] = 34
+        ends[k] = pos + 2
+    return out, starts, ends

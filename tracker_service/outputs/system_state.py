@@ -44,25 +44,29 @@ class StepInput:
     """A batch for :meth:`SystemState.step`: the fuser's rows and the plots they name.
 
     Per row: ``number``, ``time``, ``ended``, ``address`` and ``mode3a`` (-1 none),
-    ``plot`` (the row's fresh plot's index in the plot arrays, -1 none), ``radar`` (the
-    id its last plot is to name), ``n_sources``, ``local_time`` (each source's local
-    track's latest update, NaN when unknown: the source's age is then 0). Per plot:
-    ``plot_time``, ``plot_callsign`` (an id, -1 none), ``plot_sensors`` (bit i: a
-    detection of ``SENSORS`` type i), ``plot_daps`` (the DAPs, NaN where absent),
-    ``plot_position`` (``PLOT_FIELDS``)."""
+    ``plot_id`` and ``fresh`` (the row's plot, which updates the track when fresh and in
+    the plot arrays), ``radar`` (the id its last plot is to name), ``n_sources``,
+    ``local_time`` (each source's local track's latest update, NaN when unknown: the
+    source's age is then 0). Per plot: ``plot_ids``, ``plot_time``, ``plot_callsign``
+    (an id, -1 none), ``plot_type`` (I048/020 TYP, an index of ``sensors``: for each
+    type, bit i set when it is a detection of ``SENSORS`` type i), ``plot_daps`` (the
+    DAPs, NaN where absent), ``plot_position`` (``PLOT_FIELDS``)."""
 
     number: IntArray
     time: FloatArray
     ended: BoolArray
     address: IntArray
     mode3a: IntArray
-    plot: IntArray
+    plot_id: IntArray
+    fresh: BoolArray
     radar: IntArray
     n_sources: IntArray
     local_time: FloatArray
+    plot_ids: IntArray
     plot_time: FloatArray
     plot_callsign: IntArray
-    plot_sensors: IntArray
+    plot_type: IntArray
+    sensors: IntArray
     plot_daps: FloatArray
     plot_position: FloatArray
 
@@ -143,13 +147,16 @@ class SystemState:
             batch.ended,
             batch.address,
             batch.mode3a,
-            batch.plot,
+            batch.plot_id,
+            batch.fresh,
             batch.radar,
             batch.n_sources,
             batch.local_time,
+            batch.plot_ids,
             batch.plot_time,
             batch.plot_callsign,
-            batch.plot_sensors,
+            batch.plot_type,
+            batch.sensors,
             batch.plot_daps,
             batch.plot_position,
             self.live,
@@ -260,13 +267,16 @@ def _step(
     ended: BoolArray,
     address: IntArray,
     mode3a: IntArray,
-    plot: IntArray,
+    plot_id: IntArray,
+    fresh: BoolArray,
     radar: IntArray,
     n_sources: IntArray,
     local_time: FloatArray,
+    plot_ids: IntArray,
     plot_time: FloatArray,
     plot_callsign: IntArray,
-    plot_sensors: IntArray,
+    plot_type: IntArray,
+    sensors: IntArray,
     plot_daps: FloatArray,
     plot_position: FloatArray,
     live: BoolArray,
@@ -302,7 +312,14 @@ def _step(
             has_dap[t, :] = False
             track_plot_radar[t] = -1
             track_plot[t, :] = np.nan
-        p = plot[k]
+        # The row's fresh plot among the batch's (a few dozen: a scan; the last of an id,
+        # as a dict of the ids keeps it).
+        p = -1
+        if fresh[k]:
+            for i in range(plot_ids.size - 1, -1, -1):
+                if plot_ids[i] == plot_id[k]:
+                    p = i
+                    break
         callsign = -1
         if p >= 0:
             callsign = plot_callsign[p]
@@ -313,8 +330,10 @@ def _step(
                     has_dap[t, d] = True
                     dap_value[t, d] = value
                     dap_time[t, d] = at
+            typ = plot_type[p]
+            bits = sensors[typ] if 0 <= typ < sensors.size else 0
             for s in range(sensor_time.shape[1]):
-                if plot_sensors[p] >> s & 1:
+                if bits >> s & 1:
                     sensor_time[t, s] = at
             track_plot_radar[t] = radar[k]
             track_plot[t, :] = plot_position[p, :]

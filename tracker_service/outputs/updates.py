@@ -345,15 +345,24 @@ class SystemBatch:
     @staticmethod
     def gather(updates: Sequence[SystemUpdate]) -> SystemBatch:
         """The rows of ``updates`` in their order, from the batches they belong to (which
-        share their names: one mapper's)."""
-        first = updates[0].batch
-        if all(u.batch is first for u in updates):
-            return first.take([u.index for u in updates])
-        parts = [u.batch.take([u.index]) for u in updates]
+        share their names: one mapper's): one take per batch."""
+        rows: dict[int, tuple[SystemBatch, list[int], list[int]]] = {}
+        for position, update in enumerate(updates):
+            group = rows.get(id(update.batch))
+            if group is None:
+                group = rows[id(update.batch)] = (update.batch, [], [])
+            group[1].append(position)
+            group[2].append(update.index)
+        if len(rows) == 1:
+            ((batch, _, index),) = rows.values()
+            return batch.take(index)
+        parts = [batch.take(index) for batch, _, index in rows.values()]
+        order = np.argsort(np.concatenate([positions for _, positions, _ in rows.values()]))
         columns: dict[str, Any] = {
-            name: np.concatenate([getattr(part, name) for part in parts]) for name in _BATCH_ROWS
+            name: np.concatenate([getattr(part, name) for part in parts])[order]
+            for name in _BATCH_ROWS
         }
-        return replace(first, **columns)
+        return replace(parts[0], **columns)
 
     @classmethod
     def of_values(cls, values: Sequence[SystemValues]) -> SystemBatch:
