@@ -6,6 +6,7 @@ byte (``model_dump_json``), in the models' field order, and valid against the mo
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +18,8 @@ from mcap.reader import make_reader
 from tracker_service.chain import RAW_PLOT_DTYPE
 from tracker_service.fusion import COASTING, ENDED, SYSTEM_UPDATE_DTYPE
 from tracker_service.geodesy import SystemPlane
-from tracker_service.outputs.mapping import MessageMapper, ModelMapper, location_fix
+from tracker_service.outputs.mapping import MessageMapper, ModelMapper
+from tracker_service.outputs.foxglove_scene import TRACKS_TOPIC, MapScene, track_colour, track_label
 from tracker_service.outputs.mcap_log import McapLog, read_log_messages
 from tracker_service.outputs.mcap_sink import McapSink
 from tracker_service.outputs.messages import LocalTrackMessage, SystemTrackMessage
@@ -143,7 +145,6 @@ def test_batch_path_publishes_what_the_models_publish(seed: int) -> None:
             assert SystemTrackMessage.model_validate_json(update.payload) == _valid(message)
             assert _valid(update.message()) == _valid(message)
             assert update.ended == (message.status == "ended")
-            assert update.location() == location_fix(message)
         assert _pictures(batch) == _pictures(models)
     ended = batch.end_all_updates()
     assert [u.payload for u in ended] == [m.model_dump_json().encode() for m in models.end_all()]
@@ -209,3 +210,60 @@ def test_batches_logged_read_back_by_mcap_and_the_streaming_reader(tmp_path: Pat
     assert topics.count("/local_tracks/40_2") == len(local)
     assert topics.count("/system_tracks") == len(system)
     assert topics.count("/map/system_tracks") == sum(not s.ended for s in system)
+
+
+def _reference_fix(m: SystemTrackMessage) -> bytes:
+    """A ``foxglove.LocationFix`` of a message as a dict through ``json.dumps``: the
+    textbook version of ``MapScene.location_fixes``."""
+    p = m.covariance
+    altitude = 0.0 if m.flight_level is None else m.flight_level * 30.48
+    sec = math.floor(m.time)
+    metadata = [
+        ("label", track_label(m)),
+        ("track", str(m.number)),
+        ("status", m.status),
+        *([("callsign", m.callsign.strip())] if m.callsign else []),
+        *([("mode3a", m.mode3a)] if m.mode3a else []),
+        *([("address", m.address)] if m.address else []),
+        *([("flight_level", f"{m.flight_level:.2f}")] if m.flight_level is not None else []),
+        ("ground_speed_kt", f"{m.ground_speed_mps * 3600.0 / 1852.0:.0f}"),
+        ("track_angle_deg", f"{m.track_angle_deg:.0f}"),
+        ("sources", ",".join(sorted({s.radar for s in m.sources}))),
+    ]
+    r, g, b = track_colour(m)
+    fix = {
+        "timestamp": {"sec": sec, "nsec": min(round((m.time - sec) * 1e9), 999_999_999)},
+        "frame_id": f"track/{m.number}",
+        "latitude": m.lat,
+        "longitude": m.lon,
+        "altitude": altitude,
+        "position_covariance": [p[0][0], p[0][1], 0.0, p[1][0], p[1][1], 0.0, 0.0, 0.0, 1e6],
+        "position_covariance_type": 3,
+        "color": {"r": r, "g": g, "b": b, "a": 1.0},
+        "metadata": [{"key": k, "value": v} for k, v in metadata],
+    }
+    return json.dumps(fix, separators=(",", ":")).encode()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_map_from_batches_is_the_map_from_the_models(seed: int) -> None:
+    """The Foxglove map written from a batch's columns (``MapScene.updates``: fixes,
+    labels, colours, the periodic pictures) is what the scene makes of the per-message
+    path's models, one ``update`` each, and its fixes what ``json.dumps`` writes of them."""
+    rng = np.random.default_rng(seed)
+    models, batch = ModelMapper(PLANE), MessageMapper(PLANE)
+    from_models, from_batches = MapScene([]), MapScene([])
+    first_id = 0
+    for step in range(12):
+        t = NOON + 0.7 * step
+        plots = _plots(rng, 20, t, first_id)
+        first_id += 20
+        system = _system_rows(rng, 25, t, plots)
+        messages = models.system(system, plots, SOURCES)
+        expected = [out for m in messages for out in from_models.update(m, t)]
+        updates = batch.system_updates(system, plots, SOURCES)
+        written = from_batches.updates(updates[0].batch, t)
+        assert written == expected
+        fixes = [out.data for out in written if out.topic == TRACKS_TOPIC]
+        assert fixes == [_reference_fix(m) for m in messages if m.status != "ended"]
+    assert from_batches.picture_geojson() == from_models.picture_geojson()

@@ -30,15 +30,22 @@ from __future__ import annotations
 import json
 import math
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from json.encoder import encode_basestring_ascii
 from typing import Any
 
+import numpy as np
 from pyproj import Geod
 
 from tracker_service.outputs.mcap_log import LOCATION_FIX_SCHEMA
 from tracker_service.outputs.messages import SystemTrackMessage
-from tracker_service.outputs.updates import SystemValues
+from tracker_service.outputs.updates import (
+    STATUSES,
+    SystemBatch,
+    SystemValues,
+    python_json_numbers,
+)
 
 __all__ = [
     "CHANNELS",
@@ -87,13 +94,27 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     },
 }
 _COVARIANCE_KNOWN = 3
+_FIX = (
+    '{"timestamp":{"sec":%d,"nsec":%d},"frame_id":"track/%d","latitude":%s,"longitude":%s,'
+    '"altitude":%s,"position_covariance":[%s,%s,0.0,%s,%s,0.0,0.0,0.0,1000000.0],'
+    f'"position_covariance_type":{_COVARIANCE_KNOWN},'
+    '"color":{"r":%s,"g":%s,"b":%s,"a":1.0},"metadata":[%s]}'
+)
+"""A ``foxglove.LocationFix`` as ``json.dumps`` writes it (compact): the plane's axes are
+east and north near its centre; the vertical is not estimated, so large rather than zero."""
+_METADATA = '{"key":"%s","value":%s}'
+_ENDED = STATUSES.index("ended")
 
 Rgb = tuple[float, float, float]
 _MULTI: Rgb = (0.18, 0.8, 0.25)
 _SINGLE: Rgb = (0.12, 0.56, 1.0)
 _COASTING: Rgb = (1.0, 0.69, 0.0)
 _DUPLICATE: Rgb = (0.9, 0.1, 0.1)
-_ENDED: Rgb = (0.5, 0.5, 0.5)
+_ENDED_COLOUR: Rgb = (0.5, 0.5, 0.5)
+_COLOUR_TEXT = {
+    rgb: tuple(map(repr, rgb)) for rgb in (_MULTI, _SINGLE, _COASTING, _DUPLICATE, _ENDED_COLOUR)
+}
+"""Each colour's components as ``json.dumps`` writes them."""
 
 
 @dataclass(frozen=True)
@@ -125,24 +146,82 @@ def _map_track(track: SystemTrackMessage | SystemValues) -> SystemValues:
 
 def track_colour(track: SystemTrackMessage | SystemValues) -> Rgb:
     """See the module docstring."""
-    message = _map_track(track)
-    if message.status == "ended":
-        return _ENDED
-    if message.duplicate_address:
+    m = _map_track(track)
+    return _colour(m.status, m.duplicate_address, len(set(m.sources)))
+
+
+def _colour(status: str, duplicate_address: bool, radars: int) -> Rgb:
+    if status == "ended":
+        return _ENDED_COLOUR
+    if duplicate_address:
         return _DUPLICATE
-    if message.status == "coasting":
+    if status == "coasting":
         return _COASTING
-    return _MULTI if len(set(message.sources)) >= 2 else _SINGLE
+    return _MULTI if radars >= 2 else _SINGLE
 
 
 def track_label(track: SystemTrackMessage | SystemValues) -> str:
     """What an ATC label shows: callsign, else Mode 3/A code, else the track number;
     flight level; ground speed in knots. E.g. "DLH65A FL350 452kt", "A7000 FL--- 120kt"."""
-    message = _map_track(track)
-    callsign = (message.callsign or "").strip()
-    identity = callsign or (f"A{message.mode3a}" if message.mode3a else f"#{message.number}")
-    level = "FL---" if message.flight_level is None else f"FL{round(message.flight_level):03d}"
-    return f"{identity} {level} {round(message.ground_speed_mps * _KT_PER_MPS)}kt"
+    m = _map_track(track)
+    return _label(m.number, m.callsign, m.mode3a, m.flight_level, m.ground_speed_mps)
+
+
+def _label(
+    number: int,
+    callsign: str | None,
+    mode3a: str | None,
+    flight_level: float | None,
+    ground_speed_mps: float,
+) -> str:
+    identity = (callsign or "").strip() or (f"A{mode3a}" if mode3a else f"#{number}")
+    level = "FL---" if flight_level is None else f"FL{round(flight_level):03d}"
+    return f"{identity} {level} {round(ground_speed_mps * _KT_PER_MPS)}kt"
+
+
+def _identity(
+    number: int,
+    status: str,
+    callsign: str | None,
+    mode3a: str | None,
+    address: str | None,
+    flight_level: float | None,
+    ground_speed_mps: float,
+    track_angle_deg: float,
+    radars: Sequence[str],
+) -> list[tuple[str, str]]:
+    """What the map's tooltip lists of a track (``metadata``), label first."""
+    items = [
+        ("label", _label(number, callsign, mode3a, flight_level, ground_speed_mps)),
+        ("track", str(number)),
+        ("status", status),
+    ]
+    if callsign:
+        items.append(("callsign", callsign.strip()))
+    if mode3a:
+        items.append(("mode3a", mode3a))
+    if address:
+        items.append(("address", address))
+    if flight_level is not None:
+        items.append(("flight_level", f"{flight_level:.2f}"))
+    items.append(("ground_speed_kt", f"{ground_speed_mps * _KT_PER_MPS:.0f}"))
+    items.append(("track_angle_deg", f"{track_angle_deg:.0f}"))
+    items.append(("sources", ",".join(sorted(set(radars)))))
+    return items
+
+
+def _identity_of(m: SystemValues) -> list[tuple[str, str]]:
+    return _identity(
+        m.number,
+        m.status,
+        m.callsign,
+        m.mode3a,
+        m.address,
+        m.flight_level,
+        m.ground_speed_mps,
+        m.track_angle_deg,
+        m.sources,
+    )
 
 
 def _hex(rgb: Rgb) -> str:
@@ -170,11 +249,17 @@ _Point = tuple[float, float, float]
 
 @dataclass
 class _Track:
-    last: SystemValues
+    batch: SystemBatch
+    row: int
+    """Its latest update: a row of a batch, its values made when the picture needs them."""
     trail: deque[_Point] = field(default_factory=deque)
     """(time, lon, lat), oldest first."""
     features: str | None = None
     """Its features in the picture, as JSON; None when it moved since."""
+
+    @property
+    def last(self) -> SystemValues:
+        return self.batch.values(self.row)
 
 
 class MapScene:
@@ -211,20 +296,36 @@ class MapScene:
     ) -> list[FoxgloveMessage]:
         """A system-track message at data time ``time``: its fix (none for "ended", whose
         track leaves the picture), then whatever periodic message falls due."""
-        message = _map_track(update)
+        return self.updates(SystemBatch.of_values([_map_track(update)]), time)
+
+    def updates(self, batch: SystemBatch, time: float) -> list[FoxgloveMessage]:
+        """:meth:`update` of each row of ``batch`` in turn, all at data time ``time``; the
+        fixes written for the whole batch at once."""
+        fixes = iter(self.location_fixes(batch))
         out: list[FoxgloveMessage] = []
-        if message.status == "ended":
-            self._tracks.pop(message.number, None)
-        else:
-            track = self._tracks.get(message.number)
-            if track is None:
-                track = self._tracks[message.number] = _Track(message)
-            track.last = message
-            track.features = None
-            self._extend_trail(track.trail, message)
-            fix = self.location_fix(message)
-            out.append(FoxgloveMessage(TRACKS_TOPIC, LOCATION_FIX, fix, time))
-        out.extend(self.tick(time))
+        tracks = self._tracks
+        rows = zip(
+            batch.number.tolist(),
+            (batch.status == _ENDED).tolist(),
+            batch.time.tolist(),
+            batch.lon.tolist(),
+            batch.lat.tolist(),
+            strict=True,
+        )
+        for k, (number, ended, at, lon, lat) in enumerate(rows):
+            if ended:
+                tracks.pop(number, None)
+            else:
+                track = tracks.get(number)
+                if track is None:
+                    track = tracks[number] = _Track(batch, k)
+                track.batch, track.row, track.features = batch, k, None
+                self._extend_trail(track.trail, at, lon, lat)
+                out.append(FoxgloveMessage(TRACKS_TOPIC, LOCATION_FIX, next(fixes), time))
+            if k == 0:
+                # Due once at most at this time: after the first update, as each update
+                # at ``time`` would find it.
+                out.extend(self.tick(time))
         return out
 
     def tick(self, time: float) -> list[FoxgloveMessage]:
@@ -238,53 +339,100 @@ class MapScene:
             out.append(FoxgloveMessage(PICTURE_TOPIC, GEOJSON, self.picture_geojson(), time))
         return out
 
-    def _extend_trail(self, trail: deque[_Point], m: SystemValues) -> None:
-        if not trail or m.time - trail[-1][0] >= self.trail_spacing_s:
-            trail.append((m.time, round(m.lon, 5), round(m.lat, 5)))
-        while trail and m.time - trail[0][0] > self.trail_s:
+    def _extend_trail(self, trail: deque[_Point], time: float, lon: float, lat: float) -> None:
+        if not trail or time - trail[-1][0] >= self.trail_spacing_s:
+            trail.append((time, round(lon, 5), round(lat, 5)))
+        while trail and time - trail[0][0] > self.trail_s:
             trail.popleft()
 
     def location_fix(self, track: SystemTrackMessage | SystemValues) -> bytes:
-        message = _map_track(track)
-        p = message.covariance
-        if message.altitude_m is not None:
-            altitude = message.altitude_m
-        elif message.flight_level is not None:
-            altitude = message.flight_level * _METRES_PER_FL
-        else:
-            altitude = 0.0
-        r, g, b = track_colour(message)
-        fix = {
-            "timestamp": _timestamp(message.time),
-            "frame_id": f"track/{message.number}",
-            "latitude": message.lat,
-            "longitude": message.lon,
-            "altitude": altitude,
-            # The plane's axes are east and north near its centre; the vertical is not
-            # estimated, so large rather than zero.
-            "position_covariance": [p[0], p[1], 0.0, p[4], p[5], 0.0, 0.0, 0.0, 1e6],
-            "position_covariance_type": _COVARIANCE_KNOWN,
-            "color": {"r": r, "g": g, "b": b, "a": 1.0},
-            "metadata": [{"key": k, "value": v} for k, v in self._identity(message)],
-        }
-        return _dumps(fix)
+        """The ``foxglove.LocationFix`` of one update (``location_fixes``)."""
+        return self.location_fixes(SystemBatch.of_values([_map_track(track)]))[0]
 
     @staticmethod
-    def _identity(m: SystemValues) -> Iterator[tuple[str, str]]:
-        yield "label", track_label(m)
-        yield "track", str(m.number)
-        yield "status", m.status
-        if m.callsign:
-            yield "callsign", m.callsign.strip()
-        if m.mode3a:
-            yield "mode3a", m.mode3a
-        if m.address:
-            yield "address", m.address
-        if m.flight_level is not None:
-            yield "flight_level", f"{m.flight_level:.2f}"
-        yield "ground_speed_kt", f"{m.ground_speed_mps * _KT_PER_MPS:.0f}"
-        yield "track_angle_deg", f"{m.track_angle_deg:.0f}"
-        yield "sources", ",".join(sorted(set(m.sources)))
+    def location_fixes(batch: SystemBatch) -> list[bytes]:
+        """The ``foxglove.LocationFix`` of each row of ``batch`` not ended, as
+        ``json.dumps`` writes it (compact): ``frame_id`` the track, its colour, its
+        identity and label in ``metadata``; the numbers of all of them written at once."""
+        live = np.flatnonzero(batch.status != _ENDED)
+        if not live.size:
+            return []
+        p = batch.covariance[live]
+        # The altitude the message gives, else its flight level's, else 0.
+        altitude = np.where(
+            np.isnan(batch.altitude_m[live]),
+            np.where(
+                np.isnan(batch.flight_level[live]), 0.0, batch.flight_level[live] * _METRES_PER_FL
+            ),
+            batch.altitude_m[live],
+        )
+        numbers = python_json_numbers(
+            np.column_stack(
+                (batch.lat[live], batch.lon[live], altitude, p[:, 0], p[:, 1], p[:, 4], p[:, 5])
+            )
+            .ravel()
+            .tolist()
+        )
+        time = batch.time[live]
+        sec = np.floor(time)
+        # ``_timestamp``: the fraction split off first, no 128 ns rounding.
+        nsec = np.minimum(np.rint((time - sec) * _NS_PER_S), _NS_PER_S - 1).astype(np.int64)
+        names, radar_names = batch.names, batch.radar_names
+        callsigns = [None if i < 0 else names[i] for i in batch.callsign[live].tolist()]
+        mode3a = [None if c < 0 else f"{c:04o}" for c in batch.mode3a[live].tolist()]
+        address = [None if a < 0 else f"{a:06X}" for a in batch.address[live].tolist()]
+        level = [None if f != f else f for f in batch.flight_level[live].tolist()]
+        radars = [
+            [radar_names[r] for r in row[:n]]
+            for row, n in zip(
+                batch.source_radar[live].tolist(), batch.n_sources[live].tolist(), strict=True
+            )
+        ]
+        fixes = []
+        for k, (number, status, duplicate, speed, angle, second, nanosecond) in enumerate(
+            zip(
+                batch.number[live].tolist(),
+                batch.status[live].tolist(),
+                batch.duplicate_address[live].tolist(),
+                batch.ground_speed[live].tolist(),
+                batch.track_angle[live].tolist(),
+                np.maximum(sec, 0).astype(np.int64).tolist(),
+                nsec.tolist(),
+                strict=True,
+            )
+        ):
+            state = STATUSES[status]
+            r, g, b = _COLOUR_TEXT[_colour(state, duplicate, len(set(radars[k])))]
+            metadata = ",".join(
+                _METADATA % (key, encode_basestring_ascii(value))
+                for key, value in _identity(
+                    number,
+                    state,
+                    callsigns[k],
+                    mode3a[k],
+                    address[k],
+                    level[k],
+                    speed,
+                    angle,
+                    radars[k],
+                )
+            )
+            fixes.append(
+                (
+                    _FIX
+                    % (
+                        second,
+                        nanosecond,
+                        number,
+                        *numbers[7 * k : 7 * k + 7],
+                        r,
+                        g,
+                        b,
+                        metadata,
+                    )
+                ).encode()
+            )
+        return fixes
 
     def picture_geojson(self) -> bytes:
         """Every live track's point, trail and vector, as one FeatureCollection; a track's
@@ -305,7 +453,7 @@ class MapScene:
         # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
         # precision (/system_tracks has the full values).
         here = [round(m.lon, 5), round(m.lat, 5)]
-        properties = {"name": label, **dict(self._identity(m))}
+        properties = {"name": label, **dict(_identity_of(m))}
         del properties["label"]  # the name
         features: list[dict[str, Any]] = [
             {

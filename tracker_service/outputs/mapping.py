@@ -49,15 +49,14 @@ from tracker_service.outputs.system_state import StepInput, SystemState
 from tracker_service.outputs.updates import (
     STATUSES,
     LocalUpdate,
-    LocationFix,
+    LocationFixes,
     SystemBatch,
     SystemUpdate,
     SystemValues,
-    location_of,
     system_json,
 )
 
-__all__ = ["LOCAL_STATUS", "LocationFix", "MessageMapper", "ModelMapper", "location_fix"]
+__all__ = ["LOCAL_STATUS", "MessageMapper", "ModelMapper", "location_fix"]
 
 LocalStatus = Literal["tentative", "confirmed", "coasting", "deleted"]
 LOCAL_STATUS: tuple[LocalStatus, ...] = ("tentative", "confirmed", "coasting", "deleted")
@@ -114,8 +113,9 @@ def _track_callsign(
     return None
 
 
-def location_fix(message: SystemTrackMessage) -> LocationFix:
-    return location_of(SystemValues.of_message(message))
+def location_fix(message: SystemTrackMessage) -> LocationFixes:
+    """The map's fix of a message (none for a track's end)."""
+    return LocationFixes.of(SystemBatch.of_values([SystemValues.of_message(message)]))
 
 
 def _remember_daps(

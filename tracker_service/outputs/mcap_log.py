@@ -25,7 +25,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import math
 import os
 import struct
 import time as clock
@@ -36,6 +35,7 @@ from io import BytesIO
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import numpy as np
 from mcap._chunk_builder import ChunkBuilder
 from mcap.data_stream import RecordBuilder
 from mcap.exceptions import EndOfFile
@@ -57,7 +57,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from asterix.containers import Datagram
 from tracker_service.closing import Closing
 from tracker_service.mcap_format import json_schema, schema_name, start_mcap, time_ns
-from tracker_service.outputs.updates import LocationFix
+from tracker_service.outputs.updates import LocationFixes, python_json_numbers
 
 __all__ = [
     "LOCATION_FIX_SCHEMA",
@@ -362,6 +362,17 @@ class McapLog(Closing):
         well-known schemas (``foxglove_sink.py``)."""
         self._write(topic, schema, schema_of, [(data, time_ns(time))])
 
+    def log_encoded_many(
+        self,
+        topic: str,
+        schema: str,
+        schema_of: Callable[[], dict[str, Any]],
+        messages: Sequence[tuple[bytes, float]],
+    ) -> None:
+        """As :meth:`log_encoded` for each (data, time), in order: the channel looked up
+        once."""
+        self._write(topic, schema, schema_of, [(data, time_ns(time)) for data, time in messages])
+
     def log_location(
         self,
         topic: str,
@@ -373,21 +384,26 @@ class McapLog(Closing):
     ) -> None:
         """A ``foxglove.LocationFix``; ``covariance`` is the 3x3 ENU position covariance
         (m², row-major), or None when unknown."""
-        self._write(
+        known = covariance is not None
+        if covariance is not None and len(covariance) != 9:
+            raise ValueError(f"covariance must hold 9 values (3x3), not {len(covariance)}")
+        self.log_locations(
             topic,
-            _LOCATION_FIX,
-            lambda: LOCATION_FIX_SCHEMA,
-            [_location(time, lat, lon, alt, covariance)],
+            LocationFixes(
+                np.array([time]),
+                np.array([lat]),
+                np.array([lon]),
+                np.array([alt]),
+                np.array([covariance if known else [0.0] * 9], dtype=np.float64),
+            ),
+            known,
         )
 
-    def log_locations(self, topic: str, fixes: Sequence[LocationFix]) -> None:
-        """A ``foxglove.LocationFix`` for each fix, each logged at its own time."""
-        self._write(
-            topic,
-            _LOCATION_FIX,
-            lambda: LOCATION_FIX_SCHEMA,
-            [_location(f.time, f.lat, f.lon, f.altitude_m, f.covariance) for f in fixes],
-        )
+    def log_locations(self, topic: str, fixes: LocationFixes, known: bool = True) -> None:
+        """A ``foxglove.LocationFix`` for each fix, each logged at its own time;
+        ``known``: their covariance is (else it is unknown, zeros)."""
+        if len(fixes.time):
+            self._write(topic, _LOCATION_FIX, lambda: LOCATION_FIX_SCHEMA, _locations(fixes, known))
 
     def _write(
         self,
@@ -670,25 +686,25 @@ class _ChunkAccess:
         return sequence
 
 
-def _location(
-    time: float, lat: float, lon: float, alt: float, covariance: Sequence[float] | None
-) -> tuple[bytes, int]:
-    """A ``foxglove.LocationFix`` as JSON (what ``json.dumps`` writes of it, compact), and
-    its log time: the fix's own."""
-    if covariance is not None and len(covariance) != 9:
-        raise ValueError(f"covariance must hold 9 values (3x3), not {len(covariance)}")
-    values = [float(v) for v in covariance] if covariance is not None else [0.0] * 9
-    if not all(map(math.isfinite, (lat, lon, alt, *values))):
+def _locations(fixes: LocationFixes, known: bool) -> list[tuple[bytes, int]]:
+    """Each fix as JSON (what ``json.dumps`` writes of it, compact), with its log time:
+    the fix's own; the numbers of all of them written at once."""
+    numbers = np.column_stack((fixes.lat, fixes.lon, fixes.altitude, fixes.covariance))
+    if not np.isfinite(numbers).all():
         raise ValueError("a location must be finite")
-    ns = time_ns(time)
-    kind = _COVARIANCE_UNKNOWN if covariance is None else _COVARIANCE_KNOWN
-    data = (
-        f'{{"timestamp":{{"sec":{ns // _NS_PER_S},"nsec":{ns % _NS_PER_S}}},"frame_id":"",'
-        f'"latitude":{float(lat)!r},"longitude":{float(lon)!r},"altitude":{float(alt)!r},'
-        f'"position_covariance":[{",".join(map(repr, values))}],'
-        f'"position_covariance_type":{kind}}}'
-    )
-    return data.encode(), ns
+    texts = python_json_numbers(numbers.ravel().tolist())
+    kind = _COVARIANCE_KNOWN if known else _COVARIANCE_UNKNOWN
+    out = []
+    for k, ns in enumerate(map(time_ns, fixes.time.tolist())):
+        row = texts[12 * k : 12 * k + 12]
+        data = (
+            f'{{"timestamp":{{"sec":{ns // _NS_PER_S},"nsec":{ns % _NS_PER_S}}},"frame_id":"",'
+            f'"latitude":{row[0]},"longitude":{row[1]},"altitude":{row[2]},'
+            f'"position_covariance":[{",".join(row[3:])}],'
+            f'"position_covariance_type":{kind}}}'
+        )
+        out.append((data.encode(), ns))
+    return out
 
 
 class LoggedMessage(NamedTuple):

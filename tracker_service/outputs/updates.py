@@ -38,12 +38,11 @@ __all__ = [
     "STATUSES",
     "SYSTEM_FIELDS",
     "LocalUpdate",
-    "LocationFix",
+    "LocationFixes",
     "SystemBatch",
     "SystemUpdate",
     "SystemValues",
     "local_json",
-    "location_of",
     "python_json_numbers",
     "system_json",
     "system_model",
@@ -364,6 +363,22 @@ class SystemBatch:
         }
         return replace(parts[0], **columns)
 
+    @staticmethod
+    def runs(updates: Sequence[SystemUpdate]) -> list[SystemBatch]:
+        """``updates`` in order as batches: each run of updates of one batch as that
+        batch's rows (the batch itself when the run is the whole batch in order)."""
+        out: list[SystemBatch] = []
+        start = 0
+        for end in range(1, len(updates) + 1):
+            if end < len(updates) and updates[end].batch is updates[start].batch:
+                continue
+            batch = updates[start].batch
+            rows = [u.index for u in updates[start:end]]
+            whole = len(rows) == len(batch) and rows == list(range(len(batch)))
+            out.append(batch if whole else batch.take(rows))
+            start = end
+        return out
+
     @classmethod
     def of_values(cls, values: Sequence[SystemValues]) -> SystemBatch:
         """The batch of messages' values (``SystemValues``), names made for them."""
@@ -513,9 +528,6 @@ class SystemUpdate:
         """The model, unvalidated, as the pydantic path builds it from the rows."""
         return system_model(self.doc)
 
-    def location(self) -> LocationFix:
-        return location_of(self.values)
-
 
 _ENDED = STATUSES.index("ended")
 
@@ -525,23 +537,32 @@ def _id(ids: dict[str, int], name: str | None) -> int:
     return -1 if name is None else ids.setdefault(name, len(ids))
 
 
-@dataclass(frozen=True)
-class LocationFix:
-    """A system track's position as a map shows it (``foxglove.LocationFix``)."""
+class LocationFixes(NamedTuple):
+    """System tracks' positions as a map shows them (``foxglove.LocationFix``), one entry
+    per fix: POSIX time, WGS84 degrees, altitude (m) and the 3x3 ENU position covariance
+    (m², (N, 9), row-major)."""
 
-    time: float
-    lat: float
-    lon: float
-    altitude_m: float
-    covariance: tuple[float, ...]
-    """3x3 ENU position covariance (m², row-major)."""
+    time: FloatArray
+    lat: FloatArray
+    lon: FloatArray
+    altitude: FloatArray
+    covariance: FloatArray
 
-
-def location_of(values: SystemValues) -> LocationFix:
-    p = values.covariance
-    # ENU position covariance: the plane's axes are east and north near the centre; the
-    # vertical is unknown, so left large rather than zero.
-    enu = (p[0], p[1], 0.0, p[4], p[5], 0.0, 0.0, 0.0, 1e6)
-    level = values.flight_level
-    altitude = 0.0 if level is None else level * _METRES_PER_FL
-    return LocationFix(values.time, values.lat, values.lon, altitude, enu)
+    @classmethod
+    def of(cls, batch: SystemBatch) -> LocationFixes:
+        """The fixes of a batch's updates that are not a track's end: the altitude of the
+        flight level (0 without one); the plane's axes taken as east and north (they are
+        near the centre), the vertical unknown, so left large rather than zero."""
+        live = batch.status != _ENDED
+        p = batch.covariance[live]
+        level = batch.flight_level[live]
+        zero = np.zeros(len(p))
+        return cls(
+            batch.time[live],
+            batch.lat[live],
+            batch.lon[live],
+            np.where(np.isnan(level), 0.0, level * _METRES_PER_FL),
+            np.column_stack(
+                (p[:, 0], p[:, 1], zero, p[:, 4], p[:, 5], zero, zero, zero, zero + 1e6)
+            ),
+        )
