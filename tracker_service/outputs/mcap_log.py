@@ -35,7 +35,9 @@ from io import BytesIO
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
+import numpy.typing as npt
 from mcap._chunk_builder import ChunkBuilder
 from mcap.data_stream import RecordBuilder
 from mcap.exceptions import EndOfFile
@@ -596,6 +598,26 @@ _MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 """A Message record's opcode and length, then its channel id, sequence, log and publish
 times (the MCAP specification's layout, as ``mcap.records.Message.write`` writes it)."""
 _MESSAGE_FIELDS_BYTES = _MESSAGE_HEADER.size - 9
+_MESSAGE_HEADER_BYTES = _MESSAGE_HEADER.size
+_MESSAGE_OPCODE = int(Opcode.MESSAGE)
+
+
+class _PackedIndex(MessageIndex):
+    """A chunk's message index of one channel, written as ``MessageIndex.write`` writes it
+    (channel, length, then each (log time, offset)) with one pack for the records rather
+    than two writes each."""
+
+    def write(self, stream: RecordBuilder) -> None:
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(len(self.records) * 16)
+        stream.write(_pack_u64(*(value for record in self.records for value in record)))
+        # mcap-python leaves finish_record() unannotated.
+        stream.finish_record()  # type: ignore[no-untyped-call]
+
+
+def _pack_u64(*values: int) -> bytes:
+    return struct.pack(f"<{len(values)}Q", *values)
 
 
 @dataclass(frozen=True, slots=True)
@@ -648,42 +670,88 @@ class _ChunkAccess:
         statistics.message_end_time = max(last, statistics.message_end_time)
         statistics.channel_message_counts[channel] += len(messages)
         statistics.message_count += len(messages)
-        pack, stream = _MESSAGE_HEADER.pack, file.stream
-        buffer = builder.record_writer._buffer
-        index = builder.message_indices.get(channel)
-        for data, log_time in messages:
-            if builder.num_messages == 0 or log_time < builder.message_start_time:
-                builder.message_start_time = log_time
-            if log_time > builder.message_end_time:
-                builder.message_end_time = log_time
+        stream, header = file.stream, _MESSAGE_HEADER.size
+        start, n = 0, len(messages)
+        while start < n:
+            # The messages up to the one that takes the chunk past its size (as
+            # add_message: the chunk is complete once it holds more than its size), written
+            # with one call.
+            buffer = builder.record_writer._buffer
+            offsets = []
+            size = buffer.tell()
+            end = start
+            while end < n:
+                offsets.append(size)
+                size += header + len(messages[end][0])
+                end += 1
+                if size > self.chunk_size:
+                    break
+            run = messages[start:end]
+            times = [log_time for _, log_time in run]
+            earliest, latest = min(times), max(times)
+            if builder.num_messages == 0 or earliest < builder.message_start_time:
+                builder.message_start_time = earliest
+            builder.message_end_time = max(latest, builder.message_end_time)
+            index = builder.message_indices.get(channel)
             if index is None:
-                index = builder.message_indices[channel] = MessageIndex(channel, [])
-            offset = buffer.tell()
-            index.records.append((log_time, offset))
-            builder.num_messages += 1
-            buffer.write(
-                pack(
-                    Opcode.MESSAGE,
-                    _MESSAGE_FIELDS_BYTES + len(data),
-                    channel,
-                    sequence % _MAX_SEQUENCE,
-                    log_time,
-                    log_time,
-                )
+                index = builder.message_indices[channel] = _PackedIndex(channel, [])
+            index.records.extend(zip(times, offsets, strict=True))
+            builder.num_messages += len(run)
+            datas = [data for data, _ in run]
+            records = _message_records(
+                np.frombuffer(b"".join(datas) or b"\0", dtype=np.uint8),
+                np.fromiter(map(len, datas), dtype=np.int64, count=len(run)),
+                channel,
+                sequence,
+                np.array(times, dtype=np.uint64),
             )
-            buffer.write(data)
-            sequence += 1
-            file.messages += 1
-            file.unwritten += 1
-            if buffer.tell() > self.chunk_size:
-                # As add_message: the chunk is complete once it holds more than its size.
+            buffer.write(records.data)
+            sequence += len(run)
+            file.messages += len(run)
+            file.unwritten += len(run)
+            start = end
+            if size > self.chunk_size:
                 self.finish_chunk()
-                buffer = builder.record_writer._buffer  # a new one for the next chunk
-                index = None
                 # The chunk out whole to the operating system, where it survives the process.
                 if stream.flush():
                     file.unwritten = 0
         return sequence
+
+
+@numba.njit(cache=True)
+def _message_records(
+    data: npt.NDArray[np.uint8],
+    lengths: npt.NDArray[np.int64],
+    channel: int,
+    sequence: int,
+    times: npt.NDArray[np.uint64],
+) -> npt.NDArray[np.uint8]:
+    """Message records, one after another, as ``Message.write`` writes them (opcode,
+    record length, channel id, sequence, log time, publish time: little-endian, then the
+    data): ``data`` the messages' data joined, ``lengths`` each one's, ``sequence`` the
+    first one's number, ``times`` their log (and publish) times."""
+    n = lengths.size
+    out = np.empty(n * _MESSAGE_HEADER_BYTES + lengths.sum(), dtype=np.uint8)
+    pos, start = 0, 0
+    for k in range(n):
+        length = lengths[k]
+        out[pos] = _MESSAGE_OPCODE
+        _put_le(out, pos + 1, np.uint64(_MESSAGE_FIELDS_BYTES + length), 8)
+        _put_le(out, pos + 9, np.uint64(channel), 2)
+        _put_le(out, pos + 11, np.uint64((sequence + k) % _MAX_SEQUENCE), 4)
+        _put_le(out, pos + 15, times[k], 8)
+        _put_le(out, pos + 23, times[k], 8)
+        pos += _MESSAGE_HEADER_BYTES
+        out[pos : pos + length] = data[start : start + length]
+        pos += length
+        start += length
+    return out
+
+
+@numba.njit(cache=True)
+def _put_le(out: npt.NDArray[np.uint8], pos: int, value: np.uint64, octets: int) -> None:
+    for i in range(octets):
+        out[pos + i] = (value >> np.uint64(8 * i)) & np.uint64(0xFF)
 
 
 def _locations(fixes: LocationFixes, known: bool) -> list[tuple[bytes, int]]:

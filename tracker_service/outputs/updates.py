@@ -124,7 +124,10 @@ def python_json_numbers(values: Sequence[float]) -> list[str]:
     value (the shortest text that reads back to it)."""
     if not values:
         return []
-    texts = to_json(values, inf_nan_mode="constants").decode()[1:-1].split(",")
+    text = to_json(values, inf_nan_mode="constants").decode()
+    texts = text[1:-1].split(",")
+    if "e" not in text and "0.0000" not in text:
+        return texts  # no number below 1e-4 nor an exponent: the texts are repr's
     return [
         repr(float(text)) if "e" in text or text.startswith(_BELOW_1E_4) else text for text in texts
     ]
