@@ -447,52 +447,38 @@ class MapScene:
         return _dumps({"geojson": collection})
 
     def _features(self, number: int, track: _Track) -> str:
+        """The track's point (its identity as properties), trail and one-minute vector,
+        as ``json.dumps`` writes them (compact), joined by commas."""
         m = track.last
         colour = _hex(track_colour(m))
-        label = track_label(m)
+        (_, label), *identity = _identity_of(m)
         # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
         # precision (/system_tracks has the full values).
-        here = [round(m.lon, 5), round(m.lat, 5)]
-        properties = {"name": label, **dict(_identity_of(m))}
-        del properties["label"]  # the name
-        features: list[dict[str, Any]] = [
-            {
-                "type": "Feature",
-                "id": f"track/{number}",
-                "geometry": {"type": "Point", "coordinates": here},
-                "properties": {
-                    **properties,
-                    "style": {"color": colour, "fillColor": colour, "fillOpacity": 1.0},
-                },
-            }
+        here = (round(m.lon, 5), round(m.lat, 5))
+        properties = "".join(f',"{key}":{encode_basestring_ascii(v)}' for key, v in identity)
+        features = [
+            f'{{"type":"Feature","id":"track/{number}","geometry":{{"type":"Point",'
+            f'"coordinates":{_point(here)}}},"properties":{{"name":'
+            f"{encode_basestring_ascii(label)}{properties},"
+            f'"style":{{"color":"{colour}","fillColor":"{colour}","fillOpacity":1.0}}}}}}'
         ]
-        trail = [[lon, lat] for _, lon, lat in track.trail]
+        trail = [(lon, lat) for _, lon, lat in track.trail]
         if not trail or trail[-1] != here:
             trail.append(here)
         if len(trail) >= 2:
             features.append(
-                {
-                    "type": "Feature",
-                    "id": f"trail/{number}",
-                    "geometry": {"type": "LineString", "coordinates": trail},
-                    "properties": {
-                        "name": f"{label} trail",
-                        "style": {"color": colour, "weight": 2, "opacity": 0.5},
-                    },
-                }
+                f'{{"type":"Feature","id":"trail/{number}","geometry":{{"type":"LineString",'
+                f'"coordinates":[{",".join(map(_point, trail))}]}},"properties":{{"name":'
+                f"{encode_basestring_ascii(label + ' trail')},"
+                f'"style":{{"color":"{colour}","weight":2,"opacity":0.5}}}}}}'
             )
         features.append(
-            {
-                "type": "Feature",
-                "id": f"vector/{number}",
-                "geometry": {"type": "LineString", "coordinates": [here, _ahead(m)]},
-                "properties": {
-                    "name": f"{label} 1 min",
-                    "style": {"color": colour, "weight": 1, "opacity": 0.9},
-                },
-            }
+            f'{{"type":"Feature","id":"vector/{number}","geometry":{{"type":"LineString",'
+            f'"coordinates":[{_point(here)},{_point(_ahead(m))}]}},"properties":{{"name":'
+            f"{encode_basestring_ascii(label + ' 1 min')},"
+            f'"style":{{"color":"{colour}","weight":1,"opacity":0.9}}}}}}'
         )
-        return ",".join(json.dumps(f, separators=(",", ":")) for f in features)
+        return ",".join(features)
 
     def sites_geojson(self) -> bytes:
         if self._sites_payload is None:
@@ -543,7 +529,21 @@ def _due(next_time: float | None, period: float, time: float) -> tuple[bool, flo
     return True, next_time + period * (math.floor((time - next_time) / period) + 1)
 
 
-def _ahead(m: SystemValues) -> list[float]:
+def _point(lon_lat: tuple[float, float]) -> str:
+    """[lon, lat] as ``json.dumps`` writes it."""
+    return f"[{_float(lon_lat[0])},{_float(lon_lat[1])}]"
+
+
+def _float(value: float) -> str:
+    """A float as ``json.dumps`` writes it (``repr``; NaN and infinities by name)."""
+    if value != value:
+        return "NaN"
+    if value in (math.inf, -math.inf):
+        return "Infinity" if value > 0 else "-Infinity"
+    return repr(value)
+
+
+def _ahead(m: SystemValues) -> tuple[float, float]:
     """Where the track is in one minute at its velocity (the plane's axes taken as east
     and north: a display's speed vector, not a prediction)."""
     d_north = m.vy_mps * _SPEED_VECTOR_S
@@ -551,7 +551,7 @@ def _ahead(m: SystemValues) -> list[float]:
     lat = m.lat + math.degrees(d_north / _EARTH_RADIUS_M)
     cos_lat = max(math.cos(math.radians(m.lat)), 1e-6)
     lon = m.lon + math.degrees(d_east / (_EARTH_RADIUS_M * cos_lat))
-    return [round((lon + 180.0) % 360.0 - 180.0, 5), round(max(min(lat, 90.0), -90.0), 5)]
+    return (round((lon + 180.0) % 360.0 - 180.0, 5), round(max(min(lat, 90.0), -90.0), 5))
 
 
 def _ring(site: MapRadar) -> list[list[float]]:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import os
 import struct
 import time as clock
@@ -55,6 +56,7 @@ from mcap.records import (
 from mcap.stream_reader import StreamReader
 from mcap.writer import MCAP0_MAGIC, Writer
 from pydantic import BaseModel, ConfigDict, Field
+from pydantic_core import to_json
 
 from asterix.containers import Datagram
 from tracker_service.closing import Closing
@@ -315,16 +317,22 @@ class McapLog(Closing):
 
     def log_datagram(self, datagram: Datagram, input_name: str = "udp") -> None:
         """A received datagram, on ``/datagrams/<input_name>``; its time is required."""
-        if datagram.time is None:
+        time = datagram.time
+        if time is None:
             raise ValueError("a logged datagram needs its reception time")
-        message = LoggedDatagram(
-            input=input_name,
-            time=datagram.time,
-            src=_endpoint(datagram.source),
-            dst=_endpoint(datagram.destination),
-            payload=datagram.payload.hex(),
-        )
-        self.log(datagram_topic(input_name), message, datagram.time)
+        fields = {
+            "input": input_name,
+            "time": time,
+            "src": _endpoint(datagram.source),
+            "dst": _endpoint(datagram.destination),
+            "payload": datagram.payload.hex(),
+        }
+        if not (math.isfinite(time) and time >= 0.0):
+            LoggedDatagram.model_validate(fields)  # raises, saying what is wrong
+        # ``LoggedDatagram``'s JSON, by the writer its model_dump_json uses, without
+        # validating the hex payload against its pattern (a few us a kB; it holds by
+        # construction).
+        self.log_json(datagram_topic(input_name), LoggedDatagram, to_json(fields), time)
 
     def log(self, topic: str, model: BaseModel, time: float) -> None:
         """A message on ``topic``, whose schema is its model's; ``time`` (POSIX seconds)
