@@ -254,6 +254,8 @@ class _Track:
     """Its latest update: a row of a batch, its values made when the picture needs them."""
     trail: deque[_Point] = field(default_factory=deque)
     """(time, lon, lat), oldest first."""
+    trail_json: str | None = None
+    """Its trail's points as JSON (``_point`` each, by commas); None when it changed."""
     features: str | None = None
     """Its features in the picture, as JSON; None when it moved since."""
 
@@ -320,7 +322,8 @@ class MapScene:
                 if track is None:
                     track = tracks[number] = _Track(batch, k)
                 track.batch, track.row, track.features = batch, k, None
-                self._extend_trail(track.trail, at, lon, lat)
+                if self._extend_trail(track.trail, at, lon, lat):
+                    track.trail_json = None
                 out.append(FoxgloveMessage(TRACKS_TOPIC, LOCATION_FIX, next(fixes), time))
             if k == 0:
                 # Due once at most at this time: after the first update, as each update
@@ -339,11 +342,16 @@ class MapScene:
             out.append(FoxgloveMessage(PICTURE_TOPIC, GEOJSON, self.picture_geojson(), time))
         return out
 
-    def _extend_trail(self, trail: deque[_Point], time: float, lon: float, lat: float) -> None:
+    def _extend_trail(self, trail: deque[_Point], time: float, lon: float, lat: float) -> bool:
+        """Whether the trail changed."""
+        changed = False
         if not trail or time - trail[-1][0] >= self.trail_spacing_s:
             trail.append((time, round(lon, 5), round(lat, 5)))
+            changed = True
         while trail and time - trail[0][0] > self.trail_s:
             trail.popleft()
+            changed = True
+        return changed
 
     def location_fix(self, track: SystemTrackMessage | SystemValues) -> bytes:
         """The ``foxglove.LocationFix`` of one update (``location_fixes``)."""
@@ -462,13 +470,16 @@ class MapScene:
             f"{encode_basestring_ascii(label)}{properties},"
             f'"style":{{"color":"{colour}","fillColor":"{colour}","fillOpacity":1.0}}}}}}'
         ]
-        trail = [(lon, lat) for _, lon, lat in track.trail]
-        if not trail or trail[-1] != here:
-            trail.append(here)
-        if len(trail) >= 2:
+        if track.trail_json is None:
+            track.trail_json = ",".join(_point((lon, lat)) for _, lon, lat in track.trail)
+        trail, points = track.trail_json, len(track.trail)
+        if not points or track.trail[-1][1:] != here:
+            trail = f"{trail},{_point(here)}" if points else _point(here)
+            points += 1
+        if points >= 2:
             features.append(
                 f'{{"type":"Feature","id":"trail/{number}","geometry":{{"type":"LineString",'
-                f'"coordinates":[{",".join(map(_point, trail))}]}},"properties":{{"name":'
+                f'"coordinates":[{trail}]}},"properties":{{"name":'
                 f"{encode_basestring_ascii(label + ' trail')},"
                 f'"style":{{"color":"{colour}","weight":2,"opacity":0.5}}}}}}'
             )
