@@ -102,7 +102,6 @@ _FIX = (
 )
 """A ``foxglove.LocationFix`` as ``json.dumps`` writes it (compact): the plane's axes are
 east and north near its centre; the vertical is not estimated, so large rather than zero."""
-_METADATA = '{"key":"%s","value":%s}'
 _ENDED = STATUSES.index("ended")
 
 Rgb = tuple[float, float, float]
@@ -179,49 +178,51 @@ def _label(
     return f"{identity} {level} {round(ground_speed_mps * _KT_PER_MPS)}kt"
 
 
-def _identity(
-    number: int,
-    status: str,
-    callsign: str | None,
-    mode3a: str | None,
-    address: str | None,
-    flight_level: float | None,
-    ground_speed_mps: float,
-    track_angle_deg: float,
-    radars: Sequence[str],
-) -> list[tuple[str, str]]:
-    """What the map's tooltip lists of a track (``metadata``), label first."""
-    items = [
-        ("label", _label(number, callsign, mode3a, flight_level, ground_speed_mps)),
-        ("track", str(number)),
-        ("status", status),
+def _identities(
+    number: Sequence[int],
+    status: Sequence[str],
+    callsign: Sequence[str | None],
+    mode3a: Sequence[str | None],
+    address: Sequence[str | None],
+    flight_level: Sequence[float | None],
+    ground_speed_mps: Sequence[float],
+    track_angle_deg: Sequence[float],
+    radars: Sequence[Sequence[str]],
+) -> list[tuple[str, list[str | None]]]:
+    """What the map's tooltip lists of each of several tracks (``metadata``), label
+    first: per item its key and its value for each track (None: the track has none), so
+    that a batch's fixes are written column by column."""
+    return [
+        (
+            "label",
+            list(map(_label, number, callsign, mode3a, flight_level, ground_speed_mps)),
+        ),
+        ("track", [str(n) for n in number]),
+        ("status", list(status)),
+        ("callsign", [c.strip() if c else None for c in callsign]),
+        ("mode3a", [m or None for m in mode3a]),
+        ("address", [a or None for a in address]),
+        ("flight_level", [None if f is None else f"{f:.2f}" for f in flight_level]),
+        ("ground_speed_kt", [f"{v * _KT_PER_MPS:.0f}" for v in ground_speed_mps]),
+        ("track_angle_deg", [f"{a:.0f}" for a in track_angle_deg]),
+        ("sources", [",".join(sorted(set(r))) for r in radars]),
     ]
-    if callsign:
-        items.append(("callsign", callsign.strip()))
-    if mode3a:
-        items.append(("mode3a", mode3a))
-    if address:
-        items.append(("address", address))
-    if flight_level is not None:
-        items.append(("flight_level", f"{flight_level:.2f}"))
-    items.append(("ground_speed_kt", f"{ground_speed_mps * _KT_PER_MPS:.0f}"))
-    items.append(("track_angle_deg", f"{track_angle_deg:.0f}"))
-    items.append(("sources", ",".join(sorted(set(radars)))))
-    return items
 
 
 def _identity_of(m: SystemValues) -> list[tuple[str, str]]:
-    return _identity(
-        m.number,
-        m.status,
-        m.callsign,
-        m.mode3a,
-        m.address,
-        m.flight_level,
-        m.ground_speed_mps,
-        m.track_angle_deg,
-        m.sources,
+    """:func:`_identities` of one track: its (key, value) items."""
+    columns = _identities(
+        [m.number],
+        [m.status],
+        [m.callsign],
+        [m.mode3a],
+        [m.address],
+        [m.flight_level],
+        [m.ground_speed_mps],
+        [m.track_angle_deg],
+        [m.sources],
     )
+    return [(key, values[0]) for key, values in columns if values[0] is not None]
 
 
 def _hex(rgb: Rgb) -> str:
@@ -386,60 +387,64 @@ class MapScene:
         # ``_timestamp``: the fraction split off first, no 128 ns rounding.
         nsec = np.minimum(np.rint((time - sec) * _NS_PER_S), _NS_PER_S - 1).astype(np.int64)
         names, radar_names = batch.names, batch.radar_names
-        callsigns = [None if i < 0 else names[i] for i in batch.callsign[live].tolist()]
-        mode3a = [None if c < 0 else f"{c:04o}" for c in batch.mode3a[live].tolist()]
-        address = [None if a < 0 else f"{a:06X}" for a in batch.address[live].tolist()]
-        level = [None if f != f else f for f in batch.flight_level[live].tolist()]
+        number = batch.number[live].tolist()
+        status = [STATUSES[code] for code in batch.status[live].tolist()]
         radars = [
             [radar_names[r] for r in row[:n]]
             for row, n in zip(
                 batch.source_radar[live].tolist(), batch.n_sources[live].tolist(), strict=True
             )
         ]
-        fixes = []
-        for k, (number, status, duplicate, speed, angle, second, nanosecond) in enumerate(
-            zip(
-                batch.number[live].tolist(),
-                batch.status[live].tolist(),
-                batch.duplicate_address[live].tolist(),
-                batch.ground_speed[live].tolist(),
-                batch.track_angle[live].tolist(),
-                np.maximum(sec, 0).astype(np.int64).tolist(),
-                nsec.tolist(),
-                strict=True,
+        identities = _identities(
+            number,
+            status,
+            [None if i < 0 else names[i] for i in batch.callsign[live].tolist()],
+            [None if c < 0 else f"{c:04o}" for c in batch.mode3a[live].tolist()],
+            [None if a < 0 else f"{a:06X}" for a in batch.address[live].tolist()],
+            [None if f != f else f for f in batch.flight_level[live].tolist()],
+            batch.ground_speed[live].tolist(),
+            batch.track_angle[live].tolist(),
+            radars,
+        )
+        # Each item a column of its JSON objects ("" where a track has none), the first
+        # (the label, which every track has) without its leading comma.
+        items = [
+            [
+                ""
+                if v is None
+                else f'{"," if i else ""}{{"key":"{key}","value":{encode_basestring_ascii(v)}}}'
+                for v in values
+            ]
+            for i, (key, values) in enumerate(identities)
+        ]
+        metadata = list(map("".join, zip(*items, strict=True)))
+        colours = [
+            _COLOUR_TEXT[_colour(state, duplicate, len(set(r)))]
+            for state, duplicate, r in zip(
+                status, batch.duplicate_address[live].tolist(), radars, strict=True
             )
-        ):
-            state = STATUSES[status]
-            r, g, b = _COLOUR_TEXT[_colour(state, duplicate, len(set(radars[k])))]
-            metadata = ",".join(
-                _METADATA % (key, encode_basestring_ascii(value))
-                for key, value in _identity(
+        ]
+        fixes = [
+            (
+                _FIX
+                % (
+                    second,
+                    nanosecond,
+                    n,
+                    *numbers[7 * k : 7 * k + 7],
+                    *colours[k],
+                    metadata[k],
+                )
+            ).encode()
+            for k, (n, second, nanosecond) in enumerate(
+                zip(
                     number,
-                    state,
-                    callsigns[k],
-                    mode3a[k],
-                    address[k],
-                    level[k],
-                    speed,
-                    angle,
-                    radars[k],
+                    np.maximum(sec, 0).astype(np.int64).tolist(),
+                    nsec.tolist(),
+                    strict=True,
                 )
             )
-            fixes.append(
-                (
-                    _FIX
-                    % (
-                        second,
-                        nanosecond,
-                        number,
-                        *numbers[7 * k : 7 * k + 7],
-                        r,
-                        g,
-                        b,
-                        metadata,
-                    )
-                ).encode()
-            )
+        ]
         return fixes
 
     def picture_geojson(self) -> bytes:

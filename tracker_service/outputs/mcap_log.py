@@ -619,13 +619,9 @@ class _PackedIndex(MessageIndex):
         stream.start_record(Opcode.MESSAGE_INDEX)
         stream.write2(self.channel_id)
         stream.write4(len(self.records) * 16)
-        stream.write(_pack_u64(*(value for record in self.records for value in record)))
+        stream.write(np.array(self.records, dtype="<u8").tobytes())
         # mcap-python leaves finish_record() unannotated.
         stream.finish_record()  # type: ignore[no-untyped-call]
-
-
-def _pack_u64(*values: int) -> bytes:
-    return struct.pack(f"<{len(values)}Q", *values)
 
 
 @dataclass(frozen=True, slots=True)
@@ -668,57 +664,52 @@ class _ChunkAccess:
     ) -> int:
         """As :func:`_add_one_by_one`, the same bytes; the sequence number after them."""
         statistics, builder = self.statistics, self.builder
-        times = [log_time for _, log_time in messages]
+        n = len(messages)
+        datas = [data for data, _ in messages]
+        times = np.array([log_time for _, log_time in messages], dtype=np.uint64)
+        sizes = np.fromiter(map(len, datas), dtype=np.int64, count=n)
         # The file's statistics are written at its end only: a batch updates them once.
-        first, last = min(times), max(times)
+        first, last = int(times.min()), int(times.max())
         if statistics.message_count == 0:
             statistics.message_start_time = first
         else:
             statistics.message_start_time = min(first, statistics.message_start_time)
         statistics.message_end_time = max(last, statistics.message_end_time)
-        statistics.channel_message_counts[channel] += len(messages)
-        statistics.message_count += len(messages)
-        stream, header = file.stream, _MESSAGE_HEADER.size
-        start, n = 0, len(messages)
+        statistics.channel_message_counts[channel] += n
+        statistics.message_count += n
+        stream, start = file.stream, 0
         while start < n:
             # The messages up to the one that takes the chunk past its size (as
             # add_message: the chunk is complete once it holds more than its size), written
             # with one call.
             buffer = builder.record_writer._buffer
-            offsets = []
-            size = buffer.tell()
-            end = start
-            while end < n:
-                offsets.append(size)
-                size += header + len(messages[end][0])
-                end += 1
-                if size > self.chunk_size:
-                    break
-            run = messages[start:end]
-            times = [log_time for _, log_time in run]
-            earliest, latest = min(times), max(times)
+            ends = buffer.tell() + np.cumsum(sizes[start:] + _MESSAGE_HEADER_BYTES)
+            past = int(np.searchsorted(ends, self.chunk_size, side="right"))
+            stop = min(start + past + 1, n)
+            run_times = times[start:stop]
+            earliest, latest = int(run_times.min()), int(run_times.max())
             if builder.num_messages == 0 or earliest < builder.message_start_time:
                 builder.message_start_time = earliest
             builder.message_end_time = max(latest, builder.message_end_time)
             index = builder.message_indices.get(channel)
             if index is None:
                 index = builder.message_indices[channel] = _PackedIndex(channel, [])
-            index.records.extend(zip(times, offsets, strict=True))
-            builder.num_messages += len(run)
-            datas = [data for data, _ in run]
+            offsets = ends[: stop - start] - (sizes[start:stop] + _MESSAGE_HEADER_BYTES)
+            index.records.extend(zip(run_times.tolist(), offsets.tolist(), strict=True))
+            builder.num_messages += stop - start
             records = _message_records(
-                np.frombuffer(b"".join(datas) or b"\0", dtype=np.uint8),
-                np.fromiter(map(len, datas), dtype=np.int64, count=len(run)),
+                np.frombuffer(b"".join(datas[start:stop]) or b"\0", dtype=np.uint8),
+                sizes[start:stop],
                 channel,
                 sequence,
-                np.array(times, dtype=np.uint64),
+                run_times,
             )
             buffer.write(records.data)
-            sequence += len(run)
-            file.messages += len(run)
-            file.unwritten += len(run)
-            start = end
-            if size > self.chunk_size:
+            sequence += stop - start
+            file.messages += stop - start
+            file.unwritten += stop - start
+            start = stop
+            if past < len(ends):
                 self.finish_chunk()
                 # The chunk out whole to the operating system, where it survives the process.
                 if stream.flush():
