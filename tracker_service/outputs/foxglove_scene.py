@@ -33,9 +33,10 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from json.encoder import encode_basestring_ascii
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 from pyproj import Geod
 
 from tracker_service.outputs.mcap_log import LOCATION_FIX_SCHEMA
@@ -209,24 +210,50 @@ def _identities(
     ]
 
 
-def _identity_of(m: SystemValues) -> list[tuple[str, str]]:
-    """:func:`_identities` of one track: its (key, value) items."""
-    columns = _identities(
-        [m.number],
-        [m.status],
-        [m.callsign],
-        [m.mode3a],
-        [m.address],
-        [m.flight_level],
-        [m.ground_speed_mps],
-        [m.track_angle_deg],
-        [m.sources],
+class _MapColumns(NamedTuple):
+    number: list[int]
+    status: list[str]
+    identities: list[tuple[str, list[str | None]]]
+    colours: list[Rgb]
+
+
+def _map_columns(batch: SystemBatch, rows: npt.NDArray[np.int64]) -> _MapColumns:
+    """What the map shows of rows ``rows`` of ``batch``: numbers, statuses, identities
+    (``_identities``) and colours, column by column."""
+    names, radar_names = batch.names, batch.radar_names
+    number = batch.number[rows].tolist()
+    status = [STATUSES[code] for code in batch.status[rows].tolist()]
+    radars = [
+        [radar_names[r] for r in row[:n]]
+        for row, n in zip(
+            batch.source_radar[rows].tolist(), batch.n_sources[rows].tolist(), strict=True
+        )
+    ]
+    identities = _identities(
+        number,
+        status,
+        [None if i < 0 else names[i] for i in batch.callsign[rows].tolist()],
+        [None if c < 0 else f"{c:04o}" for c in batch.mode3a[rows].tolist()],
+        [None if a < 0 else f"{a:06X}" for a in batch.address[rows].tolist()],
+        [None if f != f else f for f in batch.flight_level[rows].tolist()],
+        batch.ground_speed[rows].tolist(),
+        batch.track_angle[rows].tolist(),
+        radars,
     )
-    return [(key, values[0]) for key, values in columns if values[0] is not None]
+    colours = [
+        _colour(state, duplicate, len(set(r)))
+        for state, duplicate, r in zip(
+            status, batch.duplicate_address[rows].tolist(), radars, strict=True
+        )
+    ]
+    return _MapColumns(number, status, identities, colours)
 
 
 def _hex(rgb: Rgb) -> str:
     return "#" + "".join(f"{round(c * 255):02x}" for c in rgb)
+
+
+_COLOUR_HEX = {rgb: _hex(rgb) for rgb in _COLOUR_TEXT}
 
 
 def _timestamp(time: float) -> dict[str, int]:
@@ -386,26 +413,7 @@ class MapScene:
         sec = np.floor(time)
         # ``_timestamp``: the fraction split off first, no 128 ns rounding.
         nsec = np.minimum(np.rint((time - sec) * _NS_PER_S), _NS_PER_S - 1).astype(np.int64)
-        names, radar_names = batch.names, batch.radar_names
-        number = batch.number[live].tolist()
-        status = [STATUSES[code] for code in batch.status[live].tolist()]
-        radars = [
-            [radar_names[r] for r in row[:n]]
-            for row, n in zip(
-                batch.source_radar[live].tolist(), batch.n_sources[live].tolist(), strict=True
-            )
-        ]
-        identities = _identities(
-            number,
-            status,
-            [None if i < 0 else names[i] for i in batch.callsign[live].tolist()],
-            [None if c < 0 else f"{c:04o}" for c in batch.mode3a[live].tolist()],
-            [None if a < 0 else f"{a:06X}" for a in batch.address[live].tolist()],
-            [None if f != f else f for f in batch.flight_level[live].tolist()],
-            batch.ground_speed[live].tolist(),
-            batch.track_angle[live].tolist(),
-            radars,
-        )
+        number, _, identities, colours = _map_columns(batch, live)
         # Each item a column of its JSON objects ("" where a track has none), the first
         # (the label, which every track has) without its leading comma.
         items = [
@@ -418,12 +426,6 @@ class MapScene:
             for i, (key, values) in enumerate(identities)
         ]
         metadata = list(map("".join, zip(*items, strict=True)))
-        colours = [
-            _COLOUR_TEXT[_colour(state, duplicate, len(set(r)))]
-            for state, duplicate, r in zip(
-                status, batch.duplicate_address[live].tolist(), radars, strict=True
-            )
-        ]
         fixes = [
             (
                 _FIX
@@ -432,7 +434,7 @@ class MapScene:
                     nanosecond,
                     n,
                     *numbers[7 * k : 7 * k + 7],
-                    *colours[k],
+                    *_COLOUR_TEXT[colours[k]],
                     metadata[k],
                 )
             ).encode()
@@ -449,52 +451,77 @@ class MapScene:
 
     def picture_geojson(self) -> bytes:
         """Every live track's point, trail and vector, as one FeatureCollection; a track's
-        features are made again only when it has moved since the last picture."""
-        fragments = []
-        for number in sorted(self._tracks):
-            track = self._tracks[number]
-            if track.features is None:
-                track.features = self._features(number, track)
-            fragments.append(track.features)
+        features are made again only when it has moved since the last picture (all such
+        tracks at once, from their updates' columns)."""
+        numbers = sorted(self._tracks)
+        moved = [self._tracks[n] for n in numbers if self._tracks[n].features is None]
+        if moved:
+            batch = SystemBatch.gather([(track.batch, track.row) for track in moved])
+            for track, features in zip(moved, self._features(batch, moved), strict=True):
+                track.features = features
+        fragments = [self._tracks[n].features or "" for n in numbers]
         collection = '{"type":"FeatureCollection","features":[' + ",".join(fragments) + "]}"
         return _dumps({"geojson": collection})
 
-    def _features(self, number: int, track: _Track) -> str:
-        """The track's point (its identity as properties), trail and one-minute vector,
-        as ``json.dumps`` writes them (compact), joined by commas."""
-        m = track.last
-        colour = _hex(track_colour(m))
-        (_, label), *identity = _identity_of(m)
+    @staticmethod
+    def _features(batch: SystemBatch, tracks: Sequence[_Track]) -> list[str]:
+        """Each track's point (its identity as properties), trail and one-minute vector,
+        as ``json.dumps`` writes them (compact), joined by commas; ``batch``: their latest
+        updates, in the same order."""
+        rows = np.arange(len(batch))
+        number, _, identities, colours = _map_columns(batch, rows)
+        (_, labels), *identity = identities
+        properties = list(
+            map(
+                "".join,
+                zip(
+                    *(
+                        [
+                            "" if v is None else f',"{key}":{encode_basestring_ascii(v)}'
+                            for v in values
+                        ]
+                        for key, values in identity
+                    ),
+                    strict=True,
+                ),
+            )
+        )
+        lon, lat = batch.lon.tolist(), batch.lat.tolist()
         # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
         # precision (/system_tracks has the full values).
-        here = (round(m.lon, 5), round(m.lat, 5))
-        properties = "".join(f',"{key}":{encode_basestring_ascii(v)}' for key, v in identity)
-        features = [
-            f'{{"type":"Feature","id":"track/{number}","geometry":{{"type":"Point",'
-            f'"coordinates":{_point(here)}}},"properties":{{"name":'
-            f"{encode_basestring_ascii(label)}{properties},"
-            f'"style":{{"color":"{colour}","fillColor":"{colour}","fillOpacity":1.0}}}}}}'
-        ]
-        if track.trail_json is None:
-            track.trail_json = ",".join(_point((lon, lat)) for _, lon, lat in track.trail)
-        trail, points = track.trail_json, len(track.trail)
-        if not points or track.trail[-1][1:] != here:
-            trail = f"{trail},{_point(here)}" if points else _point(here)
-            points += 1
-        if points >= 2:
+        here = [(round(x, 5), round(y, 5)) for x, y in zip(lon, lat, strict=True)]
+        ahead = list(map(_ahead, lon, lat, batch.vx.tolist(), batch.vy.tolist()))
+        out = []
+        for k, track in enumerate(tracks):
+            colour = _COLOUR_HEX[colours[k]]
+            label, point = labels[k] or "", _point(here[k])
+            features = [
+                f'{{"type":"Feature","id":"track/{number[k]}","geometry":{{"type":"Point",'
+                f'"coordinates":{point}}},"properties":{{"name":'
+                f"{encode_basestring_ascii(label)}{properties[k]},"
+                f'"style":{{"color":"{colour}","fillColor":"{colour}","fillOpacity":1.0}}}}}}'
+            ]
+            if track.trail_json is None:
+                track.trail_json = ",".join(_point((x, y)) for _, x, y in track.trail)
+            trail, points = track.trail_json, len(track.trail)
+            if not points or track.trail[-1][1:] != here[k]:
+                trail = f"{trail},{point}" if points else point
+                points += 1
+            if points >= 2:
+                features.append(
+                    f'{{"type":"Feature","id":"trail/{number[k]}","geometry":{{"type":'
+                    f'"LineString","coordinates":[{trail}]}},"properties":{{"name":'
+                    f"{encode_basestring_ascii(label + ' trail')},"
+                    f'"style":{{"color":"{colour}","weight":2,"opacity":0.5}}}}}}'
+                )
             features.append(
-                f'{{"type":"Feature","id":"trail/{number}","geometry":{{"type":"LineString",'
-                f'"coordinates":[{trail}]}},"properties":{{"name":'
-                f"{encode_basestring_ascii(label + ' trail')},"
-                f'"style":{{"color":"{colour}","weight":2,"opacity":0.5}}}}}}'
+                f'{{"type":"Feature","id":"vector/{number[k]}","geometry":{{"type":'
+                f'"LineString","coordinates":[{point},{_point(ahead[k])}]}},"properties":'
+                f'{{"name":{encode_basestring_ascii(label + " 1 min")},'
+                f'"style":{{"color":"{colour}","weight":1,"opacity":0.9}}}}}}'
             )
-        features.append(
-            f'{{"type":"Feature","id":"vector/{number}","geometry":{{"type":"LineString",'
-            f'"coordinates":[{_point(here)},{_point(_ahead(m))}]}},"properties":{{"name":'
-            f"{encode_basestring_ascii(label + ' 1 min')},"
-            f'"style":{{"color":"{colour}","weight":1,"opacity":0.9}}}}}}'
-        )
-        return ",".join(features)
+            out.append(",".join(features))
+        return out
 
     def sites_geojson(self) -> bytes:
         if self._sites_payload is None:
@@ -559,14 +586,14 @@ def _float(value: float) -> str:
     return repr(value)
 
 
-def _ahead(m: SystemValues) -> tuple[float, float]:
+def _ahead(lon: float, lat: float, vx_mps: float, vy_mps: float) -> tuple[float, float]:
     """Where the track is in one minute at its velocity (the plane's axes taken as east
     and north: a display's speed vector, not a prediction)."""
-    d_north = m.vy_mps * _SPEED_VECTOR_S
-    d_east = m.vx_mps * _SPEED_VECTOR_S
-    lat = m.lat + math.degrees(d_north / _EARTH_RADIUS_M)
-    cos_lat = max(math.cos(math.radians(m.lat)), 1e-6)
-    lon = m.lon + math.degrees(d_east / (_EARTH_RADIUS_M * cos_lat))
+    d_north = vy_mps * _SPEED_VECTOR_S
+    d_east = vx_mps * _SPEED_VECTOR_S
+    cos_lat = max(math.cos(math.radians(lat)), 1e-6)
+    lon = lon + math.degrees(d_east / (_EARTH_RADIUS_M * cos_lat))
+    lat = lat + math.degrees(d_north / _EARTH_RADIUS_M)
     return (round((lon + 180.0) % 360.0 - 180.0, 5), round(max(min(lat, 90.0), -90.0), 5))
 
 

@@ -423,7 +423,7 @@ class MessageMapper:
         if not self._last:
             return []
         last = [self._last[number] for number in sorted(self._last)]
-        batch = SystemBatch.gather(last)
+        batch = SystemBatch.gather([(u.batch, u.index) for u in last])
         batch = replace(
             batch,
             status=np.full(len(batch), STATUSES.index("ended"), dtype=np.int64),

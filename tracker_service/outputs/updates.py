@@ -345,20 +345,28 @@ class SystemBatch:
         return replace(self, **columns)
 
     @staticmethod
-    def gather(updates: Sequence[SystemUpdate]) -> SystemBatch:
-        """The rows of ``updates`` in their order, from the batches they belong to (which
-        share their names: one mapper's): one take per batch."""
+    def gather(rows_of: Sequence[tuple[SystemBatch, int]]) -> SystemBatch:
+        """Rows (batch, row) in their order: one take per batch when the batches share
+        their names (one mapper's), else the rows' values made into a batch."""
         rows: dict[int, tuple[SystemBatch, list[int], list[int]]] = {}
-        for position, update in enumerate(updates):
-            group = rows.get(id(update.batch))
+        for position, (batch, row) in enumerate(rows_of):
+            group = rows.get(id(batch))
             if group is None:
-                group = rows[id(update.batch)] = (update.batch, [], [])
+                group = rows[id(batch)] = (batch, [], [])
             group[1].append(position)
-            group[2].append(update.index)
+            group[2].append(row)
         if len(rows) == 1:
-            ((batch, _, index),) = rows.values()
-            return batch.take(index)
-        parts = [batch.take(index) for batch, _, index in rows.values()]
+            ((batch, _, taken),) = rows.values()
+            return batch.take(taken)
+        first = rows_of[0][0]
+        if any(
+            b.names is not first.names
+            or b.radar_names is not first.radar_names
+            or b.source_radar.shape[1] != first.source_radar.shape[1]
+            for b, _, _ in rows.values()
+        ):
+            return SystemBatch.of_values([batch.values(row) for batch, row in rows_of])
+        parts = [batch.take(taken) for batch, _, taken in rows.values()]
         order = np.argsort(np.concatenate([positions for _, positions, _ in rows.values()]))
         columns: dict[str, Any] = {
             name: np.concatenate([getattr(part, name) for part in parts])[order]

@@ -555,7 +555,7 @@ class Outputs:
         pending = [self._pending_cat062[n] for n in sorted(self._pending_cat062)]
         self._pending_cat062.clear()
         system = self.config.system
-        batch = SystemBatch.gather(pending) if pending else None
+        batch = SystemBatch.gather([(u.batch, u.index) for u in pending]) if pending else None
         data = (b"" if batch is None else encode_system_batch(batch, system)) + encode_cat065(
             "end_of_batch", self._now, self._cat062_batches, system
         )
