@@ -36,9 +36,7 @@ from io import BytesIO
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import numba
 import numpy as np
-import numpy.typing as npt
 from mcap._chunk_builder import ChunkBuilder
 from mcap.data_stream import RecordBuilder
 from mcap.exceptions import EndOfFile
@@ -267,6 +265,8 @@ class _File:
     messages: int = 0
     unwritten: int = 0
     """Messages handed to the writer that are not in the file yet (the chunk in progress)."""
+    chunk: _ChunkAccess | None = None
+    """The writer's chunk in progress, reached directly (None: through ``add_message``)."""
 
 
 class McapLog(Closing):
@@ -455,11 +455,10 @@ class McapLog(Closing):
         if channel_schema != schema:
             raise ValueError(f"topic {topic!r} carries {channel_schema}, not {schema}")
         sequence = file.sequences.get(channel, 0)
-        chunk = _ChunkAccess.of(file.writer)
-        if chunk is None:
+        if file.chunk is None:
             sequence = _add_one_by_one(file, channel, messages, sequence)
         else:
-            sequence = chunk.add_messages(file, channel, messages, sequence)
+            sequence = file.chunk.add_messages(file, channel, messages, sequence)
         file.sequences[channel] = sequence
         if clock.monotonic() - self._last_flush >= self._flush_interval_s:
             # mcap-python leaves flush() unannotated.
@@ -505,7 +504,7 @@ class McapLog(Closing):
             path.unlink()
             raise
         self.files.append(path)
-        return _File(path, stream, writer, log_time)
+        return _File(path, stream, writer, log_time, chunk=_ChunkAccess.of(writer))
 
     def flush(self) -> None:
         """Writes the chunk in progress out now (a quiet feed would otherwise hold it)."""
@@ -665,11 +664,9 @@ class _ChunkAccess:
         """As :func:`_add_one_by_one`, the same bytes; the sequence number after them."""
         statistics, builder = self.statistics, self.builder
         n = len(messages)
-        datas = [data for data, _ in messages]
-        times = np.array([log_time for _, log_time in messages], dtype=np.uint64)
-        sizes = np.fromiter(map(len, datas), dtype=np.int64, count=n)
+        times = [log_time for _, log_time in messages]
         # The file's statistics are written at its end only: a batch updates them once.
-        first, last = int(times.min()), int(times.max())
+        first, last = min(times), max(times)
         if statistics.message_count == 0:
             statistics.message_start_time = first
         else:
@@ -677,80 +674,54 @@ class _ChunkAccess:
         statistics.message_end_time = max(last, statistics.message_end_time)
         statistics.channel_message_counts[channel] += n
         statistics.message_count += n
-        stream, start = file.stream, 0
+        pack, stream, chunk_size = _MESSAGE_HEADER.pack, file.stream, self.chunk_size
+        start = 0
         while start < n:
             # The messages up to the one that takes the chunk past its size (as
             # add_message: the chunk is complete once it holds more than its size), written
             # with one call.
             buffer = builder.record_writer._buffer
-            ends = buffer.tell() + np.cumsum(sizes[start:] + _MESSAGE_HEADER_BYTES)
-            past = int(np.searchsorted(ends, self.chunk_size, side="right"))
-            stop = min(start + past + 1, n)
-            run_times = times[start:stop]
-            earliest, latest = int(run_times.min()), int(run_times.max())
+            position = buffer.tell()
+            records: list[bytes] = []
+            offsets: list[int] = []
+            stop = start
+            while stop < n and (stop == start or position <= chunk_size):
+                data, log_time = messages[stop]
+                offsets.append(position)
+                records += (
+                    pack(
+                        Opcode.MESSAGE,
+                        _MESSAGE_FIELDS_BYTES + len(data),
+                        channel,
+                        (sequence + stop - start) % _MAX_SEQUENCE,
+                        log_time,
+                        log_time,
+                    ),
+                    data,
+                )
+                position += _MESSAGE_HEADER_BYTES + len(data)
+                stop += 1
+            run = times[start:stop]
+            earliest, latest = min(run), max(run)
             if builder.num_messages == 0 or earliest < builder.message_start_time:
                 builder.message_start_time = earliest
             builder.message_end_time = max(latest, builder.message_end_time)
             index = builder.message_indices.get(channel)
             if index is None:
                 index = builder.message_indices[channel] = _PackedIndex(channel, [])
-            offsets = ends[: stop - start] - (sizes[start:stop] + _MESSAGE_HEADER_BYTES)
-            index.records.extend(zip(run_times.tolist(), offsets.tolist(), strict=True))
+            index.records.extend(zip(run, offsets, strict=True))
             builder.num_messages += stop - start
-            records = _message_records(
-                np.frombuffer(b"".join(datas[start:stop]) or b"\0", dtype=np.uint8),
-                sizes[start:stop],
-                channel,
-                sequence,
-                run_times,
-            )
-            buffer.write(records.data)
+            buffer.write(b"".join(records))
             sequence += stop - start
             file.messages += stop - start
             file.unwritten += stop - start
             start = stop
-            if past < len(ends):
+            if position > chunk_size:
                 self.finish_chunk()
                 # The chunk out whole to the operating system, where it survives the process.
                 if stream.flush():
                     file.unwritten = 0
         return sequence
-
-
-@numba.njit(cache=True)
-def _message_records(
-    data: npt.NDArray[np.uint8],
-    lengths: npt.NDArray[np.int64],
-    channel: int,
-    sequence: int,
-    times: npt.NDArray[np.uint64],
-) -> npt.NDArray[np.uint8]:
-    """Message records, one after another, as ``Message.write`` writes them (opcode,
-    record length, channel id, sequence, log time, publish time: little-endian, then the
-    data): ``data`` the messages' data joined, ``lengths`` each one's, ``sequence`` the
-    first one's number, ``times`` their log (and publish) times."""
-    n = lengths.size
-    out = np.empty(n * _MESSAGE_HEADER_BYTES + lengths.sum(), dtype=np.uint8)
-    pos, start = 0, 0
-    for k in range(n):
-        length = lengths[k]
-        out[pos] = _MESSAGE_OPCODE
-        _put_le(out, pos + 1, np.uint64(_MESSAGE_FIELDS_BYTES + length), 8)
-        _put_le(out, pos + 9, np.uint64(channel), 2)
-        _put_le(out, pos + 11, np.uint64((sequence + k) % _MAX_SEQUENCE), 4)
-        _put_le(out, pos + 15, times[k], 8)
-        _put_le(out, pos + 23, times[k], 8)
-        pos += _MESSAGE_HEADER_BYTES
-        out[pos : pos + length] = data[start : start + length]
-        pos += length
-        start += length
-    return out
-
-
-@numba.njit(cache=True)
-def _put_le(out: npt.NDArray[np.uint8], pos: int, value: np.uint64, octets: int) -> None:
-    for i in range(octets):
-        out[pos + i] = (value >> np.uint64(8 * i)) & np.uint64(0xFF)
 
 
 def _locations(fixes: LocationFixes, known: bool) -> list[tuple[bytes, int]]:
