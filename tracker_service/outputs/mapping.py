@@ -215,7 +215,8 @@ class MessageMapper:
         self._local_times: dict[tuple[str, int], float] = {}
         self._names: list[str | None] = []
         """Callsigns by the literal id of their JSON string (None: another literal)."""
-        self._callsigns: dict[str, int] = {}
+        self._callsigns: dict[str, int] = {"": -1}
+        self._sources: tuple[tuple[str, ...], npt.NDArray[np.int64]] | None = None
         self._radars: dict[str, int] = {}
         """Radar names by id (``SystemBatch.radar_names``)."""
         self._radar_names: list[str] = []
@@ -238,7 +239,7 @@ class MessageMapper:
         numbers = rows["track_number"]
         status = rows["status"].astype(np.int64)
         payloads = self._writer.local(
-            self._writer.literals.string(source),
+            self._radar_literals[self._radar_id(source)],
             numbers,
             np.column_stack(
                 (
@@ -280,7 +281,7 @@ class MessageMapper:
         n, m = len(rows), len(plots)
         if not n:
             return []
-        radar_ids = np.array([self._radar_id(name) for name in sources], dtype=np.int64)
+        radar_ids = self._radar_ids(sources)
         # The rows' and the plots' positions in one call of the projection.
         lat, lon = self.plane.to_geodetic(
             np.concatenate((rows["x"], plots["x"])), np.concatenate((rows["y"], plots["y"]))
@@ -323,10 +324,7 @@ class MessageMapper:
                 local_time=self._local_times_of(rows, sources, n_sources, local_radars),
                 plot_ids=plots["plot_id"].astype(np.int64),
                 plot_time=plots["time"].astype(np.float64),
-                plot_callsign=np.array(
-                    [self._callsign_id(c) if c else -1 for c in plots["callsign"].tolist()],
-                    dtype=np.int64,
-                ),
+                plot_callsign=self._callsign_ids(plots["callsign"].tolist()),
                 plot_type=plots["typ"].astype(np.int64),
                 sensors=_SENSOR_BITS,
                 plot_daps=daps,
@@ -455,6 +453,24 @@ class MessageMapper:
             self._radar_names.append(name)
             self._radar_literals.append(self._writer.literals.string(name))
         return known
+
+    def _radar_ids(self, sources: Sequence[str]) -> npt.NDArray[np.int64]:
+        """The ids of the chain's radars (``sources``: the same names batch after batch,
+        the last ones' ids kept)."""
+        names = tuple(sources)
+        known = self._sources
+        if known is None or known[0] != names:
+            ids = np.array([self._radar_id(name) for name in names], dtype=np.int64)
+            known = self._sources = (names, ids)
+        return known[1]
+
+    def _callsign_ids(self, callsigns: list[str]) -> npt.NDArray[np.int64]:
+        """The literal id of each plot callsign's JSON string, -1 for none ("")."""
+        known = self._callsigns
+        ids = [known.get(c, -2) for c in callsigns]
+        if -2 in ids:
+            ids = [-1 if not c else self._callsign_id(c) for c in callsigns]
+        return np.array(ids, dtype=np.int64)
 
     def _callsign_id(self, callsign: str) -> int:
         """The literal id of a callsign's JSON string."""
