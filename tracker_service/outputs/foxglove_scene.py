@@ -210,6 +210,18 @@ def _identities(
     ]
 
 
+_FREE_TEXT = frozenset(("label", "callsign", "sources"))
+"""The identity items whose values may hold any character (a callsign, radar names); the
+others are digits, hex, a status word, a formatted number: no escaping."""
+
+
+def _json_strings(key: str, values: Sequence[str | None]) -> list[str]:
+    """The values of an identity item as ``json.dumps`` writes strings ("" for None)."""
+    if key in _FREE_TEXT:
+        return ["" if v is None else encode_basestring_ascii(v) for v in values]
+    return ["" if v is None else f'"{v}"' for v in values]
+
+
 class _MapColumns(NamedTuple):
     number: list[int]
     status: list[str]
@@ -418,10 +430,8 @@ class MapScene:
         # (the label, which every track has) without its leading comma.
         items = [
             [
-                ""
-                if v is None
-                else f'{"," if i else ""}{{"key":"{key}","value":{encode_basestring_ascii(v)}}}'
-                for v in values
+                "" if v is None else f'{"," if i else ""}{{"key":"{key}","value":{text}}}'
+                for v, text in zip(values, _json_strings(key, values), strict=True)
             ]
             for i, (key, values) in enumerate(identities)
         ]
@@ -477,8 +487,8 @@ class MapScene:
                 zip(
                     *(
                         [
-                            "" if v is None else f',"{key}":{encode_basestring_ascii(v)}'
-                            for v in values
+                            "" if v is None else f',"{key}":{text}'
+                            for v, text in zip(values, _json_strings(key, values), strict=True)
                         ]
                         for key, values in identity
                     ),
