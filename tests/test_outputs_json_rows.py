@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic_core import to_json
 
+from tracker_service.mcap_format import time_ns, times_ns
 from tracker_service.outputs.json_rows import (
     HEX6,
     INTEGER,
@@ -124,3 +125,8 @@ def test_each_slot_kind_is_its_plain_python(data: st.DataObject) -> None:
         )
         expected.append(("[" + ",".join(pieces) + "]").encode())
     assert render(template, values, literals, texts, counts, parts).rows() == expected
+
+
+@given(st.lists(st.floats(0.0, 4e9) | st.integers(0, 8 * 10**9).map(lambda n: n / 2e9)))
+def test_times_ns_are_time_ns(times: list[float]) -> None:
+    assert times_ns(np.array(times, dtype=np.float64)) == [time_ns(t) for t in times]

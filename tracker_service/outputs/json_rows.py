@@ -131,7 +131,17 @@ class Numbers:
         if values.size == 0:
             empty = np.zeros(0, dtype=np.int64)
             return cls(np.zeros(1, dtype=np.uint8), empty, empty)
-        text = to_json(values.ravel().tolist(), inf_nan_mode="null")
+        return cls._split(to_json(values.ravel().tolist(), inf_nan_mode="null"))
+
+    @classmethod
+    def of_texts(cls, texts: Sequence[str]) -> Numbers:
+        """Numbers' texts already written (``updates.python_json_numbers``)."""
+        if not texts:
+            return cls.of(np.zeros(0))
+        return cls._split(("[" + ",".join(texts) + "]").encode())
+
+    @classmethod
+    def _split(cls, text: bytes) -> Numbers:
         data = np.frombuffer(text, dtype=np.uint8)
         # "[a,b,...]": numbers, and null, hold no comma.
         commas = np.flatnonzero(data == ord(","))

@@ -58,7 +58,16 @@ from pydantic_core import to_json
 
 from asterix.containers import Datagram
 from tracker_service.closing import Closing
-from tracker_service.mcap_format import json_schema, schema_name, start_mcap, time_ns
+from tracker_service.mcap_format import json_schema, schema_name, start_mcap, time_ns, times_ns
+from tracker_service.outputs.json_rows import (
+    INTEGER,
+    NUMBER,
+    NUMBERS,
+    Literals,
+    Numbers,
+    Template,
+    render,
+)
 from tracker_service.outputs.updates import LocationFixes, python_json_numbers
 
 __all__ = [
@@ -381,7 +390,9 @@ class McapLog(Closing):
     ) -> None:
         """As :meth:`log_encoded` for each (data, time), in order: the channel looked up
         once."""
-        self._write(topic, schema, schema_of, [(data, time_ns(time)) for data, time in messages])
+        datas = [data for data, _ in messages]
+        times = times_ns(np.array([time for _, time in messages], dtype=np.float64))
+        self._write(topic, schema, schema_of, list(zip(datas, times, strict=True)))
 
     def log_location(
         self,
@@ -724,25 +735,34 @@ class _ChunkAccess:
         return sequence
 
 
+_FIXES = Literals()
+_FIX = Template.of(
+    '{"timestamp":{"sec":%s,"nsec":%s},"frame_id":"","latitude":%s,"longitude":%s,'
+    '"altitude":%s,"position_covariance":[%s],"position_covariance_type":%s}',
+    (INTEGER, INTEGER, NUMBER, NUMBER, NUMBER, NUMBERS, INTEGER),
+    _FIXES,
+)
+"""A ``foxglove.LocationFix`` as ``json.dumps`` writes it (compact); its texts are fixed
+at import, so that logs in several threads share it unchanged."""
+
+
 def _locations(fixes: LocationFixes, known: bool) -> list[tuple[bytes, int]]:
     """Each fix as JSON (what ``json.dumps`` writes of it, compact), with its log time:
     the fix's own; the numbers of all of them written at once."""
     numbers = np.column_stack((fixes.lat, fixes.lon, fixes.altitude, fixes.covariance))
     if not np.isfinite(numbers).all():
         raise ValueError("a location must be finite")
-    texts = python_json_numbers(numbers.ravel().tolist())
-    kind = _COVARIANCE_KNOWN if known else _COVARIANCE_UNKNOWN
-    out = []
-    for k, ns in enumerate(map(time_ns, fixes.time.tolist())):
-        row = texts[12 * k : 12 * k + 12]
-        data = (
-            f'{{"timestamp":{{"sec":{ns // _NS_PER_S},"nsec":{ns % _NS_PER_S}}},"frame_id":"",'
-            f'"latitude":{row[0]},"longitude":{row[1]},"altitude":{row[2]},'
-            f'"position_covariance":[{",".join(row[3:])}],'
-            f'"position_covariance_type":{kind}}}'
-        )
-        out.append((data.encode(), ns))
-    return out
+    n = len(numbers)
+    ns = times_ns(fixes.time)
+    values = np.empty((n, _FIX.slots), dtype=np.int64)
+    values[:, 0], values[:, 1] = np.divmod(np.array(ns, dtype=np.int64), _NS_PER_S)
+    values[:, 2:5] = 12 * np.arange(n)[:, None] + np.arange(3)
+    values[:, 5] = 12 * np.arange(n) + 3
+    values[:, 6] = _COVARIANCE_KNOWN if known else _COVARIANCE_UNKNOWN
+    counts = np.zeros_like(values)
+    counts[:, 5] = 9
+    texts = Numbers.of_texts(python_json_numbers(numbers.ravel().tolist()))
+    return list(zip(render(_FIX, values, _FIXES, texts, counts).rows(), ns, strict=True))
 
 
 class LoggedMessage(NamedTuple):
