@@ -29,10 +29,12 @@ import math
 import os
 import struct
 import time as clock
+from bisect import bisect_right
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from io import BytesIO
+from itertools import accumulate, repeat
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -685,33 +687,20 @@ class _ChunkAccess:
         statistics.message_end_time = max(last, statistics.message_end_time)
         statistics.channel_message_counts[channel] += n
         statistics.message_count += n
-        pack, stream, chunk_size = _MESSAGE_HEADER.pack, file.stream, self.chunk_size
+        stream, chunk_size = file.stream, self.chunk_size
+        datas = [data for data, _ in messages]
+        sizes = [_MESSAGE_HEADER_BYTES + len(data) for data in datas]
         start = 0
         while start < n:
             # The messages up to the one that takes the chunk past its size (as
-            # add_message: the chunk is complete once it holds more than its size), written
-            # with one call.
+            # add_message: the chunk is complete once it holds more than its size; one at
+            # least), written with one call.
             buffer = builder.record_writer._buffer
-            position = buffer.tell()
-            records: list[bytes] = []
-            offsets: list[int] = []
-            stop = start
-            while stop < n and (stop == start or position <= chunk_size):
-                data, log_time = messages[stop]
-                offsets.append(position)
-                records += (
-                    pack(
-                        Opcode.MESSAGE,
-                        _MESSAGE_FIELDS_BYTES + len(data),
-                        channel,
-                        (sequence + stop - start) % _MAX_SEQUENCE,
-                        log_time,
-                        log_time,
-                    ),
-                    data,
-                )
-                position += _MESSAGE_HEADER_BYTES + len(data)
-                stop += 1
+            offsets = list(accumulate(sizes[start:], initial=buffer.tell()))
+            past = bisect_right(offsets, chunk_size)
+            full = past < len(offsets)
+            stop = start + max(past, 1) if full else n
+            k = stop - start
             run = times[start:stop]
             earliest, latest = min(run), max(run)
             if builder.num_messages == 0 or earliest < builder.message_start_time:
@@ -720,14 +709,25 @@ class _ChunkAccess:
             index = builder.message_indices.get(channel)
             if index is None:
                 index = builder.message_indices[channel] = _PackedIndex(channel, [])
-            index.records.extend(zip(run, offsets, strict=True))
-            builder.num_messages += stop - start
+            index.records.extend(zip(run, offsets, strict=False))
+            builder.num_messages += k
+            records: list[bytes] = [b""] * (2 * k)
+            records[0::2] = map(
+                _MESSAGE_HEADER.pack,
+                repeat(Opcode.MESSAGE, k),
+                (size - 9 for size in sizes[start:stop]),
+                repeat(channel, k),
+                ((sequence + i) % _MAX_SEQUENCE for i in range(k)),
+                run,
+                run,
+            )
+            records[1::2] = datas[start:stop]
             buffer.write(b"".join(records))
-            sequence += stop - start
-            file.messages += stop - start
-            file.unwritten += stop - start
+            sequence += k
+            file.messages += k
+            file.unwritten += k
             start = stop
-            if position > chunk_size:
+            if full:
                 self.finish_chunk()
                 # The chunk out whole to the operating system, where it survives the process.
                 if stream.flush():
