@@ -49,8 +49,10 @@ __all__ = [
     "Literals",
     "Numbers",
     "Rendered",
+    "Table",
     "Template",
     "render",
+    "render_parts",
     "render_rows",
 ]
 
@@ -66,6 +68,9 @@ NUMBERS = 8
 
 Bytes = npt.NDArray[np.uint8]
 IntArray = npt.NDArray[np.int64]
+Table = tuple[Bytes, IntArray, IntArray]
+"""Texts one after another and where each starts and ends (``Literals.arrays``,
+``Numbers.table``, ``Rendered.table``): what the compiled passes read."""
 
 
 class Literals:
@@ -109,20 +114,38 @@ class Literals:
         """The id of ``text`` as a JSON string (pydantic-core's escaping)."""
         return self.add(to_json(text))
 
-    def arrays(self) -> tuple[Bytes, IntArray, IntArray]:
+    def arrays(self) -> Table:
         """The texts one after another, and where each starts and ends."""
         n = len(self._texts)
         return self._data, self._starts[:n], self._ends[:n]
 
 
 @dataclass(frozen=True)
-class Numbers:
-    """Numbers' JSON texts, written at once: ``Numbers.of(values)``; number ``i``'s text
-    is ``data[starts[i]:ends[i]]``."""
+class Rendered:
+    """Texts one after another: rows written, numbers' texts (``Numbers``); text ``i`` is
+    ``data[starts[i]:ends[i]]``."""
 
     data: Bytes
     starts: IntArray
     ends: IntArray
+
+    @property
+    def table(self) -> Table:
+        return self.data, self.starts, self.ends
+
+    @classmethod
+    def empty(cls) -> Rendered:
+        none = np.zeros(0, dtype=np.int64)
+        return cls(np.zeros(1, dtype=np.uint8), none, none)
+
+    def rows(self) -> list[bytes]:
+        data = self.data.tobytes()
+        return [data[a:b] for a, b in zip(self.starts.tolist(), self.ends.tolist(), strict=True)]
+
+
+@dataclass(frozen=True)
+class Numbers(Rendered):
+    """Numbers' JSON texts, written at once: ``Numbers.of(values)``."""
 
     @classmethod
     def of(cls, values: npt.NDArray[np.float64]) -> Numbers:
@@ -175,24 +198,6 @@ class Template:
         return len(self.kinds)
 
 
-@dataclass(frozen=True)
-class Rendered:
-    """Rows written: row ``i`` is ``data[starts[i]:ends[i]]``."""
-
-    data: Bytes
-    starts: IntArray
-    ends: IntArray
-
-    @classmethod
-    def empty(cls) -> Rendered:
-        none = np.zeros(0, dtype=np.int64)
-        return cls(np.zeros(1, dtype=np.uint8), none, none)
-
-    def rows(self) -> list[bytes]:
-        data = self.data.tobytes()
-        return [data[a:b] for a, b in zip(self.starts.tolist(), self.ends.tolist(), strict=True)]
-
-
 def render(
     template: Template,
     values: IntArray,
@@ -213,107 +218,83 @@ def render(
         template.ids,
         np.ascontiguousarray(values, dtype=np.int64),
         np.ascontiguousarray(counts, dtype=np.int64),
-        *literals.arrays(),
-        numbers.data,
-        numbers.starts,
-        numbers.ends,
-        parts.data,
-        parts.starts,
-        parts.ends,
+        literals.arrays(),
+        numbers.table,
+        parts.table,
     )
     return Rendered(data, starts, ends)
 
 
 @numba.njit(cache=True)
-def _digits(value: int) -> int:
-    if value == 0:
-        return 1
-    n = 0
-    while value > 0:
+def _digits(value: int, base: int = 10) -> int:
+    """How many digits ``value`` (>= 0) has in ``base``."""
+    n = 1
+    while value >= base:
         n += 1
-        value //= 10
+        value //= base
     return n
 
 
 @numba.njit(cache=True)
-def _slot_size(
-    kind: int,
-    value: int,
-    count: int,
-    lit_starts: IntArray,
-    lit_ends: IntArray,
-    num_starts: IntArray,
-    num_ends: IntArray,
-    part_starts: IntArray,
-    part_ends: IntArray,
-) -> int:
+def _slot_size(kind: int, value: int, count: int, lit: Table, num: Table, part: Table) -> int:
     if kind == NUMBER:
-        return int(num_ends[value] - num_starts[value])
+        return int(num[2][value] - num[1][value])
     if kind == LITERAL:
-        return int(lit_ends[value] - lit_starts[value])
+        return int(lit[2][value] - lit[1][value])
     if kind == INTEGER:
         return _digits(value) if value >= 0 else 1 + _digits(-value)
     if kind == JOIN:
-        size = max(count - 1, 0)
-        for i in range(value, value + count):
-            size += int(part_ends[i] - part_starts[i])
-        return size
+        return _joined_size(part, value, count)
     if kind == NUMBERS:
-        size = max(count - 1, 0)
-        for i in range(value, value + count):
-            size += int(num_ends[i] - num_starts[i])
-        return size
+        return _joined_size(num, value, count)
     if value < 0:
         return 4  # null
     if kind == INTEGER_OR_NULL:
         return _digits(value)
     if kind == PART_OR_NULL:
-        return int(part_ends[value] - part_starts[value])
+        return int(part[2][value] - part[1][value])
     if kind == OCTAL4:
-        return 2 + max(4, _octal_digits(value))
-    return 2 + max(6, _hex_digits(value))
+        return 2 + max(4, _digits(value, 8))
+    return 2 + max(6, _digits(value, 16))
 
 
 @numba.njit(cache=True)
-def _octal_digits(value: int) -> int:
-    n = 1
-    while value >= 8:
-        n += 1
-        value //= 8
-    return n
-
-
-@numba.njit(cache=True)
-def _hex_digits(value: int) -> int:
-    n = 1
-    while value >= 16:
-        n += 1
-        value //= 16
-    return n
-
-
-@numba.njit(cache=True)
-def _copy(out: Bytes, pos: int, source: Bytes, start: int, end: int) -> int:
-    """``source[start:end]`` into ``out`` at ``pos``; the position after it. Unsigned
-    indices: no negative-index wrap-around to test at each byte (about 3x faster)."""
+def _copy(out: Bytes, pos: int, source: Table, index: int) -> int:
+    """Text ``index`` of ``source`` into ``out`` at ``pos``; the position after it.
+    Unsigned indices: no negative-index wrap-around to test at each byte (about 3x
+    faster)."""
+    data, start, end = source[0], source[1][index], source[2][index]
     at, i, stop = np.uint64(pos), np.uint64(start), np.uint64(end)
     while i < stop:
-        out[at] = source[i]
+        out[at] = data[i]
         at += np.uint64(1)
         i += np.uint64(1)
-    return pos + end - start
+    return int(pos + end - start)
+
+
+@numba.njit(cache=True)
+def _joined_size(source: Table, first: int, count: int) -> int:
+    """The length of texts ``first`` to ``first + count`` of ``source`` joined by commas."""
+    size = max(count - 1, 0)
+    for i in range(first, first + count):
+        size += int(source[2][i] - source[1][i])
+    return size
+
+
+@numba.njit(cache=True)
+def _write_joined(out: Bytes, pos: int, source: Table, first: int, count: int) -> int:
+    for i in range(first, first + count):
+        if i > first:
+            out[pos] = 44  # ","
+            pos += 1
+        pos = _copy(out, pos, source, i)
+    return pos
 
 
 @numba.njit(cache=True)
 def _write_digits(out: Bytes, pos: int, value: int, base: int, width: int) -> int:
     """``value`` (>= 0) in ``base``, at least ``width`` digits (zeros first), upper case."""
-    if base == 10:
-        n = _digits(value)
-    elif base == 8:
-        n = _octal_digits(value)
-    else:
-        n = _hex_digits(value)
-    n = max(n, width)
+    n = max(_digits(value, base), width)
     for i in range(n - 1, -1, -1):
         digit = value % base
         out[pos + i] = 48 + digit if digit < 10 else 55 + digit
@@ -326,44 +307,21 @@ _NULL = np.frombuffer(b"null", dtype=np.uint8)
 
 @numba.njit(cache=True)
 def _write_slot(
-    out: Bytes,
-    pos: int,
-    kind: int,
-    value: int,
-    count: int,
-    lit: Bytes,
-    lit_starts: IntArray,
-    lit_ends: IntArray,
-    num: Bytes,
-    num_starts: IntArray,
-    num_ends: IntArray,
-    part: Bytes,
-    part_starts: IntArray,
-    part_ends: IntArray,
+    out: Bytes, pos: int, kind: int, value: int, count: int, lit: Table, num: Table, part: Table
 ) -> int:
     if kind == NUMBER:
-        return _copy(out, pos, num, num_starts[value], num_ends[value])
+        return _copy(out, pos, num, value)
     if kind == LITERAL:
-        return _copy(out, pos, lit, lit_starts[value], lit_ends[value])
+        return _copy(out, pos, lit, value)
     if kind == INTEGER:
         if value < 0:
             out[pos] = 45  # "-"
             return _write_digits(out, pos + 1, -value, 10, 1)
         return _write_digits(out, pos, value, 10, 1)
     if kind == JOIN:
-        for i in range(value, value + count):
-            if i > value:
-                out[pos] = 44  # ","
-                pos += 1
-            pos = _copy(out, pos, part, part_starts[i], part_ends[i])
-        return pos
+        return _write_joined(out, pos, part, value, count)
     if kind == NUMBERS:
-        for i in range(value, value + count):
-            if i > value:
-                out[pos] = 44
-                pos += 1
-            pos = _copy(out, pos, num, num_starts[i], num_ends[i])
-        return pos
+        return _write_joined(out, pos, num, value, count)
     if value < 0:
         for i in range(4):
             out[pos + i] = _NULL[i]
@@ -371,7 +329,7 @@ def _write_slot(
     if kind == INTEGER_OR_NULL:
         return _write_digits(out, pos, value, 10, 1)
     if kind == PART_OR_NULL:
-        return _copy(out, pos, part, part_starts[value], part_ends[value])
+        return _copy(out, pos, part, value)
     out[pos] = 34  # '"'
     if kind == OCTAL4:
         pos = _write_digits(out, pos + 1, value, 8, 4)
@@ -387,22 +345,16 @@ def render_rows(
     ids: IntArray,
     values: IntArray,
     counts: IntArray,
-    lit: Bytes,
-    lit_starts: IntArray,
-    lit_ends: IntArray,
-    num: Bytes,
-    num_starts: IntArray,
-    num_ends: IntArray,
-    part: Bytes,
-    part_starts: IntArray,
-    part_ends: IntArray,
-) -> tuple[Bytes, IntArray, IntArray]:
+    lit: Table,
+    num: Table,
+    part: Table,
+) -> Table:
     """The compiled pass of :func:`render` (for other kernels, which build the values
     themselves): the rows one after another, and where each starts and ends."""
     n, slots = values.shape
     fixed = 0
     for j in range(slots + 1):
-        fixed += lit_ends[ids[j]] - lit_starts[ids[j]]
+        fixed += lit[2][ids[j]] - lit[1][ids[j]]
     starts = np.empty(n, dtype=np.int64)
     ends = np.empty(n, dtype=np.int64)
     total = 0
@@ -412,21 +364,11 @@ def render_rows(
             kind, value = kinds[j], values[r, j]
             # Numbers and literals (most slots) here; the others by the helper.
             if kind == NUMBER:
-                size += num_ends[value] - num_starts[value]
+                size += num[2][value] - num[1][value]
             elif kind == LITERAL:
-                size += lit_ends[value] - lit_starts[value]
+                size += lit[2][value] - lit[1][value]
             else:
-                size += _slot_size(
-                    kind,
-                    value,
-                    counts[r, j],
-                    lit_starts,
-                    lit_ends,
-                    num_starts,
-                    num_ends,
-                    part_starts,
-                    part_ends,
-                )
+                size += _slot_size(kind, value, counts[r, j], lit, num, part)
         starts[r] = total
         total += size
         ends[r] = total
@@ -434,28 +376,23 @@ def render_rows(
     for r in range(n):
         pos = starts[r]
         for j in range(slots):
-            pos = _copy(out, pos, lit, lit_starts[ids[j]], lit_ends[ids[j]])
+            pos = _copy(out, pos, lit, ids[j])
             kind, value = kinds[j], values[r, j]
             if kind == NUMBER:
-                pos = _copy(out, pos, num, num_starts[value], num_ends[value])
+                pos = _copy(out, pos, num, value)
             elif kind == LITERAL:
-                pos = _copy(out, pos, lit, lit_starts[value], lit_ends[value])
+                pos = _copy(out, pos, lit, value)
             else:
-                pos = _write_slot(
-                    out,
-                    pos,
-                    kind,
-                    value,
-                    counts[r, j],
-                    lit,
-                    lit_starts,
-                    lit_ends,
-                    num,
-                    num_starts,
-                    num_ends,
-                    part,
-                    part_starts,
-                    part_ends,
-                )
-        _copy(out, pos, lit, int(lit_starts[ids[slots]]), int(lit_ends[ids[slots]]))
+                pos = _write_slot(out, pos, kind, value, counts[r, j], lit, num, part)
+        _copy(out, pos, lit, int(ids[slots]))
     return out, starts, ends
+
+
+@numba.njit(cache=True)
+def render_parts(
+    kinds: IntArray, ids: IntArray, values: IntArray, counts: IntArray, lit: Table, num: Table
+) -> Table:
+    """:func:`render_rows` of a template without ``JOIN`` or ``PART_OR_NULL`` slots (the
+    parts of another rendering, a message of numbers and literals)."""
+    none = np.zeros(0, dtype=np.int64)
+    return render_rows(kinds, ids, values, counts, lit, num, (np.zeros(1, np.uint8), none, none))

@@ -30,7 +30,9 @@ from tracker_service.outputs.json_rows import (
     Literals,
     Numbers,
     Rendered,
+    Table,
     Template,
+    render_parts,
     render_rows,
 )
 from tracker_service.outputs.messages import DAP_NAMES
@@ -143,10 +145,8 @@ class MessageWriter:
         data, starts, ends = _local_rows(
             self._local.kinds,
             self._local.ids,
-            *self.literals.arrays(),
-            texts.data,
-            texts.starts,
-            texts.ends,
+            self.literals.arrays(),
+            texts.table,
             radar,
             number,
             self._local_statuses[status],
@@ -209,10 +209,8 @@ class MessageWriter:
             source.ids,
             dap.ids,
             plot.ids,
-            *self.literals.arrays(),
-            texts.data,
-            texts.starts,
-            texts.ends,
+            self.literals.arrays(),
+            texts.table,
             self._words,
             self._dap_names,
             radar_literals,
@@ -240,12 +238,8 @@ class MessageWriter:
 def _local_rows(
     kinds: IntArray,
     ids: IntArray,
-    lit: Bytes,
-    lit_starts: IntArray,
-    lit_ends: IntArray,
-    num: Bytes,
-    num_starts: IntArray,
-    num_ends: IntArray,
+    lit: Table,
+    num: Table,
     radar: int,
     number: IntArray,
     status: IntArray,
@@ -253,7 +247,7 @@ def _local_rows(
     mode3a: IntArray,
     address: IntArray,
     models: int,
-) -> tuple[Bytes, IntArray, IntArray]:
+) -> Table:
     n = number.size
     width = _LOCAL_NUMBERS + models
     values = np.empty((n, kinds.size), dtype=np.int64)
@@ -269,22 +263,7 @@ def _local_rows(
         values[k, 28] = address[k]
         values[k, 29] = k * width + _LOCAL_NUMBERS
         counts[k, 29] = models
-    none = np.zeros(0, dtype=np.int64)
-    return render_rows(
-        kinds,
-        ids,
-        values,
-        counts,
-        lit,
-        lit_starts,
-        lit_ends,
-        num,
-        num_starts,
-        num_ends,
-        np.zeros(1, dtype=np.uint8),
-        none,
-        none,
-    )
+    return render_parts(kinds, ids, values, counts, lit, num)
 
 
 @numba.njit(cache=True)
@@ -373,12 +352,8 @@ def _system_rows(
     source_ids: IntArray,
     dap_ids: IntArray,
     plot_ids: IntArray,
-    lit: Bytes,
-    lit_starts: IntArray,
-    lit_ends: IntArray,
-    num: Bytes,
-    num_starts: IntArray,
-    num_ends: IntArray,
+    lit: Table,
+    num: Table,
     words: IntArray,
     dap_names: IntArray,
     radar_literals: IntArray,
@@ -398,7 +373,7 @@ def _system_rows(
     local_plot_ids: IntArray,
     has_dap: BoolArray,
     plot_radar: IntArray,
-) -> tuple[Bytes, IntArray, IntArray]:
+) -> Table:
     n = number.size
     null, false = words[0], words[1]
     sources = n_sources.sum()
@@ -409,8 +384,6 @@ def _system_rows(
     at_ages = at_sources + sources
     at_daps = at_ages + 4 * n
     at_plots = at_daps + 2 * daps
-    none = np.zeros(0, dtype=np.int64)
-    empty = np.zeros(1, dtype=np.uint8)
     # The rows' parts, one rendering: sources, DAPs, last plots, ISO times.
     source_values = np.empty((sources, 4), dtype=np.int64)
     i = 0
@@ -438,56 +411,16 @@ def _system_rows(
             for j in range(5):
                 plot_values[i, 1 + j] = at_plots + 5 * i + j
             i += 1
-    iso, iso_starts, iso_ends = _iso_rows(time)
+    iso = _iso_rows(time)
     parts = (
-        render_rows(
-            source_kinds,
-            source_ids,
-            source_values,
-            np.zeros_like(source_values),
-            lit,
-            lit_starts,
-            lit_ends,
-            num,
-            num_starts,
-            num_ends,
-            empty,
-            none,
-            none,
+        render_parts(
+            source_kinds, source_ids, source_values, np.zeros_like(source_values), lit, num
         ),
-        render_rows(
-            dap_kinds,
-            dap_ids,
-            dap_values,
-            np.zeros_like(dap_values),
-            lit,
-            lit_starts,
-            lit_ends,
-            num,
-            num_starts,
-            num_ends,
-            empty,
-            none,
-            none,
-        ),
-        render_rows(
-            plot_kinds,
-            plot_ids,
-            plot_values,
-            np.zeros_like(plot_values),
-            lit,
-            lit_starts,
-            lit_ends,
-            num,
-            num_starts,
-            num_ends,
-            empty,
-            none,
-            none,
-        ),
-        (iso, iso_starts, iso_ends),
+        render_parts(dap_kinds, dap_ids, dap_values, np.zeros_like(dap_values), lit, num),
+        render_parts(plot_kinds, plot_ids, plot_values, np.zeros_like(plot_values), lit, num),
+        iso,
     )
-    part, part_starts, part_ends = _joined(parts)
+    part = _joined(parts)
     values = np.empty((n, kinds.size), dtype=np.int64)
     counts = np.zeros((n, kinds.size), dtype=np.int64)
     first_source, first_dap, next_plot = 0, 0, 0
@@ -521,27 +454,11 @@ def _system_rows(
         values[k, column + 14] = sources + first_dap
         counts[k, column + 14] = row_daps
         first_dap += row_daps
-    return render_rows(
-        kinds,
-        ids,
-        values,
-        counts,
-        lit,
-        lit_starts,
-        lit_ends,
-        num,
-        num_starts,
-        num_ends,
-        part,
-        part_starts,
-        part_ends,
-    )
+    return render_rows(kinds, ids, values, counts, lit, num, part)
 
 
 @numba.njit(cache=True)
-def _joined(
-    parts: tuple[tuple[Bytes, IntArray, IntArray], ...],
-) -> tuple[Bytes, IntArray, IntArray]:
+def _joined(parts: tuple[Table, ...]) -> Table:
     """Renderings one after another, their rows numbered on in that order."""
     size, rows = 0, 0
     for data, starts, _ in parts:
@@ -585,7 +502,7 @@ def _put(out: Bytes, pos: int, value: int, width: int) -> int:
 
 
 @numba.njit(cache=True)
-def _iso_rows(posix: FloatArray) -> tuple[Bytes, IntArray, IntArray]:
+def _iso_rows(posix: FloatArray) -> Table:
     """``"2026-06-01T10:00:00.500000Z"`` (quoted) of each time: the microseconds of the
     fractional part rounded half to even, as ``datetime.fromtimestamp`` rounds them."""
     n = posix.size
