@@ -6,16 +6,15 @@ beyond an item's range are capped at its maximum, which CAT062 defines as "maxim
 or above" for ages and accuracies.
 
 Two encoders give the same bytes. ``encode_system_tracks`` (the service's path:
-``encode_system_values``) quantises every row of a batch at once with numpy and writes
-the records of each item layout as one byte matrix, 6.5 times faster than the generic
-codec on a `scale` slice (``benchmarks/bench_outputs.py``). ``encode_system_tracks_generic``
-builds each record's item dicts and encodes them with ``asterix.codec.encode_record``: the
-reference the fast path is tested against, byte for byte. Both take their values from
-``track_columns``, so they differ only in the encoding. The service keeps the messages as
-their values (``encode_system_values``), not as models. Items whose values are few and
-discrete (identity, status bits, the sensor) are encoded by the codec's own item encoders
-and cached; only the quantities are written here, with the items' LSBs and sizes read from
-the specification.
+``encode_system_batch``, of the updates' columns, ``updates.SystemBatch``) quantises every
+row of a batch at once with numpy and writes the records of each item layout as one byte
+matrix, 6.5 times faster than the generic codec on a `scale` slice
+(``benchmarks/bench_outputs.py``). ``encode_system_tracks_generic`` builds each record's
+item dicts and encodes them with ``asterix.codec.encode_record``: the reference the fast
+path is tested against, byte for byte. Both take their values from ``track_columns``, so
+they differ only in the encoding. Items whose values are few and discrete (identity,
+status bits, the sensor) are encoded by the codec's own item encoders and cached; only the
+quantities are written here, with the items' LSBs and sizes read from the specification.
 """
 
 from __future__ import annotations

@@ -1,15 +1,15 @@
 """Track updates as plain data with their JSON already written: the batch path of the
-outputs, without a pydantic model per update.
+outputs, without a pydantic model (nor a dict) per update.
 
 ``MessageMapper.local_updates`` and ``MessageMapper.system_updates`` (``mapping.py``) turn
-the chain's rows into these, and the sinks carry a whole batch in one call
-(``sink.BatchSink``). Each update's JSON is written here from its values (a plain dict,
-by pydantic-core's JSON writer, which the models' own serialiser uses: measured 4-5 times
-faster than formatting it in Python, and a model per update costs more still), in the
-field order of its pydantic model (``LocalTrackMessage``, ``SystemTrackMessage``; a test
-holds the writers to the models' fields and to their ``model_dump_json``, field by field);
-the model itself is built only where a consumer asks for one (``message()``: the picture,
-a sink without batch support).
+the chain's rows into these, their JSON written for the whole batch at once
+(``message_json``), and the sinks carry a whole batch in one call (``sink.BatchSink``).
+A system update is a row of its batch's columns (``SystemBatch``: what CAT062, the map
+and the location fixes read) with its JSON; its plain values (``SystemValues``), its
+values as a dict and its model are made only where a consumer asks for them (the picture,
+a sink without batch support, a track's end). ``LOCAL_FIELDS``/``SYSTEM_FIELDS``: the
+models' field order, which the JSON keeps (a test holds the JSON to the models' own
+``model_dump_json``, byte for byte).
 """
 
 from __future__ import annotations
@@ -42,7 +42,6 @@ __all__ = [
     "SystemBatch",
     "SystemUpdate",
     "SystemValues",
-    "local_json",
     "python_json_numbers",
     "system_json",
     "system_model",
@@ -67,7 +66,7 @@ LOCAL_FIELDS = (
     "address",
     "model_probabilities",
 )
-"""The order ``local_json`` writes: ``LocalTrackMessage``'s (checked by a test)."""
+"""``LocalTrackMessage``'s field order, which its JSON keeps (checked by a test)."""
 
 SYSTEM_FIELDS = (
     "number",
@@ -99,19 +98,14 @@ SYSTEM_FIELDS = (
     "adsb_inconsistent",
     "daps",
 )
-"""The order ``system_json`` writes: ``SystemTrackMessage``'s (checked by a test)."""
-
-
-def local_json(doc: Mapping[str, Any]) -> bytes:
-    """A local-track update's values (keys in ``LOCAL_FIELDS`` order) as
-    ``LocalTrackMessage.model_dump_json`` writes them: by pydantic-core's own JSON writer,
-    non-finite numbers as null as the model's serialiser writes them."""
-    return to_json(doc, inf_nan_mode="null")
+"""``SystemTrackMessage``'s field order, which its JSON keeps (checked by a test)."""
 
 
 def system_json(doc: Mapping[str, Any]) -> bytes:
-    """As :func:`local_json`, for a system-track update (keys in ``SYSTEM_FIELDS`` order,
-    nested values as ``model_dump()`` gives them)."""
+    """A system-track update's values (keys in ``SYSTEM_FIELDS`` order, nested values as
+    ``model_dump()`` gives them) as ``SystemTrackMessage.model_dump_json`` writes them: by
+    pydantic-core's own JSON writer, non-finite numbers as null as the model's serialiser
+    writes them."""
     return to_json(doc, inf_nan_mode="null")
 
 
