@@ -202,6 +202,23 @@ class _SystemTrack:
         return self.last.callsign
 
 
+def _ended(update: SystemUpdate) -> bytes:
+    """The JSON of a track's last message with status "ended", not first: its last
+    update's JSON with those two values written again. Each of their keys occurs once, at
+    the top level (a string value cannot hold the unescaped quotes of ``"status":"``);
+    should a replacement not be made exactly once, the JSON is written from its values."""
+    payload = update.payload
+    for old, new in (
+        (b'"first":true,', b'"first":false,'),
+        (b'"status":"confirmed",', b'"status":"ended",'),
+        (b'"status":"coasting",', b'"status":"ended",'),
+    ):
+        payload = payload.replace(old, new)
+    if payload.count(b'"first":false,') == 1 and payload.count(b'"status":"ended",') == 1:
+        return payload
+    return system_json(update.doc | {"status": "ended", "first": False})
+
+
 class MessageMapper:
     """Rows to updates, a batch at a time; its state follows only from the rows it is
     given, in order."""
@@ -427,12 +444,7 @@ class MessageMapper:
             status=np.full(len(batch), STATUSES.index("ended"), dtype=np.int64),
             first=np.zeros(len(batch), dtype=np.bool_),
         )
-        ended = [
-            SystemUpdate(
-                batch, k, u.number, system_json(u.doc | {"status": "ended", "first": False})
-            )
-            for k, u in enumerate(last)
-        ]
+        ended = [SystemUpdate(batch, k, u.number, _ended(u)) for k, u in enumerate(last)]
         self._last.clear()
         self._state.end_all()
         return ended
