@@ -28,13 +28,16 @@ import logging
 import math
 import os
 import struct
+import sys
 import time as clock
+from array import array
 from bisect import bisect_right
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from io import BytesIO
-from itertools import accumulate, repeat
+from itertools import accumulate, chain, repeat
+from operator import sub
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -624,14 +627,25 @@ _MESSAGE_OPCODE = int(Opcode.MESSAGE)
 
 class _PackedIndex(MessageIndex):
     """A chunk's message index of one channel, written as ``MessageIndex.write`` writes it
-    (channel, length, then each (log time, offset)) with one pack for the records rather
-    than two writes each."""
+    (channel, length, then each (log time, offset), little-endian), its entries kept
+    flat in an array written whole rather than two writes each."""
+
+    def __init__(self, channel_id: int) -> None:
+        super().__init__(channel_id, [])
+        self.flat = array("Q")
+
+    def extend(self, times: Iterable[int], offsets: Iterable[int]) -> None:
+        self.flat.extend(chain.from_iterable(zip(times, offsets, strict=True)))
 
     def write(self, stream: RecordBuilder) -> None:
         stream.start_record(Opcode.MESSAGE_INDEX)
         stream.write2(self.channel_id)
-        stream.write4(len(self.records) * 16)
-        stream.write(np.array(self.records, dtype="<u8").tobytes())
+        stream.write4(len(self.flat) * 8)
+        flat = self.flat
+        if sys.byteorder == "big":
+            flat = array("Q", flat)
+            flat.byteswap()
+        stream.write(flat.tobytes())
         # mcap-python leaves finish_record() unannotated.
         stream.finish_record()  # type: ignore[no-untyped-call]
 
@@ -708,16 +722,20 @@ class _ChunkAccess:
             builder.message_end_time = max(latest, builder.message_end_time)
             index = builder.message_indices.get(channel)
             if index is None:
-                index = builder.message_indices[channel] = _PackedIndex(channel, [])
-            index.records.extend(zip(run, offsets, strict=False))
+                index = builder.message_indices[channel] = _PackedIndex(channel)
+            assert isinstance(index, _PackedIndex)  # the batch path's own, on its channels
+            index.extend(run, offsets[:k])
             builder.num_messages += k
             records: list[bytes] = [b""] * (2 * k)
+            numbers: Iterable[int] = range(sequence, sequence + k)
+            if sequence + k > _MAX_SEQUENCE:
+                numbers = (i % _MAX_SEQUENCE for i in numbers)
             records[0::2] = map(
                 _MESSAGE_HEADER.pack,
                 repeat(Opcode.MESSAGE, k),
-                (size - 9 for size in sizes[start:stop]),
+                map(sub, sizes[start:stop], repeat(9, k)),
                 repeat(channel, k),
-                ((sequence + i) % _MAX_SEQUENCE for i in range(k)),
+                numbers,
                 run,
                 run,
             )
