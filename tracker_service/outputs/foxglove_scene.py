@@ -188,7 +188,7 @@ def _identities(
     flight_level: Sequence[float | None],
     ground_speed_mps: Sequence[float],
     track_angle_deg: Sequence[float],
-    radars: Sequence[Sequence[str]],
+    sources: Sequence[str],
 ) -> list[tuple[str, list[str | None]]]:
     """What the map's tooltip lists of each of several tracks (``metadata``), label
     first: per item its key and its value for each track (None: the track has none), so
@@ -206,7 +206,7 @@ def _identities(
         ("flight_level", [None if f is None else f"{f:.2f}" for f in flight_level]),
         ("ground_speed_kt", [f"{v * _KT_PER_MPS:.0f}" for v in ground_speed_mps]),
         ("track_angle_deg", [f"{a:.0f}" for a in track_angle_deg]),
-        ("sources", [",".join(sorted(set(r))) for r in radars]),
+        ("sources", list(sources)),
     ]
 
 
@@ -235,12 +235,14 @@ def _map_columns(batch: SystemBatch, rows: npt.NDArray[np.int64]) -> _MapColumns
     names, radar_names = batch.names, batch.radar_names
     number = batch.number[rows].tolist()
     status = [STATUSES[code] for code in batch.status[rows].tolist()]
-    radars = [
-        [radar_names[r] for r in row[:n]]
+    # Each row's sources' radars (by id), their distinct names sorted: few sets a batch.
+    keys = [
+        tuple(row[:n])
         for row, n in zip(
             batch.source_radar[rows].tolist(), batch.n_sources[rows].tolist(), strict=True
         )
     ]
+    radars = {key: sorted({radar_names[r] for r in key}) for key in set(keys)}
     identities = _identities(
         number,
         status,
@@ -250,12 +252,12 @@ def _map_columns(batch: SystemBatch, rows: npt.NDArray[np.int64]) -> _MapColumns
         [None if f != f else f for f in batch.flight_level[rows].tolist()],
         batch.ground_speed[rows].tolist(),
         batch.track_angle[rows].tolist(),
-        radars,
+        [",".join(radars[key]) for key in keys],
     )
     colours = [
-        _colour(state, duplicate, len(set(r)))
-        for state, duplicate, r in zip(
-            status, batch.duplicate_address[rows].tolist(), radars, strict=True
+        _colour(state, duplicate, len(radars[key]))
+        for state, duplicate, key in zip(
+            status, batch.duplicate_address[rows].tolist(), keys, strict=True
         )
     ]
     return _MapColumns(number, status, identities, colours)
