@@ -106,34 +106,69 @@ def decode_record(data: bytes, at: int, out: list[Any], first: int) -> None:
             out[first + f.column] = steps * f.lsb
 
 
+@dataclass(frozen=True)
+class _Register:
+    """The fields of one register as arrays (``_DapField`` by field), for all at once."""
+
+    columns: npt.NDArray[np.intp]
+    status_shifts: npt.NDArray[np.uint64]
+    value_shifts: npt.NDArray[np.uint64]
+    masks: npt.NDArray[np.uint64]
+    sign_shifts: npt.NDArray[np.uint64]
+    signed: npt.NDArray[np.int64]
+    negative_steps: npt.NDArray[np.int64]
+    """What a set sign bit adds to the steps: half the span, less the span unless the
+    field wraps (an angle over 360 degrees)."""
+    lsbs: npt.NDArray[np.float64]
+
+
+def _register(fields: tuple[_DapField, ...]) -> _Register:
+    return _Register(
+        columns=np.array([f.column for f in fields], np.intp),
+        status_shifts=np.array([f.status_shift for f in fields], np.uint64),
+        value_shifts=np.array([f.value_shift for f in fields], np.uint64),
+        masks=np.array([f.mask for f in fields], np.uint64),
+        sign_shifts=np.array([max(f.sign_shift, 0) for f in fields], np.uint64),
+        signed=np.array([f.sign_shift >= 0 for f in fields], np.int64),
+        negative_steps=np.array(
+            [(f.span >> 1) - (0 if f.wraps else f.span) for f in fields], np.int64
+        ),
+        lsbs=np.array([f.lsb for f in fields], np.float64),
+    )
+
+
+_REGISTER_ARRAYS = {code: _register(fields) for code, fields in _FIELDS.items()}
+
+
 def decode_columns(
     buf: npt.NDArray[np.uint8], starts: npt.NDArray[np.int64]
 ) -> dict[str, npt.NDArray[np.float64]]:
-    """The DAP columns of records whose I048/250 start at ``starts`` (-1: absent)."""
+    """The DAP columns of records whose I048/250 start at ``starts`` (-1: absent): every
+    repetition of every record at once, each register's fields at once. A later
+    repetition of a register wins, as in ``decode_record``."""
     n = len(starts)
-    out = {name: np.full(n, np.nan) for name in DAP_COLUMNS}
+    out = np.full((len(DAP_COLUMNS), n), np.nan)
     rows = np.flatnonzero(starts >= 0)
-    if not len(rows):
-        return out
-    at = starts[rows]
-    reps = buf[at].astype(np.int64)
-    for k in range(int(reps.max(initial=0))):
-        has = reps > k
-        r, p = rows[has], at[has] + 1 + 8 * k
-        code = buf[p + 7]
-        mb = np.zeros(len(p), dtype=np.uint64)
-        for i in range(7):
-            mb = (mb << np.uint64(8)) | buf[p + i]
-        for register_code, fields in _FIELDS.items():
-            sel = code == register_code
-            if not sel.any():
+    if len(rows):
+        at = starts[rows]
+        reps = buf[at].astype(np.int64)
+        total = int(reps.sum())
+        # One entry per repetition, by record and then repetition.
+        record = np.repeat(rows, reps)
+        before = np.repeat(np.cumsum(reps) - reps, reps)
+        first = np.repeat(at + 1, reps) + 8 * (np.arange(total) - before)
+        code = buf[first + 7]
+        # The 56 MB bits: the big-endian word of the repetition's 8 octets, less its code.
+        mb = buf[first[:, None] + np.arange(8)].view(">u8")[:, 0] >> np.uint64(8)
+        for register_code, register in _REGISTER_ARRAYS.items():
+            sel = np.flatnonzero(code == register_code)
+            if not sel.size:
                 continue
-            m, target = mb[sel], r[sel]
-            for f in fields:
-                status = ((m >> np.uint64(f.status_shift)) & np.uint64(1)).astype(bool)
-                steps = ((m >> np.uint64(f.value_shift)) & np.uint64(f.mask)).astype(np.int64)
-                if f.sign_shift >= 0:
-                    negative = ((m >> np.uint64(f.sign_shift)) & np.uint64(1)).astype(np.int64)
-                    steps += negative * ((f.span >> 1) - (0 if f.wraps else f.span))
-                out[DAP_COLUMNS[f.column]][target[status]] = steps[status] * f.lsb
-    return out
+            m = mb[sel][:, None]
+            status = ((m >> register.status_shifts) & np.uint64(1)).astype(bool)
+            steps = ((m >> register.value_shifts) & register.masks).astype(np.int64)
+            negative = ((m >> register.sign_shifts) & np.uint64(1)).astype(np.int64)
+            steps += negative * register.signed * register.negative_steps
+            r, f = np.nonzero(status)
+            out[register.columns[f], record[sel][r]] = steps[r, f] * register.lsbs[f]
+    return dict(zip(DAP_COLUMNS, out, strict=True))

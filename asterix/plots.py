@@ -190,7 +190,10 @@ class PlotBatch:
 
 
 _Step = tuple[int, int, Skipper | None]
-_Plan = tuple[_Step, ...]
+_Segment = tuple[tuple[tuple[int, int], ...], int, Skipper | None]
+"""A run of fixed-size items and the variable-size one that may close it: the wanted
+items' (slot, octets from the run's start), the run's size, the closing item's skipper."""
+_Plan = tuple[_Segment, ...]
 
 
 @dataclass(frozen=True)
@@ -254,7 +257,7 @@ class _Walker:
                     plan.append(step)
         if not plan:
             raise Malformed(p, "empty FSPEC")
-        return tuple(plan)
+        return _segments(plan)
 
     def plan(self, fspec: bytes, p: int) -> _Plan:
         """The steps of an FSPEC (single-UAP categories)."""
@@ -296,6 +299,25 @@ class _Walker:
         if plan is None:
             raise Malformed(p, f"FSPEC names items the UAP selected by {value} does not have")
         return plan
+
+
+def _segments(steps: list[_Step]) -> _Plan:
+    """A record's steps (slot, size, skipper) as runs of fixed-size items each closed by a
+    variable-size one (or the record's end): one addition per run instead of per item."""
+    segments: list[_Segment] = []
+    assignments: list[tuple[int, int]] = []
+    size = 0
+    for slot, step, fn in steps:
+        if slot >= 0:
+            assignments.append((slot, size))
+        if fn is None:
+            size += step
+            continue
+        segments.append((tuple(assignments), size, fn))
+        assignments, size = [], 0
+    if assignments or size or not segments:
+        segments.append((tuple(assignments), size, None))
+    return tuple(segments)
 
 
 _WALKERS: dict[int, _Walker] = {}
@@ -347,10 +369,12 @@ def _walk(b: bytes, rows: dict[int, array[int]], errors: list[DecodeError]) -> N
                     plan = walker.select(b, q, p, selection)
                 row = blank.copy()
                 row[0] = p
-                for slot, step, fn in plan:
-                    if slot >= 0:
-                        row[slot] = q
-                    q = q + step if fn is None else fn(b, q, end)
+                for assignments, run, fn in plan:
+                    for slot, offset in assignments:
+                        row[slot] = q + offset
+                    q += run
+                    if fn is not None:
+                        q = fn(b, q, end)
                 if q > end:
                     raise Malformed(p, "record runs past its block")
                 out.extend(row)
@@ -397,20 +421,14 @@ def _blank() -> Any:
 _BLANK = _blank()
 _FIRST_DAP_COLUMN = (PLOT_DTYPE.names or ()).index(daps.DAP_COLUMNS[0])
 _BLANK_VALUES = tuple(_BLANK.tolist())
-_ABSENT = {
-    cat: [
-        n
-        for n in PLOT_DTYPE.names or ()
-        if n not in {f.column.name for f in fields} and PLOT_DTYPE[n] in (np.float64, np.int32)
-    ]
-    for cat, fields in _FIELDS.items()
-}
-"""The number columns a category never fills (NaN or -1 in all its rows)."""
-SMALL_BATCH = 24
+_BLANK_ROW = np.array([_BLANK], dtype=PLOT_DTYPE).view(np.dtype((np.void, PLOT_DTYPE.itemsize)))
+"""The blank row as opaque bytes: repeated, the rows a batch starts from (the columns its
+category never fills stay NaN, -1, "" or False)."""
+SMALL_BATCH = 14
 """Up to this many records of a category, a datagram's plots are read record by record in
-Python: numpy's per-call cost (a few calls per column, for some 25 columns) outweighs its
-per-row gain. Measured crossover: 30-50 records (CAT048 and CAT001). Many CAT001 radars
-send one plot a datagram."""
+Python: numpy's per-call cost outweighs its per-row gain. Measured crossover (every field
+at once, ``_read_columns``): 12-16 records of CAT048. Many CAT001 radars send one plot a
+datagram."""
 _ROW_FIELDS = {
     cat: tuple(
         (
@@ -430,21 +448,69 @@ _ROW_FIELDS = {
 }
 
 
+@dataclass(frozen=True)
+class _Layout:
+    """Every column of one category at once: per field (one per ``_FIELDS`` entry) its
+    item's slot, its octets' offset, the shift and mask of its bits in the big-endian
+    word of ``read`` octets from its start (the octets past its own shifted out), the
+    sign bit's value of the signed ones (0 for the others), and whether it sits in an
+    extent; the float fields with their LSBs."""
+
+    slots: npt.NDArray[np.int64]
+    offsets: npt.NDArray[np.int64]
+    word: np.dtype[Any]
+    shifts: npt.NDArray[np.uint64]
+    masks: npt.NDArray[np.uint64]
+    halves: npt.NDArray[np.int64]
+    extended: npt.NDArray[np.bool_]
+    float_fields: npt.NDArray[np.intp]
+    lsbs: npt.NDArray[np.float64]
+    float_names: tuple[str, ...]
+    int_fields: npt.NDArray[np.intp]
+    int_names: tuple[str, ...]
+
+
+def _layout(cat: int) -> _Layout:
+    fields = _FIELDS[cat]
+    read = 4 if max(f.octets for f in fields) <= 4 else 8
+    floats = [k for k, f in enumerate(fields) if f.lsb is not None]
+    ints = [k for k, f in enumerate(fields) if f.lsb is None]
+    return _Layout(
+        slots=np.array([_SLOTS[cat][f.column.item] for f in fields], np.int64),
+        offsets=np.array([f.offset for f in fields], np.int64),
+        word=np.dtype(f">u{read}"),
+        shifts=np.array([f.shift + 8 * (read - f.octets) for f in fields], np.uint64),
+        masks=np.array([(1 << f.bits) - 1 for f in fields], np.uint64),
+        halves=np.array([1 << (f.bits - 1) if f.signed else 0 for f in fields], np.int64),
+        extended=np.array([f.extent > 0 for f in fields], np.bool_),
+        float_fields=np.array(floats, np.intp),
+        lsbs=np.array([fields[k].lsb for k in floats], np.float64),
+        float_names=tuple(fields[k].column.name for k in floats),
+        int_fields=np.array(ints, np.intp),
+        int_names=tuple(fields[k].column.name for k in ints),
+    )
+
+
+_LAYOUTS = {cat: _layout(cat) for cat in _FIELDS}
+
+
+_PADDING = b"\0" * 8
+"""Octets after a datagram, so that a word read at a field near its end stays inside."""
+
+
 def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) -> Any:
     slots = _SLOTS[cat]
     starts = np.frombuffer(rows, dtype=np.int64).reshape(-1, len(_ITEMS[cat]) + 1)
     if len(starts) <= SMALL_BATCH:
         plots = _plots_by_record(cat, data, starts.tolist())
     else:
-        plots = np.zeros(len(starts), dtype=PLOT_DTYPE)
-        for name in _ABSENT[cat]:
-            plots[name] = _BLANK[name]
+        plots = np.repeat(_BLANK_ROW, len(starts)).view(PLOT_DTYPE)
         plots["offset"] = starts[:, 0]
         plots["category"] = cat
-        for f in _FIELDS[cat]:
-            plots[f.column.name] = _column(buf, starts[:, slots[f.column.item]], f)
+        padded = np.frombuffer(data + _PADDING, dtype=np.uint8)
+        _read_columns(plots, padded, starts, _LAYOUTS[cat])
         if "240" in slots:
-            plots["callsign"] = _callsigns(buf, starts[:, slots["240"]])
+            plots["callsign"] = _callsigns(padded, starts[:, slots["240"]])
         if "250" in slots:
             for name, values in daps.decode_columns(buf, starts[:, slots["250"]]).items():
                 plots[name] = values
@@ -453,8 +519,40 @@ def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) 
     return plots
 
 
+def _read_columns(
+    plots: npt.NDArray[Any],
+    buf: npt.NDArray[np.uint8],
+    starts: npt.NDArray[np.int64],
+    layout: _Layout,
+) -> None:
+    """Every field of the records (``starts``: per record, where each item starts) into
+    ``plots``: all fields at once, a few array operations whatever their number. ``buf``
+    is the data with ``_PADDING`` after it."""
+    item_starts = starts[:, layout.slots]
+    present = item_starts >= 0
+    # An absent item's fields read the octets at -1 (the padding) or 0: masked below.
+    at = item_starts + layout.offsets
+    read = layout.word.itemsize
+    octets = buf[at[:, :, None] + np.arange(read)]
+    word = octets.view(layout.word)[:, :, 0].astype(np.uint64)
+    values = ((word >> layout.shifts) & layout.masks).astype(np.int64)
+    values = (values ^ layout.halves) - layout.halves
+    if layout.extended.any():
+        # An extent is there only when the FX bit closing the one before it is set.
+        fx_set = (buf[at - 1] & 1).astype(bool)
+        present &= fx_set | ~layout.extended
+    floats = np.where(
+        present[:, layout.float_fields], values[:, layout.float_fields] * layout.lsbs, np.nan
+    )
+    ints = np.where(present[:, layout.int_fields], values[:, layout.int_fields], -1)
+    for k, name in enumerate(layout.float_names):
+        plots[name] = floats[:, k]
+    for k, name in enumerate(layout.int_names):
+        plots[name] = ints[:, k]
+
+
 def _plots_by_record(cat: int, data: bytes, starts: list[list[int]]) -> Any:
-    """The same columns as ``_column`` and ``_callsigns`` give, one record at a time."""
+    """The same columns as ``_read_columns`` and ``_callsigns`` give, one record at a time."""
     callsign = _SLOTS[cat].get("240", -1)
     callsign_column = (PLOT_DTYPE.names or ()).index("callsign")
     dap_slot = _SLOTS[cat].get("250", -1)
@@ -486,35 +584,6 @@ def _shifted(error: DecodeError, offset: int) -> DecodeError:
     return DecodeError(error.offset + offset, error.category, error.reason)
 
 
-def _octets(buf: npt.NDArray[np.uint8], at: npt.NDArray[np.int64], count: int) -> Any:
-    value = np.zeros(len(at), dtype=np.uint64)
-    for i in range(count):
-        value = (value << np.uint64(8)) | buf[at + i]
-    return value
-
-
-def _column(buf: npt.NDArray[np.uint8], starts: npt.NDArray[np.int64], f: _Field) -> Any:
-    present = starts >= 0
-    at = starts[present] + f.offset
-    if f.extent:
-        # An extent is there only when the FX bit closing the one before it is set.
-        fx_set = (buf[at - 1] & 1).astype(bool)
-        present[np.flatnonzero(present)[~fx_set]] = False
-        at = at[fx_set]
-    raw = (_octets(buf, at, f.octets) >> np.uint64(f.shift)) & np.uint64((1 << f.bits) - 1)
-    values = raw.astype(np.int64)
-    if f.signed:
-        half = 1 << (f.bits - 1)
-        values = (values ^ half) - half
-    if f.lsb is not None:
-        out = np.full(len(starts), np.nan)
-        out[present] = values * f.lsb
-        return out
-    out_int = np.full(len(starts), -1, dtype=np.int64)
-    out_int[present] = values
-    return out_int
-
-
 _ICAO_TABLE = np.array(list(ICAO_CHARACTERS))
 
 
@@ -522,7 +591,8 @@ def _callsigns(buf: npt.NDArray[np.uint8], starts: npt.NDArray[np.int64]) -> Any
     out = np.full(len(starts), "", dtype="U8")
     present = starts >= 0
     if present.any():
-        raw = _octets(buf, starts[present], 6)
+        # Six octets, from the big-endian word of eight (``buf`` padded after the data).
+        raw = buf[starts[present][:, None] + np.arange(8)].view(">u8")[:, 0] >> np.uint64(16)
         shifts = np.arange(42, -1, -6, dtype=np.uint64)
         codes = (raw[:, None] >> shifts) & np.uint64(63)
         out[present] = np.ascontiguousarray(_ICAO_TABLE[codes]).view("U8")[:, 0]

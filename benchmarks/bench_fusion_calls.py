@@ -64,17 +64,25 @@ def record(path: str, seconds: float) -> list[Call]:
     SystemTracker.process = recorder("process", process)
     SystemTracker.references = recorder("references", references)
     try:
-        replay, datagrams = slice_of(path, seconds)
-        service = TrackerService(replay.config, None, None)
-        for name, datagram in datagrams:
-            service.process(name, datagram)
-        service.local.drain()
-        service.close()
+        run_service(path, seconds)
     finally:
         SystemTracker.__init__ = init
         SystemTracker.process = process
         SystemTracker.references = references
     return calls
+
+
+def run_service(path: str, seconds: float) -> int:
+    """The recording's first ``seconds`` through a service without outputs (while a
+    benchmark records its calls); the plots its chain took."""
+    replay, datagrams = slice_of(path, seconds)
+    service = TrackerService(replay.config, None, None)
+    for name, datagram in datagrams:
+        service.process(name, datagram)
+    service.local.drain()
+    plots = service.chain.stats.plots
+    service.close()
+    return plots
 
 
 def replay(calls: list[Call]) -> tuple[dict[str, float], str]:
@@ -99,18 +107,24 @@ def replay(calls: list[Call]) -> tuple[dict[str, float], str]:
     return cpu, digest.hexdigest()
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def record_replay_parser(doc: str, calls_of: str) -> argparse.ArgumentParser:
+    """The command line of a benchmark that records ``calls_of``'s calls once and
+    replays them (this one, ``bench_central.py``)."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    rec = sub.add_parser("record", help="record the fuser's calls over a recording's start")
+    rec = sub.add_parser("record", help=f"record {calls_of}'s calls over a recording's start")
     rec.add_argument("recording")
     rec.add_argument("--seconds", type=float, default=20.0)
     rec.add_argument("-o", "--output", required=True)
-    rep = sub.add_parser("replay", help="replay recorded calls into a fresh fuser")
+    rep = sub.add_parser("replay", help=f"replay recorded calls into a fresh {calls_of}")
     rep.add_argument("calls")
     rep.add_argument("--repeats", type=int, default=3)
     rep.add_argument("--profile", help="cProfile (CPU time) of the timed passes into FILE")
-    args = parser.parse_args()
+    return parser
+
+
+def main() -> None:
+    args = record_replay_parser(__doc__, "the fuser").parse_args()
     if args.command == "record":
         calls = record(args.recording, args.seconds)
         with open(args.output, "wb") as out:

@@ -12,6 +12,7 @@ I140). Both clocks are this host's.
 
     python benchmarks/bench_latency.py [--scenario scale|three_sites|artas] [--rate 2000]
         [--speed 1] [--duration 180] [--holding-window 0.02] [--no-mcap] [--profile FILE]
+        [--radar-processes N]
 
 ``scale`` (20 radars, 2,000 aircraft, about 1,460 plots/s in real time, some 31 plots per
 datagram) is the realistic load: its real time sped up about 1.37 times. ``three_sites``
@@ -22,6 +23,11 @@ real time with ``--speed 1`` (which replaces ``--rate``): the ARTAS-class load.
 Beside the latencies: the daemon's status over Zenoh (``tracker/status``: datagrams
 dropped at its inputs, by cause, and its lag behind the wall clock) and the RSS of the
 daemon and its output process, sampled every 5 s.
+
+``--radar-processes N`` runs the daemon as the roles of docs/deployment.md: N ``run --role
+radar`` processes (the radars dealt round robin) connected to one ``run --role fusion``
+process (and its output process) over a stage session on 127.0.0.1; the CPU and RSS
+figures are then of all of them.
 
 The holding window (``system.holding_window_s``, 1 s in config/example.toml) adds itself
 to every latency: it is what buys the deterministic order across radars. 20 ms here.
@@ -55,6 +61,7 @@ from tracker_service.service.command import stop_on_signals
 from tracker_service.service.config import parse_service_config
 from tracker_service.service.core import config_from_recording
 from tracker_service.service.daemon import Daemon
+from tracker_service.service.roles import FusionRole, RadarRole
 from tracker_service.simulator.recording import read_recording
 
 REPO = Path(__file__).resolve().parents[1]
@@ -110,17 +117,43 @@ def daemon_config(
     return doc
 
 
-def serve(config_path: str, profile: str | None) -> int:
-    """The daemon side (``--serve``): the daemon on the configuration, until SIGTERM."""
+def serve(config_path: str, profile: str | None, role: str | None, stage: str | None) -> int:
+    """The daemon side (``--serve``): the daemon on the configuration, until SIGTERM; with
+    ``role`` one of its roles (``run --role``): "fusion" listening on the stage endpoint,
+    or "radar:25/11,25/12" connecting to it."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
     config = parse_service_config(json.loads(Path(config_path).read_text("utf-8")))
+    service: Daemon | FusionRole | RadarRole
+    if role == "fusion":
+        service = FusionRole(config, [stage or ""], [])
+    elif role is not None:
+        service = RadarRole(config, role.removeprefix("radar:").split(","), [], [stage or ""])
+    else:
+        service = Daemon(config)
     with stop_on_signals() as stop:
         if profile is None:
-            return Daemon(config).run(stop)
+            return service.run(stop)
         profiler = cProfile.Profile()
-        code: int = profiler.runcall(Daemon(config).run, stop)
+        code: int = profiler.runcall(service.run, stop)
         profiler.dump_stats(profile)
         return code
+
+
+def start_service(
+    config: Path, args: argparse.Namespace, ready: str, role: list[str] | None = None
+) -> subprocess.Popen[str]:
+    """A ``--serve`` process, returned once its log says ``ready``; the rest of its log is
+    read (and dropped) by a thread."""
+    command = [sys.executable, __file__, "--serve", str(config), *(role or [])]
+    if args.profile is not None and (role is None or "fusion" in role):
+        command += ["--profile", args.profile]
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    assert process.stderr is not None
+    for line in process.stderr:
+        if ready in line:
+            break
+    threading.Thread(target=process.stderr.read, daemon=True).start()
+    return process
 
 
 def main() -> int:
@@ -140,10 +173,19 @@ def main() -> int:
     parser.add_argument("--no-mcap", action="store_true", help="run the daemon without log")
     parser.add_argument("--profile", help="cProfile the daemon into this file")
     parser.add_argument("--samples", help="write each plot's send time (s) and latency (ms)")
+    parser.add_argument(
+        "--radar-processes",
+        type=int,
+        default=0,
+        help="run the daemon as this many `run --role radar` processes (the radars dealt "
+        "round robin) and one `run --role fusion`, over a stage session on 127.0.0.1",
+    )
     parser.add_argument("--serve", help=argparse.SUPPRESS)
+    parser.add_argument("--role", help=argparse.SUPPRESS)
+    parser.add_argument("--stage", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve is not None:
-        return serve(args.serve, args.profile)
+        return serve(args.serve, args.profile, args.role, args.stage)
 
     work = Path(tempfile.mkdtemp(prefix="bench_latency_"))
     recording = read_recording(simulate(args.scenario, args.duration, work, args.lead))
@@ -165,17 +207,18 @@ def main() -> int:
     config = work / "tracker.json"
     doc = daemon_config(recording.metadata, ports, args.holding_window, endpoint, mcap_dir)
     config.write_text(json.dumps(doc), encoding="utf-8")
-    command = [sys.executable, __file__, "--serve", str(config)]
-    daemon = subprocess.Popen(
-        command + ([] if args.profile is None else ["--profile", args.profile]),
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    assert daemon.stderr is not None
-    for line in daemon.stderr:
-        if "running: publishing" in line:
-            break
-    threading.Thread(target=daemon.stderr.read, daemon=True).start()
+    radar_processes: list[subprocess.Popen[str]] = []
+    if args.radar_processes:
+        stage = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+        fusion = ["--role", "fusion", "--stage", stage]
+        daemon = start_service(config, args, "fusion: taking", fusion)
+        radars = [f"{r['sac']}/{r['sic']}" for r in doc["radars"] if "input" in r]
+        for k in range(args.radar_processes):
+            mine = ",".join(radars[k :: args.radar_processes])
+            role = ["--role", f"radar:{mine}", "--stage", stage]
+            radar_processes.append(start_service(config, args, "publishing under", role))
+    else:
+        daemon = start_service(config, args, "running: publishing")
 
     arrivals: list[tuple[float, bytes]] = []
     zconfig = zenoh.Config()
@@ -196,13 +239,14 @@ def main() -> int:
     def sample_rss() -> None:
         t0 = time.monotonic()
         while not sampling.wait(5.0):
-            rss.append((time.monotonic() - t0, rss_mb(daemon.pid)))
+            mb = sum(rss_mb(p.pid) for p in [daemon, *radar_processes])
+            rss.append((time.monotonic() - t0, mb))
 
     threading.Thread(target=sample_rss, daemon=True).start()
     time.sleep(1.0)
 
     sent: dict[tuple[str, int], float] = {}
-    cpu0 = cpu_per_process(daemon.pid)
+    cpu0 = {k: v for p in [daemon, *radar_processes] for k, v in cpu_per_process(p.pid).items()}
     own0 = time.process_time()
     cpu_wall0 = time.monotonic()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
@@ -220,10 +264,13 @@ def main() -> int:
                 sent.setdefault(key, now)
     wall = time.monotonic() - wall0
     time.sleep(2.0 + args.holding_window)
-    cpu1 = cpu_per_process(daemon.pid)
+    cpu1 = {k: v for p in [daemon, *radar_processes] for k, v in cpu_per_process(p.pid).items()}
     own = time.process_time() - own0
     cpu_wall = time.monotonic() - cpu_wall0
     sampling.set()
+    for radar_process in radar_processes:
+        radar_process.terminate()
+        radar_process.wait(timeout=60)
     daemon.terminate()
     try:
         daemon.wait(timeout=60)
@@ -266,11 +313,13 @@ def main() -> int:
         f"x{speed:.2f}), holding window {args.holding_window * 1000:.0f} ms, MCAP log "
         f"{'off' if mcap_dir is None else 'on'}"
     )
+    name_of = {daemon.pid: "fusion" if radar_processes else "main"}
+    name_of.update({p.pid: f"radar process {k}" for k, p in enumerate(radar_processes)})
     print(
         "CPU, share of a core: daemon "
         + ", ".join(
             # The children: the output process, and multiprocessing's resource tracker.
-            f"{'main' if pid == daemon.pid else f'child {pid}'} {s / cpu_wall:.0%}"
+            f"{name_of.get(pid, f'child {pid}')} {s / cpu_wall:.0%}"
             for pid, s in cpu.items()
             if s / cpu_wall >= 0.01
         )
@@ -287,6 +336,7 @@ def main() -> int:
             f"daemon status ({len(statuses)}): drops {sum(r['drops'] for r in last['radars'])} "
             f"{causes or ''}, lag max {max(lags, default=0.0):.2f} s, last "
             f"{lags[-1] if lags else 0.0:.2f} s, health {last['health']}"
+            + "".join(f"; {reason}" for reason in last.get("reasons", []))
         )
     if rss:
         print(

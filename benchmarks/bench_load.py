@@ -111,7 +111,10 @@ def replay(args: argparse.Namespace) -> int:
                 "cpu_share": round((cpu - cpu_before) / args.sample_s, 3),
                 "cpu_s": cpu,
                 "rss_mb": round(rss_mb(process.pid), 1),
-                "lag_s": round(max(recent), 3) if recent else None,
+                # The median: an ended track's last message carries its last update's
+                # time, tens of seconds old, so the maximum says little of the pace.
+                "lag_s": round(statistics.median(recent), 3) if recent else None,
+                "lag_max_s": round(max(recent), 3) if recent else None,
                 "messages": len(arrivals),
             }
         )

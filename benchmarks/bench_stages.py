@@ -26,6 +26,7 @@ The stages and what each wraps:
 | decode | ``extract_plots`` and the service messages' ``decode_blocks`` (radar stage) |
 | clock + conversion | ``convert_batch`` (plot clock, geodesy), time sanity, fixed targets |
 | local tracking | ``LocalTracker.process`` |
+| central stage | ``CentralStage.process``, ``feed_adsb`` less the three below (its own work) |
 | bias | ``CentralStage._estimate_biases`` (observations, the estimator's update) |
 | bias references | ``SystemTracker.references`` (the fuser's references for the bias) |
 | fusion | ``SystemTracker.process`` |
@@ -73,6 +74,7 @@ STAGES = (
     "decode",
     "clock + conversion",
     "local tracking",
+    "central stage",
     "bias",
     "bias references",
     "fusion",
@@ -135,6 +137,8 @@ def instrumented(clock: StageClock) -> Iterator[None]:
         (TimeSanity, "check", "clock + conversion"),
         (RadarStage, "_fixed_transponders", "clock + conversion"),
         (LocalTracker, "process", "local tracking"),
+        (CentralStage, "process", "central stage"),
+        (CentralStage, "feed_adsb", "central stage"),
         (CentralStage, "_estimate_biases", "bias"),
         (SystemTracker, "references", "bias references"),
         (SystemTracker, "process", "fusion"),

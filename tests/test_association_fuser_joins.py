@@ -1,6 +1,7 @@
 """The fuser's first join of a local track that two system tracks could take alike waits
-(``FusionConfig.join_ambiguity_margin``, fusion/associate.py ``_ambiguous_joins``):
-docs/association.md "Session 9"."""
+(``FusionConfig.join_ambiguity_margin``, fusion/associate.py ``_ambiguous_joins``); a
+radar's two tracks that founded together never merge into one system track
+(docs/association.md "Session 9", "Session 10")."""
 
 from __future__ import annotations
 
@@ -69,3 +70,26 @@ def test_the_wait_ends_after_the_found_delay() -> None:
             joined_at.append(t)
     # First seen at T0 + 2.5 s; every 5 s since; joined at the first update 20 s later.
     assert joined_at and joined_at[0] == T0 + 22.5
+
+
+def test_two_tracks_of_one_radar_never_merge_into_one_system_track() -> None:
+    """Radar 0 (4 s) holds one track (10) on two aircraft 300 m apart; radar 1's two
+    tracks of them (11, 21) first lie 3 km off (an unknown bias), each founds a system
+    track, then come onto the aircraft: both system tracks pass the merge test with radar
+    0's for ``merge_after`` updates in a row, in the same batches. One merges into it; the
+    other may not follow, since radar 1's tracks are two aircraft."""
+    fuser = SystemTracker(2, FusionConfig(join_ambiguity_margin=0.0))
+    for k in range(16):
+        t = T0 + 2.5 * k
+        radar = k % 2
+        if radar == 0:
+            u, p = east_batch([10], t, SPEED * (t - T0), 0.0, 150.0, 2 * k, SPEED)
+        else:
+            off = 3000.0 if k < 4 else 0.0
+            ys = [off - 150.0, off + 150.0]
+            u, p = east_batch([11, 21], t, SPEED * (t - T0), ys, 150.0, 2 * k, SPEED)
+        fuser.process(radar, u, p)
+    a, b = system_of(fuser, 1, 11), system_of(fuser, 1, 21)
+    assert a > 0 and b > 0 and a != b
+    assert fuser.state.stats.system_tracks_merged == 1
+    assert system_of(fuser, 0, 10) in (a, b)

@@ -531,3 +531,54 @@ def test_canala_site_monitors() -> None:
     assert not np.isin(run.local["plot_id"], fed).any()
     assert not (run.local["mode3a"] == 0o7777).any()
     assert not (run.system["mode3a"] == 0o7777).any()
+
+
+# --- the compiled detection against its numpy reference ---------------------------------
+
+
+def _mixed_batches(seed: int) -> list[tuple[npt.NDArray[Any], npt.NDArray[np.bool_]]]:
+    """Scans of a busy sector, several plots a batch: site monitors on 7777 (one with
+    ghosts), aircraft moving and hovering on addresses and codes (7777 among them, some
+    garbled), primary plots, plots whose identity repeats within a batch."""
+    rng = np.random.default_rng(seed)
+    batches = []
+    for scan in range(60):
+        t0 = 5.0 * scan
+        rows = []
+        for k in range(12):
+            speed = (0.0, 0.0, 2.0, 40.0, 120.0, 250.0)[k % 6]
+            x = 30_000.0 + 4_000.0 * k + speed * t0 + rng.normal(0.0, 80.0)
+            y = 15_000.0 + 3_000.0 * (k % 4) + rng.normal(0.0, 80.0)
+            address = 0x3C0000 + k if k % 3 else -1
+            code = (0o7777, 0o4321 + k, 0o7700, 0o1200, -1)[k % 5]
+            rows.append((t0 + 0.01 * k, x, y, address, code))
+        if scan % 7 == 3:  # a ghost beside the first monitor, the same identity
+            rows.append((t0 + 0.2, rows[0][1] + 1_500.0, rows[0][2], -1, 0o7777))
+        if scan % 5 == 1:  # a split: two plots of one candidate in one batch
+            rows.append((t0 + 0.3, rows[2][1] + 20.0, rows[2][2], rows[2][3], rows[2][4]))
+        t, x, y, address, code = map(np.array, zip(*rows, strict=True))
+        table = _table(t, x, y, sigma_m=60.0 + 40.0 * rng.random())
+        table["address"], table["mode3a"] = address, code
+        valid = (code >= 0) & (rng.random(len(t)) > 0.15)
+        batches.append((table, valid))
+    return batches
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_detection_is_the_numpy_reference_to_the_bit(seed: int) -> None:
+    site = RadarSite(SITE[0], SITE[1], 0.0)
+    config = FixedTargetConfig(min_plots=6, min_duration_s=40.0)
+    stages = [
+        FixedTargets(site, SystemPlane(*SITE), 5.0, (), config, compiled=compiled)
+        for compiled in (False, True)
+    ]
+    taken = 0
+    for table, valid in _mixed_batches(seed):
+        candidates = np.ones(len(table), bool)
+        reference, compiled = (s.classify(table, candidates, valid) for s in stages)
+        assert np.array_equal(reference.fixed, compiled.fixed)
+        for name in ("key", "values", "fixed"):
+            a, b = (getattr(s._candidates, name) for s in stages)
+            assert a.shape == b.shape and a.tobytes() == b.tobytes(), name
+        taken += int(compiled.fixed.sum())
+    assert taken > 50  # the monitors and the hovering ones were found

@@ -23,11 +23,12 @@ from tracker_service.fusion import (
     associate,
     consider,
     estimator_plots,
+    lifecycle,
     nearby,
 )
 from tracker_service.fusion.estimator_tracks import fuse_local_tracks
 from tracker_service.fusion.state import FusionState
-from tracker_service.fusion.table import LocalTrackTable
+from tracker_service.fusion.table import Columns, LocalTrackTable
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
@@ -69,6 +70,12 @@ def _states(
     sys["mP"][n] = _spd(rng, (k, m), np.array([300.0, 300.0, 20.0, 20.0]))
     sys["mu"][n] = rng.dirichlet(np.full(m, 0.5), k)
     sys["mM"][n] = rng.normal(0.0, 0.5, (k, m, n_radars, 4, 2))
+    # A system track holds no sensitivity to the radars none of whose plots updated it,
+    # which the kernels skip.
+    insensitive = rng.uniform(size=(k, n_radars)) < 0.4
+    mm = sys["mM"][n]
+    mm[np.broadcast_to(insensitive[:, None, :], (k, m, n_radars))] = 0.0
+    sys["mM"][n] = mm
     sys["B"][n] = _spd(rng, (k, n_radars), np.array([60.0, 60.0]))
     local = states[0].local
     rows = local.find(0, _local_updates(rng, k), create=True)
@@ -202,12 +209,18 @@ def test_compiled_and_numpy_fusers_give_the_same_rows(method: str) -> None:
     for ri, plots in scenario.batches[: len(scenario.batches) // 2]:
         updates = trackers[ri].process(plots)
         extra = np.broadcast_to(np.diag([40.0**2, 25.0**2]), (len(updates), 2, 2)).copy()
-        refs = {impl: f.references(ri, updates, plots) for impl, f in fusers.items()}
-        for name in ("others_xy", "others_P", "others_v", "all_xy", "all_P"):
-            a, b = getattr(refs["numpy"], name), getattr(refs["compiled"], name)
-            np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
-            valid = ~np.isnan(a).any(axis=tuple(range(1, a.ndim)))
-            close_per_track(a[valid], b[valid], name[-1])  # "P", or vectors by their size
+        # Every source, and the first two only (as the bias estimator takes the radars
+        # and not the ADS-B source).
+        for sources in (None, 2):
+            refs = {impl: f.references(ri, updates, plots, sources) for impl, f in fusers.items()}
+            for name in ("others_xy", "others_P", "others_v", "all_xy", "all_P"):
+                a, b = getattr(refs["numpy"], name), getattr(refs["compiled"], name)
+                np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+                valid = ~np.isnan(a).any(axis=tuple(range(1, a.ndim)))
+                close_per_track(a[valid], b[valid], name[-1])  # "P", or vectors by size
+            for name in ("plot_id", "system_number", "time", "others_valid", "radars_seen"):
+                a, b = getattr(refs["numpy"], name), getattr(refs["compiled"], name)
+                np.testing.assert_array_equal(a, b, err_msg=name)
         for impl, f in fusers.items():
             rows[impl].append(f.process(ri, updates, plots, extra))
     a, b = np.concatenate(rows["numpy"]), np.concatenate(rows["compiled"])
@@ -226,6 +239,13 @@ def test_compiled_and_numpy_fusers_give_the_same_rows(method: str) -> None:
         else:
             np.testing.assert_array_equal(a[name], b[name], err_msg=name)
     assert fusers["numpy"].stats == fusers["compiled"].stats
+    # The pre-selection's terms kept by every writer are those the live tracks hold now.
+    sys = fusers["compiled"].state.sys
+    alive = np.flatnonzero(sys["alive"])
+    kept = {name: sys[name][alive].copy() for name in ("moments", "sensitivity", "largest_bias")}
+    nearby.refresh(sys, alive, compiled=True)
+    for name, value in kept.items():
+        np.testing.assert_array_equal(value, sys[name][alive], err_msg=name)
 
 
 @settings(max_examples=25, deadline=None)
@@ -246,6 +266,109 @@ def test_slots_are_the_references(seed: int, k: int, max_sources: int) -> None:
     np.testing.assert_array_equal(want, got)
 
 
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=0, max_value=30), n=st.integers(0, 60))
+def test_store_is_the_reference(seed: int, k: int, n: int) -> None:
+    """``LocalTrackTable.store`` by its kernel against the numpy path, every field equal:
+    rows updated several times a batch, unknown identities, flight levels missing or
+    with an infinite rate, updates with and without a plot, tracks without a state."""
+    rng = np.random.default_rng(seed)
+    tables = [LocalTrackTable(5, compiled=flag) for flag in (False, True)]
+    rows = tables[0].find(0, _local_updates(rng, max(k, 1)), create=True)
+    loc = tables[0].rows
+    loc["t"][rows] = np.where(rng.random(rows.size) < 0.3, np.nan, rng.uniform(0, 9, rows.size))
+    loc["address"][rows] = rng.integers(-1, 3, rows.size)
+    tables[1].rows = Columns(loc.dtype, {name: loc[name].copy() for name in loc.dtype.names or ()})
+    tables[1].n = tables[0].n
+    u = np.zeros(n, dtype=LocalTracker().output_dtype)
+    u["status"] = rng.integers(0, 4, n)
+    u["time"] = rng.uniform(0.0, 10.0, n)
+    for name in ("x", "y", "vx", "vy"):
+        u[name] = rng.normal(0.0, 1e4, n)
+    u["P"] = rng.normal(0.0, 100.0, (n, 16))
+    u["address"] = np.where(rng.random(n) < 0.5, -1, rng.integers(0, 1 << 24, n))
+    u["mode3a"] = np.where(rng.random(n) < 0.5, -1, rng.integers(0, 4096, n))
+    u["flight_level"] = np.where(rng.random(n) < 0.4, np.nan, rng.uniform(0.0, 400.0, n))
+    u["climb_rate_fl_per_s"] = rng.choice([np.nan, np.inf, -np.inf, 0.5, -1.0], n)
+    u["model_probabilities"] = rng.dirichlet(np.ones(5), n)
+    u["plot_id"] = rng.integers(0, 1000, n)
+    which = rng.integers(0, rows.size, n)
+    extra = _spd(rng, (n,), np.array([40.0, 40.0]))
+    has_plot = rng.random(n) < 0.6
+    for table in tables:
+        table.store(rows[which], u, extra, has_plot)
+    want, got = tables[0].rows, tables[1].rows
+    for name in want.dtype.names or ():
+        np.testing.assert_array_equal(want[name], got[name], err_msg=name)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, n=st.integers(1, 60), candidates=st.integers(0, 80))
+def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int) -> None:
+    """The exchange test's pairs and votes by the kernel against the numpy path, every
+    array equal: local rows of four radars feeding eight system tracks, candidates
+    repeating pairs from either side, near system tracks with and without a row of the
+    candidate's radar or of another."""
+    rng = np.random.default_rng(seed)
+    states = [
+        FusionState(
+            FusionConfig(implementation=impl), 4, ModelSet.from_config(FusionConfig().plot_filter)
+        )
+        for impl in ("compiled", "numpy")
+    ]
+    radar = rng.integers(0, 4, n)
+    for state in states:
+        for r in range(4):
+            u = _local_updates(rng, n)
+            state.local.find(r, u[radar == r], create=True)
+    loc = states[0].local.rows
+    system = rng.integers(1, 9, states[0].local.n)
+    for state in states:
+        state.local.rows["system"][: state.local.n] = system
+    involved = np.flatnonzero(rng.random(states[0].local.n) < 0.8)
+    li = rng.choice(involved, candidates) if involved.size else np.zeros(0, dtype=np.int64)
+    # As in use, S' is fed by an involved row (of the candidate's radar or not).
+    sj = rng.choice(system[involved], li.size) if involved.size else li
+    got, want = (associate._exchange_witnesses(state, li, sj, involved) for state in states)
+    assert np.array_equal(loc["key"], states[1].local.rows["key"])
+    for a, b in zip(want, got, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, touched=st.integers(0, 12), alive=st.integers(0, 60))
+def test_identity_candidates_are_the_reference(seed: int, touched: int, alive: int) -> None:
+    """Merging's identity pre-filter by the kernel: the same tracks, addresses and codes
+    drawn from few values, unknown (-1) in both sets."""
+    rng = np.random.default_rng(seed)
+    states = [
+        FusionState(
+            FusionConfig(implementation=impl), 2, ModelSet.from_config(FusionConfig().plot_filter)
+        )
+        for impl in ("compiled", "numpy")
+    ]
+    address, code = rng.integers(-1, 6, 99), rng.integers(-1, 6, 99)
+    for state in states:
+        state.sys["address"][1:100], state.sys["mode3a"][1:100] = address, code
+    numbers = rng.integers(1, 100, touched), np.sort(rng.choice(99, alive, replace=False) + 1)
+    got, want = (lifecycle._identity_candidates(state, *numbers) for state in states)
+    np.testing.assert_array_equal(want, got)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, n_a=st.integers(0, 60), n_b=st.integers(0, 60))
+def test_near_pairs_are_the_reference(seed: int, n_a: int, n_b: int) -> None:
+    """The pre-selection's pairs by the kernel: the same pairs in the same order, either
+    set the larger, points spread beyond the box and radii of every size."""
+    rng = np.random.default_rng(seed)
+    xy_a, xy_b = rng.normal(0.0, 3e4, (n_a, 2)), rng.normal(0.0, 3e4, (n_b, 2))
+    r_a, r_b = rng.exponential(5e3, n_a), rng.exponential(5e3, n_b)
+    got = nearby.near_pairs(xy_a, r_a, xy_b, r_b, compiled=True)
+    want = nearby.near_pairs(xy_a, r_a, xy_b, r_b, compiled=False)
+    for a, b in zip(want, got, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 @settings(max_examples=25, deadline=None)
 @given(seed=SEEDS, k=st.integers(min_value=0, max_value=40), n_radars=st.integers(1, 5))
 def test_pre_selection_reads_sensitivities_and_biases_as_the_reference(
@@ -259,6 +382,8 @@ def test_pre_selection_reads_sensitivities_and_biases_as_the_reference(
     sys["M"][1 : k + 1] = rng.normal(0.0, 0.5, (k, n_radars, 4, 2))
     sys["x"][1 : k + 1] = sys["mx"][1 : k + 1, 0]
     sys["P"][1 : k + 1] = sys["mP"][1 : k + 1, -1]
+    # As every writer of the models, sensitivities and biases does.
+    nearby.refresh(sys, np.arange(1, k + 1), compiled=True)
     numbers = rng.integers(1, k + 1, k) if k else np.zeros(0, dtype=np.int64)
     t_mid, spread = float(rng.uniform(0.0, 10.0)), float(rng.uniform(0.0, 3.0))
     for from_models in (True, False):
@@ -267,10 +392,10 @@ def test_pre_selection_reads_sensitivities_and_biases_as_the_reference(
         want_xy, want_r = nearby.system_reach(sys, numbers, *args, compiled=False)
         np.testing.assert_allclose(got_xy, want_xy, rtol=TOLERANCE, atol=0.0)
         np.testing.assert_allclose(got_r, want_r, rtol=TOLERANCE, atol=0.0)
-    got_b = nearby.system_largest_bias(sys["B"], numbers, compiled=True)
+    got_b = nearby.system_largest_bias(sys, numbers, compiled=True)
     want_b = nearby.largest_bias(sys["B"][numbers])
     assert got_b == pytest.approx(want_b, rel=TOLERANCE, abs=0.0)
-    assert nearby.system_largest_bias(sys["B"], numbers, compiled=False) == want_b
+    assert nearby.system_largest_bias(sys, numbers, compiled=False) == want_b
 
 
 @settings(max_examples=25, deadline=None)

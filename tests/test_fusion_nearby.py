@@ -14,7 +14,11 @@ from tracker_service.tracking.plots import FloatArray, IntArray
 
 
 def _all_pairs(
-    xy_a: FloatArray, radius_a: FloatArray, xy_b: FloatArray, radius_b: FloatArray
+    xy_a: FloatArray,
+    radius_a: FloatArray,
+    xy_b: FloatArray,
+    radius_b: FloatArray,
+    compiled: bool = False,
 ) -> tuple[IntArray, IntArray]:
     i, j = np.meshgrid(np.arange(len(xy_a)), np.arange(len(xy_b)), indexing="ij")
     return i.reshape(-1), j.reshape(-1)

@@ -8,7 +8,7 @@ import numpy.typing as npt
 import pytest
 
 from tests.test_tracking import PERIOD, T0, Target, run, simulate, straight
-from tracker_service.tracking import CONFIRMED, LocalTracker, TrackerConfig
+from tracker_service.tracking import CONFIRMED, DELETED, LocalTracker, TrackerConfig
 from tracker_service.tracking.association import MultipleHypothesisTracking
 from tracker_service.tracking.plots import BASE_PLOT_DTYPE
 
@@ -34,7 +34,7 @@ def _sidestep() -> list[npt.NDArray[np.void]]:
     south at 30 m/s from then on (plots 10, 11, ...)."""
     batches = [_scan(k, [0.0], k) for k in range(8)]
     batches.append(_scan(8, [140.0, -150.0], 8))
-    for k in range(9, 15):
+    for k in range(9, 19):
         batches.append(_scan(k, [-150.0 - 30.0 * PERIOD * (k - 8)], k + 1))
     return batches
 
@@ -62,9 +62,11 @@ def test_a_later_scan_revises_the_published_choice_and_the_track_keeps_its_numbe
     for k in (9, 10, 13):
         for name in ("x", "y", "vx", "vy", "P", "model_probabilities"):
             np.testing.assert_allclose(track[k][name], reference[k][name], rtol=1e-9, atol=1e-9)
-    # N-scan pruning (N = 3): the choice of scan 8 is fixed three scans on; the
-    # scan-9 choice between the track and the new one three scans after that, and the
-    # cluster, down to one hypothesis, has dissolved.
+    # N-scan pruning (N = 3): the choice of scan 8 is fixed three scans on; the new
+    # track, tentative in the cluster, outlives its misses until none can be revised
+    # (two misses, then N - 1 more: deleted at scan 13); the cluster, down to one
+    # hypothesis, has dissolved.
+    assert out[13]["status"][out[13]["track_number"] == 2].tolist() == [DELETED]
     assert mht.clusters == []
 
 

@@ -608,3 +608,42 @@ def test_the_daemon_says_why_a_capture_sent_hours_late_is_degraded(tmp_path: Pat
     offsets = {r["radar"]: r["time_offset_s"] for r in status["radars"]}
     assert offsets["25/13"] is not None and offsets["25/13"] < -3600.0
     assert any("data time" in line and "behind its reception" in line for line in daemon.lines)
+
+
+@pytest.mark.parametrize("base", ["data", "reception"])
+def test_the_compiled_check_is_the_numpy_check(base: str) -> None:
+    """A radar's batches through ``TimeSanity.check`` compiled and in numpy: the same
+    times, implausible plots and evidence, batch by batch, through a stream with north
+    markers, plots timed by I140, by azimuth and by reception, stray stamps, a jump of its
+    clock an hour ahead and the midnight wrap."""
+    rng = np.random.default_rng(7)
+    sanities = [
+        TimeSanity(bases={KEY: base}, periods={KEY: 5.0}, compiled=compiled)  # type: ignore[dict-item]
+        for compiled in (False, True)
+    ]
+    received = MIDNIGHT - 300.0
+    implausible = 0
+    for batch in range(400):
+        received += 0.625
+        jump = 3600.0 if 150 <= batch < 260 else 0.0
+        data_time = received - 0.8 + jump
+        if batch % 8 == 0:
+            north = {"000": 1, "010": {"SAC": 25, "SIC": 13}, "030": data_time % DAY_S, "041": 5.0}
+            for sanity in sanities:
+                sanity.service_message(north, received)
+        n = int(rng.integers(1, 30))
+        theta = (data_time % 5.0) / 5.0 * 360.0 + rng.uniform(-20.0, 0.0, n)
+        theta[rng.random(n) < 0.05] = np.nan
+        times = data_time - rng.uniform(0.0, 0.3, n)
+        times[rng.random(n) < 0.03] += rng.choice([-7200.0, 40.0, 2.4])
+        times = np.where(rng.random(n) < 0.3, times % DAY_S + MIDNIGHT - DAY_S, times)
+        sources = rng.choice(np.array([0, 0, 0, 1, 2], np.int8), n)
+        got = [s.check(KEY, times, sources, theta % 360.0, received) for s in sanities]
+        (want_times, want_off), (times_c, off_c) = got
+        assert want_times.tobytes() == times_c.tobytes()
+        assert want_off.tobytes() == off_c.tobytes()
+        a, b = (s._timelines[KEY] for s in sanities)
+        assert list(a.offsets) == list(b.offsets) and list(a.phases) == list(b.phases)
+        assert (a.rebase_s, a.implausible) == (b.rebase_s, b.implausible)
+        implausible += int(off_c.sum())
+    assert implausible > 20

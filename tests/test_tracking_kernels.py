@@ -4,6 +4,8 @@ and the two trackers run side by side on the same plots."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -12,7 +14,9 @@ from hypothesis import strategies as st
 
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 from tracker_service.tracking.imm import ImmFilter, ImmPrediction, make_imm
+from tracker_service.tracking.initiate import TwoPointInitiator
 from tracker_service.tracking.models import ModelSet
+from tracker_service.tracking.plots import PlotArrays
 
 FloatArray = npt.NDArray[np.float64]
 TOLERANCE = 1e-9
@@ -220,3 +224,58 @@ def test_trackers_agree_on_a_stream() -> None:
 def test_unknown_implementation_is_refused() -> None:
     with pytest.raises(ValueError, match="implementation"):
         TrackerConfig(implementation="fortran")
+
+
+@pytest.mark.parametrize("targets", [12, 60, 200])
+def test_compiled_initiation_pairs_as_the_reference(targets: int) -> None:
+    """Two-point initiation from its compiled candidate pairs: the same pairs in the same
+    order (the k-d trees' of the reference, with batches and waiting plots of one leaf and
+    of many) and the same plots left waiting, with identities that agree, differ and are
+    shared codes."""
+    config = TrackerConfig(scan_period_s=5.0)
+    reference = TwoPointInitiator(dataclasses.replace(config, implementation="numpy"))
+    compiled = TwoPointInitiator(config)
+    rng = np.random.default_rng(targets)
+    started = 0
+    for batch in sector_stream(targets, targets, 6):
+        batch = batch.copy()
+        batch["mode3a"] = rng.choice([-1, 0o1200, 0o4321, 0o4322], len(batch))
+        batch["mode3a_valid"] = rng.random(len(batch)) < 0.9
+        batch["address"] = np.where(rng.random(len(batch)) < 0.1, 7, batch["address"])
+        plots = PlotArrays(batch)
+        now = float(batch["time"].max()) if len(batch) else 0.0
+        a, b = reference.pair(plots, now), compiled.pair(plots, now)
+        for want, got in zip(a, b, strict=True):
+            assert want.rows.tobytes() == got.rows.tobytes()
+        assert reference.pending.rows.tobytes() == compiled.pending.rows.tobytes()
+        started += len(a[0])
+    assert started >= targets // 2
+
+
+@pytest.mark.parametrize("use_daps", [True, False])
+def test_compiled_vertical_measurements_as_the_reference(use_daps: bool) -> None:
+    """The level's variance, the downlinked rates and the selected level of plots (Mode S
+    and Mode C, whole and quarter levels, rates and selected altitudes present, absent and
+    unflagged) from the compiled pass and from numpy: the same bits."""
+    rng = np.random.default_rng(5)
+    n = 200
+    rows = np.zeros(n, dtype=PLOT_DTYPE)
+    rows["flight_level"] = rng.integers(0, 1600, n) / np.where(rng.random(n) < 0.5, 4.0, 1.0)
+    rows["typ"] = rng.choice([1, 2, 5, 6], n)
+    rows["dap_flags"] = rng.integers(0, 16, n)
+    for name in ("baro_rate_fpm", "inertial_rate_fpm"):
+        rows[name] = np.where(rng.random(n) < 0.4, np.nan, rng.uniform(-3000.0, 3000.0, n))
+    rows["selected_altitude_ft"] = np.where(rng.random(n) < 0.3, np.nan, 32000.0)
+    plots = PlotArrays(rows)
+    for mode_s in (rows["typ"] >= 4, np.ones(n, bool)):
+        if mode_s.all():
+            rows["typ"] = 5
+        found = [
+            LocalTracker(
+                TrackerConfig(use_daps=use_daps, implementation=kind)
+            )._vertical_measurements(plots)
+            for kind in ("numpy", "compiled")
+        ]
+        for name in ("level_variance", "rate", "rate_variance", "selected_level"):
+            want, got = (getattr(f, name) for f in found)
+            assert np.asarray(want).tobytes() == np.asarray(got).tobytes(), name

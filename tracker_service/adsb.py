@@ -343,20 +343,26 @@ class AdsbReference:
         xy = np.zeros((n, 2))
         p = np.zeros((n, 2, 2))
         v = np.zeros((n, 2))
-        for k in range(n):
-            history = self._tracks.get(int(address[k]))
+        rows: list[int] = []
+        found: list[tuple[float, float, float, float, float]] = []
+        for k, (a, t) in enumerate(zip(address.tolist(), time.tolist(), strict=True)):
+            history = self._tracks.get(a)
             if not history:
                 continue
-            t = float(time[k])
             t0, x0, y0, vx, vy, sigma = min(history, key=lambda r: abs(r[0] - t))
             dt = t - t0
             if abs(dt) > self.max_gap_s:
                 continue
-            xy[k] = (x0 + vx * dt, y0 + vy * dt)
-            v[k] = (vx, vy)
+            rows.append(k)
             # Position noise, and a manoeuvre of up to MANOEUVRE_M_S2 since the report.
-            p[k] = np.eye(2) * (sigma**2 + (0.5 * MANOEUVRE_M_S2 * dt * dt) ** 2)
-            valid[k] = True
+            variance = sigma**2 + (0.5 * MANOEUVRE_M_S2 * dt * dt) ** 2
+            found.append((x0 + vx * dt, y0 + vy * dt, vx, vy, variance))
+        if rows:
+            values = np.array(found)
+            valid[rows] = True
+            xy[rows] = values[:, :2]
+            v[rows] = values[:, 2:4]
+            p[rows, 0, 0] = p[rows, 1, 1] = values[:, 4]
         return AdsbReferences(valid, xy, p, v)
 
     def forget(self, now: float) -> None:

@@ -28,6 +28,7 @@ on the order the batches are taken in, not on when they crossed the network.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -172,7 +173,7 @@ class CentralStage:
         self._incarnations: dict[str, tuple[int, int]] = {}
         """Per radar, its stage's incarnation and the offset added to its track numbers."""
         self._highest_track: dict[str, int] = {}
-        self._live_local: dict[str, dict[int, npt.NDArray[Any]]] = {}
+        self._live_local: dict[str, dict[int, tuple[npt.NDArray[Any], int]]] = {}
         self.heights: PsrHeights | None = None
         """Heights of aircraft without one (``fusion.psr_height``), with fusion."""
         if self.fuser is not None:
@@ -291,7 +292,7 @@ class CentralStage:
         old = self._live_local.pop(source, {})
         if not old:
             return _NO_SYSTEM_ROWS
-        rows = np.array(list(old.values()), dtype=message.local.dtype)
+        rows = np.array([batch[k] for batch, k in old.values()], dtype=message.local.dtype)
         rows["status"] = LOCAL_DELETED
         rows["plot_id"] = -1
         # At the fuser's own time: their last updates are as old as the outage, which
@@ -301,23 +302,34 @@ class CentralStage:
         return self.fuser.process(index, rows, np.zeros(0, dtype=message.tracked.dtype), None)
 
     def _remember(self, source: str, local: npt.NDArray[Any]) -> None:
-        """The latest update of each live local track of each radar."""
+        """The latest update of each live local track of each radar: its batch (a copy)
+        and its index there, taken as a row only when a restart needs it (a row copied
+        per update cost more than the bias correction)."""
         if not len(local):
             return
         live = self._live_local.setdefault(source, {})
-        for row in local:
-            number = int(row["track_number"])
-            if row["status"] == LOCAL_DELETED:
+        kept = local.copy()
+        numbers = kept["track_number"].tolist()
+        deleted = kept["status"] == LOCAL_DELETED
+        if not deleted.any():
+            n = len(numbers)
+            at = zip(itertools.repeat(kept, n), range(n), strict=True)
+            live.update(zip(numbers, at, strict=True))
+            return
+        for k, (number, gone) in enumerate(zip(numbers, deleted.tolist(), strict=True)):
+            if gone:
                 live.pop(number, None)
             else:
-                live[number] = row.copy()
+                live[number] = (kept, k)
 
     def _process(self, message: RadarBatch, index: int | None) -> BatchOutput:
         source = message.source
         out_of_step = self.consensus.out_of_step(
             source, message.effective_offset_s, message.received
         )
-        report = replace(message.time, out_of_step_s=out_of_step)
+        report = message.time
+        if out_of_step != report.out_of_step_s:
+            report = replace(report, out_of_step_s=out_of_step)
         local, batch = message.local, message.tracked
         bias = bias_cov = None
         if self.bias is not None and index is not None:
@@ -443,7 +455,9 @@ class CentralStage:
             self._absolute_references[radar] += len(adsb)
             observations.append(adsb)
         if observations:
-            self.bias.update(concatenate(observations))
+            self.bias.update(
+                observations[0] if len(observations) == 1 else concatenate(observations)
+            )
             self._record_bias(radar, message.source, float(table["time"].max()))
         # Each local update's share of the residual bias, at its plot.
         extra = np.zeros((len(local), 2, 2))

@@ -298,8 +298,31 @@ class FixedTargets:
         period_s: float,
         transponders: Sequence[FixedTransponder] = (),
         config: FixedTargetConfig | None = None,
+        compiled: bool = True,
     ) -> None:
         self.config = config or FixedTargetConfig()
+        self.compiled = compiled
+        """Detection by ``fixed_target_kernels`` (the same verdicts), not numpy."""
+        cfg = self.config
+        self._settings = (
+            float(period_s),
+            float(cfg.fixed_memory_s),
+            float(cfg.stale_periods * period_s),
+            float(cfg.halo_m**2),
+            float(cfg.min_radius_m),
+            float(cfg.gate_sigmas),
+            float(cfg.site_monitor_max_speed_kt * KT),
+            float(cfg.site_monitor_reach_kt * KT),
+            float(cfg.site_monitor_moving_steps),
+            float(cfg.site_monitor_min_plots),
+            float(cfg.min_plots),
+            float(cfg.min_duration_s),
+            float(cfg.site_monitor_max_speed_kt * KT),
+            float(cfg.max_speed_kt * KT),
+            float(cfg.site_monitor_speed_sigmas),
+            float(cfg.speed_sigmas),
+        )
+        """``fixed_target_kernels.SETTINGS``, in its order."""
         self.period_s = period_s
         self.transponders = tuple(transponders)
         t = self.transponders
@@ -385,7 +408,11 @@ class FixedTargets:
         fixed |= configured
         surveyed = (candidates | table["rab"]) & (which >= 0)
         reference[surveyed] = self._xy[which[surveyed]]
-        if self.config.detect:
+        if self.config.detect and self.compiled:
+            fixed |= self._classify_compiled(
+                table, candidates & ~configured, address, mode3a, mode3a_valid
+            )
+        elif self.config.detect:
             # A site monitor's code counts even garbled or not validated: replies that
             # overlap its own are often flagged so (canalA.gps: 89 of one monitor's 716).
             monitor = (mode3a >= 0) & is_one_of(mode3a, self._monitor_codes)
@@ -394,6 +421,26 @@ class FixedTargets:
             if rows.size:
                 fixed[rows] = self._detect(table[rows], keys[rows], monitor[rows])
         return Classification(fixed, reference)
+
+    def _classify_compiled(
+        self,
+        table: npt.NDArray[Any],
+        eligible: BoolArray,
+        address: IntArray,
+        mode3a: IntArray,
+        mode3a_valid: BoolArray,
+    ) -> BoolArray:
+        """The identities and ``_detect`` of the ``eligible`` plots in one compiled pass
+        (``fixed_target_kernels.classify``): which are fixed."""
+        from tracker_service.fixed_target_kernels import classify
+
+        c = self._candidates
+        taken, c.key, c.values, c.fixed = classify(
+            table["time"], table["x"], table["y"], table["R"], address, mode3a,
+            np.asarray(mode3a_valid, np.bool_), eligible, self._monitor_codes, _UNKEYED_CODES,
+            c.key, c.values, c.fixed, self._settings,
+        )  # fmt: skip
+        return taken
 
     def _detect(self, plots: npt.NDArray[Any], keys: IntArray, monitor: BoolArray) -> BoolArray:
         """Each plot joins the nearest candidate of its identity whose area it falls in,

@@ -39,24 +39,30 @@ from tracker_service.bias.reception import ReceptionEvidence
 from tracker_service.fixed_targets import FixedTargetConfig, FixedTargets, FixedTransponder
 from tracker_service.geodesy import (
     Atmosphere,
+    ConvertedPlots,
     HeightModel,
     RadarSite,
     SystemPlane,
     convert_plots,
 )
+from tracker_service.geodesy.compiled import PlaneSteps, convert_batch_plots
 from tracker_service.geodesy.unknown_height import (
     HeightBand,
     height_jacobian,
     unknown_height_prior,
 )
 from tracker_service.ingest import PlotClock
+from tracker_service.radar_kernels import plot_columns
 from tracker_service.sources import DEFAULT_MAX_UNKNOWN, SourceAdmission
 from tracker_service.stage_messages import RadarBatch
 from tracker_service.time_sanity import TimeBase, TimeSanity, TimeSanityConfig
 from tracker_service.tracking import LocalTracker, TrackerConfig
+from tracker_service.tracking.dap_kernels import INPUTS as DAP_INPUTS
+from tracker_service.tracking.dap_kernels import PUBLISHED as PUBLISHED_DAPS
+from tracker_service.tracking.dap_kernels import fill_daps
 from tracker_service.tracking.daps import plot_daps
+from tracker_service.tracking.plots import DAP_FIELDS, empty_plots
 from tracker_service.tracking.plots import PUBLISHED_DAP_FIELDS as DAP_NAMES
-from tracker_service.tracking.plots import empty_plots
 
 __all__ = [
     "KIND_UNKNOWN",
@@ -244,43 +250,40 @@ def convert_batch(
     ``surveyed_height``: per plot, the surveyed height (m above MSL) of the fixed
     transponder it is, NaN for the others."""
     n = len(raw)
-    times, time_sources = clock.times(raw, received)
-    fl = np.asarray(raw["flight_level"], dtype=np.float64)
+    monitor = info.field_monitor
+    sigmas = np.array(
+        [
+            info.sigma_range_m,
+            info.sigma_azimuth_deg,
+            info.psr_sigma_range_m,
+            info.psr_sigma_azimuth_deg,
+        ]
+    )
     # V = 1 (not validated) and G = 1 (garbled) Mode C is no height: the HeightModel's
     # stand-in and its large sigma take over, and the tracker's vertical filter skips it.
-    fl_ok = (
-        np.isfinite(fl) & (raw["flight_level_invalid"] != 1) & (raw["flight_level_garbled"] != 1)
+    # The field monitor's height is surveyed, as is a configured fixed transponder's
+    # (whose Mode C is often a test value, FL719): better than their Mode C.
+    columns = plot_columns(
+        raw, received, heights, sigmas, None if monitor is None else monitor.alt_m, surveyed_height
     )
-    fl_clean = np.where(fl_ok, fl, np.nan)
-    height, height_sigma = heights.heights(fl_clean)
-    rab = np.asarray(raw["rab"]) == 1
-    if info.field_monitor is not None and rab.any():
-        # The test transponder's height is surveyed: better than its Mode C.
-        height = np.where(rab, info.field_monitor.alt_m, height)
-        height_sigma = np.where(rab, 0.0, height_sigma)
-    if surveyed_height is not None:
-        # A fixed transponder's Mode C is often a test value (FL719), not its height.
-        known = np.isfinite(surveyed_height)
-        height = np.where(known, surveyed_height, height)
-        height_sigma = np.where(known, 0.0, height_sigma)
-    rho_m = np.asarray(raw["rho"], dtype=np.float64) * NM
+    if columns.stamped:
+        times, time_sources = columns.times, columns.time_sources
+    else:
+        times, time_sources = clock.times(raw, received)
+    fl = np.asarray(raw["flight_level"], dtype=np.float64)
+    fl_ok, fl_clean = columns.fl_ok, columns.fl_clean
+    height, height_sigma = columns.height, columns.height_sigma
+    rab, rho_m, unknown = columns.rab, columns.rho_m, columns.unknown
+    any_unknown = columns.any_unknown
     theta = np.asarray(raw["theta"], dtype=np.float64)
-    # No usable height: the band's prior instead of a fixed level (geodesy.unknown_height).
-    unknown = ~fl_ok & np.isfinite(rho_m)
-    if info.field_monitor is not None:
-        unknown &= ~rab
-    if surveyed_height is not None:
-        unknown &= ~np.isfinite(surveyed_height)
-    if unknown.any():
-        height = np.array(height, dtype=np.float64)
-        height_sigma = np.array(height_sigma, dtype=np.float64)
+    if any_unknown:
+        # No usable height: the band's prior instead of a fixed level
+        # (geodesy.unknown_height).
         height[unknown], height_sigma[unknown] = unknown_height_prior(
             info.site, rho_m[unknown], info.height_band
         )
-    psr_only = raw["typ"] == 1
-    sigma_rho = np.where(psr_only, info.psr_sigma_range_m, info.sigma_range_m)
-    sigma_theta = np.where(psr_only, info.psr_sigma_azimuth_deg, info.sigma_azimuth_deg)
-    converted = convert_plots(
+    sigma_rho, sigma_theta = columns.sigma_rho, columns.sigma_theta
+    converted, steps = _convert(
         info.site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
     )
     c = np.zeros((n, 2, 4))
@@ -292,7 +295,7 @@ def convert_batch(
 
     batch = empty_plots(n)
     table = np.zeros(n, dtype=RAW_PLOT_DTYPE)
-    implausible_daps = _fill_daps(batch, table, raw, plane, converted)
+    implausible_daps = _fill_daps(batch, table, raw, plane, converted, steps)
     batch["time"] = times
     batch["x"] = converted.x
     batch["y"] = converted.y
@@ -300,9 +303,7 @@ def convert_batch(
     batch["flight_level"] = fl
     batch["fl_valid"] = fl_ok
     batch["mode3a"] = mode3a
-    batch["mode3a_valid"] = (
-        (mode3a >= 0) & (raw["mode3a_invalid"] != 1) & (raw["mode3a_garbled"] != 1)
-    )
+    batch["mode3a_valid"] = columns.mode3a_valid
     batch["address"] = raw["address"]
     batch["typ"] = raw["typ"]
     batch["plot_id"] = ids
@@ -327,16 +328,11 @@ def convert_batch(
     table["aircraft"] = -1
     table["detection_time"] = np.nan
     table["implausible_daps"] = implausible_daps
-    # Set in reverse order of precedence (a field monitor first, then test, then
-    # simulated): the last assignment wins. The table's zeros are TRACKED.
-    use = table["use"]
-    use[np.asarray(raw["sim"]) == 1] = PlotUse.SIMULATED
-    use[np.asarray(raw["tst"]) == 1] = PlotUse.TEST_TARGET
-    use[rab] = PlotUse.FIELD_MONITOR
+    table["use"] = columns.use
     table["height_m"] = height
     table["height_sigma_m"] = height_sigma
     table["height_known"] = ~unknown
-    if unknown.any():
+    if any_unknown:
         table["height_jacobian"][unknown] = height_jacobian(
             info.site,
             plane,
@@ -345,9 +341,28 @@ def convert_batch(
             height[unknown],
             at=(converted.x[unknown], converted.y[unknown]),
         )
-    table["use"][raw["track_report"] == 1] = PlotUse.RADAR_TRACK
-    table["use"][~(np.isfinite(raw["rho"]) & np.isfinite(raw["theta"]))] = PlotUse.NO_POSITION
     return batch, table, c
+
+
+def _convert(
+    site: RadarSite,
+    plane: SystemPlane,
+    rho_m: FloatArray,
+    theta: FloatArray,
+    height: FloatArray,
+    height_sigma: FloatArray,
+    sigma_rho: FloatArray,
+    sigma_theta: FloatArray,
+) -> tuple[ConvertedPlots, PlaneSteps | None]:
+    """``convert_plots`` of one batch: in compiled passes in the stereographic plane
+    (``geodesy.compiled``, the same values), with the projections it made."""
+    if plane.kind != "stereographic":
+        converted = convert_plots(
+            site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
+        )
+        return converted, None
+    columns = (rho_m, theta, height, height_sigma, sigma_rho, sigma_theta)
+    return convert_batch_plots(site, plane, *(np.ascontiguousarray(c) for c in columns))
 
 
 def _fill_daps(
@@ -355,12 +370,26 @@ def _fill_daps(
     table: npt.NDArray[Any],
     raw: npt.NDArray[Any],
     plane: SystemPlane,
-    converted: Any,
+    converted: ConvertedPlots,
+    steps: PlaneSteps | None,
 ) -> npt.NDArray[np.bool_]:
-    """The plots' Mode S DAPs into the tracker's batch (``tracking.daps.plot_daps``) and
-    the plot table (for the outputs); per plot, whether one was implausible. Batches
-    without any DAP (CAT001, Mode A/C) cost one look."""
+    """The plots' Mode S DAPs into the tracker's batch (``tracking.daps.plot_daps``, or
+    its compiled pass when the conversion's projections are at hand) and the plot table
+    (for the outputs); per plot, whether one was implausible. Batches without any DAP
+    (CAT001, Mode A/C) cost one look."""
     names = raw.dtype.names or ()
+    if steps is not None and all(name in names for name in DAP_INPUTS):
+        found = fill_daps(raw, converted.lat_deg, converted.height_m, steps)
+        if found is None:
+            return np.zeros(len(raw), dtype=bool)
+        out, flags, implausible = found
+        for k, name in enumerate(DAP_FIELDS):
+            batch[name] = out[:, k]
+        batch["dap_flags"] = flags
+        for name, k in zip(DAP_NAMES, PUBLISHED_DAPS, strict=True):
+            table[name] = out[:, k]
+        table["has_daps"] = np.isfinite(out[:, PUBLISHED_DAPS]).any(axis=1)
+        return implausible
     if not any(name in names and np.isfinite(raw[name]).any() for name in DAP_COLUMNS):
         return np.zeros(len(raw), dtype=bool)
     columns, implausible = plot_daps(

@@ -212,8 +212,11 @@ class TimeSanity:
         config: TimeSanityConfig | None = None,
         bases: Mapping[str, TimeBase] | None = None,
         periods: Mapping[str, float] | None = None,
+        compiled: bool = True,
     ) -> None:
         self.config = config or TimeSanityConfig()
+        self.compiled = compiled
+        """``check`` by ``time_sanity_kernels.judge_times`` (the same values), not numpy."""
         self._bases = dict(bases or {})
         self._periods = dict(periods or {})
         self._timelines: dict[str, _Timeline] = {}
@@ -256,6 +259,8 @@ class TimeSanity:
     ) -> tuple[FloatArray, BoolArray]:
         """One datagram's plots of one radar: their times put on the radar's timeline (and
         re-based, if so configured), and which are implausible."""
+        if self.compiled:
+            return self._check_compiled(source, times, time_sources, theta_deg, received)
         cfg = self.config
         self._latest = received
         timeline = self._timeline(source)
@@ -298,6 +303,46 @@ class TimeSanity:
         if timeline.time_base == "reception":
             times -= self._rebase(timeline, offset)
         return times, implausible
+
+    def _check_compiled(
+        self,
+        source: str,
+        times: FloatArray,
+        time_sources: npt.NDArray[np.int8],
+        theta_deg: FloatArray,
+        received: float,
+    ) -> tuple[FloatArray, BoolArray]:
+        """``check`` with its arithmetic in one compiled pass (``time_sanity_kernels``)."""
+        from tracker_service.time_sanity_kernels import judge_times
+
+        cfg = self.config
+        self._latest = received
+        timeline = self._timeline(source)
+        phases = timeline.phases
+        assert phases.maxlen is not None
+        checked, implausible, offset, new_offset, new_phase = judge_times(
+            np.ascontiguousarray(times, np.float64),
+            np.ascontiguousarray(time_sources, np.int8),
+            np.ascontiguousarray(theta_deg, np.float64),
+            float(received),
+            np.array(timeline.offsets, np.float64),
+            np.array(phases, np.float64),
+            min(len(phases), phases.maxlen - 1),
+            float(timeline.period_s),
+            float(timeline.north_posix),
+            float(cfg.latency_s),
+            float(cfg.plausible_periods),
+            float(cfg.max_offset_s),
+            float(cfg.azimuth_tolerance),
+        )
+        if not math.isnan(new_phase):
+            phases.append(new_phase)
+        if not math.isnan(new_offset):
+            timeline.offsets.append(new_offset)
+        self._note(timeline, checked, implausible, received + offset, received)
+        if timeline.time_base == "reception":
+            checked -= self._rebase(timeline, offset)
+        return checked, implausible
 
     def _off_azimuth(
         self, timeline: _Timeline, times: FloatArray, judged: BoolArray, theta_deg: FloatArray

@@ -8,6 +8,7 @@ The chain builds C (geodesy gives u_r, u_theta, rho; the fuser gives v).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -58,27 +59,10 @@ class BiasObservations:
     def __post_init__(self) -> None:
         n = self.radar.shape[0]
         n_radars = self.contributors.shape[1] if self.contributors.ndim == 2 else -1
-        expected = {
-            "radar": (n,),
-            "time": (n,),
-            "y": (n, 2),
-            "R": (n, 2, 2),
-            "C": (n, 2, N_BIAS),
-            "kind": (n,),
-            "group": (n,),
-            "reference_xy": (n, 2),
-            "reference_P": (n, 2, 2),
-            "reference_v": (n, 2),
-            "prediction_xy": (n, 2),
-            "prediction_P": (n, 2, 2),
-            "contributors": (n, n_radars),
-            "contributor_R": (n, n_radars, 2, 2),
-            "contributor_C": (n, n_radars, 2, N_BIAS),
-        }
-        for name, shape in expected.items():
+        for (name, _), expected in zip(_TRAILING_SHAPES, _shapes(n, n_radars), strict=True):
             actual = getattr(self, name).shape
-            if actual != shape:
-                raise ValueError(f"BiasObservations.{name}: shape {actual}, expected {shape}")
+            if actual != expected:
+                raise ValueError(f"BiasObservations.{name}: shape {actual}, expected {expected}")
         if n and (self.radar.min() < 0 or self.radar.max() >= n_radars):
             raise ValueError(f"BiasObservations.radar: indices must lie in [0, {n_radars})")
 
@@ -89,11 +73,49 @@ class BiasObservations:
     def n_radars(self) -> int:
         return int(self.contributors.shape[1])
 
-    def subset(self, index: IntArray | BoolArray) -> BiasObservations:
-        """The rows selected by a mask or an index array, in that order."""
-        return BiasObservations(
-            **{name: getattr(self, name)[index] for name in self.__dataclass_fields__}
-        )
+    def subset(
+        self, index: IntArray | BoolArray, scale_c: FloatArray | None = None
+    ) -> BiasObservations:
+        """The rows selected by a mask or an index array, in that order (a mask that
+        keeps every row: these observations, not a copy); ``scale_c``: their C and
+        contributor_C multiplied by it (the filters' scaled biases, ``BiasFilterBase``)."""
+        if scale_c is None and index.dtype == np.bool_ and index.all():
+            return self
+        fields = {name: getattr(self, name)[index] for name in self.__dataclass_fields__}
+        if scale_c is not None:
+            fields["C"] = fields["C"] * scale_c
+            fields["contributor_C"] = fields["contributor_C"] * scale_c
+        return BiasObservations(**fields)
+
+
+_TRAILING_SHAPES: tuple[tuple[str, tuple[int | None, ...]], ...] = (
+    ("radar", ()),
+    ("time", ()),
+    ("y", (2,)),
+    ("R", (2, 2)),
+    ("C", (2, N_BIAS)),
+    ("kind", ()),
+    ("group", ()),
+    ("reference_xy", (2,)),
+    ("reference_P", (2, 2)),
+    ("reference_v", (2,)),
+    ("prediction_xy", (2,)),
+    ("prediction_P", (2, 2)),
+    ("contributors", (None,)),
+    ("contributor_R", (None, 2, 2)),
+    ("contributor_C", (None, 2, N_BIAS)),
+)
+"""Each field's shape after its leading N (None: the number of radars)."""
+
+
+@functools.lru_cache(maxsize=64)
+def _shapes(n: int, n_radars: int) -> tuple[tuple[int, ...], ...]:
+    """Each field's whole shape for N observations of ``n_radars`` radars (a batch's
+    observations are built several times: once per size)."""
+    return tuple(
+        (n, *(n_radars if size is None else size for size in trailing))
+        for _, trailing in _TRAILING_SHAPES
+    )
 
 
 def make_observations(

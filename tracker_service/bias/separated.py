@@ -18,7 +18,7 @@ import numpy as np
 from tracker_service.bias.common import BiasFilterBase, information_update
 from tracker_service.bias.config import N_BIAS, TIME, BiasConfig
 from tracker_service.bias.observations import BiasObservations, ObservationKind
-from tracker_service.tracking.plots import BoolArray, FloatArray
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
 
 class SeparatedBiasFilter(BiasFilterBase):
@@ -81,8 +81,9 @@ class SeparatedBiasFilter(BiasFilterBase):
             self.reception_rejected[radar] += not used
 
     def _process(self, obs: BiasObservations) -> None:
-        free = self.state_free()
-        walk = self.state_walk_rate()
+        free_now = self.free()
+        free = self.state_free(free_now)
+        walk = self.state_walk_rate(free_now)
         for radar in np.unique(obs.radar):
             r = int(radar)
             self._update_radar(r, obs.subset(obs.radar == radar), free[r], walk[r])
@@ -103,18 +104,20 @@ class SeparatedBiasFilter(BiasFilterBase):
         no_time[N_BIAS:] = False
         for rows, mask in ((~traffic, free), (traffic, no_time)):
             if mask.any() and rows.any():
-                self._batch(radar, obs.subset(rows), mask)
+                self._batch(radar, obs, np.flatnonzero(rows), mask)
 
-    def _batch(self, radar: int, obs: BiasObservations, free: BoolArray) -> None:
+    def _batch(self, radar: int, obs: BiasObservations, rows: IntArray, free: BoolArray) -> None:
+        """One update with the observations ``rows`` (the fields it reads gathered, not a
+        ``subset`` of all fifteen)."""
         s, P = self._s[radar], self._P[radar]
         # The extra clock states enter no plot: zero columns.
-        C = np.concatenate([obs.C, np.zeros((len(obs), 2, self.clock.n_extra))], axis=2)
-        nu = obs.y - obs.reference_xy - C @ s
-        noise = obs.R + obs.reference_P
+        C = np.concatenate([obs.C[rows], np.zeros((rows.size, 2, self.clock.n_extra))], axis=2)
+        nu = obs.y[rows] - obs.reference_xy[rows] - C @ s
+        noise = obs.R[rows] + obs.reference_P[rows]
         S = noise + C @ P @ C.mT
         nis = np.einsum("ni,ni->n", nu, np.linalg.solve(S, nu[..., None])[..., 0])
         accepted = nis <= self.config.outlier_gate
-        self.count(obs.radar, accepted)
+        self.count(obs.radar[rows], accepted)
         C = C[accepted]
         weight = np.linalg.inv(noise[accepted])
         info = np.einsum("nki,nkl,nlj->ij", C, weight, C)

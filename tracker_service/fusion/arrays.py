@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tracker_service.fusion.messages import MAX_SYSTEM_NUMBER
 from tracker_service.tracking.plots import BoolArray, IntArray
 
 
@@ -46,6 +47,15 @@ def is_member(values: IntArray, members: IntArray) -> BoolArray:
     ordered = np.sort(members)
     at = np.minimum(np.searchsorted(ordered, values), ordered.size - 1)
     return np.asarray(ordered[at] == values, dtype=bool)
+
+
+def numbers_in(numbers: IntArray) -> IntArray:
+    """The distinct values of ``numbers`` (system-track numbers, 0..MAX_SYSTEM_NUMBER)
+    in ascending order, as ``np.unique`` gives them, by marking a table of every number
+    rather than sorting (a batch's exchange test takes those of every fed local track)."""
+    marked = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
+    marked[numbers] = True
+    return np.flatnonzero(marked)
 
 
 def first_where(mask: BoolArray) -> IntArray:

@@ -10,11 +10,12 @@ import itertools
 import numpy as np
 
 from tracker_service.fusion import consider, nearby
-from tracker_service.fusion.arrays import is_member, kernel_indices
+from tracker_service.fusion.arrays import kernel_indices, numbers_in
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import TrackFusionEstimator
+from tracker_service.fusion.messages import MAX_SYSTEM_NUMBER
 from tracker_service.fusion.ml import predict_cv
-from tracker_service.fusion.state import ExchangeEvidence, FusionState
+from tracker_service.fusion.state import FusionState
 from tracker_service.tracking.associate import global_nearest_neighbour
 from tracker_service.tracking.identity import identity_cost
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
@@ -91,70 +92,95 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     if cfg.exchange_margin <= 0 or held.size == 0:
         return
     used = state.local.used
-    feeding = np.flatnonzero(
-        used["alive"] & (used["system"] > 0) & (used["status"] == LOCAL_CONFIRMED)
-    )
     confirmed = held[loc["status"][held] == LOCAL_CONFIRMED]
     tested = set(loc["key"][confirmed].tolist())
-    if np.unique(used["radar"][feeding]).size < 2:
+    # Only a system track that a track of the batch's radar feeds can hold the l' of a
+    # pair (``_exchange_witnesses``): the pre-selection reaches those alone (a fifth of
+    # the fed ones on ``scale``), with the bias bound of every fed one as before, so
+    # that each pair it finds is one it found among them all.
+    feeding, several, fed, own = _feeding(state, int(loc["radar"][held[0]]))
+    if not several:
         # One radar feeds the picture (canalA): no other radar's track can tell the two
         # assignments apart, so the pair search is skipped (a quarter of the fuser's cost
         # there); the tested tracks' evidence ends as below.
         evidence.drop(tested)
         return
-    li, sj = _near(state, estimator, confirmed, np.unique(used["system"][feeding]))
+    li, sj = _near(state, estimator, confirmed, own, bias_over=fed)
     other = sj != loc["system"][li]
     li, sj = li[other], sj[other]
-    involved = feeding[is_member(used["system"][feeding], np.union1d(sj, loc["system"][li]))]
+    # The confirmed rows feeding the candidates' system tracks (S and S'), in row order.
+    wanted = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
+    wanted[sj] = True
+    wanted[loc["system"][li]] = True
+    involved = feeding[wanted[used["system"][feeding]]]
     # The pairs and their witnesses by array operations, then every distance in two
     # batched calls (one call per pair cost 60 % of the whole chain on ``scale``, the
     # pairs built in Python a third of the fuser).
     pair_a, pair_b, closer, farther, witness, ends = _exchange_witnesses(state, li, sj, involved)
-    rows_of = {
-        (min(ka, kb), max(ka, kb)): (a, b)
-        for a, b, ka, kb in zip(
-            pair_a.tolist(),
-            pair_b.tolist(),
-            loc["key"][pair_a].tolist(),
-            loc["key"][pair_b].tolist(),
-            strict=True,
-        )
-    }
-    deltas: list[float] = []
-    favoured: list[bool] = []
-    if witness.size:
+    ka, kb = loc["key"][pair_a], loc["key"][pair_b]
+    pairs = list(zip(np.minimum(ka, kb).tolist(), np.maximum(ka, kb).tolist(), strict=True))
+    if pairs:
         all_votes = track_distance(state, closer, witness)
         all_votes -= track_distance(state, farther, witness)
-        deltas = _segment_sums(state, all_votes, ends).tolist()
-        favoured = np.logical_and.reduceat(all_votes > 0, ends[:-1]).tolist()
-    fresh: dict[tuple[int, int], ExchangeEvidence] = {}
-    for pair, delta, all_favour in zip(rows_of, deltas, favoured, strict=True):
+        deltas = _segment_sums(state, all_votes, ends)
+        favoured = np.logical_and.reduceat(all_votes > 0, ends[:-1])
+        # Each pair's running means, over the batch's pairs at once (the arithmetic of
+        # one pair at a time: the same bits).
+        before = evidence.table(pairs)
+        n = before[:, 0].astype(np.int64) + 1
+        weight = 1.0 / np.minimum(n, cfg.reassociate_window)
+        mean = before[:, 1] + (deltas - before[:, 1]) * weight
         # Every other radar's track must favour it (in EXCHANGE_AGREEMENT of the
         # updates): where the system tracks are mixtures (each radar's first joins made
         # at one moment), an exchange that one of them opposes moves the mixture around
         # instead of undoing it (PAR10 with a shared code).
-        n, mean, agree = evidence.get(pair) or (0, 0.0, 0.0)
-        n += 1
-        weight = 1.0 / min(n, cfg.reassociate_window)
-        mean += (delta - mean) * weight
-        agree += (float(all_favour) - agree) * weight
-        fresh[pair] = (n, mean, agree)
+        agree = before[:, 2] + (favoured.astype(np.float64) - before[:, 2]) * weight
+    else:
+        n, mean, agree = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
     # A pair's evidence lives while it is tested in a row: a pair of a tested track not
     # tested now is out of reach (a coasting update, no plot, tests nothing).
     evidence.drop(tested)
-    for pair, value in fresh.items():
-        evidence.set(pair, value)
+    evidence.set_many(pairs, zip(n.tolist(), mean.tolist(), agree.tolist(), strict=True))
+    weak = (mean <= cfg.exchange_margin) | (agree < EXCHANGE_AGREEMENT)
+    ready = (n >= cfg.reassociate_window) & ~weak
     done: set[int] = set()
-    for pair, (n, mean, agree) in fresh.items():
-        weak = mean <= cfg.exchange_margin or agree < EXCHANGE_AGREEMENT
-        if n < cfg.reassociate_window or weak or pair[0] in done or pair[1] in done:
+    for k in np.flatnonzero(ready).tolist():
+        pair = pairs[k]
+        if pair[0] in done or pair[1] in done:
             continue
-        a, b = rows_of[pair]
+        a, b = int(pair_a[k]), int(pair_b[k])
         loc["system"][a], loc["system"][b] = loc["system"][b], loc["system"][a]
         _restart_tests(state, np.array([a, b]))
         done.update(pair)
         state.stats.exchanges += 1
     evidence.drop(done)
+
+
+def _feeding(state: FusionState, radar: int) -> tuple[IntArray, bool, IntArray, IntArray]:
+    """The confirmed live local rows feeding a system track (ascending), whether more
+    than one radar's are among them, the system tracks they feed and those that
+    ``radar``'s feed (ascending)."""
+    used = state.local.used
+    if state.compiled:
+        from tracker_service.fusion.kernels import exchange_feeding  # numba only when compiled
+
+        return exchange_feeding(
+            used["alive"],
+            used["system"],
+            used["status"],
+            used["radar"],
+            LOCAL_CONFIRMED,
+            radar,
+            MAX_SYSTEM_NUMBER + 1,
+        )
+    feeding = np.flatnonzero(
+        used["alive"] & (used["system"] > 0) & (used["status"] == LOCAL_CONFIRMED)
+    )
+    feeding_radar = used["radar"][feeding]
+    several = feeding.size > 0 and not bool((feeding_radar == feeding_radar[0]).all())
+    fed = numbers_in(used["system"][feeding])
+    own = numbers_in(used["system"][feeding[feeding_radar == radar]])
+    return feeding, several, fed, own
 
 
 def _exchange_witnesses(
@@ -172,6 +198,18 @@ def _exchange_witnesses(
     empty = np.zeros(0, dtype=np.int64)
     if li.size == 0 or involved.size == 0:
         return empty, empty, empty, empty, empty, np.zeros(1, dtype=np.int64)
+    if state.compiled:
+        from tracker_service.fusion.kernels import exchange_witnesses  # numba when compiled
+
+        return exchange_witnesses(
+            kernel_indices(li),
+            kernel_indices(sj),
+            kernel_indices(involved),
+            loc["system"],
+            loc["radar"],
+            loc["key"],
+            MAX_SYSTEM_NUMBER + 1,
+        )
     radars = np.int64(state.n_radars)
     system, radar = loc["system"][involved], loc["radar"][involved]
     here, own = loc["system"][li], loc["radar"][li]
@@ -266,6 +304,8 @@ def _restart_tests(state: FusionState, rows: IntArray) -> None:
 
 def _leave(state: FusionState, rows: IntArray) -> None:
     """The local tracks ``rows`` leave their system tracks, their tests restarted."""
+    if rows.size == 0:
+        return  # the usual batch: four writes of nothing saved
     state.local.rows["system"][rows] = 0
     _restart_tests(state, rows)
 
@@ -340,10 +380,15 @@ STRAIGHT_LINE = TrackFusionEstimator()
 
 
 def _near(
-    state: FusionState, estimator: SystemEstimator, free: IntArray, candidates: IntArray
+    state: FusionState,
+    estimator: SystemEstimator,
+    free: IntArray,
+    candidates: IntArray,
+    bias_over: IntArray | None = None,
 ) -> tuple[IntArray, IntArray]:
     """The (local row, system number) pairs the gate may pass (``nearby.py``), in the
-    order of (local row, number)."""
+    order of (local row, number); the radii's bias bound from the system tracks
+    ``bias_over`` (default: the candidates), a superset of the candidates."""
     empty = np.zeros(0, dtype=np.int64)
     if free.size == 0 or candidates.size == 0:
         return empty, empty
@@ -351,7 +396,9 @@ def _near(
     t_local = loc["t"][free]
     t_mid, spread = nearby.time_span(t_local)
     b = max(
-        nearby.system_largest_bias(sys["B"], candidates, state.compiled),
+        nearby.system_largest_bias(
+            sys, candidates if bias_over is None else bias_over, state.compiled
+        ),
         nearby.largest_bias(loc["extra"][free]),
     )
     q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
@@ -378,7 +425,7 @@ def _near(
         q,
         turn,
     )
-    i, j = nearby.near_pairs(xy_l, r_l, xy_s, r_s)
+    i, j = nearby.near_pairs(xy_l, r_l, xy_s, r_s, state.compiled)
     return free[i], candidates[j]
 
 

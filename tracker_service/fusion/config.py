@@ -66,15 +66,15 @@ class FusionConfig:
     reassociate_window: int = 5
     """Updates of the consistency test's mean (the first ones a running mean, then an
     exponential one of this length); the test waits until it is full."""
-    join_ambiguity_margin: float = 0.0
+    join_ambiguity_margin: float = 4.0
     """A free local track whose two likeliest system tracks in the gate differ in cost
     (d2 plus identity) by less than this, or which with another free local track of its
     radar is one of the two likeliest for one system track, waits up to ``found_delay``:
     it neither joins nor founds, while the biases are learnt and the geometry tells the
     two apart; after that GNN joins it as before. The first joins of a radar's tracks of
     two aircraft 0.5-1 km apart, made at one moment, went crosswise and stayed so for
-    40-60 s until the exchange undid them (docs/association.md "Session 9"). 0: off, the
-    default (the fuser's association as before)."""
+    40-60 s until the exchange undid them (docs/association.md "Session 9"). 0: off (every
+    first join at once, as before session 10)."""
     exchange_margin: float = 2.0
     """Two confirmed local tracks of one radar in two system tracks are exchanged between
     them once the running mean (over ``reassociate_window`` updates) of delta = d2(l, S) +

@@ -10,8 +10,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.fusion import consider, plot_daps
-from tracker_service.fusion.arrays import kernel_indices, last_of_each, positions, rank_within
+from tracker_service.fusion import consider, nearby, plot_daps
+from tracker_service.fusion.arrays import (
+    is_member,
+    kernel_indices,
+    last_of_each,
+    positions,
+    rank_within,
+)
 from tracker_service.fusion.state import FusionState
 from tracker_service.tracking import imm
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray, PlotArrays
@@ -80,7 +86,7 @@ class PlotFilterEstimator:
         time order; a system track created by this batch already holds its founder's, and
         one its founder alone has fed follows it (``_follow_founder``)."""
         systems = state.local.rows["system"][rows]
-        use = np.flatnonzero(has_plot & (systems > 0) & ~np.isin(systems, created))
+        use = np.flatnonzero(has_plot & (systems > 0) & ~is_member(systems, created))
         if use.size == 0:
             return
         found = positions(plots.plot_id, u["plot_id"][use])
@@ -182,3 +188,4 @@ def _filter_round(
         sys["M"][numbers] = consider.combine(mm, mu)
     if state.daps is not None:
         plot_daps.apply(state, state.daps, numbers, p)
+    nearby.refresh(sys, numbers, state.compiled)

@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion.nearby import RADIUS_MARGIN_M, RADIUS_SAFETY
+from tracker_service.fusion.table import KEY_SHIFT
 from tracker_service.tracking.kernels import (
     _combine_row,
     _transition,
@@ -34,6 +35,7 @@ from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
 LOG_2PI = math.log(2.0 * math.pi)
+FLOAT_MAX = float(np.finfo(np.float64).max)
 TINY = 1e-300
 
 
@@ -54,22 +56,17 @@ def _predict_track(
     c: FloatArray,
     r: int,
     active: BoolArray,
+    scratch: tuple[FloatArray, ...],
 ) -> None:  # pragma: no cover - compiled
     """``consider.predict`` of system track n (rows of the table's fields mx, mP, mM, mu)
     over ``step``: per-model states, covariances, sensitivities and predicted
     probabilities into row r of xp (k, M, 4), pp (k, M, 4, 4), mp (k, M, L, 4, 2), c (k, M);
-    the sensitivities only to the radars ``active`` (L,) (the others' left unset)."""
+    the sensitivities only to the radars ``active`` (L,) (the others' left unset);
+    ``scratch``: ``_prediction_scratch``'s arrays, allocated once per kernel call."""
     m = mx.shape[1]
     n_radars = mM.shape[2]
     t = abs(step)
-    pi = np.empty((m, m))
-    w = np.empty((m, m))
-    x0 = np.empty(4)
-    p0 = np.empty((4, 4))
-    m0 = np.empty((n_radars, 4, 2))
-    fp = np.empty((4, 4))
-    f = np.empty((4, 4))
-    d = np.empty(4)
+    pi, w, x0, p0, m0, fp, f, d = scratch
     # Markov switching by mean sojourn times (models.ModelSet.switching).
     for i in range(m):
         if m == 1:
@@ -124,6 +121,22 @@ def _predict_track(
                     mp[r, j, sensor, a, b] = acc
 
 
+@numba.njit(cache=True)
+def _prediction_scratch(m: int, n_radars: int) -> tuple[FloatArray, ...]:  # pragma: no cover
+    """The working arrays of ``_predict_track`` (a few allocations per track and pair
+    cost as much as its arithmetic)."""
+    return (
+        np.empty((m, m)),
+        np.empty((m, m)),
+        np.empty(4),
+        np.empty((4, 4)),
+        np.empty((n_radars, 4, 2)),
+        np.empty((4, 4)),
+        np.empty((4, 4)),
+        np.empty(4),
+    )
+
+
 @numba.njit(cache=True, inline="always")
 def _combine_sensitivities(
     mp: FloatArray, w: FloatArray, r: int, out: FloatArray
@@ -137,6 +150,36 @@ def _combine_sensitivities(
                 for j in range(m):
                     acc += w[r, j] * mp[r, j, sensor, a, b]
                 out[r, sensor, a, b] = acc
+
+
+@numba.njit(cache=True, inline="always")
+def _sensitive(
+    mM: FloatArray, n: int, radar: int, active: BoolArray
+) -> None:  # pragma: no cover - compiled
+    """active[l]: radar l is ``radar`` or system track n holds a sensitivity to its bias
+    in some model. The others' are exactly zero, and stay zero through the prediction,
+    the update and the combination (each is linear in them, every sum starting from
+    +0.0): the kernels write +0.0 for them without the arithmetic (on ``scale`` a track
+    is sensitive to 4 of 20 radars)."""
+    m, n_radars = mM.shape[1], mM.shape[2]
+    for sensor in range(n_radars):
+        found = sensor == radar
+        j = 0
+        while not found and j < m:
+            for a in range(4):
+                if mM[n, j, sensor, a, 0] != 0.0 or mM[n, j, sensor, a, 1] != 0.0:
+                    found = True
+            j += 1
+        active[sensor] = found
+
+
+@numba.njit(cache=True, inline="always")
+def _zero_inactive(mp: FloatArray, active: BoolArray) -> None:  # pragma: no cover - compiled
+    """Row 0's sensitivities to the radars not ``active`` (``_sensitive``): +0.0."""
+    for j in range(mp.shape[1]):
+        for sensor in range(mp.shape[2]):
+            if not active[sensor]:
+                mp[0, j, sensor, :, :] = 0.0
 
 
 @numba.njit(cache=True)
@@ -165,12 +208,15 @@ def consider_predict(
     one_p = np.empty((1, 4, 4))
     one_m = np.empty((1, n_radars, 4, 2))
     d = np.empty(4)
-    every = np.ones(n_radars, dtype=np.bool_)
+    active = np.empty(n_radars, dtype=np.bool_)
+    scratch = _prediction_scratch(m, n_radars)
     for r in range(k):
+        _sensitive(mM, numbers[r], -1, active)
         _predict_track(
-            mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, every
+            mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, active, scratch
         )
         _combine_row(xp, pp, c, 0, one_x, one_p, d)
+        _zero_inactive(mp, active)
         _combine_sensitivities(mp, c, 0, one_m)
         xc[r] = one_x[0]
         pc[r] = one_p[0]
@@ -210,11 +256,14 @@ def gate_distances(
     one_x = np.empty((1, 4))
     one_p = np.empty((1, 4, 4))
     d = np.empty(4)
+    y = np.empty(4)
+    solution = np.empty(4)
     s = np.empty((4, 4))
     g = np.empty((4, 2))
     gb = np.empty((4, 2))
     out = np.empty(k)
     active = np.empty(n_radars, dtype=np.bool_)
+    scratch = _prediction_scratch(m, n_radars)
     for r in range(k):
         n, row = system[r], local[r]
         radar = loc_radar[row]
@@ -228,7 +277,22 @@ def gate_distances(
                 or B[n, sensor, 1, 1] != 0.0
             )
         _predict_track(
-            mx, mP, mM, mu, n, loc_t[row] - sys_t[n], omega, q, sojourn, xp, pp, mp, c, 0, active
+            mx,
+            mP,
+            mM,
+            mu,
+            n,
+            loc_t[row] - sys_t[n],
+            omega,
+            q,
+            sojourn,
+            xp,
+            pp,
+            mp,
+            c,
+            0,
+            active,
+            scratch,
         )
         _combine_row(xp, pp, c, 0, one_x, one_p, d)
         for a in range(4):
@@ -260,7 +324,7 @@ def gate_distances(
                     s[a, b] += gb[a, 0] * g[b, 0] + gb[a, 1] * g[b, 1]
         for a in range(4):
             d[a] = loc_x[row, a] - one_x[0, a]
-        out[r] = _quadratic_form_lu(s, d)
+        out[r] = _quadratic_form_lu(s, d, y, solution)
     return out
 
 
@@ -283,6 +347,8 @@ def track_distances(
     xb = np.empty(4)
     s = np.empty((4, 4))
     d = np.empty(4)
+    y = np.empty(4)
+    solution = np.empty(4)
     for r in range(a.size):
         i, j = a[r], b[r]
         step = t[i] - t[j]
@@ -297,15 +363,18 @@ def track_distances(
         for e in range(2):
             for c in range(2):
                 s[e, c] += extra[i, e, c] + extra[j, e, c]
-        out[r] = _quadratic_form_lu(s, d)
+        out[r] = _quadratic_form_lu(s, d, y, solution)
     return out
 
 
 @numba.njit(cache=True)
-def _quadratic_form_lu(s: FloatArray, d: FloatArray) -> float:  # pragma: no cover - compiled
+def _quadratic_form_lu(
+    s: FloatArray, d: FloatArray, y: FloatArray, solution: FloatArray
+) -> float:  # pragma: no cover - compiled
     """d^T s^-1 d for a 4x4 s by Gaussian elimination with partial pivoting (LAPACK's
-    gesv, as ``np.linalg.solve``); s is overwritten."""
-    y = d.copy()
+    gesv, as ``np.linalg.solve``); s is overwritten; y and solution: working arrays (4,)
+    (allocated per pair, they cost as much as the elimination)."""
+    y[:] = d
     for col in range(4):
         pivot = col
         for r in range(col + 1, 4):
@@ -321,7 +390,6 @@ def _quadratic_form_lu(s: FloatArray, d: FloatArray) -> float:  # pragma: no cov
                 s[r, b] -= factor * s[col, b]
             y[r] -= factor * y[col]
     total = 0.0
-    solution = np.empty(4)
     for a in range(3, -1, -1):
         acc = y[a]
         for b in range(a + 1, 4):
@@ -396,11 +464,13 @@ def filter_round(
     joseph = np.empty((4, 4))
     log_post = np.empty(m)
     d = np.empty(4)
-    every = np.ones(n_radars, dtype=np.bool_)
+    active = np.empty(n_radars, dtype=np.bool_)
+    scratch = _prediction_scratch(m, n_radars)
     for r in range(k):
         n = numbers[r]
+        _sensitive(mM, n, radar, active)
         _predict_track(
-            mx, mP, mM, mu, n, time[r] - t[n], omega, q, sojourn, xp, pp, mp, c, 0, every
+            mx, mP, mM, mu, n, time[r] - t[n], omega, q, sojourn, xp, pp, mp, c, 0, active, scratch
         )
         r00, r01, r10, r11 = R[r, 0, 0], R[r, 0, 1], R[r, 1, 0], R[r, 1, 1]
         for j in range(m):
@@ -413,6 +483,8 @@ def filter_round(
                 cross[a, 0] = pp[0, j, a, 0]
                 cross[a, 1] = pp[0, j, a, 1]
             for sensor in range(n_radars):
+                if not active[sensor]:
+                    continue
                 for a in range(2):
                     for b in range(2):
                         g[sensor, a, b] = mp[0, j, sensor, a, b]
@@ -467,6 +539,9 @@ def filter_round(
                     p_new[0, j, a, b] = 0.5 * (joseph[a, b] + joseph[b, a])
             # M_l -= K G_l.
             for sensor in range(n_radars):
+                if not active[sensor]:
+                    m_new[0, j, sensor, :, :] = 0.0
+                    continue
                 for a in range(4):
                     for b in range(2):
                         m_new[0, j, sensor, a, b] = mp[0, j, sensor, a, b] - (
@@ -494,6 +569,136 @@ def filter_round(
         t[n] = time[r]
 
 
+@numba.njit(cache=True, inline="always")
+def _count_sources(row: IntArray) -> int:  # pragma: no cover - compiled
+    """The valid slots (>= 0) of a row of slots."""
+    n = 0
+    for slot in row:
+        if slot >= 0:
+            n += 1
+    return n
+
+
+@numba.njit(cache=True)
+def _fusion_scratch(width: int) -> tuple[FloatArray, ...]:  # pragma: no cover - compiled
+    """The working arrays of ``_predict_sources`` and ``_fuse_sources`` for rows of up to
+    ``width`` sources, allocated once per call and sliced per row (allocated per row,
+    they cost as much as the arithmetic of a row of two or three sources)."""
+    return (
+        np.empty((width, 4)),
+        np.empty((width, 4, 4)),
+        np.empty((width, 4, 4)),
+        np.empty(width),
+        np.empty((4, 4)),
+        np.empty((4, 4)),
+        np.empty((4 * width, 4 * width)),
+        np.empty((4 * width, 4 * width)),
+        np.empty((4 * width, 4)),
+        np.empty(4 * width),
+        np.empty(4 * width),
+        np.empty((4, 4)),
+        np.empty((4, 4)),
+        np.empty(4),
+    )
+
+
+@numba.njit(cache=True)
+def _predict_sources(
+    sources: IntArray,
+    n: int,
+    t: float,
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    correlation: float,
+    scratch: tuple[FloatArray, ...],
+) -> None:  # pragma: no cover - compiled
+    """The local tracks ``sources[:n]`` CV-predicted to t: states, covariances, steps
+    and (with a correlation) the covariances' symmetric square roots, into ``scratch``."""
+    states, own, roots, dt, f, fp = (
+        scratch[0],
+        scratch[1],
+        scratch[2],
+        scratch[3],
+        scratch[4],
+        scratch[5],
+    )
+    for i in range(n):
+        s = sources[i]
+        step = t - loc_t[s]
+        dt[i] = step
+        f[:, :] = 0.0
+        f[0, 0] = f[1, 1] = f[2, 2] = f[3, 3] = 1.0
+        f[0, 2] = f[1, 3] = step
+        propagate(f, loc_x[s], loc_P[s], fp, states[i], own[i])
+    if correlation > 0.0:
+        for i in range(n):
+            _symmetric_sqrt4(own[i], roots[i])
+
+
+@numba.njit(cache=True)
+def _fuse_sources(
+    sources: IntArray,
+    chosen: IntArray,
+    n: int,
+    loc_extra: FloatArray,
+    q: float,
+    correlation: float,
+    scratch: tuple[FloatArray, ...],
+    x: FloatArray,
+    p: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """ML fusion into x, p of the predicted sources ``chosen[:n]`` (positions in
+    ``_predict_sources``' arrays of the local rows ``sources``): the joint covariance
+    (own errors, their correlation, the shared prediction noise and each source's
+    residual bias), then ``_ml_solve``."""
+    states, own, roots, dt = scratch[0], scratch[1], scratch[2], scratch[3]
+    sigma_of, low_of, y_of, wz_of, z_of = (
+        scratch[6],
+        scratch[7],
+        scratch[8],
+        scratch[9],
+        scratch[10],
+    )
+    block, info, weighted = scratch[11], scratch[12], scratch[13]
+    size = 4 * n
+    sigma = sigma_of[:size, :size]
+    sigma[:, :] = 0.0
+    for i in range(n):
+        ci = chosen[i]
+        for a in range(4):
+            for b in range(4):
+                sigma[4 * i + a, 4 * i + b] = (1.0 - correlation) * own[ci, a, b]
+    if correlation > 0.0:
+        for i in range(n):
+            for j in range(n):
+                for a in range(4):
+                    for b in range(4):
+                        acc = 0.0
+                        for e in range(4):
+                            acc += roots[chosen[i], a, e] * roots[chosen[j], b, e]
+                        sigma[4 * i + a, 4 * j + b] += correlation * acc
+    for i in range(n):
+        for j in range(n):
+            di, dj = dt[chosen[i]], dt[chosen[j]]
+            same_way = np.sign(di) == np.sign(dj)
+            overlap = min(abs(di), abs(dj)) if same_way else 0.0
+            block[:, :] = 0.0
+            add_white_acceleration_q(block, overlap, q)
+            if i == j:
+                for a in range(2):
+                    for b in range(2):
+                        block[a, b] += loc_extra[sources[chosen[i]], a, b]
+            for a in range(4):
+                for b in range(4):
+                    sigma[4 * i + a, 4 * j + b] += block[a, b]
+    z = z_of[:size]
+    for i in range(n):
+        for a in range(4):
+            z[4 * i + a] = states[chosen[i], a]
+    _ml_solve(sigma, z, x, p, low_of, y_of, wz_of, info, weighted)
+
+
 @numba.njit(cache=True)
 def fuse_local_tracks(
     slots: IntArray,
@@ -512,60 +717,55 @@ def fuse_local_tracks(
     k, width = slots.shape
     out_x = np.full((k, 4), np.nan)
     out_p = np.full((k, 4, 4), np.nan)
-    states = np.empty((width, 4))
-    own = np.empty((width, 4, 4))
-    roots = np.empty((width, 4, 4))
-    dt = np.empty(width)
-    f = np.empty((4, 4))
-    fp = np.empty((4, 4))
+    scratch = _fusion_scratch(width)
+    order = np.arange(width)
     for r in range(k):
-        n = 0
-        for i in range(width):
-            if slots[r, i] >= 0:
-                n += 1
+        n = _count_sources(slots[r])
         if n == 0:
             continue
-        for i in range(n):
-            s = slots[r, i]
-            step = t[r] - loc_t[s]
-            dt[i] = step
-            f[:, :] = 0.0
-            f[0, 0] = f[1, 1] = f[2, 2] = f[3, 3] = 1.0
-            f[0, 2] = f[1, 3] = step
-            propagate(f, loc_x[s], loc_P[s], fp, states[i], own[i])
-        size = 4 * n
-        sigma = np.zeros((size, size))
-        for i in range(n):
-            for a in range(4):
-                for b in range(4):
-                    sigma[4 * i + a, 4 * i + b] = (1.0 - correlation) * own[i, a, b]
-        if correlation > 0.0:
-            for i in range(n):
-                _symmetric_sqrt4(own[i], roots[i])
-            for i in range(n):
-                for j in range(n):
-                    for a in range(4):
-                        for b in range(4):
-                            acc = 0.0
-                            for e in range(4):
-                                acc += roots[i, a, e] * roots[j, b, e]
-                            sigma[4 * i + a, 4 * j + b] += correlation * acc
-        block = np.empty((4, 4))
-        for i in range(n):
-            for j in range(n):
-                same_way = np.sign(dt[i]) == np.sign(dt[j])
-                overlap = min(abs(dt[i]), abs(dt[j])) if same_way else 0.0
-                block[:, :] = 0.0
-                add_white_acceleration_q(block, overlap, q)
-                if i == j:
-                    for a in range(2):
-                        for b in range(2):
-                            block[a, b] += loc_extra[slots[r, i], a, b]
-                for a in range(4):
-                    for b in range(4):
-                        sigma[4 * i + a, 4 * j + b] += block[a, b]
-        _ml_solve(sigma, states[:n].copy().reshape(size), out_x[r], out_p[r])
+        _predict_sources(slots[r], n, t[r], loc_t, loc_x, loc_P, correlation, scratch)
+        _fuse_sources(slots[r], order, n, loc_extra, q, correlation, scratch, out_x[r], out_p[r])
     return out_x, out_p
+
+
+@numba.njit(cache=True)
+def fuse_references(
+    others: IntArray,
+    kept: IntArray,
+    t: FloatArray,
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    loc_extra: FloatArray,
+    q: float,
+    correlation: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """``fuse_local_tracks`` of both of ``references``' sets of each row at once: its
+    sources (``kept``, valid first) predicted once, and fused as a whole and without
+    those ``others`` leaves out (a subsequence of ``kept``); the others' x and P, then
+    all's."""
+    k, width = kept.shape
+    out = np.full((2, k, 4), np.nan)
+    out_p = np.full((2, k, 4, 4), np.nan)
+    scratch = _fusion_scratch(width)
+    order = np.arange(width)
+    chosen = np.empty(width, dtype=np.int64)
+    for r in range(k):
+        n = _count_sources(kept[r])
+        if n == 0:
+            continue
+        _predict_sources(kept[r], n, t[r], loc_t, loc_x, loc_P, correlation, scratch)
+        m = 0
+        for i in range(n):
+            if m < width and others[r, m] == kept[r, i]:
+                chosen[m] = i
+                m += 1
+        if m:
+            _fuse_sources(
+                kept[r], chosen, m, loc_extra, q, correlation, scratch, out[0, r], out_p[0, r]
+            )
+        _fuse_sources(kept[r], order, n, loc_extra, q, correlation, scratch, out[1, r], out_p[1, r])
+    return out[0], out_p[0], out[1], out_p[1]
 
 
 @numba.njit(cache=True)
@@ -619,20 +819,30 @@ def _symmetric_sqrt4(a: FloatArray, root: FloatArray) -> None:  # pragma: no cov
 
 @numba.njit(cache=True)
 def _ml_solve(
-    sigma: FloatArray, z: FloatArray, x: FloatArray, p: FloatArray
+    sigma: FloatArray,
+    z: FloatArray,
+    x: FloatArray,
+    p: FloatArray,
+    low_of: FloatArray,
+    y_of: FloatArray,
+    wz_of: FloatArray,
+    info: FloatArray,
+    weighted: FloatArray,
 ) -> None:  # pragma: no cover - compiled
     """``ml.ml_fuse``'s estimate from the joint covariance sigma (4n, 4n) of the stacked
     estimates z (4n,): P = (H^T sigma^-1 H)^-1, x = P H^T sigma^-1 z, H the stacked
     identities; by a Cholesky factor sigma = L L^T (Y = L^-1 H, info = Y^T Y), and by
-    LAPACK's LU, as the reference, when sigma is not numerically positive definite."""
+    LAPACK's LU, as the reference, when sigma is not numerically positive definite.
+    ``low_of``, ``y_of``, ``wz_of`` (sliced), ``info`` and ``weighted``: working arrays."""
     size = sigma.shape[0]
-    low = np.zeros((size, size))
+    low = low_of[:size, :size]
+    low[:, :] = 0.0
     for j in range(size):
         acc = sigma[j, j]
         for e in range(j):
             acc -= low[j, e] * low[j, e]
         if not acc > 0.0:
-            _ml_solve_lu(sigma, z, x, p)
+            _ml_solve_lu(np.ascontiguousarray(sigma), z, x, p)
             return
         low[j, j] = math.sqrt(acc)
         for i in range(j + 1, size):
@@ -640,8 +850,9 @@ def _ml_solve(
             for e in range(j):
                 acc -= low[i, e] * low[j, e]
             low[i, j] = acc / low[j, j]
-    y = np.zeros((size, 4))
-    wz = np.empty(size)
+    y = y_of[:size]
+    y[:, :] = 0.0
+    wz = wz_of[:size]
     for i in range(size):
         for b in range(4):
             acc = 1.0 if i % 4 == b else 0.0
@@ -652,8 +863,8 @@ def _ml_solve(
         for e in range(i):
             acc -= low[i, e] * wz[e]
         wz[i] = acc / low[i, i]
-    info = np.zeros((4, 4))
-    weighted = np.zeros(4)
+    info[:, :] = 0.0
+    weighted[:] = 0.0
     for a in range(4):
         for i in range(size):
             weighted[a] += y[i, a] * wz[i]
@@ -701,6 +912,372 @@ def _finish(
 
 
 @numba.njit(cache=True)
+def store_updates(
+    rows: IntArray,
+    u: npt.NDArray[Any],
+    extra: FloatArray,
+    has_plot: npt.NDArray[np.bool_],
+    with_mu: bool,
+    status: npt.NDArray[np.int8],
+    address: IntArray,
+    mode3a: IntArray,
+    fl: FloatArray,
+    rate: FloatArray,
+    t_fl: FloatArray,
+    t: FloatArray,
+    x: FloatArray,
+    P: FloatArray,
+    extra_of: FloatArray,
+    mu: FloatArray,
+    plot_id: IntArray,
+    t_plot: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """``table.LocalTrackTable.store`` into the local table's fields: per row, its
+    batch's last update (``u``, ``track_update_dtype``) gives the status, the identity
+    where known and the flight level where finite; its last update with a plot (or its
+    last, while it has no state) gives the state, the residual bias, the model
+    probabilities (``with_mu``) and the plot."""
+    k = rows.size
+    size = 1
+    for i in range(k):
+        size = max(size, rows[i] + 1)
+    stateless = np.empty(k, dtype=np.bool_)
+    for i in range(k):
+        stateless[i] = math.isnan(t[rows[i]])
+    done = np.zeros(size, dtype=np.bool_)
+    for i in range(k - 1, -1, -1):
+        r = rows[i]
+        if done[r]:
+            continue
+        done[r] = True
+        v = u[i]
+        status[r] = v["status"]
+        if v["address"] >= 0:
+            address[r] = v["address"]
+        if v["mode3a"] >= 0:
+            mode3a[r] = v["mode3a"]
+        level = v["flight_level"]
+        if math.isfinite(level):
+            fl[r] = level
+            climb = v["climb_rate_fl_per_s"]
+            # np.nan_to_num: NaN to 0, infinities to the largest finite values.
+            if math.isnan(climb):
+                climb = 0.0
+            elif math.isinf(climb):
+                climb = FLOAT_MAX if climb > 0.0 else -FLOAT_MAX
+            rate[r] = climb
+            t_fl[r] = v["time"]
+    done[:] = False
+    for i in range(k - 1, -1, -1):
+        r = rows[i]
+        if done[r] or not (has_plot[i] or stateless[i]):
+            continue
+        done[r] = True
+        v = u[i]
+        t[r] = v["time"]
+        x[r, 0] = v["x"]
+        x[r, 1] = v["y"]
+        x[r, 2] = v["vx"]
+        x[r, 3] = v["vy"]
+        for a in range(4):
+            for b in range(4):
+                P[r, a, b] = v["P"][4 * a + b]
+        extra_of[r] = extra[i]
+        if with_mu:
+            for m in range(mu.shape[1]):
+                mu[r, m] = v["model_probabilities"][m]
+        if has_plot[i]:
+            plot_id[r] = v["plot_id"]
+            t_plot[r] = v["time"]
+
+
+@numba.njit(cache=True)
+def fill_system_rows(
+    out: npt.NDArray[Any],
+    numbers: IntArray,
+    t: FloatArray,
+    x: FloatArray,
+    p: FloatArray,
+    status: npt.NDArray[np.int8],
+    slots: IntArray,
+    loc_radar: IntArray,
+    loc_number: IntArray,
+    loc_plot_id: IntArray,
+    loc_fl: FloatArray,
+    loc_rate: FloatArray,
+    loc_t_fl: FloatArray,
+    loc_address: IntArray,
+    loc_mode3a: IntArray,
+    sys_address: IntArray,
+    sys_mode3a: IntArray,
+) -> None:  # pragma: no cover - compiled
+    """``rows.system_rows`` into ``out`` (zeros of ``SYSTEM_UPDATE_DTYPE``): each row's
+    state and status, its local tracks (``slots``, valid first), the flight level and
+    rate of the first of them with a level (extrapolated to t), the identity of the first
+    that knows it (else the system track's)."""
+    width = slots.shape[1]
+    for r in range(numbers.size):
+        row = out[r]
+        row["system_number"] = numbers[r]
+        row["time"] = t[r]
+        row["x"] = x[r, 0]
+        row["y"] = x[r, 1]
+        row["vx"] = x[r, 2]
+        row["vy"] = x[r, 3]
+        for a in range(4):
+            for b in range(4):
+                row["P"][4 * a + b] = p[r, a, b]
+        row["status"] = status[r]
+        row["plot_id"] = -1
+        n = 0
+        level = -1
+        address = -1
+        mode3a = -1
+        for i in range(width):
+            s = slots[r, i]
+            if s < 0:
+                row["local_radars"][i] = -1
+                row["local_numbers"][i] = -1
+                row["local_plot_ids"][i] = -1
+                continue
+            n += 1
+            row["local_radars"][i] = loc_radar[s]
+            row["local_numbers"][i] = loc_number[s]
+            row["local_plot_ids"][i] = loc_plot_id[s]
+            if level < 0 and math.isfinite(loc_fl[s]):
+                level = s
+            if address < 0 and loc_address[s] >= 0:
+                address = loc_address[s]
+            if mode3a < 0 and loc_mode3a[s] >= 0:
+                mode3a = loc_mode3a[s]
+        row["n_sources"] = n
+        if level >= 0:
+            rate = loc_rate[level]
+            row["flight_level"] = loc_fl[level] + rate * (t[r] - loc_t_fl[level])
+            row["climb_rate_fl_per_s"] = rate if math.isfinite(row["flight_level"]) else np.nan
+        else:
+            row["flight_level"] = np.nan
+            row["climb_rate_fl_per_s"] = np.nan
+        row["address"] = address if address >= 0 else sys_address[numbers[r]]
+        row["mode3a"] = mode3a if mode3a >= 0 else sys_mode3a[numbers[r]]
+
+
+@numba.njit(cache=True)
+def near_pairs(
+    xy_a: FloatArray, radius_a: FloatArray, xy_b: FloatArray, radius_b: FloatArray
+) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled
+    """``nearby.near_pairs``: the larger set's points in the box around the smaller one,
+    then each pair's distance (as ``pairs_within`` computes it) against the sum of the
+    radii; found in (i, j) order."""
+    a_larger = xy_a.shape[0] >= xy_b.shape[0]
+    big, r_big, small, r_small = xy_a, radius_a, xy_b, radius_b
+    if not a_larger:
+        big, r_big, small, r_small = xy_b, radius_b, xy_a, radius_a
+    n_small = small.shape[0]
+    if n_small == 0 or big.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    reach = r_big.max() + r_small.max()
+    lo0, lo1 = small[:, 0].min() - reach, small[:, 1].min() - reach
+    hi0, hi1 = small[:, 0].max() + reach, small[:, 1].max() + reach
+    near = np.empty(big.shape[0], dtype=np.int64)
+    n_near = 0
+    for k in range(big.shape[0]):
+        if lo0 <= big[k, 0] <= hi0 and lo1 <= big[k, 1] <= hi1:
+            near[n_near] = k
+            n_near += 1
+    passing = np.zeros((n_near, n_small), dtype=np.bool_)
+    count = 0
+    for q in range(n_near):
+        k = near[q]
+        for m in range(n_small):
+            dx = big[k, 0] - small[m, 0]
+            dy = big[k, 1] - small[m, 1]
+            if math.sqrt(dx * dx + dy * dy) <= r_big[k] + r_small[m]:
+                passing[q, m] = True
+                count += 1
+    i = np.empty(count, dtype=np.int64)
+    j = np.empty(count, dtype=np.int64)
+    at = 0
+    if a_larger:
+        for q in range(n_near):
+            for m in range(n_small):
+                if passing[q, m]:
+                    i[at], j[at] = near[q], m
+                    at += 1
+    else:
+        for m in range(n_small):
+            for q in range(n_near):
+                if passing[q, m]:
+                    i[at], j[at] = m, near[q]
+                    at += 1
+    return i, j
+
+
+@numba.njit(cache=True)
+def lookup_rows(
+    index_keys: IntArray, index_rows: IntArray, radar: int, numbers: IntArray
+) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled
+    """``table.LocalTrackTable.find``'s lookup: each local track's key (radar <<
+    ``KEY_SHIFT`` | number) and its row by binary search in the sorted index (-1: none)."""
+    k = numbers.size
+    keys = np.empty(k, dtype=np.int64)
+    rows = np.full(k, -1, dtype=np.int64)
+    for i in range(k):
+        key = (np.int64(radar) << KEY_SHIFT) | np.int64(numbers[i])
+        keys[i] = key
+        at = np.searchsorted(index_keys, key)
+        if at < index_keys.size and index_keys[at] == key:
+            rows[i] = index_rows[at]
+    return keys, rows
+
+
+@numba.njit(cache=True)
+def exchange_feeding(
+    alive: npt.NDArray[np.bool_],
+    system: IntArray,
+    status: npt.NDArray[np.int8],
+    radar: IntArray,
+    confirmed: int,
+    own_radar: int,
+    size: int,
+) -> tuple[IntArray, bool, IntArray, IntArray]:  # pragma: no cover - compiled
+    """``associate._exchange``'s sets in one pass over the local table: the confirmed
+    live rows feeding a system track (ascending), whether they come from more than one
+    radar, the system tracks they feed and those fed by ``own_radar``'s (ascending,
+    numbers below ``size``)."""
+    feeding = np.empty(system.size, dtype=np.int64)
+    fed = np.zeros(size, dtype=np.bool_)
+    own = np.zeros(size, dtype=np.bool_)
+    n = 0
+    several = False
+    for r in range(system.size):
+        if alive[r] and system[r] > 0 and status[r] == confirmed:
+            feeding[n] = r
+            if n and radar[r] != radar[feeding[0]]:
+                several = True
+            n += 1
+            fed[system[r]] = True
+            if radar[r] == own_radar:
+                own[system[r]] = True
+    return feeding[:n].copy(), several, np.flatnonzero(fed), np.flatnonzero(own)
+
+
+@numba.njit(cache=True)
+def radars_feeding(
+    alive: npt.NDArray[np.bool_], system: IntArray, radar: IntArray, size: int, n_radars: int
+) -> npt.NDArray[np.bool_]:  # pragma: no cover - compiled
+    """``lifecycle.merge``'s table of the radars feeding each system track (size,
+    n_radars), from the live local rows in one pass."""
+    out = np.zeros((size, n_radars), dtype=np.bool_)
+    for r in range(system.size):
+        if alive[r] and system[r] > 0:
+            out[system[r], radar[r]] = True
+    return out
+
+
+@numba.njit(cache=True)
+def exchange_witnesses(
+    li: IntArray,
+    sj: IntArray,
+    involved: IntArray,
+    loc_system: IntArray,
+    loc_radar: IntArray,
+    loc_key: IntArray,
+    size: int,
+) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray, IntArray]:  # pragma: no cover
+    """``associate._exchange_witnesses`` from the local table's fields: ``involved``'s rows
+    grouped by system track (ascending within each), each candidate's l' (the first row
+    of its radar in S') and the other radars' rows of S and S', the pairs kept the first
+    time they come (a dictionary of their keys), then the votes pair by pair."""
+    count = np.zeros(size + 1, dtype=np.int64)
+    for q in range(involved.size):
+        count[loc_system[involved[q]] + 1] += 1
+    start = np.cumsum(count)
+    fill = start[:-1].copy()
+    grouped = np.empty(involved.size, dtype=np.int64)
+    for q in range(involved.size):
+        g = loc_system[involved[q]]
+        grouped[fill[g]] = involved[q]
+        fill[g] += 1
+    k = li.size
+    pair_a = np.empty(k, dtype=np.int64)
+    pair_b = np.empty(k, dtype=np.int64)
+    pair_s = np.empty(k, dtype=np.int64)
+    n_pairs = 0
+    n_votes = 0
+    seen = dict()
+    for i in range(k):
+        here, there, radar = loc_system[li[i]], sj[i], loc_radar[li[i]]
+        partner = -1
+        others_there = 0
+        for q in range(start[there], start[there + 1]):
+            if loc_radar[grouped[q]] != radar:
+                others_there += 1
+            elif partner < 0:
+                partner = grouped[q]
+        others_here = 0
+        for q in range(start[here], start[here + 1]):
+            if loc_radar[grouped[q]] != radar:
+                others_here += 1
+        if partner < 0 or others_there == 0 or others_here == 0:
+            continue
+        ka, kb = loc_key[li[i]], loc_key[partner]
+        key = (min(ka, kb), max(ka, kb))
+        if key in seen:
+            continue
+        seen[key] = True
+        pair_a[n_pairs], pair_b[n_pairs], pair_s[n_pairs] = li[i], partner, there
+        n_pairs += 1
+        n_votes += others_here + others_there
+    closer = np.empty(n_votes, dtype=np.int64)
+    farther = np.empty(n_votes, dtype=np.int64)
+    witness = np.empty(n_votes, dtype=np.int64)
+    ends = np.zeros(n_pairs + 1, dtype=np.int64)
+    at = 0
+    for p in range(n_pairs):
+        a, b = pair_a[p], pair_b[p]
+        radar = loc_radar[a]
+        # S's feeders vote for a, then S''s for b.
+        for number, near, far in ((loc_system[a], a, b), (pair_s[p], b, a)):
+            for q in range(start[number], start[number + 1]):
+                row = grouped[q]
+                if loc_radar[row] != radar:
+                    closer[at], farther[at], witness[at] = near, far, row
+                    at += 1
+        ends[p + 1] = at
+    return pair_a[:n_pairs].copy(), pair_b[:n_pairs].copy(), closer, farther, witness, ends
+
+
+@numba.njit(cache=True)
+def identity_candidates(
+    address: IntArray, mode3a: IntArray, touched: IntArray, alive: IntArray
+) -> IntArray:  # pragma: no cover - compiled
+    """``lifecycle._identity_candidates`` from the system table's fields: the live tracks
+    ``alive`` whose address is unknown or some touched track's (any, when a touched
+    track's is unknown), and likewise their Mode 3/A code."""
+    addresses = np.sort(address[touched])
+    codes = np.sort(mode3a[touched])
+    any_address = addresses.size > 0 and addresses[0] < 0
+    any_code = codes.size > 0 and codes[0] < 0
+    keep = np.empty(alive.size, dtype=np.int64)
+    n = 0
+    for i in range(alive.size):
+        a, c = address[alive[i]], mode3a[alive[i]]
+        address_ok = any_address or a < 0
+        if not address_ok and addresses.size:
+            at = np.searchsorted(addresses, a)
+            address_ok = at < addresses.size and addresses[at] == a
+        code_ok = any_code or c < 0
+        if not code_ok and codes.size:
+            at = np.searchsorted(codes, c)
+            code_ok = at < codes.size and codes[at] == c
+        if address_ok and code_ok:
+            keep[n] = alive[i]
+            n += 1
+    return keep[:n].copy()
+
+
+@numba.njit(cache=True)
 def slots_of(
     numbers: IntArray,
     system: IntArray,
@@ -745,13 +1322,103 @@ def slots_of(
 
 
 @numba.njit(cache=True)
-def system_reach(
-    x: FloatArray,
-    P: FloatArray,
+def reference_sources(
+    slots: IntArray,
+    t: FloatArray,
+    loc_radar: IntArray,
+    loc_t_plot: FloatArray,
+    radar: int,
+    sources: int,
+    reference_age: float,
+    n_radars: int,
+) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_]]:  # pragma: no cover - compiled
+    """``references.references``' choice of sources per row, from the local table's
+    fields: its slots of sources below ``sources`` (order kept, -1 after), those of them
+    of other radars than ``radar`` with a plot within ``reference_age`` of t (the
+    same), and the radars of the recent ones (k, n_radars)."""
+    k, width = slots.shape
+    kept = np.full((k, width), -1, dtype=np.int64)
+    others = np.full((k, width), -1, dtype=np.int64)
+    seen = np.zeros((k, n_radars), dtype=np.bool_)
+    for r in range(k):
+        n_kept = 0
+        n_others = 0
+        for i in range(width):
+            s = slots[r, i]
+            if s < 0 or loc_radar[s] >= sources:
+                continue
+            kept[r, n_kept] = s
+            n_kept += 1
+            if t[r] - loc_t_plot[s] <= reference_age:
+                seen[r, loc_radar[s]] = True
+                if loc_radar[s] != radar:
+                    others[r, n_others] = s
+                    n_others += 1
+    return kept, others, seen
+
+
+@numba.njit(cache=True)
+def refresh_moments(
     mx: FloatArray,
     mP: FloatArray,
     mu: FloatArray,
     M: FloatArray,
+    B: FloatArray,
+    numbers: IntArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
+    largest_bias: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """The pre-selection's per-track terms of system tracks ``numbers`` into the table's
+    fields ``moments`` (the IMM's combined state and the entries of its covariance that
+    ``nearby.reach`` reads: x (4), P00 + P11, P02 + P13, P22 + P33), ``sensitivity`` (the
+    squared norms of M's position and velocity rows, over every radar) and
+    ``largest_bias`` (the largest trace of the radars' B, from 0): what
+    ``system_reach`` read from each candidate's models and sensitivities per call (a
+    kilobyte or more a track, every open system track each batch)."""
+    m = mu.shape[1]
+    for i in range(numbers.size):
+        r = numbers[i]
+        for a in range(4):
+            acc = 0.0
+            for j in range(m):
+                acc += mu[r, j] * mx[r, j, a]
+            moments[r, a] = acc
+        pos = 0.0
+        cross = 0.0
+        vel = 0.0
+        for j in range(m):
+            d0 = mx[r, j, 0] - moments[r, 0]
+            d1 = mx[r, j, 1] - moments[r, 1]
+            d2 = mx[r, j, 2] - moments[r, 2]
+            d3 = mx[r, j, 3] - moments[r, 3]
+            w = mu[r, j]
+            pos += w * (mP[r, j, 0, 0] + d0 * d0) + w * (mP[r, j, 1, 1] + d1 * d1)
+            cross += w * (mP[r, j, 0, 2] + d0 * d2) + w * (mP[r, j, 1, 3] + d1 * d3)
+            vel += w * (mP[r, j, 2, 2] + d2 * d2) + w * (mP[r, j, 3, 3] + d3 * d3)
+        moments[r, 4] = pos
+        moments[r, 5] = cross
+        moments[r, 6] = vel
+        m_position = 0.0
+        m_velocity = 0.0
+        largest = 0.0
+        for radar in range(M.shape[1]):
+            for j in range(2):
+                for c in range(2):
+                    m_position += M[r, radar, j, c] * M[r, radar, j, c]
+                    m_velocity += M[r, radar, j + 2, c] * M[r, radar, j + 2, c]
+            largest = max(largest, B[r, radar, 0, 0] + B[r, radar, 1, 1])
+        sensitivity[r, 0] = m_position
+        sensitivity[r, 1] = m_velocity
+        largest_bias[r] = largest
+
+
+@numba.njit(cache=True)
+def system_reach(
+    x: FloatArray,
+    P: FloatArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
     t: FloatArray,
     numbers: IntArray,
     from_models: bool,
@@ -762,11 +1429,11 @@ def system_reach(
     q_max: float,
     turn_max: float,
 ) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
-    """``nearby.system_reach`` read in place from the system table's fields: the coarse
-    state (the IMM's moment-matched combination of mx, mP, mu when ``from_models``, else
-    x, P), the sensitivity norm of M and ``nearby.reach``, for every candidate, with no
-    gather of the rows' models and sensitivities (association takes every open system
-    track, each batch)."""
+    """``nearby.system_reach`` from the system table's fields in place: the coarse state
+    (the IMM's moment-matched combination, ``moments``, when ``from_models``, else x and
+    P), the sensitivity norm and ``nearby.reach``, for every candidate (association takes
+    every open system track, each batch); ``moments`` and ``sensitivity`` as
+    ``refresh_moments`` keeps them."""
     k = numbers.size
     xy = np.empty((k, 2))
     radius = np.empty(k)
@@ -776,43 +1443,20 @@ def system_reach(
         # The entries of the covariance that ``reach`` reads: P00 + P11, P02 + P13,
         # P22 + P33.
         if from_models:
-            xc[:] = 0.0
-            for m in range(mu.shape[1]):
-                for a in range(4):
-                    xc[a] += mu[r, m] * mx[r, m, a]
-            pos = 0.0
-            cross = 0.0
-            vel = 0.0
-            for m in range(mu.shape[1]):
-                d0 = mx[r, m, 0] - xc[0]
-                d1 = mx[r, m, 1] - xc[1]
-                d2 = mx[r, m, 2] - xc[2]
-                d3 = mx[r, m, 3] - xc[3]
-                w = mu[r, m]
-                pos += w * (mP[r, m, 0, 0] + d0 * d0) + w * (mP[r, m, 1, 1] + d1 * d1)
-                cross += w * (mP[r, m, 0, 2] + d0 * d2) + w * (mP[r, m, 1, 3] + d1 * d3)
-                vel += w * (mP[r, m, 2, 2] + d2 * d2) + w * (mP[r, m, 3, 3] + d3 * d3)
+            xc[:] = moments[r, :4]
+            pos = moments[r, 4]
+            cross = moments[r, 5]
+            vel = moments[r, 6]
         else:
             xc[:] = x[r]
             pos = P[r, 0, 0] + P[r, 1, 1]
             cross = P[r, 0, 2] + P[r, 1, 3]
             vel = P[r, 2, 2] + P[r, 3, 3]
-        m_position = 0.0
-        m_velocity = 0.0
-        for radar in range(M.shape[1]):
-            for j in range(2):
-                for c in range(2):
-                    m_position += M[r, radar, j, c] * M[r, radar, j, c]
-                    m_velocity += M[r, radar, j + 2, c] * M[r, radar, j + 2, c]
         dt = t_mid - t[r]
         a = abs(dt) + spread
-        sensitivity = 2.0 * (m_position + a * a * m_velocity)
+        norm = 2.0 * (sensitivity[r, 0] + a * a * sensitivity[r, 1])
         var = (
-            pos
-            + 2.0 * a * abs(cross)
-            + a * a * vel
-            + 2.0 * q_max * a**3 / 3.0
-            + bias_scale * sensitivity
+            pos + 2.0 * a * abs(cross) + a * a * vel + 2.0 * q_max * a**3 / 3.0 + bias_scale * norm
         )
         speed = math.hypot(xc[2], xc[3])
         turn = 0.5 * speed * turn_max * a * a
@@ -826,17 +1470,6 @@ def system_reach(
         xy[i, 0] = xc[0] + xc[2] * dt
         xy[i, 1] = xc[1] + xc[3] * dt
     return xy, radius
-
-
-@numba.njit(cache=True)
-def largest_bias_trace(B: FloatArray, numbers: IntArray) -> float:  # pragma: no cover - compiled
-    """``nearby.largest_bias`` of the rows ``numbers`` of the table's field B (N, L, 2, 2),
-    read in place."""
-    largest = 0.0
-    for k in range(numbers.size):
-        for radar in range(B.shape[1]):
-            largest = max(largest, B[numbers[k], radar, 0, 0] + B[numbers[k], radar, 1, 1])
-    return largest
 
 
 class ModelConstants:

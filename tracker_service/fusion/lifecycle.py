@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion import consider, nearby
-from tracker_service.fusion.arrays import is_member
+from tracker_service.fusion.arrays import is_member, kernel_indices
 from tracker_service.fusion.associate import compatible_pairs
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import cv_prediction
@@ -41,8 +41,8 @@ def may_found(state: FusionState, candidates: IntArray) -> BoolArray:
     address, code = loc["address"][candidates], loc["mode3a"][candidates]
     live = sys["alive"].copy()
     live[0] = False
-    known = (np.isin(address, sys["address"][live]) & (address >= 0)) | (
-        np.isin(code, sys["mode3a"][live]) & (code >= 0) & ~is_shared_code(code)
+    known = (is_member(address, sys["address"][live]) & (address >= 0)) | (
+        is_member(code, sys["mode3a"][live]) & (code >= 0) & ~is_shared_code(code)
     )
     waited = state.now - loc["t_founder"][candidates]
     return np.asarray(~known | (waited >= state.config.found_delay), dtype=bool)
@@ -91,6 +91,7 @@ def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -
     mu = loc["mu"][founders]
     known = mu.sum(axis=1) > 0.0
     sys["mu"][numbers] = np.where(known[:, None], mu, state.models.initial_probabilities)
+    nearby.refresh(sys, numbers, state.compiled)
     loc["system"][founders] = numbers
     loc["fails"][founders] = 0
     loc["nis_n"][founders] = 0
@@ -126,9 +127,16 @@ def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]
     ``FusionConfig.merge_after``); returns the ended rows of the merged-away ones."""
     sys, loc = state.sys, state.local.used
     touched = touched[(touched > 0) & sys["alive"][touched]]
-    fed = loc["alive"] & (loc["system"] > 0)
-    radars_of = np.zeros((MAX_SYSTEM_NUMBER + 1, state.n_radars), dtype=bool)
-    radars_of[loc["system"][fed], loc["radar"][fed]] = True
+    if state.compiled:
+        from tracker_service.fusion.kernels import radars_feeding  # numba only when compiled
+
+        radars_of = radars_feeding(
+            loc["alive"], loc["system"], loc["radar"], MAX_SYSTEM_NUMBER + 1, state.n_radars
+        )
+    else:
+        fed = loc["alive"] & (loc["system"] > 0)
+        radars_of = np.zeros((MAX_SYSTEM_NUMBER + 1, state.n_radars), dtype=bool)
+        radars_of[loc["system"][fed], loc["radar"][fed]] = True
     # An orphan is taken up through the gate only (``associate.assign``), where its
     # identity must agree: merged, its number would pass to a track it never gated.
     alive = np.flatnonzero(sys["alive"] & np.isnan(sys["orphaned"]))
@@ -151,10 +159,16 @@ def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]
     ):
         pair = (min(a, b), max(a, b))
         count = counts[pair] = state.merge_counts.get(pair, 0) + 1
-        if count >= state.config.merge_after and a not in young and b not in young:
+        # A track that took another in this batch now holds that one's radars too: two
+        # local tracks of one radar are two aircraft, never one system track (a radar's
+        # two tracks that founded together next to a third radar's system track merged
+        # both into it: `encounters` seed 2, CLIMB primary only).
+        shared = bool(np.any(radars_of[a] & radars_of[b]))
+        if count >= state.config.merge_after and a not in young and b not in young and not shared:
             keep, leave = (a, b) if sys["born"][a] <= sys["born"][b] else (b, a)
             old.append(keep)
             young.append(leave)
+            radars_of[keep] |= radars_of[leave]
     gone = set(young)
     state.merge_counts = {p: c for p, c in counts.items() if not gone & set(p)}
     if not young:
@@ -179,8 +193,8 @@ def _merge_tests(
         return empty, empty, np.zeros(0)
     t_mid, spread = nearby.time_span(sys["t"][touched])
     b_max = max(
-        nearby.system_largest_bias(sys["B"], alive, state.compiled),
-        nearby.system_largest_bias(sys["B"], touched, state.compiled),
+        nearby.system_largest_bias(sys, alive, state.compiled),
+        nearby.system_largest_bias(sys, touched, state.compiled),
     )
     q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
 
@@ -190,7 +204,7 @@ def _merge_tests(
             sys, numbers, False, 2.0 * b_max, t_mid, spread, cfg.gate, q, turn, state.compiled
         )
 
-    i, j = nearby.near_pairs(*reach(touched), *reach(alive))
+    i, j = nearby.near_pairs(*reach(touched), *reach(alive), state.compiled)
     a, b = touched[i], alive[j]
     apart = (a != b) & ~np.any(radars_of[a] & radars_of[b], axis=1)
     a, b = a[apart], b[apart]
@@ -214,6 +228,12 @@ def _identity_candidates(state: FusionState, touched: IntArray, alive: IntArray)
     do not tell apart from it: a cheap superset of the pairs ``compatible_pairs`` keeps
     (with Mode S traffic, mostly the tracks of the touched tracks' own addresses)."""
     sys = state.sys
+    if state.compiled:
+        from tracker_service.fusion.kernels import identity_candidates  # numba when compiled
+
+        return identity_candidates(
+            sys["address"], sys["mode3a"], kernel_indices(touched), kernel_indices(alive)
+        )
     address, code = sys["address"][touched], sys["mode3a"][touched]
     other_address, other_code = sys["address"][alive], sys["mode3a"][alive]
     address_ok = (other_address < 0) | is_member(other_address, address) | bool((address < 0).any())
@@ -374,7 +394,7 @@ def _release(state: FusionState, numbers: IntArray, moved_to: IntArray | None = 
     sys = state.sys
     loc = state.local.used
     if moved_to is None:
-        loc["system"][np.isin(loc["system"], numbers)] = 0
+        loc["system"][is_member(loc["system"], numbers)] = 0
     else:
         for number, target in zip(numbers.tolist(), moved_to.tolist(), strict=True):
             loc["system"][loc["system"] == number] = target

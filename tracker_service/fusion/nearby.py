@@ -109,10 +109,8 @@ def system_reach(
         return kernel(
             sys["x"],
             sys["P"],
-            sys["mx"],
-            sys["mP"],
-            sys["mu"],
-            sys["M"],
+            sys["moments"],
+            sys["sensitivity"],
             sys["t"],
             kernel_indices(numbers),
             from_models,
@@ -132,25 +130,85 @@ def system_reach(
     return reach(x, p, t, bias_scale * sensitivity, t_mid, spread, gate, q_max, turn_max)
 
 
-def system_largest_bias(B: FloatArray, numbers: IntArray, compiled: bool) -> float:
-    """``largest_bias`` of the rows ``numbers`` of the table's field B (N, radars, 2, 2)."""
+def system_largest_bias(sys: Columns, numbers: IntArray, compiled: bool) -> float:
+    """``largest_bias`` of the system tracks ``numbers`` (their field B (N, radars, 2, 2));
+    compiled: from each track's ``largest_bias`` field (``refresh``)."""
     if not compiled:
-        return largest_bias(B[numbers])
-    from tracker_service.fusion.kernels import largest_bias_trace
+        return largest_bias(sys["B"][numbers])
+    return float(sys["largest_bias"][numbers].max(initial=0.0))
 
-    return float(largest_bias_trace(B, kernel_indices(numbers)))
+
+def refresh(sys: Columns, numbers: IntArray, compiled: bool) -> None:
+    """After the models, sensitivities or residual biases of system tracks ``numbers``
+    changed: their terms of the compiled pre-selection (the fields ``moments``,
+    ``sensitivity`` and ``largest_bias``, ``kernels.refresh_moments``), which every
+    writer of mx, mP, mu, M or B calls; the numpy path reads the fields themselves."""
+    if not compiled or numbers.size == 0:
+        return
+    from tracker_service.fusion.kernels import refresh_moments
+
+    refresh_moments(
+        sys["mx"],
+        sys["mP"],
+        sys["mu"],
+        sys["M"],
+        sys["B"],
+        kernel_indices(numbers),
+        sys["moments"],
+        sys["sensitivity"],
+        sys["largest_bias"],
+    )
+
+
+DENSE_PAIRS_MAX = 1 << 20
+"""Distances computed pair by pair up to this many (an 8 MB matrix); beyond, k-d trees."""
 
 
 def near_pairs(
-    xy_a: FloatArray, radius_a: FloatArray, xy_b: FloatArray, radius_b: FloatArray
+    xy_a: FloatArray,
+    radius_a: FloatArray,
+    xy_b: FloatArray,
+    radius_b: FloatArray,
+    compiled: bool = False,
 ) -> tuple[IntArray, IntArray]:
-    """(i, j) with a[i] and b[j] closer than the sum of their radii, sorted by (i, j)."""
-    if xy_a.shape[0] >= xy_b.shape[0]:
-        i, j = candidate_pairs(xy_a, radius_a, xy_b, radius_b)
+    """(i, j) with a[i] and b[j] closer than the sum of their radii, sorted by (i, j);
+    compiled: in one pass (``kernels.near_pairs``), the same pairs.
+
+    A box around the smaller set (a batch's few local or touched tracks) leaves the
+    larger set's tracks near it; their distances to the smaller set are then computed
+    all at once as ``tracking.associate.pairs_within`` computes them (the same test on
+    the same numbers: the same pairs as its k-d trees, whose construction cost more than
+    the fuser's tests per batch), or by ``candidate_pairs`` when the matrix would be
+    large."""
+    if compiled:
+        from tracker_service.fusion.kernels import near_pairs as kernel  # numba on use
+
+        return kernel(
+            np.ascontiguousarray(xy_a, dtype=np.float64),
+            np.ascontiguousarray(radius_a, dtype=np.float64),
+            np.ascontiguousarray(xy_b, dtype=np.float64),
+            np.ascontiguousarray(radius_b, dtype=np.float64),
+        )
+    empty = np.zeros(0, dtype=np.int64)
+    a_larger = xy_a.shape[0] >= xy_b.shape[0]
+    big, r_big, small, r_small = (
+        (xy_a, radius_a, xy_b, radius_b) if a_larger else (xy_b, radius_b, xy_a, radius_a)
+    )
+    if small.shape[0] == 0:
+        return empty, empty
+    reach = float(r_big.max() + r_small.max())
+    lo = small.min(axis=0) - reach
+    hi = small.max(axis=0) + reach
+    bx, by = big[:, 0], big[:, 1]
+    near = np.flatnonzero((bx >= lo[0]) & (bx <= hi[0]) & (by >= lo[1]) & (by <= hi[1]))
+    if near.size * small.shape[0] > DENSE_PAIRS_MAX:
+        bi, si = candidate_pairs(big, r_big, small, r_small)
     else:
-        # The box around the smaller set (a batch's few local or touched tracks) leaves
-        # the larger set's tracks near it before any tree is built: a tree of every open
-        # system track per batch cost more than the rest of the pre-selection.
-        j, i = candidate_pairs(xy_b, radius_b, xy_a, radius_a)
+        dx = big[near, 0][:, None] - small[None, :, 0]
+        dy = big[near, 1][:, None] - small[None, :, 1]
+        distance = np.sqrt(dx * dx + dy * dy)
+        rows, si = np.nonzero(distance <= r_big[near][:, None] + r_small[None, :])
+        bi = near[rows]
+    i, j = (bi, si) if a_larger else (si, bi)
     order = np.lexsort((j, i))
     return i[order], j[order]

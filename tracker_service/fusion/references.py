@@ -36,6 +36,11 @@ class References:
     radars_seen: BoolArray
 
 
+Fused = tuple[BoolArray, FloatArray, FloatArray, FloatArray, FloatArray, BoolArray]
+"""Whether the others give a prediction, the others' x and P, all's x and P, and the
+radars with a recent local track (``References``' fields)."""
+
+
 def references(
     state: FusionState,
     radar: int,
@@ -54,21 +59,13 @@ def references(
     at = positions(p.plot_id, with_plot["plot_id"])
     t = np.where(at >= 0, p.time[np.maximum(at, 0)], with_plot["time"])
     slots = state.local.slots(numbers, state.config.max_sources)
-    if sources is not None:
-        slots = compact_slots(slots, loc["radar"][np.maximum(slots, 0)] < sources)
-    s = np.maximum(slots, 0)
-    recent = (slots >= 0) & (t[:, None] - loc["t_plot"][s] <= state.config.reference_age_s)
-    others = recent & (loc["radar"][s] != radar)
-    x_o, p_o = fuse_local_tracks(state, compact_slots(slots, others), t)
-    x_a, p_a = fuse_local_tracks(state, slots, t)
-    seen = np.zeros((numbers.size, state.n_radars), dtype=bool)
-    r, c = np.nonzero(recent)
-    seen[r, loc["radar"][s[r, c]]] = True
+    chosen = _compiled if state.compiled else _reference
+    others_valid, x_o, p_o, x_a, p_a, seen = chosen(state, radar, t, slots, sources)
     return References(
         plot_id=with_plot["plot_id"].astype(np.int64),
         system_number=numbers,
         time=t,
-        others_valid=others.any(axis=1),
+        others_valid=others_valid,
         others_xy=x_o[:, :2],
         others_P=p_o[:, :2, :2],
         others_v=x_o[:, 2:],
@@ -76,3 +73,45 @@ def references(
         all_P=p_a[:, :2, :2],
         radars_seen=seen,
     )
+
+
+def _reference(
+    state: FusionState, radar: int, t: FloatArray, slots: IntArray, sources: int | None
+) -> Fused:
+    """``references`` past the slots in numpy (the reference of ``_compiled``)."""
+    loc = state.local.rows
+    if sources is not None:
+        slots = compact_slots(slots, loc["radar"][np.maximum(slots, 0)] < sources)
+    s = np.maximum(slots, 0)
+    recent = (slots >= 0) & (t[:, None] - loc["t_plot"][s] <= state.config.reference_age_s)
+    others = recent & (loc["radar"][s] != radar)
+    x_o, p_o = fuse_local_tracks(state, compact_slots(slots, others), t)
+    x_a, p_a = fuse_local_tracks(state, slots, t)
+    seen = np.zeros((t.size, state.n_radars), dtype=bool)
+    r, c = np.nonzero(recent)
+    seen[r, loc["radar"][s[r, c]]] = True
+    return others.any(axis=1), x_o, p_o, x_a, p_a, seen
+
+
+def _compiled(
+    state: FusionState, radar: int, t: FloatArray, slots: IntArray, sources: int | None
+) -> Fused:
+    """``references`` past the slots by the compiled kernels: the sources chosen in one
+    pass, both fusions of each row from one prediction of its sources."""
+    from tracker_service.fusion.kernels import fuse_references, reference_sources
+
+    loc, cfg = state.local.rows, state.config
+    kept, others, seen = reference_sources(
+        slots,
+        t,
+        loc["radar"],
+        loc["t_plot"],
+        radar,
+        state.n_radars if sources is None else sources,
+        cfg.reference_age_s,
+        state.n_radars,
+    )
+    x_o, p_o, x_a, p_a = fuse_references(
+        others, kept, t, loc["t"], loc["x"], loc["P"], loc["extra"], cfg.q, cfg.correlation
+    )
+    return others[:, 0] >= 0, x_o, p_o, x_a, p_a, seen

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.fusion.arrays import first_where, last_of_each
+from tracker_service.fusion.arrays import first_where, is_member, kernel_indices, last_of_each
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.messages import COASTING, CONFIRMED, SYSTEM_UPDATE_DTYPE
 from tracker_service.fusion.state import FusionState
@@ -28,7 +28,7 @@ def emit(
         return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
     last = last_of_each(systems)
     numbers, t = systems[last], u["time"][last]
-    fresh = np.isin(numbers, systems[has_plot])
+    fresh = is_member(numbers, systems[has_plot])
     plot_of = np.full(numbers.size, -1, dtype=np.int64)
     with_plot = np.flatnonzero(has_plot)
     latest_plot = with_plot[last_of_each(systems[with_plot])]
@@ -75,6 +75,29 @@ def system_rows(
     rows ``slots``: their flight level and identity from those local tracks."""
     loc = state.local.rows
     out = np.zeros(numbers.size, dtype=SYSTEM_UPDATE_DTYPE)
+    if state.compiled:
+        from tracker_service.fusion.kernels import fill_system_rows  # numba only when compiled
+
+        fill_system_rows(
+            out,
+            kernel_indices(numbers),
+            np.ascontiguousarray(t, dtype=np.float64),
+            np.ascontiguousarray(x, dtype=np.float64),
+            np.ascontiguousarray(p, dtype=np.float64),
+            status,
+            slots,
+            loc["radar"],
+            loc["number"],
+            loc["plot_id"],
+            loc["fl"],
+            loc["rate"],
+            loc["t_fl"],
+            loc["address"],
+            loc["mode3a"],
+            state.sys["address"],
+            state.sys["mode3a"],
+        )
+        return out
     out["system_number"] = numbers
     out["time"] = t
     out["x"], out["y"], out["vx"], out["vy"] = x.T

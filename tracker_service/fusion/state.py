@@ -4,12 +4,14 @@ is a module of functions over a ``FusionState``."""
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
 from tracker_service.fusion.config import FusionConfig
 from tracker_service.fusion.table import Columns, LocalTrackTable, new_system_table
@@ -49,6 +51,10 @@ ExchangeEvidence = tuple[int, float, float]
 """Updates in a row, the running means of the exchange test's delta and of its agreement."""
 
 
+NO_EVIDENCE: ExchangeEvidence = (0, 0.0, 0.0)
+"""A pair's evidence before its first test."""
+
+
 class PairEvidence:
     """The exchange test's evidence per pair of local-track keys (``associate._exchange``),
     indexed by key as well: a batch drops the pairs of its own tracks without a pass over
@@ -61,13 +67,23 @@ class PairEvidence:
     def __len__(self) -> int:
         return len(self._of_pair)
 
-    def get(self, pair: tuple[int, int]) -> ExchangeEvidence | None:
-        return self._of_pair.get(pair)
+    def table(self, pairs: list[tuple[int, int]]) -> npt.NDArray[np.float64]:
+        """Each pair's evidence as a row (updates, mean, agreement), ``NO_EVIDENCE`` for
+        a pair not tested before."""
+        found = map(self._of_pair.get, pairs, itertools.repeat(NO_EVIDENCE))
+        flat = np.fromiter(itertools.chain.from_iterable(found), np.float64, 3 * len(pairs))
+        return flat.reshape(-1, 3)
 
-    def set(self, pair: tuple[int, int], evidence: ExchangeEvidence) -> None:
-        self._of_pair[pair] = evidence
-        for key in pair:
-            self._pairs_of.setdefault(key, set()).add(pair)
+    def set_many(self, pairs: list[tuple[int, int]], evidence: Iterable[ExchangeEvidence]) -> None:
+        """Each pair's evidence, in order."""
+        self._of_pair.update(zip(pairs, evidence, strict=True))
+        pairs_of = self._pairs_of
+        for pair in pairs:
+            for key in pair:
+                if (known := pairs_of.get(key)) is None:
+                    pairs_of[key] = {pair}
+                else:
+                    known.add(pair)
 
     def drop(self, keys: Iterable[int]) -> None:
         """Forget every pair with one of ``keys``."""

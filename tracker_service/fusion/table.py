@@ -13,13 +13,31 @@ from typing import Any, overload
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.fusion.arrays import last_of_each, rank_within
+from tracker_service.fusion.arrays import is_member, last_of_each, rank_within
 from tracker_service.fusion.messages import MAX_SOURCES, MAX_SYSTEM_NUMBER
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
 
 KEY_SHIFT = 32
 """Local-track key: radar << KEY_SHIFT | local track number."""
+
+
+STORED = (
+    "status",
+    "address",
+    "mode3a",
+    "fl",
+    "rate",
+    "t_fl",
+    "t",
+    "x",
+    "P",
+    "extra",
+    "mu",
+    "plot_id",
+    "t_plot",
+)
+"""The local table's fields ``store`` writes, in the order its kernel takes them."""
 
 
 def local_dtype(n_models: int) -> np.dtype[Any]:
@@ -79,6 +97,11 @@ def system_dtype(n_models: int, n_radars: int) -> np.dtype[Any]:
             ("mP", np.float64, (n_models, 4, 4)),
             ("mu", np.float64, (n_models,)),
             ("mM", np.float64, (n_models, n_radars, 4, 2)),
+            # The compiled pre-selection's terms of the above (``nearby.refresh``): the
+            # models' combined state and covariance entries, M's norms, B's largest trace.
+            ("moments", np.float64, (7,)),
+            ("sensitivity", np.float64, (2,)),
+            ("largest_bias", np.float64),
         ]
     )
 
@@ -126,6 +149,27 @@ class Columns:
             column[key] = value[name]
 
 
+class Head:
+    """The first ``n`` rows of a ``Columns`` table, a field at a time: each field asked
+    for is a view of its column's first rows (a ``Columns`` slice makes views of every
+    column, twenty-odd, for the field or two a caller reads)."""
+
+    __slots__ = ("_columns", "_n")
+
+    def __init__(self, table: Columns, n: int) -> None:
+        self._columns = table._columns
+        self._n = n
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, name: str) -> npt.NDArray[Any]:
+        return self._columns[name][: self._n]
+
+    def __setitem__(self, name: str, value: Any) -> None:
+        self._columns[name][: self._n] = value
+
+
 def new_system_table(n_models: int, n_radars: int) -> Columns:
     """Column by column (``Columns``): a row holds every radar's sensitivities, about
     10 kB, so that a field view of packed rows would touch a page per row."""
@@ -133,6 +177,18 @@ def new_system_table(n_models: int, n_radars: int) -> Columns:
     table["freed_at"] = -np.inf
     table["orphaned"] = np.nan
     return table
+
+
+FRESH = {
+    "alive": True,
+    "t": np.nan,  # no state yet
+    "t_plot": -np.inf,
+    "t_founder": np.nan,
+    "fl": np.nan,
+    "address": -1,
+    "mode3a": -1,
+}
+"""A new local track's fields (the others zero)."""
 
 
 class LocalTrackTable:
@@ -150,32 +206,41 @@ class LocalTrackTable:
         self._index_rows = np.zeros(0, dtype=np.int64)
 
     @property
-    def used(self) -> Columns:
-        """The rows in use (a view)."""
-        return self.rows[: self.n]
+    def used(self) -> Head:
+        """The rows in use (views, field by field)."""
+        return Head(self.rows, self.n)
 
     def find(self, radar: int, u: npt.NDArray[Any], create: bool = True) -> IntArray:
         """Row of each update's local track (-1: unknown, and not created: a deleted
         track never seen before, or ``create`` false)."""
-        keys = (np.int64(radar) << KEY_SHIFT) | u["track_number"].astype(np.int64)
-        rows = self._lookup(keys)
+        if self.compiled:
+            from tracker_service.fusion.kernels import lookup_rows
+
+            keys, rows = lookup_rows(self._index_keys, self._index_rows, radar, u["track_number"])
+        else:
+            keys = (np.int64(radar) << KEY_SHIFT) | u["track_number"].astype(np.int64)
+            rows = self._lookup(keys)
         missing = (rows < 0) & (u["status"] != LOCAL_DELETED)
         if create and missing.any():
-            new_keys, first = np.unique(keys[missing], return_index=True)
+            new_keys, first, new_row = np.unique(
+                keys[missing], return_index=True, return_inverse=True
+            )
             start = self._grow(new_keys.size)
-            fresh = self.rows[start : start + new_keys.size]
-            fresh[...] = np.zeros(1, dtype=self.rows.dtype)
-            fresh["key"] = new_keys
-            fresh["radar"] = radar
-            fresh["number"] = u["track_number"][missing][first]
-            fresh["alive"] = True
-            fresh["t"] = np.nan  # no state yet
-            fresh["t_plot"] = -np.inf
-            fresh["t_founder"] = np.nan
-            fresh["fl"] = np.nan
-            fresh["address"] = fresh["mode3a"] = -1
-            self.reindex()
-            rows = self._lookup(keys)
+            end = start + new_keys.size
+            columns = self.rows
+            for name in columns.dtype.names or ():
+                columns[name][start:end] = FRESH.get(name, 0)
+            columns["key"][start:end] = new_keys
+            columns["radar"][start:end] = radar
+            columns["number"][start:end] = u["track_number"][missing][first]
+            # Into the index where they sort (the keys of the live rows are distinct):
+            # the index ``reindex`` would build, without sorting every live key again.
+            at = np.searchsorted(self._index_keys, new_keys)
+            self._index_keys = np.insert(self._index_keys, at, new_keys)
+            self._index_rows = np.insert(
+                self._index_rows, at, np.arange(start, end, dtype=np.int64)
+            )
+            rows[missing] = start + new_row.reshape(-1)
         return rows
 
     def _lookup(self, keys: IntArray) -> IntArray:
@@ -206,7 +271,9 @@ class LocalTrackTable:
         if rows.size:
             self.rows["alive"][rows] = False
             self.rows["system"][rows] = 0
-            self.reindex()
+            kept = ~is_member(self._index_rows, rows)
+            self._index_keys = self._index_keys[kept]
+            self._index_rows = self._index_rows[kept]
 
     def compact(self) -> None:
         """Drop deleted local tracks once they are half the table (rows move: reindex)."""
@@ -224,6 +291,18 @@ class LocalTrackTable:
         """The latest row of each local track: its status and identity; the latest row
         with a plot (or any row of a track without state yet): its state."""
         loc = self.rows
+        if self.compiled:
+            from tracker_service.fusion.kernels import store_updates
+
+            store_updates(
+                rows,
+                u,
+                extra,
+                has_plot,
+                u.dtype["model_probabilities"].shape == (self.n_models,),
+                *(loc[name] for name in STORED),
+            )
+            return
         last = last_of_each(rows)
         r, v = rows[last], u[last]
         loc["status"][r] = v["status"]

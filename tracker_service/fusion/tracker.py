@@ -109,7 +109,8 @@ class SystemTracker:
         state.now = self.clock.now
         local_rows = table.find(radar, u)
         known = local_rows >= 0
-        u, extra, local_rows = u[known], extra[known], local_rows[known]
+        if not known.all():
+            u, extra, local_rows = u[known], extra[known], local_rows[known]
         has_plot = u["plot_id"] >= 0
         table.store(local_rows, u, extra, has_plot)
         touched = np.unique(local_rows)
@@ -122,9 +123,10 @@ class SystemTracker:
         systems = table.rows["system"][local_rows]
         fed_rows = systems > 0
         # Emitted before the deleted local tracks leave: their last state still counts.
-        fed = rows.emit(
-            state, self.estimator, radar, systems[fed_rows], u[fed_rows], has_plot[fed_rows]
-        )
+        batch = (systems, u, has_plot)
+        if not fed_rows.all():
+            batch = (systems[fed_rows], u[fed_rows], has_plot[fed_rows])
+        fed = rows.emit(state, self.estimator, radar, *batch)
         lifecycle.published(state, fed)
         out += [merged, fed]
         table.remove(touched[table.rows["status"][touched] == LOCAL_DELETED])

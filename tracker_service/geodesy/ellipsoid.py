@@ -73,7 +73,7 @@ def geodetic_to_ecef(
 
 
 @cache
-def _ecef_to_geodetic_transformer() -> Any:
+def ecef_to_geodetic_transformer() -> Any:
     # A bare PROJ pipeline: no CRS database lookup, no datum choice, degrees out.
     return pyproj.Transformer.from_pipeline("+proj=pipeline +step +inv +proj=cart +ellps=WGS84")
 
@@ -82,7 +82,7 @@ def ecef_to_geodetic(
     x: npt.ArrayLike, y: npt.ArrayLike, z: npt.ArrayLike
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """(lat_deg, lon_deg, ellipsoidal height m) of ECEF metres."""
-    lon, lat, h = _ecef_to_geodetic_transformer().transform(as_float(x), as_float(y), as_float(z))
+    lon, lat, h = ecef_to_geodetic_transformer().transform(as_float(x), as_float(y), as_float(z))
     return as_float(lat), as_float(lon), as_float(h)
 
 

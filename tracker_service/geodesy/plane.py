@@ -40,7 +40,7 @@ from tracker_service.geodesy.sites import RadarSite
 
 PlaneKind = Literal["stereographic", "tangent"]
 
-_STEP_DEG = 1e-4
+STEP_DEG = 1e-4
 """Latitude/longitude step (about 11 m) of the stereographic plane's local Jacobian: far
 above PROJ's rounding, far below the distance at which the scale factor changes."""
 _HEIGHT_ITERATIONS = 4
@@ -209,9 +209,9 @@ class SystemPlane:
             )
             return out
         e0, n0 = self._project(lat, lon)
-        e_north, n_north = self._project(lat + _STEP_DEG, lon)
-        e_east, n_east = self._project(lat, lon + _STEP_DEG)
-        step = np.radians(_STEP_DEG)
+        e_north, n_north = self._project(lat + STEP_DEG, lon)
+        e_east, n_east = self._project(lat, lon + STEP_DEG)
+        step = np.radians(STEP_DEG)
         meridian, prime_vertical = radii_m(lat)
         north_m = (meridian + h) * step
         east_m = (prime_vertical + h) * np.cos(np.radians(lat)) * step

@@ -47,7 +47,13 @@ from tracker_service.service.config import (
     load_service_config,
     with_destinations,
 )
-from tracker_service.service.core import CoreState, Outputs, ServiceCounts, TrackerService
+from tracker_service.service.core import (
+    CoreState,
+    Outputs,
+    OutputsFailed,
+    ServiceCounts,
+    TrackerService,
+)
 from tracker_service.service.health import (
     DEFAULT_BEHIND_S,
     DEFAULT_SILENT_FOR_S,
@@ -397,7 +403,7 @@ class OutputStartFailed(RuntimeError):
     log directory not writable); the message says which, in one line."""
 
 
-class OutputProcessFailed(RuntimeError):
+class OutputProcessFailed(OutputsFailed):
     """The output process died more often than ``[system] max_output_restarts`` within
     ``RESTART_WINDOW_S``: the daemon gives up, with a non-zero exit status."""
 

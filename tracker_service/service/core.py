@@ -88,6 +88,7 @@ __all__ = [
     "CoreState",
     "OutputSink",
     "Outputs",
+    "OutputsFailed",
     "ServiceTimings",
     "TrackerService",
     "bias_config",
@@ -841,9 +842,16 @@ def write_health(path: Path, message: StatusMessage) -> None:
     os.replace(partial, path)
 
 
+class OutputsFailed(RuntimeError):
+    """The outputs are gone for good (``command.OutputProcessFailed``: the output process
+    died once too often): no datagram's fault, so the core does not count and skip the
+    datagram it was publishing but lets the service stop, as for ``RadarStageFailed``."""
+
+
 class OutputSink(Protocol):
     """What the core calls on its outputs: ``Outputs`` itself, or a proxy that sends each
-    call to ``Outputs`` in another process (``command.OutputProcess``)."""
+    call to ``Outputs`` in another process (``command.OutputProcess``). A proxy whose
+    outputs are gone for good raises ``OutputsFailed``."""
 
     def advance(self, time: float) -> None: ...
     def set_input_counters(self, counters: dict[str, InputCounters]) -> None: ...
@@ -951,6 +959,8 @@ class TrackerService:
         self._advance_to(batch.received)
         try:
             self.outputs.batch(self.chain.central.process(batch), self.chain.sources)
+        except OutputsFailed:
+            raise
         except Exception:
             self._warn.exception(
                 "processing",
@@ -971,7 +981,7 @@ class TrackerService:
             outputs = self.chain.feed(payload, received)
             for output in outputs:
                 self.outputs.batch(output, self.chain.sources)
-        except RadarStageFailed:
+        except (RadarStageFailed, OutputsFailed):
             raise
         except Exception:
             self._warn.exception(

@@ -64,11 +64,17 @@ def pairs_within(
     dist = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1])
     i, j = np.nonzero(dist <= reach)
     if a.shape[0] > KDTREE_LEAF_SIZE:
-        leaf_order = np.empty(a.shape[0], dtype=np.int64)
-        leaf_order[cKDTree(a, leafsize=KDTREE_LEAF_SIZE).indices] = np.arange(a.shape[0])
-        by_leaf = np.argsort(leaf_order[i], kind="stable")
+        by_leaf = np.argsort(leaf_order(a)[i], kind="stable")
         i, j = i[by_leaf], j[by_leaf]
     return i, j, dist[i, j]
+
+
+def leaf_order(a: FloatArray) -> IntArray:
+    """Each point's position in the leaves of ``cKDTree(a)`` (the order its search visits
+    them in)."""
+    order = np.empty(a.shape[0], dtype=np.int64)
+    order[cKDTree(a, leafsize=KDTREE_LEAF_SIZE).indices] = np.arange(a.shape[0])
+    return order
 
 
 def global_nearest_neighbour(rows: IntArray, cols: IntArray, cost: FloatArray) -> IntArray:

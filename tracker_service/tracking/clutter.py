@@ -83,7 +83,12 @@ class ClutterMap:
     def learn(self, x: FloatArray, y: FloatArray, time: FloatArray) -> None:
         """Count plots that belong to no confirmed track (one batch, in time order with the
         batches before it)."""
-        if x.size == 0:
+        if x.size:
+            self.learn_cells(self.cells(x, y), time)
+
+    def learn_cells(self, cell: IntArray, time: FloatArray) -> None:
+        """``learn`` of plots given by their cells (``cells``)."""
+        if cell.size == 0:
             return
         latest = float(time.max())
         if latest > self.time:
@@ -91,7 +96,7 @@ class ClutterMap:
                 self.counts *= math.exp(-(latest - self.time) / self.config.time_constant_s)
             self.time = latest
         self._start = min(self._start, float(time.min()))
-        np.add.at(self.counts, self.cells(x, y), 1.0)
+        np.add.at(self.counts, cell, 1.0)
 
     def _window_scans(self) -> float:
         """The number of scans the counts stand for (see the module docstring)."""
@@ -102,23 +107,34 @@ class ClutterMap:
 
     def rate_per_scan(self, x: FloatArray, y: FloatArray) -> FloatArray:
         """Plots of no confirmed track per scan in the cells of these positions."""
+        return self.rate_in(self.cells(x, y))
+
+    def rate_in(self, cell: IntArray) -> FloatArray:
+        """``rate_per_scan`` in these cells (``cells``)."""
         if not math.isfinite(self.time):
-            return np.zeros(x.shape)
-        return np.asarray(self.counts[self.cells(x, y)] / self._window_scans())
+            return np.zeros(cell.shape)
+        return np.asarray(self.counts[cell] / self._window_scans())
 
     def density_per_m2(self, x: FloatArray, y: FloatArray) -> FloatArray:
         """The density of plots of no confirmed track per m^2 and scan at these positions,
         at least the floor: the lambda of a JPDA (or MHT) likelihood."""
+        return self.density_in(self.cells(x, y))
+
+    def density_in(self, cell: IntArray) -> FloatArray:
+        """``density_per_m2`` in these cells (``cells``)."""
         if not math.isfinite(self.time):
-            return np.full(x.shape, self._floor_per_m2)
-        cell = self.cells(x, y)
+            return np.full(cell.shape, self._floor_per_m2)
         area = self._cell_area_m2[cell // self._n_azimuth]
         rate = self.counts[cell] / self._window_scans()
         return np.asarray(np.maximum(rate / area, self._floor_per_m2))
 
     def dense(self, x: FloatArray, y: FloatArray) -> BoolArray:
         """Which positions lie in a dense cell."""
-        return np.asarray(self.rate_per_scan(x, y) > self.config.dense_per_scan)
+        return self.dense_in(self.cells(x, y))
+
+    def dense_in(self, cell: IntArray) -> BoolArray:
+        """``dense`` of these cells (``cells``)."""
+        return np.asarray(self.rate_in(cell) > self.config.dense_per_scan)
 
 
 def make_clutter_map(config: TrackerConfig) -> ClutterMap | None:

@@ -9,12 +9,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker_service.tracking.associate import global_nearest_neighbour, pairs_within
-from tracker_service.tracking.config import TrackerConfig
+from tracker_service.tracking import kernels
+from tracker_service.tracking.associate import (
+    KDTREE_LEAF_SIZE,
+    global_nearest_neighbour,
+    leaf_order,
+    pairs_within,
+)
+from tracker_service.tracking.config import SHARED_MODE3A_CODES, TrackerConfig
 from tracker_service.tracking.identity import identity_cost
 from tracker_service.tracking.plots import FloatArray, IntArray, PlotArrays
 
 NOISE_SIGMAS = 3.0
+IDENTITY_SCALE = 0.1
+"""The identity cost's weight against the kinematic cost of a pair (up to 1)."""
+SHARED_CODES = np.array(SHARED_MODE3A_CODES, np.int64)
 
 
 class TwoPointInitiator:
@@ -34,6 +43,56 @@ class TwoPointInitiator:
         if len(pending) == 0 or len(plots) == 0:
             self.pending = PlotArrays.concat(pending, plots)
             return PlotArrays.empty(), PlotArrays.empty()
+        if cfg.implementation == "compiled":
+            first, second = self._compiled_pairs(pending, plots, max_dt)
+        else:
+            first, second = self._pairs(pending, plots, max_dt)
+        keep_pending = np.ones(len(pending), dtype=bool)
+        keep_pending[first] = False
+        waiting = np.ones(len(plots), dtype=bool)
+        waiting[second] = False
+        self.pending = PlotArrays.concat(pending.select(keep_pending), plots.select(waiting))
+        return pending.take(first), plots.take(second)
+
+    def _compiled_pairs(
+        self, pending: PlotArrays, plots: PlotArrays, max_dt: float
+    ) -> tuple[IntArray, IntArray]:
+        """``_pairs`` with its candidate pairs from one compiled pass
+        (``kernels.initiation_pairs``), in (pending, plot) order: the same pairs are
+        chosen; their order, which numbers the new tracks, is the k-d tree's that
+        ``_pairs`` meets, looked up only when two or more are chosen."""
+        cfg = self.config
+        i, j, cost, reach = kernels.initiation_pairs(
+            pending.time, pending.x, pending.y, pending.R, pending.address, pending.mode3a,
+            pending.mode3a_valid, plots.time, plots.x, plots.y, plots.R, plots.address,
+            plots.mode3a, plots.mode3a_valid, cfg.max_speed_m_s, cfg.min_speed_m_s,
+            cfg.init_min_dt_periods * cfg.scan_period_s, max_dt, NOISE_SIGMAS, SHARED_CODES,
+            cfg.address_mismatch_penalty, cfg.address_bonus, cfg.mode3a_bonus, IDENTITY_SCALE,
+        )  # fmt: skip
+        chosen = global_nearest_neighbour(i, j, cost)
+        first, second = i[chosen], j[chosen]
+        if chosen.size < 2 or max(len(pending), len(plots)) <= KDTREE_LEAF_SIZE:
+            return first, second  # both searches in (pending, plot) order
+        pending_xy = np.column_stack([pending.x, pending.y])
+        if len(plots) <= KDTREE_LEAF_SIZE:
+            # pairs_within's order: by the waiting plots' leaves (each chosen once).
+            order = np.argsort(leaf_order(pending_xy)[first], kind="stable")
+            return first[order], second[order]
+        found, partner, _ = pairs_within(pending_xy, np.column_stack([plots.x, plots.y]), reach)
+        rank = np.argsort(found * len(plots) + partner, kind="stable")
+        keys = (found * len(plots) + partner)[rank]
+        at = np.searchsorted(keys, first * len(plots) + second)
+        assert (keys[at] == first * len(plots) + second).all(), "the searches disagree"
+        order = np.argsort(rank[at], kind="stable")
+        return first[order], second[order]
+
+    def _pairs(
+        self, pending: PlotArrays, plots: PlotArrays, max_dt: float
+    ) -> tuple[IntArray, IntArray]:
+        """The pairs (index of the waiting plot, index of the new plot) that start tracks,
+        in the order of the search's k-d tree."""
+        cfg = self.config
+        period = cfg.scan_period_s
         noise = (
             np.sqrt(np.trace(pending.R, axis1=1, axis2=2)).max()
             + np.sqrt(np.trace(plots.R, axis1=1, axis2=2)).max()
@@ -55,13 +114,7 @@ class TwoPointInitiator:
         i, j, dist, dt = i[ok], j[ok], dist[ok], dt[ok]
         cost = dist / (cfg.max_speed_m_s * dt) + _identity_cost(pending, i, plots, j, cfg)
         chosen = global_nearest_neighbour(i, j, cost)
-        first, second = i[chosen], j[chosen]
-        keep_pending = np.ones(len(pending), dtype=bool)
-        keep_pending[first] = False
-        waiting = np.ones(len(plots), dtype=bool)
-        waiting[second] = False
-        self.pending = PlotArrays.concat(pending.select(keep_pending), plots.select(waiting))
-        return pending.take(first), plots.take(second)
+        return i[chosen], j[chosen]
 
 
 def _identity_cost(
@@ -72,9 +125,10 @@ def _identity_cost(
     cfg: TrackerConfig,
 ) -> FloatArray:
     """Scaled to the kinematic cost of up to 1."""
-    scale = 0.1
     usable = a.mode3a_valid[i] & b.mode3a_valid[j]
-    return scale * identity_cost(a.address[i], b.address[j], a.mode3a[i], b.mode3a[j], cfg, usable)
+    return IDENTITY_SCALE * identity_cost(
+        a.address[i], b.address[j], a.mode3a[i], b.mode3a[j], cfg, usable
+    )
 
 
 def two_point_state(

@@ -19,6 +19,7 @@ import math
 
 import numba
 import numpy as np
+import numpy.typing as npt
 
 from tracker_service.tracking.imm import ImmPrediction, ImmUpdate
 from tracker_service.tracking.models import ModelSet
@@ -567,3 +568,349 @@ def record_updates(
             address[row] = plot_address[n]
         if plot_mode3a_valid[n] and plot_mode3a[n] >= 0:
             mode3a[row] = plot_mode3a[n]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def initiation_pairs(
+    at: FloatArray,
+    ax: FloatArray,
+    ay: FloatArray,
+    ar: FloatArray,
+    a_address: IntArray,
+    a_code: IntArray,
+    a_code_valid: BoolArray,
+    bt: FloatArray,
+    bx: FloatArray,
+    by: FloatArray,
+    br: FloatArray,
+    b_address: IntArray,
+    b_code: IntArray,
+    b_code_valid: BoolArray,
+    max_speed: float,
+    min_speed: float,
+    min_dt: float,
+    max_dt: float,
+    noise_sigmas: float,
+    shared_codes: IntArray,
+    address_mismatch_penalty: float,
+    address_bonus: float,
+    mode3a_bonus: float,
+    identity_scale: float,
+) -> tuple[IntArray, IntArray, FloatArray, float]:  # pragma: no cover - compiled
+    """``TwoPointInitiator.pair``'s candidate pairs of waiting plots a and new plots b, in
+    (a, b) order: those within the search radius (returned: the largest speed over
+    ``max_dt`` plus ``noise_sigmas`` of both sets' largest position sigma) whose time step
+    and distance fit a plausible speed, with their cost (distance over the largest
+    speed's reach, plus the identity cost scaled by ``identity_scale``, as
+    ``identity.identity_cost``). The numpy reference: ``pair`` with ``implementation =
+    "numpy"``."""
+    na = at.shape[0]
+    nb = bt.shape[0]
+    noise_a = -np.inf
+    for i in range(na):
+        noise_a = max(noise_a, np.sqrt(ar[i, 0, 0] + ar[i, 1, 1]))
+    noise_b = -np.inf
+    for j in range(nb):
+        noise_b = max(noise_b, np.sqrt(br[j, 0, 0] + br[j, 1, 1]))
+    reach = max_speed * max_dt + noise_sigmas * (noise_a + noise_b)
+    first = np.empty(na * nb, np.int64)
+    second = np.empty(na * nb, np.int64)
+    cost = np.empty(na * nb)
+    k = 0
+    for i in range(na):
+        trace_a = ar[i, 0, 0] + ar[i, 1, 1]
+        for j in range(nb):
+            d0 = ax[i] - bx[j]
+            d1 = ay[i] - by[j]
+            dist = np.sqrt(d0 * d0 + d1 * d1)
+            if not dist <= reach:
+                continue
+            dt = bt[j] - at[i]
+            sigma = np.sqrt(trace_a + (br[j, 0, 0] + br[j, 1, 1]))
+            if not (dt >= min_dt and dt <= max_dt):
+                continue
+            if not (
+                dist <= max_speed * dt + noise_sigmas * sigma
+                and dist >= min_speed * dt - noise_sigmas * sigma
+            ):
+                continue
+            both = a_address[i] >= 0 and b_address[j] >= 0
+            code_match = a_code[i] >= 0 and a_code[i] == b_code[j]
+            code_match = code_match and a_code_valid[i] and b_code_valid[j]
+            for shared in shared_codes:
+                if a_code[i] == shared:
+                    code_match = False
+            mismatch = 1.0 if both and a_address[i] != b_address[j] else 0.0
+            same = 1.0 if both and a_address[i] == b_address[j] else 0.0
+            identity = (
+                address_mismatch_penalty * mismatch
+                - address_bonus * same
+                - mode3a_bonus * (1.0 if code_match else 0.0)
+            )
+            first[k] = i
+            second[k] = j
+            cost[k] = dist / (max_speed * dt) + identity_scale * identity
+            k += 1
+    return first[:k], second[:k], cost[:k], reach
+
+
+@numba.njit(cache=True)
+def valid_plots(
+    t: FloatArray, x: FloatArray, y: FloatArray, r: FloatArray
+) -> BoolArray:  # pragma: no cover - compiled
+    """Plots the tracker can take: finite time, position and covariance, R positive
+    definite (R00 > 0, det R > 0). The numpy reference: ``LocalTracker.process``."""
+    valid = np.empty(t.shape[0], np.bool_)
+    for i in range(t.shape[0]):
+        finite = np.isfinite(t[i]) and np.isfinite(x[i]) and np.isfinite(y[i])
+        for a in range(2):
+            for b in range(2):
+                finite = finite and np.isfinite(r[i, a, b])
+        positive = r[i, 0, 0] > 0 and r[i, 0, 0] * r[i, 1, 1] - r[i, 0, 1] * r[i, 1, 0] > 0
+        valid[i] = finite and positive
+    return valid
+
+
+@numba.njit(cache=True)
+def vertical_measurements(
+    level: FloatArray,
+    typ: IntArray,
+    flags: npt.NDArray[np.uint8],
+    baro_fpm: FloatArray,
+    inertial_fpm: FloatArray,
+    selected_ft: FloatArray,
+    use_daps: bool,
+    mode_s_typ_min: int,
+    step_mode_s: float,
+    step_mode_c: float,
+    fpm_per_fl_s: float,
+    baro_variance: float,
+    inertial_variance: float,
+    rate_bit: int,
+    selected_bit: int,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """Per plot with a level: its variance (the quantisation step's, 25 ft for Mode S or a
+    level that is no whole FL), the downlinked climb rate (FL/s, the inertial one where
+    present) and its variance, and the selected level (FL); NaN where absent or without
+    ``use_daps``. The numpy reference: ``LocalTracker._vertical_measurements``."""
+    n = level.shape[0]
+    variance = np.empty(n)
+    rate = np.full(n, np.nan)
+    rate_variance = np.full(n, np.nan)
+    selected = np.full(n, np.nan)
+    all_mode_s = True
+    for i in range(n):
+        if typ[i] < mode_s_typ_min:
+            all_mode_s = False
+    for i in range(n):
+        fine = all_mode_s or typ[i] >= mode_s_typ_min
+        fine = fine or abs(level[i] - np.round(level[i])) > 1e-6
+        step = step_mode_s if fine else step_mode_c
+        variance[i] = step * step / 12.0
+        if not use_daps:
+            continue
+        if flags[i] & rate_bit:
+            if np.isfinite(baro_fpm[i]):
+                rate[i] = baro_fpm[i] / fpm_per_fl_s
+                rate_variance[i] = baro_variance
+            if np.isfinite(inertial_fpm[i]):
+                rate[i] = inertial_fpm[i] / fpm_per_fl_s
+                rate_variance[i] = inertial_variance
+        if flags[i] & selected_bit:
+            selected[i] = selected_ft[i] / 100.0
+    return variance, rate, rate_variance, selected
+
+
+@numba.njit(cache=True, inline="always")
+def _bit_count(value: int) -> int:  # pragma: no cover - compiled
+    count = 0
+    while value:
+        value &= value - 1
+        count += 1
+    return count
+
+
+@numba.njit(cache=True)
+def record_pairs(
+    ti: IntArray,
+    pj: IntArray,
+    sel: IntArray,
+    xp: FloatArray,
+    pp: FloatArray,
+    c: FloatArray,
+    plots: npt.NDArray[np.void],
+    reply: BoolArray,
+    x: FloatArray,
+    P: FloatArray,
+    mu: FloatArray,
+    xc: FloatArray,
+    pc: FloatArray,
+    t_state: FloatArray,
+    t_hit: FloatArray,
+    hist: IntArray,
+    due: FloatArray,
+    misses: IntArray,
+    address: IntArray,
+    mode3a: IntArray,
+    secondary: BoolArray,
+    status: npt.NDArray[np.int8],
+    dense_seed: BoolArray,
+    xv: FloatArray,
+    pvm: FloatArray,
+    muv: FloatArray,
+    fl: FloatArray,
+    rate: FloatArray,
+    pv: FloatArray,
+    t_fl: FloatArray,
+    fl_ok: BoolArray,
+    fl_rejects: IntArray,
+    vertical_q: FloatArray,
+    vertical_sojourn: FloatArray,
+    vertical_mu0: FloatArray,
+    constants: FloatArray,
+    masks: IntArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, bool]:  # pragma: no cover - compiled
+    """``LocalTracker._apply`` of one plot per track up to the M-of-N test: the tracks
+    ``ti`` updated by the IMM with the batch's plots ``plots[pj]`` from their pairs'
+    predictions ``xp[sel]``, ``pp[sel]``, ``c[sel]`` (``imm_update``), written into the
+    track table (``record_updates``), their vertical filters (``vertical_measurements``
+    over the plots with a level, then ``vertical_update``) and their secondary-reply flag
+    (``reply``: the batch plots'). ``constants``: the configuration's floats in
+    ``LocalTracker._record_constants``' order; ``masks``: the M-of-N window's masks and
+    counts. Returns the new model probabilities and combined states, and whether a
+    tentative track among them reached its M of N (``LocalTracker._confirm`` decides)."""
+    k = ti.size
+    z = np.empty((k, 2))
+    r = np.empty((k, 2, 2))
+    time = np.empty(k)
+    plot_address = np.empty(k, np.int64)
+    plot_code = np.empty(k, np.int64)
+    plot_code_valid = np.empty(k, np.bool_)
+    n_level = 0
+    for s in range(k):
+        row = plots[pj[s]]
+        z[s, 0] = row.x
+        z[s, 1] = row.y
+        for a in range(2):
+            for b in range(2):
+                r[s, a, b] = row.R[a, b]
+        time[s] = row.time
+        plot_address[s] = row.address
+        plot_code[s] = row.mode3a
+        plot_code_valid[s] = row.mode3a_valid
+        if row.fl_valid and np.isfinite(row.flight_level):
+            n_level += 1
+    x_new, p_new, mu_new, xc_new, pc_new = imm_update(xp[sel], pp[sel], c[sel], z, r)
+    record_updates(
+        ti, time, plot_address, plot_code, plot_code_valid, x_new, p_new, mu_new, xc_new,
+        pc_new, x, P, mu, xc, pc, t_state, t_hit, hist, due, misses, address, mode3a,
+        constants[0], masks[0], constants[1],
+    )  # fmt: skip
+    if n_level:
+        level_rows = np.empty(n_level, np.int64)
+        level_time = np.empty(n_level)
+        level = np.empty(n_level)
+        typ = np.empty(n_level, np.int64)
+        flags = np.empty(n_level, np.uint8)
+        baro = np.empty(n_level)
+        inertial = np.empty(n_level)
+        selected_ft = np.empty(n_level)
+        n = 0
+        for s in range(k):
+            row = plots[pj[s]]
+            if row.fl_valid and np.isfinite(row.flight_level):
+                level_rows[n] = ti[s]
+                level_time[n] = row.time
+                level[n] = row.flight_level
+                typ[n] = row.typ
+                flags[n] = row.dap_flags
+                baro[n] = row.baro_rate_fpm
+                inertial[n] = row.inertial_rate_fpm
+                selected_ft[n] = row.selected_altitude_ft
+                n += 1
+        variance, climb, climb_variance, selected = vertical_measurements(
+            level, typ, flags, baro, inertial, selected_ft, constants[2] != 0.0, masks[3],
+            constants[3], constants[4], constants[5], constants[6], constants[7], masks[4],
+            masks[5],
+        )  # fmt: skip
+        vertical_update(
+            level_rows, level_time, level, variance, climb, climb_variance, selected, xv,
+            pvm, muv, fl, rate, pv, t_fl, fl_ok, fl_rejects, vertical_q, vertical_sojourn,
+            vertical_mu0, constants[8], masks[6], constants[9], constants[10],
+        )  # fmt: skip
+    candidates = False
+    for s in range(k):
+        row = ti[s]
+        secondary[row] = secondary[row] or reply[pj[s]]
+        dense = dense_seed[row]
+        hits = _bit_count(hist[row] & (masks[1] if dense else masks[2]))
+        if status[row] == 0 and hits >= masks[7] + (masks[8] if dense else 0):
+            candidates = True
+    return mu_new, xc_new, pc_new, candidates
+
+
+@numba.njit(cache=True)
+def finish_pairs(
+    ti: IntArray,
+    pj: IntArray,
+    track_status: npt.NDArray[np.int8],
+    mu_new: FloatArray,
+    xc_new: FloatArray,
+    pc_new: FloatArray,
+    plots: npt.NDArray[np.void],
+    plot_cell: IntArray,
+    plot_dense: BoolArray,
+    use_clutter: bool,
+    min_speed: float,
+    number: IntArray,
+    address: IntArray,
+    mode3a: IntArray,
+    clutter_cell: IntArray,
+    status: npt.NDArray[np.int8],
+    fl: FloatArray,
+    rate: FloatArray,
+    t_fl: FloatArray,
+    fl_ok: BoolArray,
+    out: npt.NDArray[np.void],
+) -> None:  # pragma: no cover - compiled
+    """The rest of ``LocalTracker._apply``: a confirmed primary-only track that has
+    slowed below ``min_speed`` or is stuck in a dense clutter cell (``_in_clutter``: the
+    plot's cell ``plot_cell[pj]``, dense, as its previous plot's) goes back to tentative,
+    each track's clutter cell recorded; the statuses (``track_status``: after the M-of-N
+    test) written into the table; and the output rows (``_rows``) into ``out``."""
+    for s in range(ti.size):
+        row = ti[s]
+        plot = plots[pj[s]]
+        new_status = track_status[s]
+        stuck = False
+        if use_clutter:
+            cell = plot_cell[pj[s]]
+            stuck = cell == clutter_cell[row] and plot_dense[pj[s]]
+            clutter_cell[row] = cell
+        if address[row] < 0 and mode3a[row] < 0 and new_status == 1:
+            speed = np.hypot(xc_new[s, 2], xc_new[s, 3])
+            if speed < min_speed or stuck:
+                new_status = 0
+        status[row] = new_status
+        o = out[s]
+        o.track_number = number[row]
+        o.time = plot.time
+        o.x = xc_new[s, 0]
+        o.y = xc_new[s, 1]
+        o.vx = xc_new[s, 2]
+        o.vy = xc_new[s, 3]
+        for a in range(4):
+            for b in range(4):
+                o.P[4 * a + b] = pc_new[s, a, b]
+        if fl_ok[row]:
+            o.flight_level = fl[row] + rate[row] * (plot.time - t_fl[row])
+            o.climb_rate_fl_per_s = rate[row]
+        else:
+            o.flight_level = np.nan
+            o.climb_rate_fl_per_s = np.nan
+        o.status = new_status
+        o.plot_id = plot.plot_id
+        o.mode3a = mode3a[row]
+        o.address = address[row]
+        for j in range(mu_new.shape[1]):
+            o.model_probabilities[j] = mu_new[s, j]

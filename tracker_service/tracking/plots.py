@@ -208,12 +208,21 @@ def as_plot_arrays(plots: PlotArrays | npt.NDArray[Any]) -> PlotArrays:
     return PlotArrays(rows)
 
 
+def _empty_row() -> npt.NDArray[Any]:
+    row = np.zeros(1, dtype=PLOT_DTYPE)
+    for name in DAP_FIELDS:
+        row[name] = np.nan
+    return row.view(_PLOT_BYTES)
+
+
+_EMPTY_ROW = _empty_row()
+"""One empty row as opaque bytes: repeated, ``empty_plots`` in one copy (a sector's
+batch paid a column assignment per DAP field)."""
+
+
 def empty_plots(n: int) -> npt.NDArray[Any]:
     """``n`` zeroed ``PLOT_DTYPE`` rows with the DAP columns absent (NaN)."""
-    rows = np.zeros(n, dtype=PLOT_DTYPE)
-    for name in DAP_FIELDS:
-        rows[name] = np.nan
-    return rows
+    return np.repeat(_EMPTY_ROW, n).view(PLOT_DTYPE)
 
 
 def is_shared_code(code: IntArray) -> BoolArray:

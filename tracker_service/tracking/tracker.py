@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.small_arrays import is_one_of
 from tracker_service.tracking import imm, kernels, vertical
 from tracker_service.tracking.association import (
     Gate,
@@ -138,6 +139,22 @@ class TrackerStats:
     """BDS 5,0 velocities too far from their track to be used."""
 
 
+@dataclass(frozen=True)
+class _BatchPlots:
+    """What the compiled path works out once per batch about its plots (the numpy
+    reference asks the clutter map again at each step, the same answers: the map
+    learns only at the batch's end)."""
+
+    reply: BoolArray
+    """``clutter.secondary_reply`` of each plot."""
+    cell: IntArray
+    """The clutter map's cell of each plot (empty without a map)."""
+    density: FloatArray
+    """``LocalTracker._clutter_density`` at each plot (empty without a map)."""
+    dense: BoolArray
+    """Whether each plot lies in a dense cell (empty without a map)."""
+
+
 class LocalTracker:
     """The tracks of one radar. Feed ``process`` one batch of plots (one data block, a
     sector) at a time, batches in time order; it returns the track updates of the batch."""
@@ -184,6 +201,39 @@ class LocalTracker:
         self._vertical_q = np.array(self.config.vertical_q, dtype=np.float64)
         self._vertical_sojourn = np.array(self.config.vertical_sojourn_s, dtype=np.float64)
         self._vertical_mu0 = np.array(self.config.vertical_initial_probabilities, dtype=np.float64)
+        self._batch: _BatchPlots | None = None
+        cfg = self.config
+        self._record_constants = np.array(
+            [
+                0.5 * cfg.scan_period_s,
+                self._scan_tolerance_s - DUE_MARGIN_S,
+                float(cfg.use_daps),
+                cfg.fl_step_mode_s,
+                cfg.fl_step_mode_c,
+                vertical.FPM_PER_FL_S,
+                (cfg.baro_rate_sigma_fpm / vertical.FPM_PER_FL_S) ** 2,
+                (cfg.inertial_rate_sigma_fpm / vertical.FPM_PER_FL_S) ** 2,
+                cfg.fl_gate,
+                cfg.initial_climb_variance,
+                cfg.level_rate_variance,
+            ]
+        )
+        """``kernels.record_pairs``' floats."""
+        self._record_masks = np.array(
+            [
+                self._hist_mask,
+                self._dense_window_mask,
+                self._window_mask,
+                vertical.MODE_S_TYP_MIN,
+                DAP_VERTICAL_RATE,
+                DAP_SELECTED_ALTITUDE,
+                cfg.fl_max_rejects,
+                cfg.confirm_m,
+                cfg.clutter_extra_hits,
+            ],
+            dtype=np.int64,
+        )
+        """``kernels.record_pairs``' integers."""
 
     def _allocate(self, capacity: int) -> None:
         """(Re)allocate every field for ``capacity`` rows, keeping the live ones."""
@@ -211,14 +261,17 @@ class LocalTracker:
         p = as_plot_arrays(plots)
         self.stats.plots += len(p)
         r = p.R
-        valid = (
-            np.isfinite(p.time)
-            & np.isfinite(p.x)
-            & np.isfinite(p.y)
-            & np.all(np.isfinite(r), axis=(1, 2))
-            & (r[:, 0, 0] > 0)
-            & (r[:, 0, 0] * r[:, 1, 1] - r[:, 0, 1] * r[:, 1, 0] > 0)
-        )
+        if self._compiled:
+            valid = kernels.valid_plots(p.time, p.x, p.y, r)
+        else:
+            valid = (
+                np.isfinite(p.time)
+                & np.isfinite(p.x)
+                & np.isfinite(p.y)
+                & np.all(np.isfinite(r), axis=(1, 2))
+                & (r[:, 0, 0] > 0)
+                & (r[:, 0, 0] * r[:, 1, 1] - r[:, 0, 1] * r[:, 1, 0] > 0)
+            )
         n_valid = int(np.count_nonzero(valid))
         self.stats.invalid_plots += len(p) - n_valid
         if n_valid < len(p):
@@ -297,6 +350,8 @@ class LocalTracker:
         now = max(self._now, float(p.time.max()))
         self._now = now
         n_old = self._n
+        if self._compiled:
+            self._batch = self._batch_plots(p)
         rows: list[npt.NDArray[Any]] = []
 
         used, blocked, updated = self._associate(p, rows)
@@ -362,7 +417,10 @@ class LocalTracker:
         updated[tracks] = True
         self.stats.late_plots_dropped += int(np.count_nonzero(too_old & ~used))
         self.stats.plots_associated += int(tracks.size)
-        rows.append(self._apply(tracks, p.take(plot_index), pairs.pred.take(sel), posterior))
+        if posterior is None:
+            rows.append(self._apply_pairs(tracks, p, plot_index, pairs.pred, sel))
+        else:
+            rows.append(self._apply(tracks, p.take(plot_index), pairs.pred.take(sel), posterior))
         return used, blocked, updated
 
     def _associate_hypotheses(
@@ -393,9 +451,7 @@ class LocalTracker:
         updated[tracks] = True
         self.stats.plots_associated += int(tracks.size)
         if hard.size:
-            rows.append(
-                self._apply(pairs.track[hard], p.take(pairs.plot[hard]), pairs.pred.take(hard))
-            )
+            rows.append(self._apply_pairs(pairs.track[hard], p, pairs.plot[hard], pairs.pred, hard))
         if decision.rows.size:
             step = branch_states(decision.detected)
             rows.append(self._apply(decision.rows, p.take(decision.plots), None, step))
@@ -420,17 +476,39 @@ class LocalTracker:
         secondary reply (``clutter.primary_seed_takes_reply``)."""
         cols = self._cols
         t, j = pairs.track, pairs.plot
+        batch = self._batch
+        reply = (
+            secondary_reply(p.typ[j], p.address[j], p.mode3a[j])
+            if batch is None
+            else batch.reply[j]
+        )
         refused = (cols["status"][t] == TENTATIVE) & primary_seed_takes_reply(
-            cols["secondary"][t], secondary_reply(p.typ[j], p.address[j], p.mode3a[j])
+            cols["secondary"][t], reply
         )
         if refused.any():
             if refused.all():
                 return None
             pairs = pairs.take(np.flatnonzero(~refused))
         if self.clutter is not None:
-            density = self._clutter_density(p.take(pairs.plot))
+            density = (
+                self._clutter_density(p.take(pairs.plot))
+                if batch is None
+                else batch.density[pairs.plot]
+            )
             pairs = dataclasses.replace(pairs, clutter_density=density)
         return pairs
+
+    def _batch_plots(self, p: PlotArrays) -> _BatchPlots:
+        """The batch's ``_BatchPlots``."""
+        reply = secondary_reply(p.typ, p.address, p.mode3a)
+        if self.clutter is None:
+            return _BatchPlots(reply, _NO_CELLS, _NO_FLOATS, _NO_FLAGS)
+        cell = self.clutter.cells(p.x, p.y)
+        floor = self.config.clutter_density_per_km2 * 1e-6
+        density = np.asarray(
+            np.where(reply, floor, self.clutter.density_in(cell)), dtype=np.float64
+        )
+        return _BatchPlots(reply, cell, density, self.clutter.dense_in(cell))
 
     def _clutter_density(self, p: PlotArrays) -> FloatArray:
         """The clutter map's density (per m^2) at each plot, for JPDA's and MHT's
@@ -465,9 +543,51 @@ class LocalTracker:
         if self.clutter is None:
             return
         taken = [r["plot_id"][r["status"] == CONFIRMED] for r in rows]
-        free = ~np.isin(p.plot_id, np.concatenate(taken)) if taken else np.ones(len(p), bool)
-        free |= ~secondary_reply(p.typ, p.address, p.mode3a)
-        self.clutter.learn(p.x[free], p.y[free], p.time[free])
+        free = ~is_one_of(p.plot_id, np.concatenate(taken)) if taken else np.ones(len(p), bool)
+        batch = self._batch
+        if batch is None:
+            free |= ~secondary_reply(p.typ, p.address, p.mode3a)
+            self.clutter.learn(p.x[free], p.y[free], p.time[free])
+        else:
+            free |= ~batch.reply
+            self.clutter.learn_cells(batch.cell[free], p.time[free])
+
+    def _apply_pairs(
+        self,
+        ti: IntArray,
+        p: PlotArrays,
+        plot_index: IntArray,
+        pred: imm.ImmPrediction,
+        sel: IntArray,
+    ) -> npt.NDArray[Any]:
+        """``_apply`` of the tracks ``ti`` each with one plot, ``p``'s ``plot_index``, from
+        their pairs' predictions ``pred``'s ``sel``: in two compiled passes
+        (``kernels.record_pairs``, ``finish_pairs``) around ``_confirm`` when the
+        compiled path has them (no DAPs)."""
+        batch = self._batch
+        if batch is None or self.daps is not None:
+            return self._apply(ti, p.take(plot_index), pred.take(sel))
+        cols = self._cols
+        mu, xc, pc, candidates = kernels.record_pairs(
+            ti, plot_index, sel, pred.x, pred.P, pred.c, p.rows, batch.reply, cols["x"],
+            cols["P"], cols["mu"], cols["xc"], cols["Pc"], cols["t"], cols["t_hit"],
+            cols["hist"], cols["due"], cols["misses"], cols["address"], cols["mode3a"],
+            cols["secondary"], cols["status"], cols["dense_seed"], cols["xv"], cols["Pvm"],
+            cols["muv"], cols["fl"], cols["rate"], cols["Pv"], cols["t_fl"], cols["fl_ok"],
+            cols["fl_rejects"], self._vertical_q, self._vertical_sojourn, self._vertical_mu0,
+            self._record_constants, self._record_masks,
+        )  # fmt: skip
+        status = cols["status"][ti]
+        if candidates:
+            self._confirm(ti, status, cols["hist"][ti])
+        out = np.zeros(ti.size, dtype=self.output_dtype)
+        kernels.finish_pairs(
+            ti, plot_index, status, mu, xc, pc, p.rows, batch.cell, batch.dense,
+            self.clutter is not None, self.config.min_confirm_speed_psr_only_m_s,
+            cols["number"], cols["address"], cols["mode3a"], cols["clutter_cell"],
+            cols["status"], cols["fl"], cols["rate"], cols["t_fl"], cols["fl_ok"], out,
+        )  # fmt: skip
+        return out
 
     def _apply(
         self,
@@ -616,6 +736,20 @@ class LocalTracker:
         """The vertical measurements of plots with a valid level: the level, and the
         downlinked rates and selected altitude where the plot columns exist."""
         names = p.rows.dtype.names or ()
+        if self._compiled and "selected_altitude_ft" in names:
+            cfg = self.config
+            rows = p.rows
+            variance, rate, rate_variance, selected = kernels.vertical_measurements(
+                p.flight_level, p.typ, rows["dap_flags"], rows["baro_rate_fpm"],
+                rows["inertial_rate_fpm"], rows["selected_altitude_ft"], cfg.use_daps,
+                vertical.MODE_S_TYP_MIN, cfg.fl_step_mode_s, cfg.fl_step_mode_c,
+                vertical.FPM_PER_FL_S, (cfg.baro_rate_sigma_fpm / vertical.FPM_PER_FL_S) ** 2,
+                (cfg.inertial_rate_sigma_fpm / vertical.FPM_PER_FL_S) ** 2, DAP_VERTICAL_RATE,
+                DAP_SELECTED_ALTITUDE,
+            )  # fmt: skip
+            return vertical.VerticalMeasurements(
+                p.time, p.flight_level, variance, rate, rate_variance, selected
+            )
         level_variance = vertical.measurement_variance(p.flight_level, p.typ, self.config)
         if "selected_altitude_ft" not in names or not self.config.use_daps:
             # Plots without DAP columns: one NaN column stands for all three (read only).
@@ -844,11 +978,20 @@ class LocalTracker:
         limit = np.where(status == CONFIRMED, cfg.delete_misses, cfg.tentative_delete_misses)
         position_var = pred.P_comb[:, 0, 0] + pred.P_comb[:, 1, 1]
         spread = position_var > cfg.max_position_variance_m2
+        missed = n_miss >= limit
         if isinstance(self.associator, MultipleHypothesisTracking):
             # A track of a live cluster is not deleted for its spread: its hypotheses
             # (other histories, other plots) decide it, and deleting it would drop them.
-            spread &= ~np.isin(cols["number"][idle], self.associator.clustered_numbers)
-        dead = (n_miss >= limit) | spread
+            # Nor is a tentative one for the best hypothesis's misses while N-scan
+            # pruning may still revise them: a young track's wide prediction loses one
+            # scan's plot to a confirmed neighbour's hypothesis, and the scans after
+            # tell them apart (`encounters` seed 13, three abreast on the 12 s radar:
+            # deleted, its aircraft's plots went to the neighbours, which shifted over).
+            clustered = np.isin(cols["number"][idle], self.associator.clustered_numbers)
+            spread &= ~clustered
+            revisable = n_miss < limit + cfg.mht_n_scan - 1
+            missed &= ~(clustered & (status == TENTATIVE) & revisable)
+        dead = missed | spread
         coasting = (status == CONFIRMED) & ~dead
         report = np.flatnonzero(dead | coasting)
         if report.size:
@@ -902,6 +1045,11 @@ class LocalTracker:
         out["address"] = cols["address"][ti]
         out["model_probabilities"] = mu
         return out
+
+
+_NO_CELLS = np.zeros(0, dtype=np.int64)
+_NO_FLOATS = np.zeros(0, dtype=np.float64)
+_NO_FLAGS = np.zeros(0, dtype=bool)
 
 
 def _join(rows: list[npt.NDArray[Any]], dtype: np.dtype[Any]) -> npt.NDArray[Any]:

@@ -14,10 +14,12 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial import cKDTree
 
 from tracker_service.tracking import imm
-from tracker_service.tracking.associate import candidate_pairs
-from tracker_service.tracking.config import TrackerConfig
+from tracker_service.tracking.associate import KDTREE_LEAF_SIZE, candidate_pairs
+from tracker_service.tracking.association import gate_kernels
+from tracker_service.tracking.config import SHARED_MODE3A_CODES, TrackerConfig
 from tracker_service.tracking.identity import identity_cost
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import (
@@ -110,9 +112,16 @@ class Gate:
         self._q_max = float(models.q.max())
         self._turn_max = float(np.abs(models.turn_rates_rad_s).max())
         self._widest_gate = max(config.gate, config.address_gate)
+        self._compiled = config.implementation == "compiled"
+        self._shared_codes = np.array(SHARED_MODE3A_CODES, dtype=np.int64)
+        self._omega = np.ascontiguousarray(models.turn_rates_rad_s, dtype=np.float64)
+        self._q = np.ascontiguousarray(models.q, dtype=np.float64)
+        self._sojourn = np.ascontiguousarray(models.mean_sojourn_s, dtype=np.float64)
 
     def __call__(self, cols: dict[str, npt.NDArray[Any]], n: int, p: PlotArrays) -> GateResult:
         """The gated pairs of the batch ``p`` against the ``n`` live rows of ``cols``."""
+        if self._compiled:
+            return self._compiled_gate(cols, n, p)
         cfg = self.config
         too_old = np.zeros(len(p), dtype=bool)
         time = p.time
@@ -157,6 +166,57 @@ class Gate:
         )
         return GateResult(pairs, too_old)
 
+    def _compiled_gate(
+        self, cols: dict[str, npt.NDArray[Any]], n: int, p: PlotArrays
+    ) -> GateResult:
+        """``__call__`` by ``gate_kernels``: the same pairs, in the same order, with the
+        same values."""
+        cfg = self.config
+        too_old = np.zeros(len(p), dtype=bool)
+        time, px, py, r = p.time, p.x, p.y, p.R
+        t_min, t_max = float(time.min()), float(time.max())
+        t_mid = 0.5 * (t_min + t_max)
+        spread = max(t_max - t_mid, t_mid - t_min)
+        dt = t_mid - cols["t"][:n]
+        a = np.abs(dt) + spread
+        plot_radius = np.sqrt(cfg.gate * (r[:, 0, 0] + r[:, 1, 1]))
+        near, coarse_x, coarse_y, radius, reach = gate_kernels.preselect(
+            cols["xc"], cols["Pc"], dt, a, a**3, spread, self._q_max, self._turn_max,
+            self._widest_gate, RADIUS_SAFETY, RADIUS_MARGIN_M, px, py, plot_radius,
+        )  # fmt: skip
+        if near.size == 0:
+            return GateResult(None, too_old)
+        turn_prior = self.turn_prior
+        ti, pj, xp, pp, c, xc, pc, nis, log_det, cost = gate_kernels.gate_pairs(
+            near, coarse_x, coarse_y, radius, _leaf_order(coarse_x, coarse_y), px, py,
+            plot_radius, _leaf_order(px, py), reach, time, r, p.address, p.mode3a,
+            p.mode3a_valid, cols["t"], cols["x"], cols["P"], cols["mu"], cols["address"],
+            cols["mode3a"], self._omega, self._q, self._sojourn, cfg.max_backward_s,
+            cfg.gate, cfg.address_gate, turn_prior is None, self._shared_codes,
+            cfg.address_mismatch_penalty, cfg.address_bonus, cfg.mode3a_bonus, too_old,
+        )  # fmt: skip
+        if ti.size == 0:
+            return GateResult(None, too_old)
+        pred = imm.ImmPrediction(xp, pp, c, xc, pc)
+        if turn_prior is not None:
+            pred, gate_nis = turn_prior(pred, nis, p, pj)
+            same_address = (cols["address"][ti] >= 0) & (cols["address"][ti] == p.address[pj])
+            gated = np.flatnonzero(gate_nis <= np.where(same_address, cfg.address_gate, cfg.gate))
+            if gated.size == 0:
+                return GateResult(None, too_old)
+            ti, pj, nis, log_det, cost = (
+                ti[gated],
+                pj[gated],
+                nis[gated],
+                log_det[gated],
+                cost[gated],
+            )
+            pred = pred.take(gated)
+        pairs = GatedPairs(
+            track=ti, plot=pj, nis=nis, log_det=log_det, identity_cost=cost, pred=pred
+        )
+        return GateResult(pairs, too_old)
+
     def _reach(
         self, cols: dict[str, npt.NDArray[Any]], n: int, t_mid: float, spread: float
     ) -> tuple[FloatArray, FloatArray]:
@@ -193,3 +253,16 @@ class Gate:
             self.config,
             code_usable=p.mode3a_valid[pj],
         )
+
+
+_NO_TREE = np.zeros(0, dtype=np.int64)
+
+
+def _leaf_order(x: FloatArray, y: FloatArray) -> IntArray:
+    """The points' leaf order in scipy's k-d tree (its ``indices``), which
+    ``gate_kernels.gate_pairs`` orders the pairs by; empty when they fit in one leaf (the
+    tree keeps them in their order)."""
+    if x.size <= KDTREE_LEAF_SIZE:
+        return _NO_TREE
+    indices: IntArray = cKDTree(np.column_stack([x, y]), leafsize=KDTREE_LEAF_SIZE).indices
+    return indices

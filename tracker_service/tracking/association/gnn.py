@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from tracker_service.tracking.associate import global_nearest_neighbour
+from tracker_service.tracking.associate import UNASSIGNABLE, global_nearest_neighbour
+from tracker_service.tracking.association import kernels
 from tracker_service.tracking.association.base import WeightedPairs
 from tracker_service.tracking.association.gate import GatedPairs
 from tracker_service.tracking.config import TrackerConfig
@@ -14,6 +15,11 @@ class GlobalNearestNeighbour:
 
     def __init__(self, config: TrackerConfig) -> None:
         self.config = config
+        self._compiled = config.implementation == "compiled"
 
     def associate(self, pairs: GatedPairs) -> WeightedPairs:
-        return WeightedPairs.hard(global_nearest_neighbour(pairs.track, pairs.plot, pairs.cost))
+        if self._compiled:
+            chosen = kernels.gnn_assignment(pairs.track, pairs.plot, pairs.cost, UNASSIGNABLE)
+        else:
+            chosen = global_nearest_neighbour(pairs.track, pairs.plot, pairs.cost)
+        return WeightedPairs.hard(chosen)

@@ -565,3 +565,71 @@ def weighted_update(
                     p[g, j, a, b] = s
                     p[g, j, b, a] = s
     return reported, x, p, mu
+
+
+@numba.njit(cache=True)
+def gnn_assignment(
+    rows: IntArray, cols: IntArray, cost: FloatArray, unassignable: float
+) -> IntArray:  # pragma: no cover - compiled
+    """``associate.global_nearest_neighbour``: the indices of the pairs (rows[k], cols[k])
+    of a least-cost one-to-one assignment, ascending. Pairs whose row and column have no
+    other candidate are taken directly; the rest are solved as scipy's
+    ``linear_sum_assignment`` solves the dense matrix of their rows and columns (cells
+    without a pair ``unassignable``; a matrix of more rows than columns transposed, as
+    scipy does), so that ties resolve alike."""
+    n = rows.size
+    if n == 0:
+        return np.zeros(0, np.int64)
+    row_count = np.zeros(rows.max() + 1, np.int64)
+    col_count = np.zeros(cols.max() + 1, np.int64)
+    for k in range(n):
+        row_count[rows[k]] += 1
+        col_count[cols[k]] += 1
+    chosen = np.empty(n, np.int64)
+    n_chosen = 0
+    rest = np.empty(n, np.int64)
+    n_rest = 0
+    for k in range(n):
+        if row_count[rows[k]] == 1 and col_count[cols[k]] == 1:
+            chosen[n_chosen] = k
+            n_chosen += 1
+        else:
+            rest[n_rest] = k
+            n_rest += 1
+    if n_rest == 0:
+        return chosen
+    # The rest's rows and columns in ascending order (np.unique), as matrix indices.
+    row_index = np.full(row_count.size, -1, np.int64)
+    col_index = np.full(col_count.size, -1, np.int64)
+    for s in range(n_rest):
+        row_index[rows[rest[s]]] = 0
+        col_index[cols[rest[s]]] = 0
+    n_r = 0
+    for r in range(row_index.size):
+        if row_index[r] == 0:
+            row_index[r] = n_r
+            n_r += 1
+    n_c = 0
+    for c in range(col_index.size):
+        if col_index[c] == 0:
+            col_index[c] = n_c
+            n_c += 1
+    matrix = np.full((n_r, n_c), unassignable)
+    pair_at = np.full((n_r, n_c), -1, np.int64)
+    for s in range(n_rest):
+        k = rest[s]
+        matrix[row_index[rows[k]], col_index[cols[k]]] = cost[k]
+        pair_at[row_index[rows[k]], col_index[cols[k]]] = k
+    if n_r <= n_c:
+        col_of = linear_sum_assignment(matrix)
+        for r in range(n_r):
+            if pair_at[r, col_of[r]] >= 0:
+                chosen[n_chosen] = pair_at[r, col_of[r]]
+                n_chosen += 1
+    else:
+        row_of = linear_sum_assignment(np.ascontiguousarray(matrix.T))
+        for c in range(n_c):
+            if pair_at[row_of[c], c] >= 0:
+                chosen[n_chosen] = pair_at[row_of[c], c]
+                n_chosen += 1
+    return np.sort(chosen[:n_chosen])

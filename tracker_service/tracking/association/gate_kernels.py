@@ -1,0 +1,338 @@
+"""The gate of ``gate.Gate`` as compiled passes over a batch: the pre-selection radius of
+every live track, the box around the batch, the (track, plot) pairs within reach in the
+order of scipy's k-d tree search, the IMM prediction of each pair, its normalised
+innovation, the identity cost and the gate itself.
+
+Why compiled: a sector of about 10 plots paid some 60 numpy and scipy calls here (350 us
+of a 600-900 us batch on ``tma``), not arithmetic. The numpy reference is ``Gate`` with
+``implementation = "numpy"`` (``_reach``, ``associate.candidate_pairs``, the IMM's
+``predict`` and ``innovation_test``, ``identity.identity_cost``);
+``tests/test_gate_kernels.py`` holds these passes to it: the same pairs in the same order
+and the same values to the bit (every operation in the reference's order, the IMM by the
+same kernels as ``tracking.kernels``).
+
+The order of the pairs numbers the output rows (GNN keeps its chosen pairs in this order)
+and orders JPDA's and MHT's sums, so it must be scipy's: ``cKDTree(a)
+.sparse_distance_matrix(cKDTree(b), reach)`` walks both trees at once, depth first, the
+lesser child before the greater, both trees' children in turn while both nodes are inner
+(``traverse`` in scipy's sparse_distances.cxx), and each pair of leaves row by row in the
+trees' leaf order. A balanced cKDTree (scipy's default) splits a node of n > leafsize
+points at n // 2 in its leaf order, unless all its points are equal: its shape follows
+from its leaf order alone (``indices``), which scipy's build gives (``std::nth_element``
+arranges each leaf, which nothing here could reproduce). So each point's path from the
+root is known, and a pair's rank in the search is its two paths interleaved as the walk
+takes them, then the two leaf positions.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numba
+import numpy as np
+
+from tracker_service.tracking.kernels import imm_predict, innovation_test
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
+
+KDTREE_LEAF_SIZE = 16
+"""scipy's default leaf size, spelt out (``associate.KDTREE_LEAF_SIZE``)."""
+
+
+@numba.njit(cache=True)
+def preselect(
+    xc: FloatArray,
+    pc: FloatArray,
+    dt: FloatArray,
+    a: FloatArray,
+    a_cubed: FloatArray,
+    spread: float,
+    q_max: float,
+    turn_max: float,
+    widest_gate: float,
+    radius_safety: float,
+    radius_margin_m: float,
+    plot_x: FloatArray,
+    plot_y: FloatArray,
+    plot_radius: FloatArray,
+) -> tuple[IntArray, FloatArray, FloatArray, FloatArray, float]:  # pragma: no cover
+    """``Gate._reach`` of the n = dt.size live tracks (dt: the batch's middle time less
+    each track's time; a = |dt| + the batch's half spread, a_cubed = a**3 by numpy, whose
+    SIMD power differs from the C library's in the last bit), then the box around the
+    batch of ``associate.candidate_pairs``: the tracks ``near`` it, their coarse positions
+    (x, y) and radii, and the search reach over them."""
+    n = dt.size
+    coarse_x = np.empty(n)
+    coarse_y = np.empty(n)
+    radius = np.empty(n)
+    reach_max = -np.inf
+    for r in range(n):
+        ar = a[r]
+        var = (
+            pc[r, 0, 0]
+            + pc[r, 1, 1]
+            + 2.0 * ar * abs(pc[r, 0, 2] + pc[r, 1, 3])
+            + ar * ar * (pc[r, 2, 2] + pc[r, 3, 3])
+            + 2.0 * q_max * a_cubed[r] / 3.0
+        )
+        speed = np.hypot(xc[r, 2], xc[r, 3])
+        radius[r] = (
+            radius_safety * np.sqrt(widest_gate * var)
+            + speed * spread
+            + 0.5 * speed * turn_max * ar * ar
+            + radius_margin_m
+        )
+        coarse_x[r] = xc[r, 0] + xc[r, 2] * dt[r]
+        coarse_y[r] = xc[r, 1] + xc[r, 3] * dt[r]
+        reach_max = _nan_max(reach_max, radius[r])
+    plot_reach = -np.inf
+    lo_x = hi_x = plot_x[0]
+    lo_y = hi_y = plot_y[0]
+    for j in range(plot_x.size):
+        plot_reach = _nan_max(plot_reach, plot_radius[j])
+        lo_x = _nan_min(lo_x, plot_x[j])
+        hi_x = _nan_max(hi_x, plot_x[j])
+        lo_y = _nan_min(lo_y, plot_y[j])
+        hi_y = _nan_max(hi_y, plot_y[j])
+    reach = reach_max + plot_reach
+    lo_x -= reach
+    hi_x += reach
+    lo_y -= reach
+    hi_y += reach
+    near = np.empty(n, np.int64)
+    k = 0
+    near_max = -np.inf
+    for r in range(n):
+        inside_x = coarse_x[r] >= lo_x and coarse_x[r] <= hi_x
+        if inside_x and coarse_y[r] >= lo_y and coarse_y[r] <= hi_y:
+            near[k] = r
+            near_max = _nan_max(near_max, radius[r])
+            k += 1
+    near = near[:k]
+    return near, coarse_x[near], coarse_y[near], radius[near], near_max + plot_reach
+
+
+@numba.njit(cache=True, inline="always")
+def _nan_max(a: float, b: float) -> float:  # pragma: no cover - compiled
+    """numpy's ``max``: NaN wins."""
+    if np.isnan(a) or np.isnan(b):
+        return np.nan
+    return max(a, b)
+
+
+@numba.njit(cache=True, inline="always")
+def _nan_min(a: float, b: float) -> float:  # pragma: no cover - compiled
+    """numpy's ``min``: NaN wins."""
+    if np.isnan(a) or np.isnan(b):
+        return np.nan
+    return min(a, b)
+
+
+@numba.njit(cache=True)
+def _tree_paths(
+    x: FloatArray, y: FloatArray, indices: IntArray
+) -> tuple[IntArray, IntArray, IntArray]:  # pragma: no cover - compiled
+    """Each point's position in the leaf order of ``cKDTree`` (``indices``: the tree's
+    own; empty: one leaf, in the points' order), and its path from the root as bits
+    (first step in the highest of ``depth`` bits, 1 for the greater child)."""
+    n = x.size
+    rank = np.empty(n, np.int64)
+    path = np.zeros(n, np.int64)
+    depth = np.zeros(n, np.int64)
+    if indices.size == 0:
+        for p in range(n):
+            rank[p] = p
+        return rank, path, depth
+    for p in range(n):
+        rank[indices[p]] = p
+    # Nodes as (start, end) ranges of the leaf order, visited depth first.
+    stack_start = np.empty(2 * n + 2, np.int64)
+    stack_end = np.empty(2 * n + 2, np.int64)
+    top = 0
+    stack_start[0] = 0
+    stack_end[0] = n
+    top = 1
+    while top > 0:
+        top -= 1
+        start = stack_start[top]
+        end = stack_end[top]
+        if end - start <= KDTREE_LEAF_SIZE:
+            continue
+        # scipy's split (build.cxx, split_and_partition): the dimension of the widest
+        # spread (the first of equal ones), at its median value; the lesser child
+        # takes the points strictly below it (all those equal to the least value
+        # when none is).
+        lo_x = hi_x = x[indices[start]]
+        lo_y = hi_y = y[indices[start]]
+        for p in range(start + 1, end):
+            q = indices[p]
+            lo_x, hi_x = min(lo_x, x[q]), max(hi_x, x[q])
+            lo_y, hi_y = min(lo_y, y[q]), max(hi_y, y[q])
+        if hi_x - lo_x <= 0.0 and hi_y - lo_y <= 0.0:
+            continue  # all points equal: scipy makes a leaf of them
+        values = y if hi_y - lo_y > hi_x - lo_x else x
+        node = np.empty(end - start)
+        for p in range(start, end):
+            node[p - start] = values[indices[p]]
+        node.sort()
+        split = node[(end - start) // 2]
+        if split == node[0]:
+            split = np.nextafter(split, np.inf)
+        middle = start
+        for p in range(start, end):
+            if node[p - start] < split:
+                middle += 1
+        for p in range(start, end):
+            q = indices[p]
+            path[q] = 2 * path[q] + (1 if p >= middle else 0)
+            depth[q] += 1
+        stack_start[top] = start
+        stack_end[top] = middle
+        stack_start[top + 1] = middle
+        stack_end[top + 1] = end
+        top += 2
+    return rank, path, depth
+
+
+@numba.njit(cache=True, inline="always")
+def _search_rank(
+    path_a: int, depth_a: int, path_b: int, depth_b: int, width: int
+) -> int:  # pragma: no cover - compiled
+    """The two leaves' paths interleaved as scipy's dual-tree walk takes them (a's step,
+    then b's, while both are inner nodes; then the rest of the deeper one), left-aligned
+    in ``width`` bits: pairs of leaves compare as the walk visits them."""
+    key = 0
+    bits = 0
+    ia = depth_a
+    ib = depth_b
+    while ia > 0 or ib > 0:
+        if ia > 0:
+            ia -= 1
+            key = 2 * key + ((path_a >> ia) & 1)
+            bits += 1
+        if ib > 0:
+            ib -= 1
+            key = 2 * key + ((path_b >> ib) & 1)
+            bits += 1
+    return key << (width - bits)
+
+
+@numba.njit(cache=True)
+def gate_pairs(
+    near: IntArray,
+    coarse_x: FloatArray,
+    coarse_y: FloatArray,
+    track_radius: FloatArray,
+    tree_a: IntArray,
+    plot_x: FloatArray,
+    plot_y: FloatArray,
+    plot_radius: FloatArray,
+    tree_b: IntArray,
+    reach: float,
+    plot_time: FloatArray,
+    plot_r: FloatArray,
+    plot_address: IntArray,
+    plot_code: IntArray,
+    plot_code_valid: BoolArray,
+    t: FloatArray,
+    x: FloatArray,
+    P: FloatArray,
+    mu: FloatArray,
+    address: IntArray,
+    code: IntArray,
+    omega: FloatArray,
+    q: FloatArray,
+    sojourn: FloatArray,
+    max_backward_s: float,
+    gate: float,
+    address_gate: float,
+    apply_gate: bool,
+    shared_codes: IntArray,
+    address_mismatch_penalty: float,
+    address_bonus: float,
+    mode3a_bonus: float,
+    too_old: BoolArray,
+) -> tuple[Any, ...]:  # pragma: no cover - compiled
+    """The rest of ``Gate.__call__`` after ``preselect``: the pairs of ``near`` tracks
+    (coarse positions, radii; ``tree_a``: ``cKDTree(coarse).indices`` when they are more
+    than a leaf, else empty) and plots (``tree_b`` likewise) within ``reach`` and within
+    the sum of their radii, in scipy's search order; the plots of pairs more than
+    ``max_backward_s`` older than their track marked in ``too_old`` and those pairs
+    dropped; the IMM prediction of the rest to their plots' times, the NIS and log det S
+    and the identity cost; and, with ``apply_gate``, only the pairs inside their gate
+    (``address_gate`` for the same Mode S address). Returns the track rows, plot indices,
+    xp, Pp, c, xc, Pc, NIS, log det S and identity cost of the pairs."""
+    na = near.size
+    nb = plot_x.size
+    rank_a, path_a, depth_a = _tree_paths(coarse_x, coarse_y, tree_a)
+    rank_b, path_b, depth_b = _tree_paths(plot_x, plot_y, tree_b)
+    width = depth_a.max() + depth_b.max() if na and nb else 0
+    found_a = np.empty(na * nb, np.int64)
+    found_b = np.empty(na * nb, np.int64)
+    key = np.empty(na * nb, np.int64)
+    k = 0
+    for i in range(na):
+        for j in range(nb):
+            d0 = coarse_x[i] - plot_x[j]
+            d1 = coarse_y[i] - plot_y[j]
+            distance = np.sqrt(d0 * d0 + d1 * d1)
+            if not distance <= reach:
+                continue
+            if not distance <= track_radius[i] + plot_radius[j]:
+                continue
+            found_a[k] = i
+            found_b[k] = j
+            leaves = _search_rank(path_a[i], depth_a[i], path_b[j], depth_b[j], width)
+            key[k] = (leaves << 32) | (rank_a[i] << 16) | rank_b[j]
+            k += 1
+    order = np.argsort(key[:k], kind="mergesort")
+    ti = np.empty(k, np.int64)
+    pj = np.empty(k, np.int64)
+    dt = np.empty(k)
+    kept = 0
+    for s in range(k):
+        row = near[found_a[order[s]]]
+        j = found_b[order[s]]
+        step = plot_time[j] - t[row]
+        if step < -max_backward_s:
+            too_old[j] = True
+            continue
+        ti[kept] = row
+        pj[kept] = j
+        dt[kept] = step
+        kept += 1
+    ti = ti[:kept]
+    pj = pj[:kept]
+    xp, pp, c, xc, pc = imm_predict(x[ti], P[ti], mu[ti], dt[:kept], omega, q, sojourn)
+    z = np.empty((kept, 2))
+    for s in range(kept):
+        z[s, 0] = plot_x[pj[s]]
+        z[s, 1] = plot_y[pj[s]]
+    r = plot_r[pj]
+    nis, log_det = innovation_test(xc, pc, z, r)
+    cost = np.empty(kept)
+    inside = np.empty(kept, np.int64)
+    n_inside = 0
+    for s in range(kept):
+        a_t = address[ti[s]]
+        a_p = plot_address[pj[s]]
+        same_address = a_t >= 0 and a_t == a_p
+        if apply_gate and not nis[s] <= (address_gate if same_address else gate):
+            continue
+        inside[n_inside] = s
+        n_inside += 1
+        both = a_t >= 0 and a_p >= 0
+        code_t = code[ti[s]]
+        code_match = code_t >= 0 and code_t == plot_code[pj[s]] and plot_code_valid[pj[s]]
+        if code_match:
+            for shared in shared_codes:
+                if code_t == shared:
+                    code_match = False
+        cost[s] = (
+            address_mismatch_penalty * (1.0 if both and a_t != a_p else 0.0)
+            - address_bonus * (1.0 if same_address and both else 0.0)
+            - mode3a_bonus * (1.0 if code_match else 0.0)
+        )
+    if n_inside == kept:
+        return ti, pj, xp, pp, c, xc, pc, nis, log_det, cost
+    g = inside[:n_inside]
+    return ti[g], pj[g], xp[g], pp[g], c[g], xc[g], pc[g], nis[g], log_det[g], cost[g]
