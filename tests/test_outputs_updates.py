@@ -133,10 +133,10 @@ def test_batch_path_publishes_what_the_models_publish(seed: int) -> None:
         expected_local = [m.model_dump_json() for m in models.local(source, local)]
         updates = batch.local_updates(source, local)
         assert [u.number for u in updates] == local["track_number"].tolist()
-        for want, update in zip(expected_local, updates, strict=True):
-            assert list(json.loads(update.payload)) == list(LOCAL_FIELDS)
-            assert update.payload == want.encode()
-            assert update.message() == LocalTrackMessage.model_validate_json(want)
+        for want, local_update in zip(expected_local, updates, strict=True):
+            assert list(json.loads(local_update.payload)) == list(LOCAL_FIELDS)
+            assert local_update.payload == want.encode()
+            assert local_update.message() == LocalTrackMessage.model_validate_json(want)
         system = _system_rows(rng, 25, t, plots)
         system["system_number"] = numbers[system["system_number"]]
         expected = models.system(system, plots, SOURCES)

@@ -179,24 +179,30 @@ def test_subscribers_receive_what_the_log_holds(
     each track's end followed by its key's deletion."""
     rng = np.random.default_rng(5)
     mapper, zenoh = MessageMapper(PLANE), ZenohSink(publisher)
+    # The batches are made and logged before the subscriber starts: its wait for samples
+    # is bounded, and the mapper's kernels may take seconds to load on a loaded machine.
+    batches = []
+    with McapLog(tmp_path) as log:
+        sink = McapSink(log)
+        for step in range(4):
+            t = NOON + 5.0 * step
+            plots = _plots(rng, 20, t, 20 * step)
+            local = mapper.local_updates("40/2", _local_rows(rng, 12, t))
+            system = mapper.system_updates(_system_rows(rng, 20, t, plots), plots, SOURCES)
+            sink.local_updates("40/2", local, t)
+            sink.system_updates(system, t)
+            batches.append((t, local, system))
+        ended = mapper.end_all_updates()
+        sink.system_updates(ended, t)
+    expected = _published(log.files[0])
     proc = child(endpoint, "listen", "tracker/**")
     try:
         assert read_line(proc) == {"ready": True}
         _wait_for_subscriber(publisher, proc)
-        with McapLog(tmp_path) as log:
-            sink = McapSink(log)
-            for step in range(4):
-                t = NOON + 5.0 * step
-                plots = _plots(rng, 20, t, 20 * step)
-                local = mapper.local_updates("40/2", _local_rows(rng, 12, t))
-                system = mapper.system_updates(_system_rows(rng, 20, t, plots), plots, SOURCES)
-                for out in (zenoh, sink):
-                    out.local_updates("40/2", local, t)
-                    out.system_updates(system, t)
-            ended = mapper.end_all_updates()
-            zenoh.system_updates(ended, t)
-            sink.system_updates(ended, t)
-        expected = _published(log.files[0])
+        for t, local, system in batches:
+            zenoh.local_updates("40/2", local, t)
+            zenoh.system_updates(system, t)
+        zenoh.system_updates(ended, t)
         # Probes still in flight arrive before the rest.
         samples = (read_line(proc) for _ in itertools.count())
         got = list(itertools.islice((s for s in samples if s["key"] != _PROBE), len(expected)))
