@@ -183,10 +183,6 @@ class TrackColumns:
         return len(self.number)
 
 
-def _optional(values: Sequence[float | None]) -> FloatArray:
-    return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
-
-
 def track_columns(batch: SystemBatch, config: SdpsIdentity) -> TrackColumns:
     """The CAT062 values of a batch of system-track updates, over the whole batch at once."""
     lat, lon = batch.lat, batch.lon

@@ -110,11 +110,6 @@ class SystemState:
         self._counts = np.zeros(64, dtype=np.int64)
         self._used = 0
 
-    @property
-    def live_numbers(self) -> list[int]:
-        numbers: list[int] = np.flatnonzero(self.live).tolist()
-        return numbers
-
     def end_all(self) -> None:
         self.live[:] = False
         self._rebuild_addresses(64)
