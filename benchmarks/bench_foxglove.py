@@ -19,9 +19,11 @@ import time
 
 from tracker_service.outputs.foxglove_scene import MapRadar, MapScene
 from tracker_service.outputs.messages import SystemTrackMessage, TrackSource
+from tracker_service.outputs.updates import SystemBatch, SystemValues
 
 T0 = 1_780_300_000.0
 SCAN_S = 4.0
+BATCH = 25
 
 
 def message(number: int, t: float) -> SystemTrackMessage:
@@ -53,23 +55,35 @@ def main() -> None:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     scene = MapScene([MapRadar("25/11", "Alpha", 48.2, 17.2, 250.0)])
-    # Full trails: three minutes of scans.
+    # Full trails: three minutes of scans, each in the service's batches (a radar
+    # datagram's: about 25 system updates) as the mapper gives them (``SystemBatch``).
     scans = int(scene.trail_s / SCAN_S) + 1
-    batches = [[message(n, T0 + k * SCAN_S) for n in range(args.tracks)] for k in range(scans)]
+    batches = [
+        [
+            SystemBatch.of_values(
+                [
+                    SystemValues.of_message(message(n, T0 + k * SCAN_S))
+                    for n in range(first, min(first + BATCH, args.tracks))
+                ]
+            )
+            for first in range(0, args.tracks, BATCH)
+        ]
+        for k in range(scans)
+    ]
     update_us, picture_ms, picture_kb = [], [], []
     for _ in range(args.repeats):
         scene = MapScene([MapRadar("25/11", "Alpha", 48.2, 17.2, 250.0)])
         started = time.perf_counter()
-        for batch in batches:
-            for m in batch:
+        for scan in batches:
+            for batch in scan:
                 # One data time for all: after the first tick, fixes only.
-                scene.update(m, T0 - 1.0)
+                scene.updates(batch, T0 - 1.0)
         update_us.append((time.perf_counter() - started) / (scans * args.tracks) * 1e6)
         scene.picture_geojson()
         # In steady state a picture a second finds a quarter of the tracks moved (one
         # update per 4 s scan): their features are made again, the others' reused.
-        for m in batches[-1][: args.tracks // 4]:
-            scene.update(m, T0 - 1.0)
+        for batch in batches[-1][: len(batches[-1]) // 4]:
+            scene.updates(batch, T0 - 1.0)
         started = time.perf_counter()
         payload = scene.picture_geojson()
         picture_ms.append((time.perf_counter() - started) * 1e3)

@@ -2,9 +2,9 @@
 
 The chain runs once over the recording (not timed) and what it hands the outputs is kept:
 each radar batch's rows (``BatchOutput``) and the CAT062 cadence. Then each output stage
-runs over those rows, the way it ran before this change (one pydantic model per update,
+runs over those rows, the way it ran before issue 12's output work (one pydantic model per update,
 ``model_dump_json``, the generic codec, one sink call per message) and the way it runs
-now (``MessageMapper.local_updates``/``system_updates``, ``encode_system_documents``, one
+now (``MessageMapper.local_updates``/``system_updates``, ``encode_system_batch``, one
 sink call per batch), interleaved, ``--repeats`` times; CPU time (``time.process_time``),
 medians, ratios.
 
@@ -44,11 +44,12 @@ from typing import Any
 
 from tracker_service.chain import BatchOutput
 from tracker_service.geodesy import SystemPlane
-from tracker_service.outputs.cat062 import encode_system_documents, encode_system_tracks_generic
-from tracker_service.outputs.mapping import MessageMapper, location_fix
+from tracker_service.outputs.cat062 import encode_system_batch, encode_system_tracks_generic
+from tracker_service.outputs.mapping import MessageMapper, ModelMapper, location_fix
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.mcap_sink import LOCATION_TOPIC, SYSTEM_TRACKS_TOPIC, McapSink
 from tracker_service.outputs.messages import LocalTrackMessage, SystemTrackMessage
+from tracker_service.outputs.updates import SystemBatch
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_sink import ZenohSink
 from tracker_service.service.config import ServiceConfig
@@ -129,7 +130,7 @@ def _plane(config: ServiceConfig) -> SystemPlane:
 
 
 def local_old(c: Captured) -> None:
-    mapper = MessageMapper(_plane(c.config))
+    mapper = ModelMapper(_plane(c.config))
     for output, _ in c.batches:
         for message in mapper.local(output.source, output.local):
             message.model_dump_json().encode()
@@ -142,7 +143,7 @@ def local_new(c: Captured) -> None:
 
 
 def _system_old(c: Captured) -> list[list[SystemTrackMessage]]:
-    mapper = MessageMapper(_plane(c.config))
+    mapper = ModelMapper(_plane(c.config))
     out = []
     for output, sources in c.batches:
         mapper.local(output.source, output.local)  # the sources' ages need their times
@@ -190,13 +191,18 @@ def run(c: Captured, repeats: int) -> dict[str, Any]:
     new_system = _system_new(c)
     systems = sum(len(s) for s in new_system)
     old_cat = _cat062_batches(c, old_system, lambda m: m.number)
-    new_cat = [[u.doc for u in b] for b in _cat062_batches(c, new_system, lambda u: u.number)]
+    new_cat = [
+        SystemBatch.gather([(u.batch, u.index) for u in b])
+        for b in _cat062_batches(c, new_system, lambda u: u.number)
+        if b
+    ]
+    old_cat = [b for b in old_cat if b]
     assert all(
-        encode_system_tracks_generic(o, config.system) == encode_system_documents(n, config.system)
+        encode_system_tracks_generic(o, config.system) == encode_system_batch(n, config.system)
         for o, n in zip(old_cat[:3], new_cat[:3], strict=True)
     ), "the two CAT062 paths differ"
     old_local = [
-        (o.source, MessageMapper(_plane(config)).local(o.source, o.local)) for o, _ in c.batches
+        (o.source, ModelMapper(_plane(config)).local(o.source, o.local)) for o, _ in c.batches
     ]
     new_local_mapper = MessageMapper(_plane(config))
     new_local = [
@@ -216,11 +222,7 @@ def run(c: Captured, repeats: int) -> dict[str, Any]:
                     log.log_json(
                         SYSTEM_TRACKS_TOPIC, SystemTrackMessage, s.model_dump_json().encode(), now
                     )
-                    if s.status != "ended":
-                        f = location_fix(s)
-                        log.log_location(
-                            LOCATION_TOPIC, f.time, f.lat, f.lon, f.altitude_m, f.covariance
-                        )
+                    log.log_locations(LOCATION_TOPIC, location_fix(s))
 
     def mcap_new() -> None:
         with McapLog(tmp / f"new{time.monotonic_ns()}", name="new") as log:
@@ -274,7 +276,7 @@ def run(c: Captured, repeats: int) -> dict[str, Any]:
         "system messages": (lambda: _system_old(c), lambda: _system_new(c)),
         "CAT062": (
             lambda: [encode_system_tracks_generic(b, config.system) for b in old_cat],
-            lambda: [encode_system_documents(b, config.system) for b in new_cat],
+            lambda: [encode_system_batch(b, config.system) for b in new_cat],
         ),
         "MCAP": (mcap_old, mcap_new),
         "Zenoh": (zenoh_old, zenoh_new),

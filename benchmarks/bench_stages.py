@@ -31,7 +31,7 @@ The stages and what each wraps:
 | bias references | ``SystemTracker.references`` (the fuser's references for the bias) |
 | fusion | ``SystemTracker.process`` |
 | messages | ``Outputs.batch``, ``publish_cat062`` and the periodic messages, less the rest |
-| CAT062 | ``encode_system_documents`` and ``encode_cat065`` |
+| CAT062 | ``encode_system_batch`` and ``encode_cat065`` |
 | MCAP | ``McapSink``'s calls (the log's writer thread) |
 | Foxglove map | ``FoxgloveSink``'s calls less its ``McapSink`` calls (the map in the log) |
 | Zenoh | ``ZenohSink``'s calls (the publisher's thread) |
@@ -147,7 +147,7 @@ def instrumented(clock: StageClock) -> Iterator[None]:
         (Outputs, "publish_bias", "messages"),
         (Outputs, "publish_status", "messages"),
         (Outputs, "close", "messages"),
-        (core_module, "encode_system_documents", "CAT062"),
+        (core_module, "encode_system_batch", "CAT062"),
         (core_module, "encode_cat065", "CAT062"),
     ]
     targets += [(McapSink, call, "MCAP") for call in SINK_CALLS]

@@ -28,7 +28,6 @@ from tracker_service.outputs.foxglove_scene import (
     FoxgloveMessage,
     MapRadar,
     MapScene,
-    MapTrack,
     track_colour,
     track_label,
 )
@@ -39,6 +38,7 @@ from tracker_service.outputs.foxglove_sink import (
 )
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.messages import SystemTrackMessage, TrackSource
+from tracker_service.outputs.updates import SystemValues
 from tracker_service.service.core import TrackerService
 from tracker_service.service.replay import open_replay
 
@@ -397,7 +397,7 @@ def test_layout_opens_on_the_map_of_the_example_configuration() -> None:
 
 
 def test_scene_from_values_is_the_scene_from_models() -> None:
-    """The batch path's ``MapTrack.of_values`` (an update's plain values) gives the scene's
+    """The batch path's ``SystemValues`` (an update's plain values) gives the scene's
     messages the model gives, byte for byte: fixes, labels, colours, pictures."""
     messages = [
         track(3, radars=("25/11",), callsign="AFR12   ", flight_level=99.6),
@@ -408,7 +408,7 @@ def test_scene_from_values_is_the_scene_from_models() -> None:
     ]
     from_models, from_values = MapScene([SITE]), MapScene([SITE])
     for m in messages:
-        assert from_values.update(MapTrack.of_values(m.model_dump()), m.time) == (
+        assert from_values.update(SystemValues.of_message(m), m.time) == (
             from_models.update(m, m.time)
         )
     assert from_values.picture_geojson() == from_models.picture_geojson()

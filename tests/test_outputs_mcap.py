@@ -8,13 +8,14 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import pytest
 from mcap.reader import make_reader
 from pydantic import BaseModel
 
 from asterix.containers import Datagram
-from tracker_service.outputs.mcap_log import McapLog, read_log_messages
+from tracker_service.outputs.mcap_log import LoggedDatagram, McapLog, read_log_messages
 
 T0 = 1_700_000_000.25
 
@@ -147,3 +148,78 @@ def test_sigkill_leaves_readable_chunks(tmp_path: Path) -> None:
     # Every message up to the last complete chunk (about 40 to a chunk of 1 kB), in order.
     assert numbers == list(range(len(numbers)))
     assert len(numbers) >= 2000 - 100
+
+
+@pytest.mark.parametrize(
+    ("time", "source", "destination"),
+    [
+        (T0, ("10.0.0.1", 5000), ("232.1.1.1", 8600)),
+        (T0 + 1e-7, None, None),
+        (0.0, None, ("::1", 1)),
+    ],
+)
+def test_a_datagram_is_loggeddatagrams_json(
+    tmp_path: Path, time: float, source: tuple[str, int] | None, destination: tuple[str, int] | None
+) -> None:
+    """Written without a validated model per datagram, byte for byte the model's JSON."""
+    datagram = Datagram(bytes(range(256)) * 3, 0, time, source, destination)
+    with McapLog(tmp_path) as log:
+        log.log_datagram(datagram, "25_11")
+    ((_, data),) = [(m.topic, m.data) for m in _raw(log.files[0])]
+    endpoint = [None if e is None else f"{e[0]}:{e[1]}" for e in (source, destination)]
+    model = LoggedDatagram(
+        input="25_11", time=time, src=endpoint[0], dst=endpoint[1], payload=datagram.payload.hex()
+    )
+    assert data == model.model_dump_json().encode()
+
+
+@pytest.mark.parametrize("time", [-1.0, float("nan"), float("inf")])
+def test_a_datagram_with_an_impossible_time_is_refused_as_before(
+    tmp_path: Path, time: float
+) -> None:
+    with McapLog(tmp_path) as log, pytest.raises(ValueError, match="time"):
+        log.log_datagram(Datagram(b"\x30\x00\x03", 0, time, None, None), "25_11")
+
+
+def test_location_fixes_are_what_json_dumps_writes(tmp_path: Path) -> None:
+    """Tiny covariances (written 1e-05 by repr, 0.00001 by pydantic-core) and ordinary
+    ones: each fix as json.dumps writes it."""
+    covariance = [1e-05, -2.5e-07, 0.0, 3.0, 1e-300, 0.0, 0.0, 0.0, 1e6]
+    with McapLog(tmp_path) as log:
+        log.log_location("/map/system_tracks", T0, 48.123456789, -0.0001, 10.5, covariance)
+        log.log_location("/map/system_tracks", T0 + 0.5, 48.0, 2.0, 0.0)
+    data = [m.data for m in _raw(log.files[0])]
+    expected = [
+        {
+            "timestamp": {"sec": 1_700_000_000, "nsec": 250_000_000},
+            "frame_id": "",
+            "latitude": 48.123456789,
+            "longitude": -0.0001,
+            "altitude": 10.5,
+            "position_covariance": covariance,
+            "position_covariance_type": 3,
+        },
+        {
+            "timestamp": {"sec": 1_700_000_000, "nsec": 750_000_000},
+            "frame_id": "",
+            "latitude": 48.0,
+            "longitude": 2.0,
+            "altitude": 0.0,
+            "position_covariance": [0.0] * 9,
+            "position_covariance_type": 0,
+        },
+    ]
+    assert data == [json.dumps(d, separators=(",", ":")).encode() for d in expected]
+
+
+class _Raw(NamedTuple):
+    topic: str
+    data: bytes
+
+
+def _raw(path: Path) -> list[_Raw]:
+    with path.open("rb") as stream:
+        return [
+            _Raw(channel.topic, message.data)
+            for _, channel, message in make_reader(stream).iter_messages(log_time_order=False)
+        ]

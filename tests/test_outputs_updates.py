@@ -1,10 +1,12 @@
 """The batch path of the messages (``MessageMapper.local_updates``/``system_updates``)
-publishes what the pydantic path publishes for the same rows, field by field, in the
-models' field order, and valid against the models (the published JSON schemas)."""
+publishes what the pydantic path (``ModelMapper``) publishes for the same rows, byte for
+byte (``model_dump_json``), in the models' field order, and valid against the models
+(the published JSON schemas); its values (``SystemBatch``) are the messages'."""
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -16,11 +18,12 @@ from mcap.reader import make_reader
 from tracker_service.chain import RAW_PLOT_DTYPE
 from tracker_service.fusion import COASTING, ENDED, SYSTEM_UPDATE_DTYPE
 from tracker_service.geodesy import SystemPlane
-from tracker_service.outputs.mapping import MessageMapper, location_fix
+from tracker_service.outputs.foxglove_scene import TRACKS_TOPIC, MapScene, track_colour, track_label
+from tracker_service.outputs.mapping import MessageMapper, ModelMapper
 from tracker_service.outputs.mcap_log import McapLog, read_log_messages
 from tracker_service.outputs.mcap_sink import McapSink
 from tracker_service.outputs.messages import LocalTrackMessage, SystemTrackMessage
-from tracker_service.outputs.updates import LOCAL_FIELDS, SYSTEM_FIELDS
+from tracker_service.outputs.updates import LOCAL_FIELDS, SYSTEM_FIELDS, SystemValues
 from tracker_service.tracking.plots import PUBLISHED_DAP_FIELDS
 from tracker_service.tracking.tracker import track_update_dtype
 
@@ -104,7 +107,7 @@ def _valid(message: SystemTrackMessage) -> SystemTrackMessage:
     return SystemTrackMessage.model_validate_json(message.model_dump_json())
 
 
-def _pictures(mapper: MessageMapper) -> dict[int, SystemTrackMessage]:
+def _pictures(mapper: MessageMapper | ModelMapper) -> dict[int, SystemTrackMessage]:
     return {n: _valid(m) for n, m in mapper.picture().items()}
 
 
@@ -115,8 +118,11 @@ def test_writers_follow_the_models_field_order() -> None:
 
 @pytest.mark.parametrize("seed", range(5))
 def test_batch_path_publishes_what_the_models_publish(seed: int) -> None:
+    """Every message, byte for byte; track numbers drawn from few (one number ending and
+    starting again within a batch), and from all of CAT062's (the per-track arrays grow)."""
     rng = np.random.default_rng(seed)
-    models, batch = MessageMapper(PLANE), MessageMapper(PLANE)
+    numbers = rng.choice(65536, 25, replace=False) if seed % 2 else np.arange(25)
+    models, batch = ModelMapper(PLANE), MessageMapper(PLANE)
     first_id = 0
     for step in range(12):
         t = NOON + 5.0 * step
@@ -127,28 +133,25 @@ def test_batch_path_publishes_what_the_models_publish(seed: int) -> None:
         expected_local = [m.model_dump_json() for m in models.local(source, local)]
         updates = batch.local_updates(source, local)
         assert [u.number for u in updates] == local["track_number"].tolist()
-        for want, update in zip(expected_local, updates, strict=True):
-            got = json.loads(update.payload)
-            assert list(got) == list(LOCAL_FIELDS)
-            assert got == json.loads(want)
-            assert update.message() == LocalTrackMessage.model_validate_json(want)
+        for want, local_update in zip(expected_local, updates, strict=True):
+            assert list(json.loads(local_update.payload)) == list(LOCAL_FIELDS)
+            assert local_update.payload == want.encode()
+            assert local_update.message() == LocalTrackMessage.model_validate_json(want)
         system = _system_rows(rng, 25, t, plots)
+        system["system_number"] = numbers[system["system_number"]]
         expected = models.system(system, plots, SOURCES)
         system_updates = batch.system_updates(system, plots, SOURCES)
         for message, update in zip(expected, system_updates, strict=True):
-            got = json.loads(update.payload)
-            assert list(got) == list(SYSTEM_FIELDS)
-            assert got == json.loads(message.model_dump_json()), message.number
+            assert list(json.loads(update.payload)) == list(SYSTEM_FIELDS)
+            assert update.payload == message.model_dump_json().encode(), message.number
+            assert update.values == SystemValues.of_message(_valid(message))
             # Valid against the model (and so the published schema), as built.
             assert SystemTrackMessage.model_validate_json(update.payload) == _valid(message)
             assert _valid(update.message()) == _valid(message)
             assert update.ended == (message.status == "ended")
-            assert update.location() == location_fix(message)
         assert _pictures(batch) == _pictures(models)
     ended = batch.end_all_updates()
-    assert [SystemTrackMessage.model_validate_json(u.payload) for u in ended] == [
-        _valid(m) for m in models.end_all()
-    ]
+    assert [u.payload for u in ended] == [m.model_dump_json().encode() for m in models.end_all()]
     assert batch.live_tracks == models.live_tracks == []
 
 
@@ -156,11 +159,11 @@ def test_non_finite_values_are_null_as_pydantic_writes_them() -> None:
     rng = np.random.default_rng(9)
     local = _local_rows(rng, 3, NOON)
     local["x"][0], local["P"][1, 5] = np.inf, np.nan
-    models, batch = MessageMapper(PLANE), MessageMapper(PLANE)
+    models, batch = ModelMapper(PLANE), MessageMapper(PLANE)
     for message, update in zip(
         models.local("40/1", local), batch.local_updates("40/1", local), strict=True
     ):
-        assert json.loads(update.payload) == json.loads(message.model_dump_json())
+        assert update.payload == message.model_dump_json().encode()
 
 
 def test_non_finite_system_values_are_null_as_pydantic_writes_them() -> None:
@@ -169,10 +172,10 @@ def test_non_finite_system_values_are_null_as_pydantic_writes_them() -> None:
     system = _system_rows(rng, 4, NOON, plots)
     system["status"] = 0
     system["P"][1, 3] = np.inf
-    models, batch = MessageMapper(PLANE), MessageMapper(PLANE)
+    models, batch = ModelMapper(PLANE), MessageMapper(PLANE)
     expected = models.system(system, plots, SOURCES)
     for message, update in zip(expected, batch.system_updates(system, plots, SOURCES), strict=True):
-        assert json.loads(update.payload) == json.loads(message.model_dump_json())
+        assert update.payload == message.model_dump_json().encode()
 
 
 def test_batches_logged_read_back_by_mcap_and_the_streaming_reader(tmp_path: Path) -> None:
@@ -211,3 +214,60 @@ def test_batches_logged_read_back_by_mcap_and_the_streaming_reader(tmp_path: Pat
     assert topics.count("/local_tracks/40_2") == len(local)
     assert topics.count("/system_tracks") == len(system)
     assert topics.count("/map/system_tracks") == sum(not s.ended for s in system)
+
+
+def _reference_fix(m: SystemTrackMessage) -> bytes:
+    """A ``foxglove.LocationFix`` of a message as a dict through ``json.dumps``: the
+    textbook version of ``MapScene.location_fixes``."""
+    p = m.covariance
+    altitude = 0.0 if m.flight_level is None else m.flight_level * 30.48
+    sec = math.floor(m.time)
+    metadata = [
+        ("label", track_label(m)),
+        ("track", str(m.number)),
+        ("status", m.status),
+        *([("callsign", m.callsign.strip())] if m.callsign else []),
+        *([("mode3a", m.mode3a)] if m.mode3a else []),
+        *([("address", m.address)] if m.address else []),
+        *([("flight_level", f"{m.flight_level:.2f}")] if m.flight_level is not None else []),
+        ("ground_speed_kt", f"{m.ground_speed_mps * 3600.0 / 1852.0:.0f}"),
+        ("track_angle_deg", f"{m.track_angle_deg:.0f}"),
+        ("sources", ",".join(sorted({s.radar for s in m.sources}))),
+    ]
+    r, g, b = track_colour(m)
+    fix = {
+        "timestamp": {"sec": sec, "nsec": min(round((m.time - sec) * 1e9), 999_999_999)},
+        "frame_id": f"track/{m.number}",
+        "latitude": m.lat,
+        "longitude": m.lon,
+        "altitude": altitude,
+        "position_covariance": [p[0][0], p[0][1], 0.0, p[1][0], p[1][1], 0.0, 0.0, 0.0, 1e6],
+        "position_covariance_type": 3,
+        "color": {"r": r, "g": g, "b": b, "a": 1.0},
+        "metadata": [{"key": k, "value": v} for k, v in metadata],
+    }
+    return json.dumps(fix, separators=(",", ":")).encode()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_map_from_batches_is_the_map_from_the_models(seed: int) -> None:
+    """The Foxglove map written from a batch's columns (``MapScene.updates``: fixes,
+    labels, colours, the periodic pictures) is what the scene makes of the per-message
+    path's models, one ``update`` each, and its fixes what ``json.dumps`` writes of them."""
+    rng = np.random.default_rng(seed)
+    models, batch = ModelMapper(PLANE), MessageMapper(PLANE)
+    from_models, from_batches = MapScene([]), MapScene([])
+    first_id = 0
+    for step in range(12):
+        t = NOON + 0.7 * step
+        plots = _plots(rng, 20, t, first_id)
+        first_id += 20
+        system = _system_rows(rng, 25, t, plots)
+        messages = models.system(system, plots, SOURCES)
+        expected = [out for m in messages for out in from_models.update(m, t)]
+        updates = batch.system_updates(system, plots, SOURCES)
+        written = from_batches.updates(updates[0].batch, t)
+        assert written == expected
+        fixes = [out.data for out in written if out.topic == TRACKS_TOPIC]
+        assert fixes == [_reference_fix(m) for m in messages if m.status != "ended"]
+    assert from_batches.picture_geojson() == from_models.picture_geojson()

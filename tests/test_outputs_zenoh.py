@@ -10,12 +10,27 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+from mcap.reader import make_reader
 from pydantic import BaseModel
 
+from tests.test_outputs_updates import (
+    NOON,
+    PLANE,
+    SOURCES,
+    _local_rows,
+    _plots,
+    _system_rows,
+)
+from tracker_service.outputs.mapping import MessageMapper
+from tracker_service.outputs.mcap_log import McapLog
+from tracker_service.outputs.mcap_sink import McapSink
 from tracker_service.outputs.zenoh_out import ZenohPublisher
+from tracker_service.outputs.zenoh_sink import ZenohSink
 
 TIMEOUT_S = 10.0
 
@@ -32,8 +47,8 @@ session = zenoh.open(config)
 
 def show(sample):
     text = sample.payload.to_bytes().decode()
-    print(json.dumps({"key": str(sample.key_expr), "kind": str(sample.kind), "payload": text}),
-          flush=True)
+    print(json.dumps({"key": str(sample.key_expr), "kind": str(sample.kind), "payload": text,
+                      "encoding": str(sample.encoding)}), flush=True)
 
 if action == "listen":
     subscriber = session.declare_subscriber(selector, show)
@@ -153,3 +168,82 @@ def test_late_joiner_gets_live_tracks_only(publisher: ZenohPublisher, endpoint: 
 def test_bad_arguments_refused() -> None:
     with pytest.raises(ValueError, match="prefix"):
         ZenohPublisher("tracker/**")
+
+
+def test_subscribers_receive_what_the_log_holds(
+    publisher: ZenohPublisher, endpoint: str, tmp_path: Path
+) -> None:
+    """Batches of updates (the batch path's JSON) through the Zenoh and the MCAP sinks:
+    a subscriber in another process receives, key by key and in order, the bytes the log
+    holds (themselves the models' own JSON: tests/test_outputs_updates.py), as JSON, and
+    each track's end followed by its key's deletion."""
+    rng = np.random.default_rng(5)
+    mapper, zenoh = MessageMapper(PLANE), ZenohSink(publisher)
+    # The batches are made and logged before the subscriber starts: its wait for samples
+    # is bounded, and the mapper's kernels may take seconds to load on a loaded machine.
+    batches = []
+    with McapLog(tmp_path) as log:
+        sink = McapSink(log)
+        for step in range(4):
+            t = NOON + 5.0 * step
+            plots = _plots(rng, 20, t, 20 * step)
+            local = mapper.local_updates("40/2", _local_rows(rng, 12, t))
+            system = mapper.system_updates(_system_rows(rng, 20, t, plots), plots, SOURCES)
+            sink.local_updates("40/2", local, t)
+            sink.system_updates(system, t)
+            batches.append((t, local, system))
+        ended = mapper.end_all_updates()
+        sink.system_updates(ended, t)
+    expected = _published(log.files[0])
+    proc = child(endpoint, "listen", "tracker/**")
+    try:
+        assert read_line(proc) == {"ready": True}
+        _wait_for_subscriber(publisher, proc)
+        for t, local, system in batches:
+            zenoh.local_updates("40/2", local, t)
+            zenoh.system_updates(system, t)
+        zenoh.system_updates(ended, t)
+        # Probes still in flight arrive before the rest.
+        samples = (read_line(proc) for _ in itertools.count())
+        got = list(itertools.islice((s for s in samples if s["key"] != _PROBE), len(expected)))
+    finally:
+        assert proc.stdin is not None
+        proc.stdin.close()
+        proc.wait(timeout=TIMEOUT_S)
+    assert [(g["key"], g["kind"]) for g in got] == [(key, kind) for key, kind, _ in expected]
+    for sample, (_, kind, payload) in zip(got, expected, strict=True):
+        if kind == "SampleKind.PUT":
+            assert sample["payload"].encode() == payload
+            assert sample["encoding"] == "application/json"
+
+
+_PROBE = "tracker/system_tracks/65535"
+
+
+def _wait_for_subscriber(publisher: ZenohPublisher, proc: subprocess.Popen[str]) -> None:
+    """Probes on a track key (ended: put and deleted) until one reaches the subscriber;
+    those still in flight are for the reader to skip."""
+    assert proc.stdout is not None
+    deadline = time.monotonic() + TIMEOUT_S
+    while not select.select([proc.stdout], [], [], 0.05)[0]:
+        assert time.monotonic() < deadline, "no probe reached the subscriber"
+        publisher.end_system_track(65535, b"{}")
+
+
+def _published(path: Path) -> list[tuple[str, str, bytes]]:
+    """What Zenoh publishes of a log's track messages: (key, kind, JSON), a deletion after
+    each system track's end."""
+    out = []
+    with path.open("rb") as stream:
+        for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            doc = json.loads(message.data)
+            if channel.topic == "/system_tracks":
+                key = f"tracker/system_tracks/{doc['number']}"
+            elif channel.topic.startswith("/local_tracks/"):
+                key = f"tracker/local_tracks/{channel.topic.rsplit('/', 1)[1]}/{doc['number']}"
+            else:
+                continue
+            out.append((key, "SampleKind.PUT", message.data))
+            if channel.topic == "/system_tracks" and doc["status"] == "ended":
+                out.append((key, "SampleKind.DELETE", b""))
+    return out

@@ -42,7 +42,11 @@ class SeenTestTargets:
 
     def update(self, plots: npt.NDArray[Any]) -> None:
         """A plot table (``chain.RAW_PLOT_DTYPE``) of the radar."""
-        rows = plots[plots["use"] == PlotUse.TEST_TARGET]
+        # ``.value``: numpy compares an IntEnum member through a slow path.
+        tests = plots["use"] == PlotUse.TEST_TARGET.value
+        if not tests.any():
+            return
+        rows = plots[tests]
         for row in rows[np.argsort(rows["time"], kind="stable")]:
             kind: Kind = "primary" if int(row["typ"]) == PSR_ONLY else "secondary"
             key = (kind, int(row["mode3a"]))

@@ -6,23 +6,21 @@ beyond an item's range are capped at its maximum, which CAT062 defines as "maxim
 or above" for ages and accuracies.
 
 Two encoders give the same bytes. ``encode_system_tracks`` (the service's path:
-``encode_system_documents``) quantises every row of a batch at once with numpy and writes
-the records of each item layout as one byte matrix, 6.5 times faster than the generic
-codec on a `scale` slice (``benchmarks/bench_outputs.py``). ``encode_system_tracks_generic``
-builds each record's item dicts and encodes them with ``asterix.codec.encode_record``: the
-reference the fast path is tested against, byte for byte. Both take their values from
-``track_columns``, so they differ only in the encoding. The service keeps the messages as
-their values (``encode_system_documents``), not as models. Items whose values are few and
-discrete (identity, status bits, the sensor) are encoded by the codec's own item encoders
-and cached; only the quantities are written here, with the items' LSBs and sizes read from
-the specification.
+``encode_system_batch``, of the updates' columns, ``updates.SystemBatch``) quantises every
+row of a batch at once with numpy and writes the records of each item layout as one byte
+matrix, 6.5 times faster than the generic codec on a `scale` slice
+(``benchmarks/bench_outputs.py``). ``encode_system_tracks_generic`` builds each record's
+item dicts and encodes them with ``asterix.codec.encode_record``: the reference the fast
+path is tested against, byte for byte. Both take their values from ``track_columns``, so
+they differ only in the encoding. Items whose values are few and discrete (identity,
+status bits, the sensor) are encoded by the codec's own item encoders and cached; only the
+quantities are written here, with the items' LSBs and sizes read from the specification.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from dataclasses import field as dataclass_field
 from fractions import Fraction
 from functools import cache
 from typing import Any, Literal
@@ -37,6 +35,7 @@ from tracker_service.geodesy.ellipsoid import meridian_radius_m, prime_vertical_
 from tracker_service.geodesy.plane import SystemPlane
 from tracker_service.outputs.messages import SystemTrackMessage
 from tracker_service.outputs.sdps import SdpsIdentity
+from tracker_service.outputs.updates import STATUSES, SystemBatch, SystemValues
 
 __all__ = [
     "CAT062",
@@ -44,7 +43,7 @@ __all__ = [
     "MAX_BLOCK_OCTETS",
     "TrackColumns",
     "encode_cat065",
-    "encode_system_documents",
+    "encode_system_batch",
     "encode_system_tracks",
     "encode_system_tracks_generic",
     "system_track_records",
@@ -82,19 +81,22 @@ def encode_system_tracks(
 ) -> bytes:
     """CAT062 data blocks of the messages, in order, each block at most
     ``max_block_octets`` long (ValueError if one record alone is longer)."""
-    return encode_system_documents([m.model_dump() for m in messages], config, max_block_octets)
+    if not messages:
+        return b""
+    batch = SystemBatch.of_values([SystemValues.of_message(m) for m in messages])
+    return encode_system_batch(batch, config, max_block_octets)
 
 
-def encode_system_documents(
-    docs: Sequence[Mapping[str, Any]],
+def encode_system_batch(
+    batch: SystemBatch,
     config: SdpsIdentity,
     max_block_octets: int = MAX_BLOCK_OCTETS,
 ) -> bytes:
-    """As :func:`encode_system_tracks`, of the messages' values (``model_dump()``'s
-    shape: ``updates.SystemUpdate.doc``), as the service keeps them."""
-    if not docs:
+    """As :func:`encode_system_tracks`, of the messages' values column by column
+    (``updates.SystemBatch``), as the service keeps them."""
+    if not len(batch):
         return b""
-    return _blocks(_fast_records(track_columns(docs, config), config), max_block_octets)
+    return _blocks(_fast_records(track_columns(batch, config), config), max_block_octets)
 
 
 def encode_system_tracks_generic(
@@ -148,12 +150,14 @@ class TrackColumns:
     """I185: on the target's own east and north."""
     vy: FloatArray
     number: IntArray
-    mode3a: list[str | None]
+    mode3a: IntArray
+    """-1: none."""
     mode3a_changed: BoolArray
     callsign: list[str | None]
-    address: list[str | None]
-    status: list[tuple[int, ...]]
-    """The I080 flags of ``_STATUS_FLAGS``, then AFF and DUPM."""
+    address: IntArray
+    """-1: none."""
+    status: IntArray
+    """(N, 10): the I080 flags of ``_STATUS_FLAGS``, then AFF and DUPM."""
     ages: FloatArray
     """(N, 4): PSR, SSR, MDS, ES ages, capped."""
     flight_level: FloatArray
@@ -166,67 +170,72 @@ class TrackColumns:
     """(N, 2): LAT, LON."""
     atv: FloatArray
     """(N, 2): X, Y."""
-    sensor: list[tuple[int, int] | None]
+    sensor: IntArray
+    """(N, 2): SAC, SIC of the last plot's radar; -1: none."""
     rho_nm: FloatArray
     theta_deg: FloatArray
-    daps: list[dict[str, tuple[float, float]]] = dataclass_field(default_factory=list)
-    """Per track, its Mode S DAPs by message name: (value, age s)."""
+    has_dap: BoolArray
+    """(N, DAPs): which Mode S DAPs each track has, by ``messages.DAP_NAMES``."""
+    dap_value: FloatArray
+    dap_age: FloatArray
 
     def __len__(self) -> int:
         return len(self.number)
 
 
-def _optional(values: Sequence[float | None]) -> FloatArray:
-    return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
-
-
-def track_columns(docs: Sequence[Mapping[str, Any]], config: SdpsIdentity) -> TrackColumns:
-    """The CAT062 values of system-track messages given as their values
-    (``model_dump()``'s shape: ``updates.SystemUpdate.doc``), over the whole batch at once."""
-    lat = np.array([m["lat"] for m in docs], dtype=np.float64)
-    lon = np.array([m["lon"] for m in docs], dtype=np.float64)
-    plane_velocity = np.array([[m["vx_mps"], m["vy_mps"]] for m in docs], dtype=np.float64)
+def track_columns(batch: SystemBatch, config: SdpsIdentity) -> TrackColumns:
+    """The CAT062 values of a batch of system-track updates, over the whole batch at once."""
+    lat, lon = batch.lat, batch.lon
+    plane_velocity = np.column_stack((batch.vx, batch.vy))
     # I185's axes are the target's own east and north, not the system plane's: undo the
     # plane's convergence and scale at each target (2-3 deg at 300 km from the centre).
     jacobian = _plane(config).jacobian(lat, lon)[:, :, :2]
     local_velocity = np.asarray(
         np.linalg.solve(jacobian, plane_velocity[:, :, None])[:, :, 0], dtype=np.float64
     )
-    p = np.array([m["covariance"] for m in docs], dtype=np.float64).reshape(-1, 4, 4)
+    p = batch.covariance.reshape(-1, 4, 4)
     sx = np.sqrt(np.maximum(p[:, 0, 0], 0.0))
     sy = np.sqrt(np.maximum(p[:, 1, 1], 0.0))
     # Note 2 of I062/500: sign(Cov(X,Y)) * sqrt(|Cov(X,Y)|).
     cov = np.copysign(np.minimum(np.sqrt(np.abs(p[:, 0, 1])), COV_MAX_M), p[:, 0, 1])
     north_m = meridian_radius_m(lat)
     east_m = prime_vertical_radius_m(lat) * np.maximum(np.cos(np.radians(lat)), 1e-9)
-    # None in a float array is NaN: an age never measured.
-    ages = np.array(
-        [
-            (m["ages"]["psr"], m["ages"]["ssr"], m["ages"]["mode_s"], m["ages"]["adsb"])
-            for m in docs
-        ],
-        dtype=np.float64,
-    ).reshape(-1, 4)
-    plots = [m["last_plot"] for m in docs]
+    radars = np.full((len(batch.radar_names) + 1, 2), -1, dtype=np.int64)  # the last: none
+    for radar in np.unique(batch.plot_radar[batch.plot_radar >= 0]).tolist():
+        radars[radar] = _sac_sic(batch.radar_names[radar])
+    sensor = radars[batch.plot_radar]
+    status = np.column_stack(
+        (
+            batch.n_sources == 1,
+            batch.status == STATUSES.index("ended"),
+            batch.first,
+            batch.status == STATUSES.index("coasting"),
+            # A sensor type that never updated the track is "older than any threshold".
+            np.isnan(batch.ages),
+            batch.adsb_inconsistent,
+            batch.duplicate_address,
+        )
+    ).astype(np.int64)
+    names = batch.names
     return TrackColumns(
-        time_of_day=_time_of_day(np.array([m["time"] for m in docs], dtype=np.float64)),
+        time_of_day=_time_of_day(batch.time),
         lat=lat,
         lon=(lon + 180.0) % 360.0 - 180.0,
-        x=np.array([m["x_m"] for m in docs], dtype=np.float64),
-        y=np.array([m["y_m"] for m in docs], dtype=np.float64),
+        x=batch.x,
+        y=batch.y,
         vx=local_velocity[:, 0],
         vy=local_velocity[:, 1],
-        number=np.array([m["number"] for m in docs], dtype=np.int64),
-        mode3a=[m["mode3a"] for m in docs],
-        mode3a_changed=np.array([m["mode3a_changed"] for m in docs], dtype=bool),
-        callsign=[m["callsign"] for m in docs],
-        address=[m["address"] for m in docs],
-        status=[_status_flags(m) for m in docs],
-        ages=np.minimum(ages, AGE_MAX_S),
-        flight_level=_optional([m["flight_level"] for m in docs]),
+        number=batch.number,
+        mode3a=batch.mode3a,
+        mode3a_changed=batch.mode3a_changed,
+        callsign=[None if i < 0 else names[i] for i in batch.callsign.tolist()],
+        address=batch.address,
+        status=status,
+        ages=np.minimum(batch.ages, AGE_MAX_S),
+        flight_level=batch.flight_level,
         # I135 holds barometric altitude in FL units; QNH=1 says it is above sea level.
-        altitude_fl=_optional([m["altitude_m"] for m in docs]) / 0.3048 / 100.0,
-        climb_rate_fpm=_optional([m["climb_rate_fpm"] for m in docs]),
+        altitude_fl=batch.altitude_m / 0.3048 / 100.0,
+        climb_rate_fpm=batch.climb_rate_fpm,
         apc=np.minimum(np.stack([sx, sy], axis=1), APC_MAX_M),
         cov=cov,
         apw=np.minimum(
@@ -235,20 +244,16 @@ def track_columns(docs: Sequence[Mapping[str, Any]], config: SdpsIdentity) -> Tr
         atv=np.minimum(
             np.sqrt(np.maximum(np.stack([p[:, 2, 2], p[:, 3, 3]], axis=1), 0.0)), ATV_MAX_MPS
         ),
-        sensor=[None if plot is None else _sac_sic(plot["radar"]) for plot in plots],
-        rho_nm=np.minimum(
-            _optional([None if plot is None else plot["range_m"] for plot in plots]) / NM,
-            RHO_MAX_NM,
-        ),
-        theta_deg=_wrapped(
-            _optional([None if plot is None else plot["azimuth_deg"] for plot in plots]),
-            AZIMUTH_LSB,
-            65536,
-        ),
-        daps=[{d["name"]: (d["value"], d["age_s"]) for d in m.get("daps", ())} for m in docs],
+        sensor=sensor,
+        rho_nm=np.minimum(batch.plot_range / NM, RHO_MAX_NM),
+        theta_deg=_wrapped(batch.plot_azimuth, AZIMUTH_LSB, 65536),
+        has_dap=batch.has_dap,
+        dap_value=batch.dap_value,
+        dap_age=batch.dap_age,
     )
 
 
+@cache
 def _sac_sic(radar: str) -> tuple[int, int]:
     sac, sic = radar.split("/")
     return int(sac), int(sic)
@@ -260,7 +265,8 @@ def system_track_records(
     """The CAT062 item dicts of the messages (decoded shape)."""
     if not messages:
         return []
-    columns = track_columns([m.model_dump() for m in messages], config)
+    batch = SystemBatch.of_values([SystemValues.of_message(m) for m in messages])
+    columns = track_columns(batch, config)
     return [_record(columns, k, config) for k in range(len(columns))]
 
 
@@ -309,23 +315,6 @@ _STATUS_FLAGS = ("MON", "TSE", "TSB", "CST", "PSR", "SSR", "MDS", "ADS")
 """The I080 flags that vary; the others are 0, KOS 1."""
 
 
-def _status_flags(m: Mapping[str, Any]) -> tuple[int, ...]:
-    ages, status = m["ages"], m["status"]
-    return (
-        int(len(m["sources"]) == 1),
-        int(status == "ended"),
-        int(m["first"]),
-        int(status == "coasting"),
-        # A sensor type that never updated the track is "older than any threshold".
-        int(ages["psr"] is None),
-        int(ages["ssr"] is None),
-        int(ages["mode_s"] is None),
-        int(ages["adsb"] is None),
-        int(m.get("adsb_inconsistent", False)),
-        int(m["duplicate_address"]),
-    )
-
-
 def _present(value: float) -> bool:
     return value == value  # not NaN
 
@@ -339,18 +328,22 @@ def _record(c: TrackColumns, k: int, config: SdpsIdentity) -> dict[str, Any]:
         "100": {"X": float(c.x[k]), "Y": float(c.y[k])},
         "185": {"VX": float(c.vx[k]), "VY": float(c.vy[k])},
     }
-    mode3a, callsign, address = c.mode3a[k], c.callsign[k], c.address[k]
+    mode3a, callsign, address = _octal(int(c.mode3a[k])), c.callsign[k], _hex(int(c.address[k]))
     if mode3a is not None:
         items["060"] = {"V": 0, "G": 0, "CH": int(c.mode3a_changed[k]), "MODE3A": mode3a}
     if callsign is not None:
         items["245"] = {"STI": 0, "CHR": callsign}
-    daps = c.daps[k] if c.daps else {}
+    daps = {
+        name: (float(c.dap_value[k, d]), float(c.dap_age[k, d]))
+        for d, name in enumerate(_DAP_SUBFIELDS)
+        if c.has_dap[k, d]
+    }
     if address is not None or callsign is not None or daps:
         items["380"] = _aircraft_derived(address, callsign, daps)
     if daps:
         items["295"] = _dap_ages(daps)
     items["040"] = int(c.number[k])
-    items["080"] = _status(c.status[k])
+    items["080"] = _status(tuple(c.status[k].tolist()))
     ages = {n: float(a) for n, a in zip(_AGE_NAMES, c.ages[k], strict=True) if _present(a)}
     if ages:
         items["290"] = ages
@@ -366,10 +359,18 @@ def _record(c: TrackColumns, k: int, config: SdpsIdentity) -> dict[str, Any]:
         "APW": {"LAT": float(c.apw[k, 0]), "LON": float(c.apw[k, 1])},
         "ATV": {"X": float(c.atv[k, 0]), "Y": float(c.atv[k, 1])},
     }
-    sensor = c.sensor[k]
-    if sensor is not None:
-        items["340"] = _measured(sensor, float(c.rho_nm[k]), float(c.theta_deg[k]))
+    sac, sic = c.sensor[k].tolist()
+    if sac >= 0:
+        items["340"] = _measured((sac, sic), float(c.rho_nm[k]), float(c.theta_deg[k]))
     return items
+
+
+def _octal(code: int) -> str | None:
+    return None if code < 0 else f"{code:04o}"
+
+
+def _hex(address: int) -> str | None:
+    return None if address < 0 else f"{address:06X}"
 
 
 def _aircraft_derived(
@@ -384,13 +385,15 @@ def _aircraft_derived(
     return out
 
 
-def _turn(rate_deg_s: float) -> dict[str, Any]:
+def _turn(rate_deg_s: Any) -> dict[str, Any]:
+    """I380/TAR of a turn rate, or of an array of them (TI then an array)."""
     # BDS 5,0 and I380/TAR both count a right turn positive; TI says which way.
-    straight = abs(rate_deg_s) < 0.125  # half the ROT step
-    return {"TI": 3 if straight else 2 if rate_deg_s > 0 else 1, "ROT": rate_deg_s}
+    straight = np.abs(rate_deg_s) < 0.125  # half the ROT step
+    ti = np.where(straight, 3, np.where(rate_deg_s > 0, 2, 1))
+    return {"TI": ti if np.ndim(ti) else int(ti), "ROT": rate_deg_s}
 
 
-_DAP_SUBFIELDS: dict[str, tuple[str, str, Callable[[float], Any]]] = {
+_DAP_SUBFIELDS: dict[str, tuple[str, str, Callable[[Any], Any]]] = {
     # message DAP name: (I380 subfield, I295 subfield, I380 value)
     "magnetic_heading_deg": ("MHG", "MHG", lambda v: v % 360.0),
     "indicated_airspeed_kt": ("IAR", "IAR", lambda v: v),
@@ -403,8 +406,10 @@ _DAP_SUBFIELDS: dict[str, tuple[str, str, Callable[[float], Any]]] = {
     "true_track_deg": ("TAN", "TAN", lambda v: v % 360.0),
     "ground_speed_kt": ("GS", "GSP", lambda v: v / 3600.0),  # NM/s
 }
-"""The DAPs of the system-track messages in I380 and their ages in I295. The inertial
-vertical rate goes to GVR (geometric vertical rate): the nearest the item has."""
+"""The DAPs of the system-track messages in I380 and their ages in I295, in
+``messages.DAP_NAMES`` order; each I380 value of a DAP's value, or of an array of them. The
+inertial vertical rate goes to GVR (geometric vertical rate): the nearest the item has."""
+_DAP_INDEX = {name: d for d, name in enumerate(_DAP_SUBFIELDS)}
 
 
 def _dap_ages(daps: Mapping[str, tuple[float, float]]) -> dict[str, float]:
@@ -597,8 +602,8 @@ def _each(data: Iterator[bytes], n: int) -> npt.NDArray[np.uint8]:
 
 
 @cache
-def _mode3a_bytes(code: str, changed: bool) -> bytes:
-    return _ITEM_ENCODERS["060"]({"V": 0, "G": 0, "CH": int(changed), "MODE3A": code})
+def _mode3a_bytes(code: int, changed: bool) -> bytes:
+    return _ITEM_ENCODERS["060"]({"V": 0, "G": 0, "CH": int(changed), "MODE3A": _octal(code)})
 
 
 @cache
@@ -612,10 +617,12 @@ def _aircraft_derived_bytes(address: str | None, callsign: str | None) -> bytes:
 
 
 @cache
-def _identity_subfields(address: str | None, callsign: str | None) -> bytes:
-    """I380's ADR and ID subfields (its first two) without the FSPEC."""
-    names = [n for n, v in (("ADR", address), ("ID", callsign)) if v is not None]
-    return _aircraft_derived_bytes(address, callsign)[len(_subfield_fspec("380", names)) :]
+def _identity_subfields(address: int, callsign: str | None) -> bytes:
+    """I380's ADR and ID subfields (its first two) without the FSPEC; ``address`` -1:
+    none."""
+    adr = _hex(address)
+    names = [n for n, v in (("ADR", adr), ("ID", callsign)) if v is not None]
+    return _aircraft_derived_bytes(adr, callsign)[len(_subfield_fspec("380", names)) :]
 
 
 def _aircraft_derived_parts(
@@ -628,17 +635,17 @@ def _aircraft_derived_parts(
     names = ["ADR"] * address + ["ID"] * callsign + list(subfields.values())
     parts = [_constant(_subfield_fspec("380", names), n)]
     if address or callsign:
-        parts.append(_each((_identity_subfields(c.address[k], c.callsign[k]) for k in index), n))
+        addresses, callsigns = c.address.tolist(), c.callsign
+        parts.append(_each((_identity_subfields(addresses[k], callsigns[k]) for k in index), n))
     for name in sorted(dap_names, key=lambda d: _I380_SLOTS.index(subfields[d])):
-        value_of = _DAP_SUBFIELDS[name][2]
-        values = [value_of(c.daps[k][name][0]) for k in index]
+        value = _DAP_SUBFIELDS[name][2](c.dap_value[index, _DAP_INDEX[name]])
         if name == "selected_altitude_ft":  # SAS and SRC 0, ALT in the low 13 bits
-            raw = _quantised(_Q380_SAL, np.array([v["ALT"] for v in values]))
+            raw = _quantised(_Q380_SAL, value["ALT"])
         elif name == "track_angle_rate_deg_s":  # TI (2 bits), 6 spare, ROT (7), 1 spare
-            turn = _quantised(_Q380_ROT, np.array([v["ROT"] for v in values]))
-            raw = np.array([v["TI"] for v in values], dtype=np.int64) << 14 | turn << 1
+            turn = _quantised(_Q380_ROT, value["ROT"])
+            raw = value["TI"].astype(np.int64) << 14 | turn << 1
         else:
-            raw = _quantised(_Q380[subfields[name]], np.array(values, dtype=np.float64))
+            raw = _quantised(_Q380[subfields[name]], value)
         parts.append(_bytes(raw, 2))
     return parts
 
@@ -651,7 +658,7 @@ def _dap_age_parts(
     order = sorted(ages, key=_I295_SLOTS.index)
     parts = [_constant(_subfield_fspec("295", order), len(index))]
     for age in order:
-        values = np.array([c.daps[k][ages[age]][1] for k in index], dtype=np.float64)
+        values = c.dap_age[index, _DAP_INDEX[ages[age]]]
         parts.append(_bytes(_quantised(_Q295[age], np.minimum(values, AGE_MAX_S)), 1))
     return parts
 
@@ -674,20 +681,17 @@ def _layouts(c: TrackColumns) -> npt.NDArray[np.int64]:
     of the same items and sizes."""
     n = len(c)
     bits = [
-        np.array([v is not None for v in c.mode3a], dtype=bool),
+        c.mode3a >= 0,
         np.array([v is not None for v in c.callsign], dtype=bool),
-        np.array([v is not None for v in c.address], dtype=bool),
-        np.array([flags[-1] == 1 for flags in c.status], dtype=bool),
+        c.address >= 0,
+        c.status[:, -1] == 1,
         *(~np.isnan(c.ages[:, i]) for i in range(len(_AGE_NAMES))),
         ~np.isnan(c.flight_level),
         ~np.isnan(c.altitude_fl),
         ~np.isnan(c.climb_rate_fpm),
-        np.array([v is not None for v in c.sensor], dtype=bool),
+        c.sensor[:, 0] >= 0,
         ~np.isnan(c.rho_nm) & ~np.isnan(c.theta_deg),
-        *(
-            np.array([name in d for d in c.daps] if c.daps else [False] * n, dtype=bool)
-            for name in _DAP_SUBFIELDS
-        ),
+        *c.has_dap.T,
     ]
     assert len(bits) == _LAYOUT_BITS
     layout = np.zeros(n, dtype=np.int64)
@@ -738,9 +742,8 @@ def _layout_records(
     }
     index = rows.tolist()
     if has_mode3a:
-        parts["060"] = [
-            _each((_mode3a_bytes(c.mode3a[k], bool(c.mode3a_changed[k])) for k in index), n)
-        ]
+        codes, changed = c.mode3a.tolist(), c.mode3a_changed.tolist()
+        parts["060"] = [_each((_mode3a_bytes(codes[k], changed[k]) for k in index), n)]
     if has_callsign:
         parts["245"] = [_each((_callsign_bytes(c.callsign[k]) for k in index), n)]
     if has_address or has_callsign or has_daps:
@@ -752,7 +755,8 @@ def _layout_records(
     if number.min() < 0 or number.max() > _NUMBER_MAX:
         raise _OutOfRange
     parts["040"] = [_bytes(number, 2)]
-    parts["080"] = [_each((_status_bytes(c.status[k]) for k in index), n)]
+    status = c.status[rows].tolist()
+    parts["080"] = [_each((_status_bytes(tuple(flags)) for flags in status), n)]
     if any(has_ages):
         names = [name for name, present in zip(_AGE_NAMES, has_ages, strict=True) if present]
         parts["290"] = [_constant(_subfield_fspec("290", names), n)] + [
@@ -774,7 +778,7 @@ def _layout_records(
         *(_bytes(_quantised(q, c.atv[rows, i]), 1) for i, q in enumerate(_Q500_ATV)),
     ]
     if has_sensor:
-        sensors = np.array([c.sensor[k] for k in index], dtype=np.int64).reshape(n, 2)
+        sensors = c.sensor[rows]
         if sensors.min() < 0 or sensors.max() > 255:
             raise _OutOfRange
         subfields = ("SID", "POS") if has_pos else ("SID",)

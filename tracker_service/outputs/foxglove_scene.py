@@ -30,14 +30,23 @@ from __future__ import annotations
 import json
 import math
 from collections import deque
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from json.encoder import encode_basestring_ascii
+from typing import Any, NamedTuple
 
+import numpy as np
+import numpy.typing as npt
 from pyproj import Geod
 
 from tracker_service.outputs.mcap_log import LOCATION_FIX_SCHEMA
 from tracker_service.outputs.messages import SystemTrackMessage
+from tracker_service.outputs.updates import (
+    STATUSES,
+    SystemBatch,
+    SystemValues,
+    python_json_numbers,
+)
 
 __all__ = [
     "CHANNELS",
@@ -86,13 +95,26 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     },
 }
 _COVARIANCE_KNOWN = 3
+_FIX = (
+    '{"timestamp":{"sec":%d,"nsec":%d},"frame_id":"track/%d","latitude":%s,"longitude":%s,'
+    '"altitude":%s,"position_covariance":[%s,%s,0.0,%s,%s,0.0,0.0,0.0,1000000.0],'
+    f'"position_covariance_type":{_COVARIANCE_KNOWN},'
+    '"color":{"r":%s,"g":%s,"b":%s,"a":1.0},"metadata":[%s]}'
+)
+"""A ``foxglove.LocationFix`` as ``json.dumps`` writes it (compact): the plane's axes are
+east and north near its centre; the vertical is not estimated, so large rather than zero."""
+_ENDED = STATUSES.index("ended")
 
 Rgb = tuple[float, float, float]
 _MULTI: Rgb = (0.18, 0.8, 0.25)
 _SINGLE: Rgb = (0.12, 0.56, 1.0)
 _COASTING: Rgb = (1.0, 0.69, 0.0)
 _DUPLICATE: Rgb = (0.9, 0.1, 0.1)
-_ENDED: Rgb = (0.5, 0.5, 0.5)
+_ENDED_COLOUR: Rgb = (0.5, 0.5, 0.5)
+_COLOUR_TEXT = {
+    rgb: tuple(map(repr, rgb)) for rgb in (_MULTI, _SINGLE, _COASTING, _DUPLICATE, _ENDED_COLOUR)
+}
+"""Each colour's components as ``json.dumps`` writes them."""
 
 
 @dataclass(frozen=True)
@@ -118,87 +140,134 @@ class MapRadar:
     range_nm: float
 
 
-@dataclass(frozen=True, slots=True)
-class MapTrack:
-    """What the map shows of a system-track update: its message's values, read from the
-    model (:meth:`of_message`) or from an update's plain values (:meth:`of_values`, the
-    batch path: no model per update)."""
-
-    number: int
-    time: float
-    status: str
-    lat: float
-    lon: float
-    altitude_m: float | None
-    flight_level: float | None
-    vx_mps: float
-    vy_mps: float
-    ground_speed_mps: float
-    track_angle_deg: float
-    covariance: Sequence[Sequence[float]]
-    address: str | None
-    callsign: str | None
-    mode3a: str | None
-    duplicate_address: bool
-    radars: frozenset[str]
-    """The radars of its sources."""
-
-    @classmethod
-    def of_message(cls, m: SystemTrackMessage) -> MapTrack:
-        return cls.of_values(m.model_dump())
-
-    @classmethod
-    def of_values(cls, d: Mapping[str, Any]) -> MapTrack:
-        """From a system update's values (``updates.SystemUpdate.doc``)."""
-        return cls(
-            d["number"],
-            d["time"],
-            d["status"],
-            d["lat"],
-            d["lon"],
-            d["altitude_m"],
-            d["flight_level"],
-            d["vx_mps"],
-            d["vy_mps"],
-            d["ground_speed_mps"],
-            d["track_angle_deg"],
-            d["covariance"],
-            d["address"],
-            d["callsign"],
-            d["mode3a"],
-            d["duplicate_address"],
-            frozenset(s["radar"] for s in d["sources"]),
-        )
+def _map_track(track: SystemTrackMessage | SystemValues) -> SystemValues:
+    return track if isinstance(track, SystemValues) else SystemValues.of_message(track)
 
 
-def _map_track(track: SystemTrackMessage | MapTrack) -> MapTrack:
-    return track if isinstance(track, MapTrack) else MapTrack.of_message(track)
-
-
-def track_colour(track: SystemTrackMessage | MapTrack) -> Rgb:
+def track_colour(track: SystemTrackMessage | SystemValues) -> Rgb:
     """See the module docstring."""
-    message = _map_track(track)
-    if message.status == "ended":
-        return _ENDED
-    if message.duplicate_address:
+    m = _map_track(track)
+    return _colour(m.status, m.duplicate_address, len(set(m.sources)))
+
+
+def _colour(status: str, duplicate_address: bool, radars: int) -> Rgb:
+    if status == "ended":
+        return _ENDED_COLOUR
+    if duplicate_address:
         return _DUPLICATE
-    if message.status == "coasting":
+    if status == "coasting":
         return _COASTING
-    return _MULTI if len(message.radars) >= 2 else _SINGLE
+    return _MULTI if radars >= 2 else _SINGLE
 
 
-def track_label(track: SystemTrackMessage | MapTrack) -> str:
+def track_label(track: SystemTrackMessage | SystemValues) -> str:
     """What an ATC label shows: callsign, else Mode 3/A code, else the track number;
     flight level; ground speed in knots. E.g. "DLH65A FL350 452kt", "A7000 FL--- 120kt"."""
-    message = _map_track(track)
-    callsign = (message.callsign or "").strip()
-    identity = callsign or (f"A{message.mode3a}" if message.mode3a else f"#{message.number}")
-    level = "FL---" if message.flight_level is None else f"FL{round(message.flight_level):03d}"
-    return f"{identity} {level} {round(message.ground_speed_mps * _KT_PER_MPS)}kt"
+    m = _map_track(track)
+    return _label(m.number, m.callsign, m.mode3a, m.flight_level, m.ground_speed_mps)
+
+
+def _label(
+    number: int,
+    callsign: str | None,
+    mode3a: str | None,
+    flight_level: float | None,
+    ground_speed_mps: float,
+) -> str:
+    identity = (callsign or "").strip() or (f"A{mode3a}" if mode3a else f"#{number}")
+    level = "FL---" if flight_level is None else f"FL{round(flight_level):03d}"
+    return f"{identity} {level} {round(ground_speed_mps * _KT_PER_MPS)}kt"
+
+
+def _identities(
+    number: Sequence[int],
+    status: Sequence[str],
+    callsign: Sequence[str | None],
+    mode3a: Sequence[str | None],
+    address: Sequence[str | None],
+    flight_level: Sequence[float | None],
+    ground_speed_mps: Sequence[float],
+    track_angle_deg: Sequence[float],
+    sources: Sequence[str],
+) -> list[tuple[str, list[str | None]]]:
+    """What the map's tooltip lists of each of several tracks (``metadata``), label
+    first: per item its key and its value for each track (None: the track has none), so
+    that a batch's fixes are written column by column."""
+    return [
+        (
+            "label",
+            list(map(_label, number, callsign, mode3a, flight_level, ground_speed_mps)),
+        ),
+        ("track", [str(n) for n in number]),
+        ("status", list(status)),
+        ("callsign", [c.strip() if c else None for c in callsign]),
+        ("mode3a", [m or None for m in mode3a]),
+        ("address", [a or None for a in address]),
+        ("flight_level", [None if f is None else f"{f:.2f}" for f in flight_level]),
+        ("ground_speed_kt", [f"{v * _KT_PER_MPS:.0f}" for v in ground_speed_mps]),
+        ("track_angle_deg", [f"{a:.0f}" for a in track_angle_deg]),
+        ("sources", list(sources)),
+    ]
+
+
+_FREE_TEXT = frozenset(("label", "callsign", "sources"))
+"""The identity items whose values may hold any character (a callsign, radar names); the
+others are digits, hex, a status word, a formatted number: no escaping."""
+
+
+def _json_strings(key: str, values: Sequence[str | None]) -> list[str]:
+    """The values of an identity item as ``json.dumps`` writes strings ("" for None)."""
+    if key in _FREE_TEXT:
+        return ["" if v is None else encode_basestring_ascii(v) for v in values]
+    return ["" if v is None else f'"{v}"' for v in values]
+
+
+class _MapColumns(NamedTuple):
+    number: list[int]
+    status: list[str]
+    identities: list[tuple[str, list[str | None]]]
+    colours: list[Rgb]
+
+
+def _map_columns(batch: SystemBatch, rows: npt.NDArray[np.int64]) -> _MapColumns:
+    """What the map shows of rows ``rows`` of ``batch``: numbers, statuses, identities
+    (``_identities``) and colours, column by column."""
+    names, radar_names = batch.names, batch.radar_names
+    number = batch.number[rows].tolist()
+    status = [STATUSES[code] for code in batch.status[rows].tolist()]
+    # Each row's sources' radars (by id), their distinct names sorted: few sets a batch.
+    keys = [
+        tuple(row[:n])
+        for row, n in zip(
+            batch.source_radar[rows].tolist(), batch.n_sources[rows].tolist(), strict=True
+        )
+    ]
+    radars = {key: sorted({radar_names[r] for r in key}) for key in set(keys)}
+    identities = _identities(
+        number,
+        status,
+        [None if i < 0 else names[i] for i in batch.callsign[rows].tolist()],
+        [None if c < 0 else f"{c:04o}" for c in batch.mode3a[rows].tolist()],
+        [None if a < 0 else f"{a:06X}" for a in batch.address[rows].tolist()],
+        [None if f != f else f for f in batch.flight_level[rows].tolist()],
+        batch.ground_speed[rows].tolist(),
+        batch.track_angle[rows].tolist(),
+        [",".join(radars[key]) for key in keys],
+    )
+    colours = [
+        _colour(state, duplicate, len(radars[key]))
+        for state, duplicate, key in zip(
+            status, batch.duplicate_address[rows].tolist(), keys, strict=True
+        )
+    ]
+    return _MapColumns(number, status, identities, colours)
 
 
 def _hex(rgb: Rgb) -> str:
     return "#" + "".join(f"{round(c * 255):02x}" for c in rgb)
+
+
+_COLOUR_HEX = {rgb: _hex(rgb) for rgb in _COLOUR_TEXT}
 
 
 def _timestamp(time: float) -> dict[str, int]:
@@ -222,11 +291,19 @@ _Point = tuple[float, float, float]
 
 @dataclass
 class _Track:
-    last: MapTrack
+    batch: SystemBatch
+    row: int
+    """Its latest update: a row of a batch, its values made when the picture needs them."""
     trail: deque[_Point] = field(default_factory=deque)
     """(time, lon, lat), oldest first."""
+    trail_json: str | None = None
+    """Its trail's points as JSON (``_point`` each, by commas); None when it changed."""
     features: str | None = None
     """Its features in the picture, as JSON; None when it moved since."""
+
+    @property
+    def last(self) -> SystemValues:
+        return self.batch.values(self.row)
 
 
 class MapScene:
@@ -258,23 +335,42 @@ class MapScene:
     def live_tracks(self) -> list[int]:
         return sorted(self._tracks)
 
-    def update(self, update: SystemTrackMessage | MapTrack, time: float) -> list[FoxgloveMessage]:
+    def update(
+        self, update: SystemTrackMessage | SystemValues, time: float
+    ) -> list[FoxgloveMessage]:
         """A system-track message at data time ``time``: its fix (none for "ended", whose
         track leaves the picture), then whatever periodic message falls due."""
-        message = _map_track(update)
+        return self.updates(SystemBatch.of_values([_map_track(update)]), time)
+
+    def updates(self, batch: SystemBatch, time: float) -> list[FoxgloveMessage]:
+        """:meth:`update` of each row of ``batch`` in turn, all at data time ``time``; the
+        fixes written for the whole batch at once."""
+        fixes = iter(self.location_fixes(batch))
         out: list[FoxgloveMessage] = []
-        if message.status == "ended":
-            self._tracks.pop(message.number, None)
-        else:
-            track = self._tracks.get(message.number)
-            if track is None:
-                track = self._tracks[message.number] = _Track(message)
-            track.last = message
-            track.features = None
-            self._extend_trail(track.trail, message)
-            fix = self.location_fix(message)
-            out.append(FoxgloveMessage(TRACKS_TOPIC, LOCATION_FIX, fix, time))
-        out.extend(self.tick(time))
+        tracks = self._tracks
+        rows = zip(
+            batch.number.tolist(),
+            (batch.status == _ENDED).tolist(),
+            batch.time.tolist(),
+            batch.lon.tolist(),
+            batch.lat.tolist(),
+            strict=True,
+        )
+        for k, (number, ended, at, lon, lat) in enumerate(rows):
+            if ended:
+                tracks.pop(number, None)
+            else:
+                track = tracks.get(number)
+                if track is None:
+                    track = tracks[number] = _Track(batch, k)
+                track.batch, track.row, track.features = batch, k, None
+                if self._extend_trail(track.trail, at, lon, lat):
+                    track.trail_json = None
+                out.append(FoxgloveMessage(TRACKS_TOPIC, LOCATION_FIX, next(fixes), time))
+            if k == 0:
+                # Due once at most at this time: after the first update, as each update
+                # at ``time`` would find it.
+                out.extend(self.tick(time))
         return out
 
     def tick(self, time: float) -> list[FoxgloveMessage]:
@@ -288,113 +384,156 @@ class MapScene:
             out.append(FoxgloveMessage(PICTURE_TOPIC, GEOJSON, self.picture_geojson(), time))
         return out
 
-    def _extend_trail(self, trail: deque[_Point], m: MapTrack) -> None:
-        if not trail or m.time - trail[-1][0] >= self.trail_spacing_s:
-            trail.append((m.time, round(m.lon, 5), round(m.lat, 5)))
-        while trail and m.time - trail[0][0] > self.trail_s:
+    def _extend_trail(self, trail: deque[_Point], time: float, lon: float, lat: float) -> bool:
+        """Whether the trail changed."""
+        changed = False
+        if not trail or time - trail[-1][0] >= self.trail_spacing_s:
+            trail.append((time, round(lon, 5), round(lat, 5)))
+            changed = True
+        while trail and time - trail[0][0] > self.trail_s:
             trail.popleft()
+            changed = True
+        return changed
 
-    def location_fix(self, track: SystemTrackMessage | MapTrack) -> bytes:
-        message = _map_track(track)
-        p = message.covariance
-        if message.altitude_m is not None:
-            altitude = message.altitude_m
-        elif message.flight_level is not None:
-            altitude = message.flight_level * _METRES_PER_FL
-        else:
-            altitude = 0.0
-        r, g, b = track_colour(message)
-        fix = {
-            "timestamp": _timestamp(message.time),
-            "frame_id": f"track/{message.number}",
-            "latitude": message.lat,
-            "longitude": message.lon,
-            "altitude": altitude,
-            # The plane's axes are east and north near its centre; the vertical is not
-            # estimated, so large rather than zero.
-            "position_covariance": [p[0][0], p[0][1], 0.0, p[1][0], p[1][1], 0.0, 0.0, 0.0, 1e6],
-            "position_covariance_type": _COVARIANCE_KNOWN,
-            "color": {"r": r, "g": g, "b": b, "a": 1.0},
-            "metadata": [{"key": k, "value": v} for k, v in self._identity(message)],
-        }
-        return _dumps(fix)
+    def location_fix(self, track: SystemTrackMessage | SystemValues) -> bytes:
+        """The ``foxglove.LocationFix`` of one update (``location_fixes``)."""
+        return self.location_fixes(SystemBatch.of_values([_map_track(track)]))[0]
 
     @staticmethod
-    def _identity(m: MapTrack) -> Iterator[tuple[str, str]]:
-        yield "label", track_label(m)
-        yield "track", str(m.number)
-        yield "status", m.status
-        if m.callsign:
-            yield "callsign", m.callsign.strip()
-        if m.mode3a:
-            yield "mode3a", m.mode3a
-        if m.address:
-            yield "address", m.address
-        if m.flight_level is not None:
-            yield "flight_level", f"{m.flight_level:.2f}"
-        yield "ground_speed_kt", f"{m.ground_speed_mps * _KT_PER_MPS:.0f}"
-        yield "track_angle_deg", f"{m.track_angle_deg:.0f}"
-        yield "sources", ",".join(sorted(m.radars))
+    def location_fixes(batch: SystemBatch) -> list[bytes]:
+        """The ``foxglove.LocationFix`` of each row of ``batch`` not ended, as
+        ``json.dumps`` writes it (compact): ``frame_id`` the track, its colour, its
+        identity and label in ``metadata``; the numbers of all of them written at once."""
+        live = np.flatnonzero(batch.status != _ENDED)
+        if not live.size:
+            return []
+        p = batch.covariance[live]
+        # The altitude the message gives, else its flight level's, else 0.
+        altitude = np.where(
+            np.isnan(batch.altitude_m[live]),
+            np.where(
+                np.isnan(batch.flight_level[live]), 0.0, batch.flight_level[live] * _METRES_PER_FL
+            ),
+            batch.altitude_m[live],
+        )
+        numbers = python_json_numbers(
+            np.column_stack(
+                (batch.lat[live], batch.lon[live], altitude, p[:, 0], p[:, 1], p[:, 4], p[:, 5])
+            )
+            .ravel()
+            .tolist()
+        )
+        time = batch.time[live]
+        sec = np.floor(time)
+        # ``_timestamp``: the fraction split off first, no 128 ns rounding.
+        nsec = np.minimum(np.rint((time - sec) * _NS_PER_S), _NS_PER_S - 1).astype(np.int64)
+        number, _, identities, colours = _map_columns(batch, live)
+        # Each item a column of its JSON objects ("" where a track has none), the first
+        # (the label, which every track has) without its leading comma.
+        items = [
+            [
+                "" if v is None else f'{"," if i else ""}{{"key":"{key}","value":{text}}}'
+                for v, text in zip(values, _json_strings(key, values), strict=True)
+            ]
+            for i, (key, values) in enumerate(identities)
+        ]
+        metadata = list(map("".join, zip(*items, strict=True)))
+        fixes = [
+            (
+                _FIX
+                % (
+                    second,
+                    nanosecond,
+                    n,
+                    *numbers[7 * k : 7 * k + 7],
+                    *_COLOUR_TEXT[colours[k]],
+                    metadata[k],
+                )
+            ).encode()
+            for k, (n, second, nanosecond) in enumerate(
+                zip(
+                    number,
+                    np.maximum(sec, 0).astype(np.int64).tolist(),
+                    nsec.tolist(),
+                    strict=True,
+                )
+            )
+        ]
+        return fixes
 
     def picture_geojson(self) -> bytes:
         """Every live track's point, trail and vector, as one FeatureCollection; a track's
-        features are made again only when it has moved since the last picture."""
-        fragments = []
-        for number in sorted(self._tracks):
-            track = self._tracks[number]
-            if track.features is None:
-                track.features = self._features(number, track)
-            fragments.append(track.features)
+        features are made again only when it has moved since the last picture (all such
+        tracks at once, from their updates' columns)."""
+        numbers = sorted(self._tracks)
+        moved = [self._tracks[n] for n in numbers if self._tracks[n].features is None]
+        if moved:
+            batch = SystemBatch.gather([(track.batch, track.row) for track in moved])
+            for track, features in zip(moved, self._features(batch, moved), strict=True):
+                track.features = features
+        fragments = [self._tracks[n].features or "" for n in numbers]
         collection = '{"type":"FeatureCollection","features":[' + ",".join(fragments) + "]}"
         return _dumps({"geojson": collection})
 
-    def _features(self, number: int, track: _Track) -> str:
-        m = track.last
-        colour = _hex(track_colour(m))
-        label = track_label(m)
+    @staticmethod
+    def _features(batch: SystemBatch, tracks: Sequence[_Track]) -> list[str]:
+        """Each track's point (its identity as properties), trail and one-minute vector,
+        as ``json.dumps`` writes them (compact), joined by commas; ``batch``: their latest
+        updates, in the same order."""
+        rows = np.arange(len(batch))
+        number, _, identities, colours = _map_columns(batch, rows)
+        (_, labels), *identity = identities
+        properties = list(
+            map(
+                "".join,
+                zip(
+                    *(
+                        [
+                            "" if v is None else f',"{key}":{text}'
+                            for v, text in zip(values, _json_strings(key, values), strict=True)
+                        ]
+                        for key, values in identity
+                    ),
+                    strict=True,
+                ),
+            )
+        )
+        lon, lat = batch.lon.tolist(), batch.lat.tolist()
         # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
         # precision (/system_tracks has the full values).
-        here = [round(m.lon, 5), round(m.lat, 5)]
-        properties = {"name": label, **dict(self._identity(m))}
-        del properties["label"]  # the name
-        features: list[dict[str, Any]] = [
-            {
-                "type": "Feature",
-                "id": f"track/{number}",
-                "geometry": {"type": "Point", "coordinates": here},
-                "properties": {
-                    **properties,
-                    "style": {"color": colour, "fillColor": colour, "fillOpacity": 1.0},
-                },
-            }
-        ]
-        trail = [[lon, lat] for _, lon, lat in track.trail]
-        if not trail or trail[-1] != here:
-            trail.append(here)
-        if len(trail) >= 2:
+        here = [(round(x, 5), round(y, 5)) for x, y in zip(lon, lat, strict=True)]
+        ahead = list(map(_ahead, lon, lat, batch.vx.tolist(), batch.vy.tolist()))
+        out = []
+        for k, track in enumerate(tracks):
+            colour = _COLOUR_HEX[colours[k]]
+            label, point = labels[k] or "", _point(here[k])
+            features = [
+                f'{{"type":"Feature","id":"track/{number[k]}","geometry":{{"type":"Point",'
+                f'"coordinates":{point}}},"properties":{{"name":'
+                f"{encode_basestring_ascii(label)}{properties[k]},"
+                f'"style":{{"color":"{colour}","fillColor":"{colour}","fillOpacity":1.0}}}}}}'
+            ]
+            if track.trail_json is None:
+                track.trail_json = ",".join(_point((x, y)) for _, x, y in track.trail)
+            trail, points = track.trail_json, len(track.trail)
+            if not points or track.trail[-1][1:] != here[k]:
+                trail = f"{trail},{point}" if points else point
+                points += 1
+            if points >= 2:
+                features.append(
+                    f'{{"type":"Feature","id":"trail/{number[k]}","geometry":{{"type":'
+                    f'"LineString","coordinates":[{trail}]}},"properties":{{"name":'
+                    f"{encode_basestring_ascii(label + ' trail')},"
+                    f'"style":{{"color":"{colour}","weight":2,"opacity":0.5}}}}}}'
+                )
             features.append(
-                {
-                    "type": "Feature",
-                    "id": f"trail/{number}",
-                    "geometry": {"type": "LineString", "coordinates": trail},
-                    "properties": {
-                        "name": f"{label} trail",
-                        "style": {"color": colour, "weight": 2, "opacity": 0.5},
-                    },
-                }
+                f'{{"type":"Feature","id":"vector/{number[k]}","geometry":{{"type":'
+                f'"LineString","coordinates":[{point},{_point(ahead[k])}]}},"properties":'
+                f'{{"name":{encode_basestring_ascii(label + " 1 min")},'
+                f'"style":{{"color":"{colour}","weight":1,"opacity":0.9}}}}}}'
             )
-        features.append(
-            {
-                "type": "Feature",
-                "id": f"vector/{number}",
-                "geometry": {"type": "LineString", "coordinates": [here, _ahead(m)]},
-                "properties": {
-                    "name": f"{label} 1 min",
-                    "style": {"color": colour, "weight": 1, "opacity": 0.9},
-                },
-            }
-        )
-        return ",".join(json.dumps(f, separators=(",", ":")) for f in features)
+            out.append(",".join(features))
+        return out
 
     def sites_geojson(self) -> bytes:
         if self._sites_payload is None:
@@ -445,15 +584,29 @@ def _due(next_time: float | None, period: float, time: float) -> tuple[bool, flo
     return True, next_time + period * (math.floor((time - next_time) / period) + 1)
 
 
-def _ahead(m: MapTrack) -> list[float]:
+def _point(lon_lat: tuple[float, float]) -> str:
+    """[lon, lat] as ``json.dumps`` writes it."""
+    return f"[{_float(lon_lat[0])},{_float(lon_lat[1])}]"
+
+
+def _float(value: float) -> str:
+    """A float as ``json.dumps`` writes it (``repr``; NaN and infinities by name)."""
+    if value != value:
+        return "NaN"
+    if value in (math.inf, -math.inf):
+        return "Infinity" if value > 0 else "-Infinity"
+    return repr(value)
+
+
+def _ahead(lon: float, lat: float, vx_mps: float, vy_mps: float) -> tuple[float, float]:
     """Where the track is in one minute at its velocity (the plane's axes taken as east
     and north: a display's speed vector, not a prediction)."""
-    d_north = m.vy_mps * _SPEED_VECTOR_S
-    d_east = m.vx_mps * _SPEED_VECTOR_S
-    lat = m.lat + math.degrees(d_north / _EARTH_RADIUS_M)
-    cos_lat = max(math.cos(math.radians(m.lat)), 1e-6)
-    lon = m.lon + math.degrees(d_east / (_EARTH_RADIUS_M * cos_lat))
-    return [round((lon + 180.0) % 360.0 - 180.0, 5), round(max(min(lat, 90.0), -90.0), 5)]
+    d_north = vy_mps * _SPEED_VECTOR_S
+    d_east = vx_mps * _SPEED_VECTOR_S
+    cos_lat = max(math.cos(math.radians(lat)), 1e-6)
+    lon = lon + math.degrees(d_east / (_EARTH_RADIUS_M * cos_lat))
+    lat = lat + math.degrees(d_north / _EARTH_RADIUS_M)
+    return (round((lon + 180.0) % 360.0 - 180.0, 5), round(max(min(lat, 90.0), -90.0), 5))
 
 
 def _ring(site: MapRadar) -> list[list[float]]:

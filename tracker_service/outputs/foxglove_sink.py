@@ -12,6 +12,7 @@ log's channels are written without it.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import socket
@@ -25,7 +26,6 @@ from tracker_service.outputs.foxglove_scene import (
     FoxgloveMessage,
     MapRadar,
     MapScene,
-    MapTrack,
 )
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.messages import (
@@ -35,7 +35,7 @@ from tracker_service.outputs.messages import (
     SystemTrackMessage,
 )
 from tracker_service.outputs.sink import Sink
-from tracker_service.outputs.updates import LocalUpdate, SystemUpdate
+from tracker_service.outputs.updates import LocalUpdate, SystemBatch, SystemUpdate
 
 __all__ = [
     "FoxgloveListenError",
@@ -58,7 +58,9 @@ class FoxgloveListenError(ValueError):
 
 
 class ChannelWriter(Protocol):
-    def write(self, message: FoxgloveMessage) -> None: ...
+    def write(self, messages: Sequence[FoxgloveMessage]) -> None:
+        """The messages, in order."""
+
     def close(self) -> None: ...
 
 
@@ -68,9 +70,20 @@ class McapChannels:
     def __init__(self, log: McapLog) -> None:
         self.log = log
 
-    def write(self, message: FoxgloveMessage) -> None:
-        m, schema = message, SCHEMAS[message.schema]
-        self.log.log_encoded(m.topic, m.schema, lambda: schema, m.data, m.time)
+    def write(self, messages: Sequence[FoxgloveMessage]) -> None:
+        """Each run of messages on one topic in one call of the log."""
+        start = 0
+        for end in range(1, len(messages) + 1):
+            if end < len(messages) and messages[end].topic == messages[start].topic:
+                continue
+            first = messages[start]
+            self.log.log_encoded_many(
+                first.topic,
+                first.schema,
+                functools.partial(SCHEMAS.__getitem__, first.schema),
+                [(m.data, m.time) for m in messages[start:end]],
+            )
+            start = end
 
     def close(self) -> None:
         """The log is its owner's to close."""
@@ -150,8 +163,11 @@ class LiveServer:
         port: int = self.server.port
         return port
 
-    def write(self, message: FoxgloveMessage) -> None:
-        self._channels[message.topic].log(message.data, log_time=round(message.time * _NS_PER_S))
+    def write(self, messages: Sequence[FoxgloveMessage]) -> None:
+        for message in messages:
+            self._channels[message.topic].log(
+                message.data, log_time=round(message.time * _NS_PER_S)
+            )
 
     def close(self) -> None:
         for channel in self._channels.values():
@@ -174,8 +190,8 @@ class FoxgloveSink:
         self.keeps_datagrams = False if inner is None else inner.keeps_datagrams
 
     def _write(self, messages: list[FoxgloveMessage]) -> None:
-        for message in messages:
-            self.writer.write(message)
+        if messages:
+            self.writer.write(messages)
 
     def datagram(self, input_name: str, datagram: Datagram) -> None:
         if self.inner is not None:
@@ -200,8 +216,8 @@ class FoxgloveSink:
         elif inner is not None:
             for update in updates:
                 inner.system(update.message(), update.payload, time)
-        for update in updates:
-            self._write(self.scene.update(MapTrack.of_values(update.doc), time))
+        for batch in SystemBatch.runs(updates):
+            self._write(self.scene.updates(batch, time))
 
     def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None:
         inner = self.inner

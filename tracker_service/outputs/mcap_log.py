@@ -28,14 +28,20 @@ import logging
 import math
 import os
 import struct
+import sys
 import time as clock
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from array import array
+from bisect import bisect_right
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from io import BytesIO
+from itertools import accumulate, chain, repeat
+from operator import sub
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import numpy as np
 from mcap._chunk_builder import ChunkBuilder
 from mcap.data_stream import RecordBuilder
 from mcap.exceptions import EndOfFile
@@ -53,11 +59,21 @@ from mcap.records import (
 from mcap.stream_reader import StreamReader
 from mcap.writer import MCAP0_MAGIC, Writer
 from pydantic import BaseModel, ConfigDict, Field
+from pydantic_core import to_json
 
 from asterix.containers import Datagram
 from tracker_service.closing import Closing
-from tracker_service.mcap_format import json_schema, schema_name, start_mcap, time_ns
-from tracker_service.outputs.updates import LocationFix
+from tracker_service.mcap_format import json_schema, schema_name, start_mcap, time_ns, times_ns
+from tracker_service.outputs.json_rows import (
+    INTEGER,
+    NUMBER,
+    NUMBERS,
+    Literals,
+    Numbers,
+    Template,
+    render,
+)
+from tracker_service.outputs.updates import LocationFixes, python_json_numbers
 
 __all__ = [
     "LOCATION_FIX_SCHEMA",
@@ -263,6 +279,8 @@ class _File:
     messages: int = 0
     unwritten: int = 0
     """Messages handed to the writer that are not in the file yet (the chunk in progress)."""
+    chunk: _ChunkAccess | None = None
+    """The writer's chunk in progress, reached directly (None: through ``add_message``)."""
 
 
 class McapLog(Closing):
@@ -313,16 +331,22 @@ class McapLog(Closing):
 
     def log_datagram(self, datagram: Datagram, input_name: str = "udp") -> None:
         """A received datagram, on ``/datagrams/<input_name>``; its time is required."""
-        if datagram.time is None:
+        time = datagram.time
+        if time is None:
             raise ValueError("a logged datagram needs its reception time")
-        message = LoggedDatagram(
-            input=input_name,
-            time=datagram.time,
-            src=_endpoint(datagram.source),
-            dst=_endpoint(datagram.destination),
-            payload=datagram.payload.hex(),
-        )
-        self.log(datagram_topic(input_name), message, datagram.time)
+        fields = {
+            "input": input_name,
+            "time": time,
+            "src": _endpoint(datagram.source),
+            "dst": _endpoint(datagram.destination),
+            "payload": datagram.payload.hex(),
+        }
+        if not (math.isfinite(time) and time >= 0.0):
+            LoggedDatagram.model_validate(fields)  # raises, saying what is wrong
+        # ``LoggedDatagram``'s JSON, by the writer its model_dump_json uses, without
+        # validating the hex payload against its pattern (a few us a kB; it holds by
+        # construction).
+        self.log_json(datagram_topic(input_name), LoggedDatagram, to_json(fields), time)
 
     def log(self, topic: str, model: BaseModel, time: float) -> None:
         """A message on ``topic``, whose schema is its model's; ``time`` (POSIX seconds)
@@ -362,6 +386,19 @@ class McapLog(Closing):
         well-known schemas (``foxglove_sink.py``)."""
         self._write(topic, schema, schema_of, [(data, time_ns(time))])
 
+    def log_encoded_many(
+        self,
+        topic: str,
+        schema: str,
+        schema_of: Callable[[], dict[str, Any]],
+        messages: Sequence[tuple[bytes, float]],
+    ) -> None:
+        """As :meth:`log_encoded` for each (data, time), in order: the channel looked up
+        once."""
+        datas = [data for data, _ in messages]
+        times = times_ns(np.array([time for _, time in messages], dtype=np.float64))
+        self._write(topic, schema, schema_of, list(zip(datas, times, strict=True)))
+
     def log_location(
         self,
         topic: str,
@@ -373,21 +410,26 @@ class McapLog(Closing):
     ) -> None:
         """A ``foxglove.LocationFix``; ``covariance`` is the 3x3 ENU position covariance
         (m², row-major), or None when unknown."""
-        self._write(
+        known = covariance is not None
+        if covariance is not None and len(covariance) != 9:
+            raise ValueError(f"covariance must hold 9 values (3x3), not {len(covariance)}")
+        self.log_locations(
             topic,
-            _LOCATION_FIX,
-            lambda: LOCATION_FIX_SCHEMA,
-            [_location(time, lat, lon, alt, covariance)],
+            LocationFixes(
+                np.array([time]),
+                np.array([lat]),
+                np.array([lon]),
+                np.array([alt]),
+                np.array([covariance if known else [0.0] * 9], dtype=np.float64),
+            ),
+            known,
         )
 
-    def log_locations(self, topic: str, fixes: Sequence[LocationFix]) -> None:
-        """A ``foxglove.LocationFix`` for each fix, each logged at its own time."""
-        self._write(
-            topic,
-            _LOCATION_FIX,
-            lambda: LOCATION_FIX_SCHEMA,
-            [_location(f.time, f.lat, f.lon, f.altitude_m, f.covariance) for f in fixes],
-        )
+    def log_locations(self, topic: str, fixes: LocationFixes, known: bool = True) -> None:
+        """A ``foxglove.LocationFix`` for each fix, each logged at its own time;
+        ``known``: their covariance is (else it is unknown, zeros)."""
+        if len(fixes.time):
+            self._write(topic, _LOCATION_FIX, lambda: LOCATION_FIX_SCHEMA, _locations(fixes, known))
 
     def _write(
         self,
@@ -429,11 +471,10 @@ class McapLog(Closing):
         if channel_schema != schema:
             raise ValueError(f"topic {topic!r} carries {channel_schema}, not {schema}")
         sequence = file.sequences.get(channel, 0)
-        chunk = _ChunkAccess.of(file.writer)
-        if chunk is None:
+        if file.chunk is None:
             sequence = _add_one_by_one(file, channel, messages, sequence)
         else:
-            sequence = chunk.add_messages(file, channel, messages, sequence)
+            sequence = file.chunk.add_messages(file, channel, messages, sequence)
         file.sequences[channel] = sequence
         if clock.monotonic() - self._last_flush >= self._flush_interval_s:
             # mcap-python leaves flush() unannotated.
@@ -479,7 +520,7 @@ class McapLog(Closing):
             path.unlink()
             raise
         self.files.append(path)
-        return _File(path, stream, writer, log_time)
+        return _File(path, stream, writer, log_time, chunk=_ChunkAccess.of(writer))
 
     def flush(self) -> None:
         """Writes the chunk in progress out now (a quiet feed would otherwise hold it)."""
@@ -580,6 +621,33 @@ _MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 """A Message record's opcode and length, then its channel id, sequence, log and publish
 times (the MCAP specification's layout, as ``mcap.records.Message.write`` writes it)."""
 _MESSAGE_FIELDS_BYTES = _MESSAGE_HEADER.size - 9
+_MESSAGE_HEADER_BYTES = _MESSAGE_HEADER.size
+_MESSAGE_OPCODE = int(Opcode.MESSAGE)
+
+
+class _PackedIndex(MessageIndex):
+    """A chunk's message index of one channel, written as ``MessageIndex.write`` writes it
+    (channel, length, then each (log time, offset), little-endian), its entries kept
+    flat in an array written whole rather than two writes each."""
+
+    def __init__(self, channel_id: int) -> None:
+        super().__init__(channel_id, [])
+        self.flat = array("Q")
+
+    def extend(self, times: Iterable[int], offsets: Iterable[int]) -> None:
+        self.flat.extend(chain.from_iterable(zip(times, offsets, strict=True)))
+
+    def write(self, stream: RecordBuilder) -> None:
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(len(self.flat) * 8)
+        flat = self.flat
+        if sys.byteorder == "big":
+            flat = array("Q", flat)
+            flat.byteswap()
+        stream.write(flat.tobytes())
+        # mcap-python leaves finish_record() unannotated.
+        stream.finish_record()  # type: ignore[no-untyped-call]
 
 
 @dataclass(frozen=True, slots=True)
@@ -622,6 +690,7 @@ class _ChunkAccess:
     ) -> int:
         """As :func:`_add_one_by_one`, the same bytes; the sequence number after them."""
         statistics, builder = self.statistics, self.builder
+        n = len(messages)
         times = [log_time for _, log_time in messages]
         # The file's statistics are written at its end only: a batch updates them once.
         first, last = min(times), max(times)
@@ -630,65 +699,88 @@ class _ChunkAccess:
         else:
             statistics.message_start_time = min(first, statistics.message_start_time)
         statistics.message_end_time = max(last, statistics.message_end_time)
-        statistics.channel_message_counts[channel] += len(messages)
-        statistics.message_count += len(messages)
-        pack, stream = _MESSAGE_HEADER.pack, file.stream
-        buffer = builder.record_writer._buffer
-        index = builder.message_indices.get(channel)
-        for data, log_time in messages:
-            if builder.num_messages == 0 or log_time < builder.message_start_time:
-                builder.message_start_time = log_time
-            if log_time > builder.message_end_time:
-                builder.message_end_time = log_time
+        statistics.channel_message_counts[channel] += n
+        statistics.message_count += n
+        stream, chunk_size = file.stream, self.chunk_size
+        datas = [data for data, _ in messages]
+        sizes = [_MESSAGE_HEADER_BYTES + len(data) for data in datas]
+        start = 0
+        while start < n:
+            # The messages up to the one that takes the chunk past its size (as
+            # add_message: the chunk is complete once it holds more than its size; one at
+            # least), written with one call.
+            buffer = builder.record_writer._buffer
+            offsets = list(accumulate(sizes[start:], initial=buffer.tell()))
+            past = bisect_right(offsets, chunk_size)
+            full = past < len(offsets)
+            stop = start + max(past, 1) if full else n
+            k = stop - start
+            run = times[start:stop]
+            earliest, latest = min(run), max(run)
+            if builder.num_messages == 0 or earliest < builder.message_start_time:
+                builder.message_start_time = earliest
+            builder.message_end_time = max(latest, builder.message_end_time)
+            index = builder.message_indices.get(channel)
             if index is None:
-                index = builder.message_indices[channel] = MessageIndex(channel, [])
-            offset = buffer.tell()
-            index.records.append((log_time, offset))
-            builder.num_messages += 1
-            buffer.write(
-                pack(
-                    Opcode.MESSAGE,
-                    _MESSAGE_FIELDS_BYTES + len(data),
-                    channel,
-                    sequence % _MAX_SEQUENCE,
-                    log_time,
-                    log_time,
-                )
+                index = builder.message_indices[channel] = _PackedIndex(channel)
+            assert isinstance(index, _PackedIndex)  # the batch path's own, on its channels
+            index.extend(run, offsets[:k])
+            builder.num_messages += k
+            records: list[bytes] = [b""] * (2 * k)
+            numbers: Iterable[int] = range(sequence, sequence + k)
+            if sequence + k > _MAX_SEQUENCE:
+                numbers = (i % _MAX_SEQUENCE for i in numbers)
+            records[0::2] = map(
+                _MESSAGE_HEADER.pack,
+                repeat(Opcode.MESSAGE, k),
+                map(sub, sizes[start:stop], repeat(9, k)),
+                repeat(channel, k),
+                numbers,
+                run,
+                run,
             )
-            buffer.write(data)
-            sequence += 1
-            file.messages += 1
-            file.unwritten += 1
-            if buffer.tell() > self.chunk_size:
-                # As add_message: the chunk is complete once it holds more than its size.
+            records[1::2] = datas[start:stop]
+            buffer.write(b"".join(records))
+            sequence += k
+            file.messages += k
+            file.unwritten += k
+            start = stop
+            if full:
                 self.finish_chunk()
-                buffer = builder.record_writer._buffer  # a new one for the next chunk
-                index = None
                 # The chunk out whole to the operating system, where it survives the process.
                 if stream.flush():
                     file.unwritten = 0
         return sequence
 
 
-def _location(
-    time: float, lat: float, lon: float, alt: float, covariance: Sequence[float] | None
-) -> tuple[bytes, int]:
-    """A ``foxglove.LocationFix`` as JSON (what ``json.dumps`` writes of it, compact), and
-    its log time: the fix's own."""
-    if covariance is not None and len(covariance) != 9:
-        raise ValueError(f"covariance must hold 9 values (3x3), not {len(covariance)}")
-    values = [float(v) for v in covariance] if covariance is not None else [0.0] * 9
-    if not all(map(math.isfinite, (lat, lon, alt, *values))):
+_FIXES = Literals()
+_FIX = Template.of(
+    '{"timestamp":{"sec":%s,"nsec":%s},"frame_id":"","latitude":%s,"longitude":%s,'
+    '"altitude":%s,"position_covariance":[%s],"position_covariance_type":%s}',
+    (INTEGER, INTEGER, NUMBER, NUMBER, NUMBER, NUMBERS, INTEGER),
+    _FIXES,
+)
+"""A ``foxglove.LocationFix`` as ``json.dumps`` writes it (compact); its texts are fixed
+at import, so that logs in several threads share it unchanged."""
+
+
+def _locations(fixes: LocationFixes, known: bool) -> list[tuple[bytes, int]]:
+    """Each fix as JSON (what ``json.dumps`` writes of it, compact), with its log time:
+    the fix's own; the numbers of all of them written at once."""
+    numbers = np.column_stack((fixes.lat, fixes.lon, fixes.altitude, fixes.covariance))
+    if not np.isfinite(numbers).all():
         raise ValueError("a location must be finite")
-    ns = time_ns(time)
-    kind = _COVARIANCE_UNKNOWN if covariance is None else _COVARIANCE_KNOWN
-    data = (
-        f'{{"timestamp":{{"sec":{ns // _NS_PER_S},"nsec":{ns % _NS_PER_S}}},"frame_id":"",'
-        f'"latitude":{float(lat)!r},"longitude":{float(lon)!r},"altitude":{float(alt)!r},'
-        f'"position_covariance":[{",".join(map(repr, values))}],'
-        f'"position_covariance_type":{kind}}}'
-    )
-    return data.encode(), ns
+    n = len(numbers)
+    ns = times_ns(fixes.time)
+    values = np.empty((n, _FIX.slots), dtype=np.int64)
+    values[:, 0], values[:, 1] = np.divmod(np.array(ns, dtype=np.int64), _NS_PER_S)
+    values[:, 2:5] = 12 * np.arange(n)[:, None] + np.arange(3)
+    values[:, 5] = 12 * np.arange(n) + 3
+    values[:, 6] = _COVARIANCE_KNOWN if known else _COVARIANCE_UNKNOWN
+    counts = np.zeros_like(values)
+    counts[:, 5] = 9
+    texts = Numbers.of_texts(python_json_numbers(numbers.ravel().tolist()))
+    return list(zip(render(_FIX, values, _FIXES, texts, counts).rows(), ns, strict=True))
 
 
 class LoggedMessage(NamedTuple):

@@ -13,7 +13,7 @@ from tracker_service.outputs.messages import (
     StatusMessage,
     SystemTrackMessage,
 )
-from tracker_service.outputs.updates import LocalUpdate, SystemUpdate
+from tracker_service.outputs.updates import LocalUpdate, LocationFixes, SystemBatch, SystemUpdate
 
 __all__ = [
     "CAT062_TOPIC",
@@ -50,11 +50,7 @@ class McapSink:
 
     def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
         self.log.log_json(SYSTEM_TRACKS_TOPIC, SystemTrackMessage, payload, time)
-        if message.status != "ended":
-            fix = location_fix(message)
-            self.log.log_location(
-                LOCATION_TOPIC, fix.time, fix.lat, fix.lon, fix.altitude_m, fix.covariance
-            )
+        self.log.log_locations(LOCATION_TOPIC, location_fix(message))
 
     def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
         topic = f"/local_tracks/{topic_name(message.radar)}"
@@ -64,7 +60,8 @@ class McapSink:
         self.log.log_json_many(
             SYSTEM_TRACKS_TOPIC, SystemTrackMessage, [u.payload for u in updates], time
         )
-        self.log.log_locations(LOCATION_TOPIC, [u.location() for u in updates if not u.ended])
+        for batch in SystemBatch.runs(updates):
+            self.log.log_locations(LOCATION_TOPIC, LocationFixes.of(batch))
 
     def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None:
         topic = f"/local_tracks/{topic_name(radar)}"

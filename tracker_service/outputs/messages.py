@@ -439,7 +439,11 @@ def track_angle_deg(vx_mps: float, vy_mps: float) -> float:
 def position_sigma_m(covariance: list[list[float]]) -> float:
     """Major semi-axis of the position error ellipse: sqrt of the larger eigenvalue of
     the 2x2 position block."""
-    sxx, sxy, syy = covariance[0][0], covariance[0][1], covariance[1][1]
+    return ellipse_sigma_m(covariance[0][0], covariance[0][1], covariance[1][1])
+
+
+def ellipse_sigma_m(sxx: float, sxy: float, syy: float) -> float:
+    """:func:`position_sigma_m` of the position block's variances and covariance."""
     half_trace = 0.5 * (sxx + syy)
     spread = math.hypot(0.5 * (sxx - syy), sxy)
     return math.sqrt(max(half_trace + spread, 0.0))

@@ -49,7 +49,7 @@ from tracker_service.fusion import FusionConfig
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
 from tracker_service.outputs.asterix_udp import AsterixUdpSink
-from tracker_service.outputs.cat062 import encode_cat065, encode_system_documents
+from tracker_service.outputs.cat062 import encode_cat065, encode_system_batch
 from tracker_service.outputs.foxglove_scene import MapRadar
 from tracker_service.outputs.foxglove_sink import live_sink, with_map_channels
 from tracker_service.outputs.mapping import MessageMapper
@@ -62,7 +62,7 @@ from tracker_service.outputs.messages import (
     SystemTrackMessage,
 )
 from tracker_service.outputs.sink import Backoff, IsolatedSink, OutputState, QueuedSink, Sink
-from tracker_service.outputs.updates import SystemUpdate
+from tracker_service.outputs.updates import SystemBatch, SystemUpdate
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_picture import ZenohPictureSink
 from tracker_service.outputs.zenoh_sink import ZenohSink
@@ -553,10 +553,11 @@ class Outputs:
     # --- periodic outputs (the core says when) -----------------------------------------
 
     def publish_cat062(self) -> None:
-        updates = [self._pending_cat062[n].doc for n in sorted(self._pending_cat062)]
+        pending = [self._pending_cat062[n] for n in sorted(self._pending_cat062)]
         self._pending_cat062.clear()
         system = self.config.system
-        data = encode_system_documents(updates, system) + encode_cat065(
+        batch = SystemBatch.gather([(u.batch, u.index) for u in pending]) if pending else None
+        data = (b"" if batch is None else encode_system_batch(batch, system)) + encode_cat065(
             "end_of_batch", self._now, self._cat062_batches, system
         )
         self._cat062_batches += 1
