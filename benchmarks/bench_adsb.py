@@ -22,6 +22,7 @@ import time
 
 import tracker_service
 from asterix.codec import Block, decode_blocks
+from tracker_service.outputs.messages import RadarStatus
 from tracker_service.radar_stage import CAT021, blocks_of
 from tracker_service.service.core import TrackerService
 from tracker_service.service.replay import open_replay
@@ -52,18 +53,19 @@ def main() -> None:
         if isinstance(event, Block)
     )
 
-    def one_pass() -> tuple[float, TrackerService]:
+    adsb = {a.key for a in replay.config.adsb}
+
+    def one_pass() -> tuple[float, list[RadarStatus]]:
         service = TrackerService(replay.config)
         started = time.process_time()
         for name, datagram in datagrams:
             service.process(name, datagram)
         seconds = time.process_time() - started
+        status = [r for r in service.status().radars if r.radar in adsb]
         service.close()
-        return seconds, service
+        return seconds, status
 
-    _, service = one_pass()
-    adsb = {a.key for a in replay.config.adsb}
-    status = [r for r in service.status().radars if r.radar in adsb]
+    _, status = one_pass()
     seconds = statistics.median(one_pass()[0] for _ in range(args.repeats))
     if args.profile:
         profile = cProfile.Profile()
