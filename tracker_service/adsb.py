@@ -234,9 +234,9 @@ def decode_reports(block: bytes, received: float, plane: SystemPlane) -> AdsbRep
     system plane: time of applicability I071 (else I073, reception of position),
     position I131 (else I130), velocity I160, quality I090 as ``position_sigma_m`` reads
     it; records without address, time or position, or too inaccurate, are left out.
-    ``latest``: the latest time of every record's, on the day nearest ``received``.
-    Never raises on bad bytes: a malformed record ends its block, as in the general
-    decoder."""
+    ``records`` and ``latest`` count every record, fit or not (the status's). Never
+    raises on bad bytes: a malformed record ends its block, as in the general decoder
+    (``asterix.columns.ColumnReader``)."""
     c = _cat021().read(block)
     records = len(c["address"])
     sources = np.flatnonzero(c["sac"] >= 0)
