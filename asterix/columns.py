@@ -27,6 +27,7 @@ __all__ = [
     "PADDING",
     "Column",
     "ColumnReader",
+    "Columns",
     "Field",
     "Layout",
     "Walker",
