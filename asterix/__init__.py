@@ -7,6 +7,8 @@ nothing of tracking.
 - ``encode_record(cat, items)`` / ``encode_block(cat, records)`` build bytes from values.
 - ``asterix.containers`` unwraps captures (pcap, pcapng, GPS, final format, hex, raw).
 - ``asterix.plots`` extracts CAT048 and CAT001 plots into numpy arrays for the tracker.
+- ``asterix.columns`` reads chosen elements of any category's records into numpy columns
+  (the plot path's walk; ``ColumnReader`` for one category's blocks, e.g. CAT021).
 - ``asterix.bds`` decodes Mode S registers 4,0, 5,0 and 6,0.
 """
 

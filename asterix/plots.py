@@ -3,8 +3,8 @@
 The general decoder builds a dict per item; a tracker fed with tens of radars needs only a
 dozen fields per plot. This path walks each record once to find where the wanted items
 start (stepping over the others by their size), then reads every column for all records
-at once with numpy. Where each field sits (octet, shift, width, LSB) is derived from the
-same specification model as the general decoder, so the values are identical to it.
+at once with numpy (``asterix.columns``): the values are identical to the general
+decoder's.
 """
 
 from __future__ import annotations
@@ -18,26 +18,17 @@ import numpy.typing as npt
 
 from asterix import daps, spec
 from asterix.codec import DecodeError, codec
-from asterix.engine import (
-    ICAO_CHARACTERS,
-    PLAN_CACHE_LIMIT,
-    Malformed,
-    Skipper,
-    field_layout,
-    icao_text,
-    skipper,
+from asterix.columns import (
+    PADDING,
+    Column,
+    Walker,
+    item_slots,
+    layout,
+    locate,
+    read_columns,
+    walk,
 )
-from asterix.spec import Element, Extended, Group, Integer, Named, Quantity, Spare, String
-
-
-@dataclass(frozen=True)
-class Column:
-    """A plot column: an element of an item, by item key and element path."""
-
-    name: str
-    item: str
-    path: tuple[str, ...] = ()
-
+from asterix.engine import ICAO_CHARACTERS, icao_text
 
 # The items CAT048 and CAT001 share, in the same element paths.
 _SOURCE = (Column("sac", "010", ("SAC",)), Column("sic", "010", ("SIC",)))
@@ -93,68 +84,9 @@ validated. ``typ`` is CAT048 I020 TYP (CAT001: SSRPSR, the same values 0-3)."""
 CATEGORIES = tuple(COLUMNS)
 
 
-@dataclass(frozen=True)
-class _Field:
-    column: Column
-    offset: int  # octet offset of the element's octets within the item
-    octets: int
-    shift: int
-    bits: int
-    extent: int  # extent index for extended items (present only when earlier FX bits set)
-    lsb: float | None
-    signed: bool
-
-
-def _locate(cat: int, column: Column) -> _Field:
-    """Where an element sits inside its item, from the specification model."""
-    item = spec.category(cat).items[column.item]
-    variation = item.variation
-    if isinstance(variation, Extended):
-        offset = 0
-        for index, extent in enumerate(variation.extents):
-            fields: tuple[Named | Spare, ...] = (*extent, Spare(1))
-            octets = sum(_bits(f) for f in fields) // 8
-            for f, shift, bits in field_layout(fields, octets * 8):
-                if f.name == column.path[0]:
-                    return _field(column, offset, octets, shift, bits, index, f)
-            offset += octets
-        raise KeyError(column)
-    total = spec.fixed_bits(variation)
-    assert total is not None
-    if not column.path:
-        return _field(column, 0, total // 8, 0, total, 0, item)
-    fields = variation.fields if isinstance(variation, Group) else ()
-    for f, shift, bits in field_layout(fields, total):
-        if f.name == column.path[0]:
-            return _field(column, 0, total // 8, shift, bits, 0, f)
-    raise KeyError(column)
-
-
-def _bits(f: Named | Spare) -> int:
-    bits = f.bits if isinstance(f, Spare) else spec.fixed_bits(f.variation)
-    assert bits is not None
-    return bits
-
-
-def _field(
-    column: Column, offset: int, octets: int, shift: int, bits: int, extent: int, f: Named
-) -> _Field:
-    assert isinstance(f.variation, Element)
-    content = f.variation.content
-    if isinstance(content, String) and content.kind != "octal":
-        raise ValueError(f"{column}: text columns are not supported")
-    lsb = float(content.lsb) if isinstance(content, Quantity) else None
-    signed = isinstance(content, Quantity | Integer) and content.signed
-    return _Field(column, offset, octets, shift, bits, extent, lsb, signed)
-
-
-_FIELDS = {cat: tuple(_locate(cat, c) for c in columns) for cat, columns in COLUMNS.items()}
+_FIELDS = {cat: tuple(locate(cat, c) for c in columns) for cat, columns in COLUMNS.items()}
 _TEXT_ITEMS = {48: ("240", "RE", "250")}  # callsign, extended range and DAPs, read apart
-_ITEMS = {
-    cat: (*dict.fromkeys(c.item for c in columns), *_TEXT_ITEMS.get(cat, ()))
-    for cat, columns in COLUMNS.items()
-}
-_SLOTS = {cat: {key: i + 1 for i, key in enumerate(items)} for cat, items in _ITEMS.items()}
+_SLOTS = {cat: item_slots(columns, _TEXT_ITEMS.get(cat, ())) for cat, columns in COLUMNS.items()}
 """Per category, the row slot of each wanted item's start; slot 0 holds the record offset."""
 
 
@@ -189,199 +121,15 @@ class PlotBatch:
     errors: list[DecodeError]
 
 
-_Step = tuple[int, int, Skipper | None]
-_Segment = tuple[tuple[tuple[int, int], ...], int, Skipper | None]
-"""A run of fixed-size items and the variable-size one that may close it: the wanted
-items' (slot, octets from the run's start), the run's size, the closing item's skipper."""
-_Plan = tuple[_Segment, ...]
+_WALKERS: dict[int, Walker] = {}
 
 
-@dataclass(frozen=True)
-class _Selection:
-    """The plans of one FSPEC in a multi-UAP category, by the value of the selector (read
-    ``at`` octets after the FSPEC: the items before it are fixed-size)."""
-
-    at: int
-    by_value: dict[int, _Plan]
-
-
-class _Walker:
-    """Finds where the wanted items of each record of one category start, stepping over
-    the others."""
-
-    def __init__(self, cat: int) -> None:
-        self.cat = cat
-        category = codec(cat)
-        self.fspec_limit = category.fspec_limit
-        slots = _SLOTS[cat]
-        self.blank = [-1] * (len(_ITEMS[cat]) + 1)
-        self.uaps: list[list[_Step | None]] = []
-        for uap in category.uaps:
-            steps: list[_Step | None] = []
-            for slot in uap:
-                if slot is None or slot[0] == spec.RFS:
-                    steps.append(None)  # RFS records are left to the general decoder
-                    continue
-                step = skipper(spec.category(cat).items[slot[0]].variation)
-                size, fn = (step, None) if isinstance(step, int) else (0, step)
-                steps.append((slots.get(slot[0], -1), size, fn))
-            self.uaps.append(steps)
-        self.plans: dict[bytes, _Plan] = {}
-        self.selections: dict[bytes, _Selection] = {}
-        selector = spec.category(cat).uap_selector
-        self.selector: tuple[int, _Field, dict[int, int]] | None = None
-        if selector is not None:
-            frn = spec.category(cat).uap.index(selector.item)
-            names = [name for name, _ in spec.category(cat).uaps]
-            located = _locate(cat, Column("", selector.item, selector.element))
-            if located.extent or any(
-                s is not None and s[2] is not None for s in self.uaps[0][:frn]
-            ):
-                raise spec.SpecError(
-                    f"CAT{cat:03d}: the plot path needs the UAP selector in a "
-                    "first extent after fixed-size items"
-                )
-            cases = {value: names.index(name) for value, name in selector.cases}
-            self.selector = (frn, located, cases)
-
-    def _steps(self, fspec: bytes, p: int, uap: int) -> _Plan:
-        plan = []
-        steps = self.uaps[uap]
-        for i, octet in enumerate(fspec):
-            for bit in range(7):
-                if octet & (0x80 >> bit):
-                    frn = i * 7 + bit
-                    step = steps[frn] if frn < len(steps) else None
-                    if step is None:
-                        raise Malformed(p, f"FSPEC names undefined FRN {frn + 1} (or RFS)")
-                    plan.append(step)
-        if not plan:
-            raise Malformed(p, "empty FSPEC")
-        return _segments(plan)
-
-    def plan(self, fspec: bytes, p: int) -> _Plan:
-        """The steps of an FSPEC (single-UAP categories)."""
-        found = self._steps(fspec, p, 0)
-        if len(self.plans) < PLAN_CACHE_LIMIT:
-            self.plans[fspec] = found
-        return found
-
-    def selection(self, fspec: bytes, p: int) -> _Selection:
-        """The steps of an FSPEC in each UAP, by selector value (multi-UAP categories)."""
-        assert self.selector is not None
-        frn, _, cases = self.selector
-        octet, bit = divmod(frn, 7)
-        if octet >= len(fspec) or not fspec[octet] & (0x80 >> bit):
-            raise Malformed(p, f"no I{self.cat:03d} item selecting the UAP")
-        at = sum(
-            step[1]
-            for i, step in enumerate(self.uaps[0][:frn])
-            if step is not None and fspec[i // 7] & (0x80 >> (i % 7))
-        )
-        by_value = {}
-        for value, uap in cases.items():
-            try:
-                by_value[value] = self._steps(fspec, p, uap)
-            except Malformed:
-                continue  # an FSPEC that is wrong for this UAP: an error when selected
-        found = _Selection(at, by_value)
-        if len(self.selections) < PLAN_CACHE_LIMIT:
-            self.selections[fspec] = found
-        return found
-
-    def select(self, b: bytes, q: int, p: int, selection: _Selection) -> _Plan:
-        """The steps of the UAP the record at ``p`` (items from ``q``) selects."""
-        assert self.selector is not None
-        _, f, _ = self.selector
-        at = q + selection.at + f.offset
-        value = (int.from_bytes(b[at : at + f.octets]) >> f.shift) & ((1 << f.bits) - 1)
-        plan = selection.by_value.get(value)
-        if plan is None:
-            raise Malformed(p, f"FSPEC names items the UAP selected by {value} does not have")
-        return plan
-
-
-def _segments(steps: list[_Step]) -> _Plan:
-    """A record's steps (slot, size, skipper) as runs of fixed-size items each closed by a
-    variable-size one (or the record's end): one addition per run instead of per item."""
-    segments: list[_Segment] = []
-    assignments: list[tuple[int, int]] = []
-    size = 0
-    for slot, step, fn in steps:
-        if slot >= 0:
-            assignments.append((slot, size))
-        if fn is None:
-            size += step
-            continue
-        segments.append((tuple(assignments), size, fn))
-        assignments, size = [], 0
-    if assignments or size or not segments:
-        segments.append((tuple(assignments), size, None))
-    return tuple(segments)
-
-
-_WALKERS: dict[int, _Walker] = {}
-
-
-def _walker(cat: int) -> _Walker:
+def _walker(cat: int) -> Walker | None:
+    """The walker of a plot category (made at its first use), None for other categories."""
     walker = _WALKERS.get(cat)
-    if walker is None:
-        walker = _WALKERS[cat] = _Walker(cat)
+    if walker is None and cat in COLUMNS:
+        walker = _WALKERS[cat] = Walker(cat, _SLOTS[cat])
     return walker
-
-
-def _walk(b: bytes, rows: dict[int, array[int]], errors: list[DecodeError]) -> None:
-    """Every record of the plot categories: its offset and where its wanted items start,
-    appended to ``rows`` of its category. One loop for all blocks and records: real feeds
-    send many small blocks, and a call per block would cost as much as its records."""
-    pos, size = 0, len(b)
-    current = -1
-    while pos < size:
-        if size - pos < 3:
-            errors.append(DecodeError(pos, None, "stray octets after the last block"))
-            return
-        cat, end = b[pos], pos + int.from_bytes(b[pos + 1 : pos + 3])
-        if end - pos < 3 or end > size:
-            errors.append(DecodeError(pos, cat, "block length does not fit"))
-            return
-        if cat not in COLUMNS:
-            pos = end
-            continue
-        if cat != current:
-            current, walker = cat, _walker(cat)
-            out = rows.setdefault(cat, array("q"))
-            blank, plans, fspec_limit = walker.blank, walker.plans, walker.fspec_limit
-            selections = walker.selections if walker.selector is not None else None
-        p = pos + 3
-        try:
-            while p < end:
-                q, limit = p, min(end, p + fspec_limit)
-                while q < limit and b[q] & 1:
-                    q += 1
-                if q >= limit:
-                    raise Malformed(p, "FSPEC runs past the UAP or the block")
-                q += 1
-                fspec = b[p:q]
-                if selections is None:
-                    plan = plans.get(fspec) or walker.plan(fspec, p)
-                else:
-                    selection = selections.get(fspec) or walker.selection(fspec, p)
-                    plan = walker.select(b, q, p, selection)
-                row = blank.copy()
-                row[0] = p
-                for assignments, run, fn in plan:
-                    for slot, offset in assignments:
-                        row[slot] = q + offset
-                    q += run
-                    if fn is not None:
-                        q = fn(b, q, end)
-                if q > end:
-                    raise Malformed(p, "record runs past its block")
-                out.extend(row)
-                p = q
-        except Malformed as exc:
-            errors.append(DecodeError(exc.offset, cat, exc.reason))
-        pos = end
 
 
 def extract_plots(data: bytes, offset: int = 0) -> PlotBatch:
@@ -392,7 +140,7 @@ def extract_plots(data: bytes, offset: int = 0) -> PlotBatch:
     """
     rows: dict[int, array[int]] = {}
     errors: list[DecodeError] = []
-    _walk(data, rows, errors)
+    walk(data, rows, errors, _walker)
     buf = np.frombuffer(data, dtype=np.uint8)
     parts = [_plots(cat, data, buf, found) for cat, found in rows.items()]
     if not parts:
@@ -427,7 +175,7 @@ category never fills stay NaN, -1, "" or False)."""
 SMALL_BATCH = 14
 """Up to this many records of a category, a datagram's plots are read record by record in
 Python: numpy's per-call cost outweighs its per-row gain. Measured crossover (every field
-at once, ``_read_columns``): 12-16 records of CAT048. Many CAT001 radars send one plot a
+at once, ``read_columns``): 12-16 records of CAT048. Many CAT001 radars send one plot a
 datagram."""
 _ROW_FIELDS = {
     cat: tuple(
@@ -448,67 +196,20 @@ _ROW_FIELDS = {
 }
 
 
-@dataclass(frozen=True)
-class _Layout:
-    """Every column of one category at once: per field (one per ``_FIELDS`` entry) its
-    item's slot, its octets' offset, the shift and mask of its bits in the big-endian
-    word of ``read`` octets from its start (the octets past its own shifted out), the
-    sign bit's value of the signed ones (0 for the others), and whether it sits in an
-    extent; the float fields with their LSBs."""
-
-    slots: npt.NDArray[np.int64]
-    offsets: npt.NDArray[np.int64]
-    word: np.dtype[Any]
-    shifts: npt.NDArray[np.uint64]
-    masks: npt.NDArray[np.uint64]
-    halves: npt.NDArray[np.int64]
-    extended: npt.NDArray[np.bool_]
-    float_fields: npt.NDArray[np.intp]
-    lsbs: npt.NDArray[np.float64]
-    float_names: tuple[str, ...]
-    int_fields: npt.NDArray[np.intp]
-    int_names: tuple[str, ...]
-
-
-def _layout(cat: int) -> _Layout:
-    fields = _FIELDS[cat]
-    read = 4 if max(f.octets for f in fields) <= 4 else 8
-    floats = [k for k, f in enumerate(fields) if f.lsb is not None]
-    ints = [k for k, f in enumerate(fields) if f.lsb is None]
-    return _Layout(
-        slots=np.array([_SLOTS[cat][f.column.item] for f in fields], np.int64),
-        offsets=np.array([f.offset for f in fields], np.int64),
-        word=np.dtype(f">u{read}"),
-        shifts=np.array([f.shift + 8 * (read - f.octets) for f in fields], np.uint64),
-        masks=np.array([(1 << f.bits) - 1 for f in fields], np.uint64),
-        halves=np.array([1 << (f.bits - 1) if f.signed else 0 for f in fields], np.int64),
-        extended=np.array([f.extent > 0 for f in fields], np.bool_),
-        float_fields=np.array(floats, np.intp),
-        lsbs=np.array([fields[k].lsb for k in floats], np.float64),
-        float_names=tuple(fields[k].column.name for k in floats),
-        int_fields=np.array(ints, np.intp),
-        int_names=tuple(fields[k].column.name for k in ints),
-    )
-
-
-_LAYOUTS = {cat: _layout(cat) for cat in _FIELDS}
-
-
-_PADDING = b"\0" * 8
-"""Octets after a datagram, so that a word read at a field near its end stays inside."""
+_LAYOUTS = {cat: layout(fields, _SLOTS[cat]) for cat, fields in _FIELDS.items()}
 
 
 def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) -> Any:
     slots = _SLOTS[cat]
-    starts = np.frombuffer(rows, dtype=np.int64).reshape(-1, len(_ITEMS[cat]) + 1)
+    starts = np.frombuffer(rows, dtype=np.int64).reshape(-1, len(slots) + 1)
     if len(starts) <= SMALL_BATCH:
         plots = _plots_by_record(cat, data, starts.tolist())
     else:
         plots = np.repeat(_BLANK_ROW, len(starts)).view(PLOT_DTYPE)
         plots["offset"] = starts[:, 0]
         plots["category"] = cat
-        padded = np.frombuffer(data + _PADDING, dtype=np.uint8)
-        _read_columns(plots, padded, starts, _LAYOUTS[cat])
+        padded = np.frombuffer(data + PADDING, dtype=np.uint8)
+        read_columns(plots, padded, starts, _LAYOUTS[cat])
         if "240" in slots:
             plots["callsign"] = _callsigns(padded, starts[:, slots["240"]])
         if "250" in slots:
@@ -519,40 +220,8 @@ def _plots(cat: int, data: bytes, buf: npt.NDArray[np.uint8], rows: array[int]) 
     return plots
 
 
-def _read_columns(
-    plots: npt.NDArray[Any],
-    buf: npt.NDArray[np.uint8],
-    starts: npt.NDArray[np.int64],
-    layout: _Layout,
-) -> None:
-    """Every field of the records (``starts``: per record, where each item starts) into
-    ``plots``: all fields at once, a few array operations whatever their number. ``buf``
-    is the data with ``_PADDING`` after it."""
-    item_starts = starts[:, layout.slots]
-    present = item_starts >= 0
-    # An absent item's fields read the octets at -1 (the padding) or 0: masked below.
-    at = item_starts + layout.offsets
-    read = layout.word.itemsize
-    octets = buf[at[:, :, None] + np.arange(read)]
-    word = octets.view(layout.word)[:, :, 0].astype(np.uint64)
-    values = ((word >> layout.shifts) & layout.masks).astype(np.int64)
-    values = (values ^ layout.halves) - layout.halves
-    if layout.extended.any():
-        # An extent is there only when the FX bit closing the one before it is set.
-        fx_set = (buf[at - 1] & 1).astype(bool)
-        present &= fx_set | ~layout.extended
-    floats = np.where(
-        present[:, layout.float_fields], values[:, layout.float_fields] * layout.lsbs, np.nan
-    )
-    ints = np.where(present[:, layout.int_fields], values[:, layout.int_fields], -1)
-    for k, name in enumerate(layout.float_names):
-        plots[name] = floats[:, k]
-    for k, name in enumerate(layout.int_names):
-        plots[name] = ints[:, k]
-
-
 def _plots_by_record(cat: int, data: bytes, starts: list[list[int]]) -> Any:
-    """The same columns as ``_read_columns`` and ``_callsigns`` give, one record at a time."""
+    """The same columns as ``read_columns`` and ``_callsigns`` give, one record at a time."""
     callsign = _SLOTS[cat].get("240", -1)
     callsign_column = (PLOT_DTYPE.names or ()).index("callsign")
     dap_slot = _SLOTS[cat].get("250", -1)

@@ -1,14 +1,15 @@
 """The central stage alone on a recording's own traffic: every ``CentralStage`` call the
-chain makes (``process`` of each radar batch, ``feed_adsb`` of each CAT021 datagram, with
-their arguments) recorded once over the first seconds of a recording, then replayed into
-a fresh central stage: CPU time per plot of the whole stage (time consensus, bias
-correction, bias observations and estimation, the fuser's references, fusion, and the
-stage's own glue), split as ``bench_stages.py`` splits it, and a sha256 over every
-output (plots, local updates, system rows, time reports) and the bias estimates at the
-end. Two versions (a ``git archive`` copy on ``PYTHONPATH`` against the worktree) are
-compared on the same inputs, for speed and identity, in seconds rather than the minute of
-a whole-chain run; what the main process of ``replay --workers N`` does, less the
-service's glue and the outputs.
+chain makes (``process`` of each radar batch, ``feed_adsb`` of each CAT021 datagram's
+reports, with their arguments; the reports' decoding, ``decode_adsb``, is the core's)
+recorded once over the first seconds of a recording, then replayed into a fresh central
+stage: CPU time per plot of the whole stage (time consensus, bias correction, bias
+observations and estimation, the fuser's references, fusion, and the stage's own glue),
+split as ``bench_stages.py`` splits it, and a sha256 over every output (plots, local
+updates, system rows, time reports) and the bias estimates at the end. Two versions (a
+``git archive`` copy on ``PYTHONPATH`` against the worktree) are compared on the same
+inputs, for speed and identity, in seconds rather than the minute of a whole-chain run;
+what the main process of ``replay --workers N`` does, less the service's glue and the
+outputs.
 
     python benchmarks/bench_central.py record scale60.mcap --seconds 20 -o central.pkl
     python benchmarks/bench_central.py replay central.pkl [--repeats 3] [--profile FILE]

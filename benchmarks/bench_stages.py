@@ -24,6 +24,7 @@ The stages and what each wraps:
 | stage | wrapped |
 |---|---|
 | decode | ``extract_plots`` and the service messages' ``decode_blocks`` (radar stage) |
+| ADS-B decode | ``CentralStage.decode_adsb``: CAT021 reports, once a datagram (the core's call) |
 | clock + conversion | ``convert_batch`` (plot clock, geodesy), time sanity, fixed targets |
 | local tracking | ``LocalTracker.process`` |
 | central stage | ``CentralStage.process``, ``feed_adsb`` less the three below (its own work) |
@@ -72,6 +73,7 @@ from tracker_service.tracking import LocalTracker
 
 STAGES = (
     "decode",
+    "ADS-B decode",
     "clock + conversion",
     "local tracking",
     "central stage",
@@ -133,6 +135,7 @@ def instrumented(clock: StageClock) -> Iterator[None]:
     targets: list[tuple[object, str, str]] = [
         (radar_stage_module, "extract_plots", "decode"),
         (radar_stage_module, "decode_blocks", "decode"),
+        (CentralStage, "decode_adsb", "ADS-B decode"),
         (radar_stage_module, "convert_batch", "clock + conversion"),
         (TimeSanity, "check", "clock + conversion"),
         (RadarStage, "_fixed_transponders", "clock + conversion"),

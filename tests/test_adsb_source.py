@@ -43,20 +43,27 @@ SPEED = 200.0  # m/s east
 
 
 def test_position_sigma_follows_the_mops_version() -> None:
-    # Version 2: NACp's 95 % bound (EPU) over 2.448.
-    assert position_sigma_m(2, 9, 8) == pytest.approx(30.0 / 2.448)
-    assert position_sigma_m(None, 10, None) == pytest.approx(10.0 / 2.448)
-    # Version 1 without NACp: the NIC's containment radius as the bound (on the safe side).
-    assert position_sigma_m(1, None, 8) == pytest.approx(185.2 / 2.448)
-    # Version 0 (DO-260): NUCp's accuracy, whatever a NACp field would say.
-    assert position_sigma_m(0, 11, 7) == pytest.approx(92.6 / 2.448)
-    assert position_sigma_m(None, None, 9) == pytest.approx(3.0 / 2.448)
-    # Worse than 1 NM, or no quality at all: not fit for use.
-    assert math.isnan(position_sigma_m(2, 3, 8))
-    assert math.isnan(position_sigma_m(0, None, 0))
-    assert math.isnan(position_sigma_m(2, None, None))
-    assert velocity_sigma_m_s(2) == pytest.approx(3.0 / 2.448)
-    assert velocity_sigma_m_s(None) == UNKNOWN_VELOCITY_SIGMA_M_S
+    # (version, NACp, NUCp or NIC), -1 absent -> 1-sigma.
+    cases = [
+        # Version 2: NACp's 95 % bound (EPU) over 2.448.
+        ((2, 9, 8), 30.0 / 2.448),
+        ((-1, 10, -1), 10.0 / 2.448),
+        # Version 1 without NACp: the NIC's containment radius as the bound (on the safe side).
+        ((1, -1, 8), 185.2 / 2.448),
+        # Version 0 (DO-260): NUCp's accuracy, whatever a NACp field would say.
+        ((0, 11, 7), 92.6 / 2.448),
+        ((-1, -1, 9), 3.0 / 2.448),
+        # Worse than 1 NM, or no quality at all: not fit for use.
+        ((2, 3, 8), math.nan),
+        ((0, -1, 0), math.nan),
+        ((2, -1, -1), math.nan),
+    ]
+    version, nacp, nucp = (np.array(column) for column in zip(*(c for c, _ in cases), strict=True))
+    expected = np.array([sigma for _, sigma in cases])
+    np.testing.assert_allclose(position_sigma_m(version, nacp, nucp), expected)
+    np.testing.assert_allclose(
+        velocity_sigma_m_s(np.array([2, -1])), [3.0 / 2.448, UNKNOWN_VELOCITY_SIGMA_M_S]
+    )
 
 
 def _record(**changes: Any) -> dict[str, Any]:

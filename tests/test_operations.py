@@ -21,8 +21,10 @@ import pytest
 from tests.test_service_replay import free_port, simulate
 from tracker_service.cli import main
 from tracker_service.log_level import LOG_LEVEL_VARIABLE
+from tracker_service.outputs.messages import StatusMessage
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_session import zenoh_config
+from tracker_service.service.command import OutputProcess
 from tracker_service.service.config import load_service_config
 from tracker_service.service.core import TrackerService
 from tracker_service.service.replay import open_replay
@@ -192,10 +194,15 @@ def test_init_writes_the_example_configuration_and_scenarios(
 
 
 def test_the_adsb_feed_is_counted_in_status(tmp_path: Path) -> None:
+    """Counted from the decoding the chain takes; the same with the outputs in a process
+    of their own (the daemon's, the fusion role's), where the count crosses as a plain
+    message: the last status of each, written at the close, compared."""
     recording = simulate(tmp_path / "adsb.mcap", 12.0)
     source = open_replay(str(recording), None, None)
+    datagrams = list(source.datagrams)
     service = TrackerService(source.config)
-    for name, datagram in source.datagrams:
+    in_process = service.local.health_file = tmp_path / "in_process.json"
+    for name, datagram in datagrams:
         service.process(name, datagram)
     status = {r.radar: r for r in service.status().radars}
     adsb = status["25/50"]
@@ -203,6 +210,19 @@ def test_the_adsb_feed_is_counted_in_status(tmp_path: Path) -> None:
     assert adsb.last_plot_time is not None and adsb.plot_delay_s is not None
     assert 0.0 <= adsb.plot_delay_s < 5.0
     service.close()
+    apart = tmp_path / "output_process.json"
+    with OutputProcess(
+        source.config, None, zenoh=False, health_file=apart, supervised=False
+    ) as outputs:
+        core = TrackerService(source.config, outputs=outputs)
+        for name, datagram in datagrams:
+            core.process(name, datagram)
+        core.close()
+    last = [
+        {r.radar: r for r in StatusMessage.model_validate_json(path.read_text()).radars}["25/50"]
+        for path in (in_process, apart)
+    ]
+    assert last[0] == last[1] and last[0].plots_per_second > 1.0, last
 
 
 def test_decode_and_replay_read_the_service_log(

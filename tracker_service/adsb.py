@@ -17,17 +17,19 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, replace
+from functools import cache
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from asterix.codec import Block, decode_blocks
+from asterix.columns import Column, ColumnReader
 from tracker_service.geodesy import SystemPlane
-from tracker_service.ingest import posix_from_time_of_day
+from tracker_service.ingest import DAY_S, posix_from_time_of_day
 
 __all__ = [
     "ADSB_TYP",
+    "CAT021_COLUMNS",
     "NACP_EPU_M",
     "NACP_SIGMA_M",
     "SIGMA_PER_EPU",
@@ -106,27 +108,43 @@ UNKNOWN_VELOCITY_SIGMA_M_S = 1000.0
 """No velocity, or no NACv: a velocity that says nothing."""
 
 
-def position_sigma_m(version: int | None, nacp: int | None, nucp_or_nic: int | None) -> float:
-    """The 1-sigma per axis of a report's position (NaN: not fit for use), from I021/090
-    as its MOPS version (I021/210 VN) defines it: NACp, the 95 % accuracy bound, from
-    version 1 on; without NACp the NIC's containment radius taken as that bound (an
-    integrity bound: larger than the accuracy, so on the safe side); version 0 (DO-260)
-    its NUCp's accuracy. Without a version, NACp if present, else the field as a NUCp."""
-    if nacp is not None and version != 0:
-        bound = NACP_EPU_M.get(nacp)
-    elif version is None or version == 0:
-        bound = NUCP_ACCURACY_M.get(nucp_or_nic) if nucp_or_nic is not None else None
-    else:
-        bound = NIC_RC_M.get(nucp_or_nic) if nucp_or_nic is not None else None
-    if bound is None or bound > WORST_BOUND_M:
-        return math.nan
-    return bound * SIGMA_PER_EPU
+def _sigma_per_value(
+    bounds: dict[int, float], bits: int, unfit: float, worst: float = math.inf
+) -> FloatArray:
+    """The 1-sigma per axis of each value of a ``bits``-bit quality field from its 95 %
+    bound (``unfit``: no bound, or one worse than ``worst``), then of an absent field (-1,
+    which indexes the last entry)."""
+    table = np.full((1 << bits) + 1, unfit)
+    for value, bound in bounds.items():
+        if bound <= worst:
+            table[value] = bound * SIGMA_PER_EPU
+    return table
 
 
-def velocity_sigma_m_s(nacv: int | None) -> float:
-    """The 1-sigma per axis of a report's velocity from its NACv (NUCr)."""
-    bound = NACV_BOUND_M_S.get(nacv) if nacv is not None else None
-    return UNKNOWN_VELOCITY_SIGMA_M_S if bound is None else bound * SIGMA_PER_EPU
+_NACP_SIGMA_M = _sigma_per_value(NACP_EPU_M, 4, math.nan, WORST_BOUND_M)
+_NUCP_SIGMA_M = _sigma_per_value(NUCP_ACCURACY_M, 4, math.nan, WORST_BOUND_M)
+_NIC_SIGMA_M = _sigma_per_value(NIC_RC_M, 4, math.nan, WORST_BOUND_M)
+_NACV_SIGMA_M_S = _sigma_per_value(NACV_BOUND_M_S, 3, UNKNOWN_VELOCITY_SIGMA_M_S)
+
+
+def position_sigma_m(version: IntArray, nacp: IntArray, nucp_or_nic: IntArray) -> FloatArray:
+    """The 1-sigma per axis of reports' positions (NaN: not fit for use), from I021/090
+    as their MOPS version (I021/210 VN) defines it, each -1 when absent: NACp, the 95 %
+    accuracy bound, from version 1 on; without NACp the NIC's containment radius taken as
+    that bound (an integrity bound: larger than the accuracy, so on the safe side);
+    version 0 (DO-260) its NUCp's accuracy. Without a version, NACp if present, else the
+    field as a NUCp."""
+    return np.where(
+        (nacp >= 0) & (version != 0),
+        _NACP_SIGMA_M[nacp],
+        np.where(version <= 0, _NUCP_SIGMA_M[nucp_or_nic], _NIC_SIGMA_M[nucp_or_nic]),
+    )
+
+
+def velocity_sigma_m_s(nacv: IntArray) -> FloatArray:
+    """The 1-sigma per axis of reports' velocities from their NACv (NUCr), -1 when
+    absent."""
+    return _NACV_SIGMA_M_S[nacv]
 
 
 @dataclass(frozen=True)
@@ -135,7 +153,9 @@ class AdsbReports:
     (POSIX), plane position, plane velocity, the position's and velocity's 1-sigma per
     axis, flight level (NaN absent), Mode 3/A (-1 absent), the record's index in the
     datagram's CAT021 records, and the station (SAC/SIC) that sent it. ``records``: every
-    CAT021 record read, fit or not."""
+    CAT021 record read, fit or not; ``latest``: the latest time of applicability (I071,
+    else I073) of any of them, POSIX s on the day nearest the reception (None without
+    one): with ``records``, what the status says of an ADS-B feed (``adsb_status``)."""
 
     address: IntArray
     time: FloatArray
@@ -150,6 +170,7 @@ class AdsbReports:
     record: IntArray
     station: str = ""
     records: int = 0
+    latest: float | None = None
 
     def __len__(self) -> int:
         return len(self.address)
@@ -173,69 +194,65 @@ _REPORT_COLUMNS = (
 )
 
 
-def _int_or_none(value: Any) -> int | None:
-    return int(value) if isinstance(value, int | float) else None
+CAT021_COLUMNS = (
+    Column("sac", "010", ("SAC",)),
+    Column("sic", "010", ("SIC",)),
+    Column("time_of_applicability", "071"),
+    Column("time_of_reception", "073"),
+    Column("latitude", "131", ("LAT",)),
+    Column("longitude", "131", ("LON",)),
+    Column("latitude_low", "130", ("LAT",)),
+    Column("longitude_low", "130", ("LON",)),
+    Column("address", "080"),
+    Column("nucr_nacv", "090", ("NUCRNACV",)),
+    Column("nucp_nic", "090", ("NUCPNIC",)),
+    Column("nacp", "090", ("NACP",)),
+    Column("version", "210", ("VN",)),
+    Column("geometric_height", "140"),
+    Column("flight_level", "145"),
+    Column("range_exceeded", "160", ("RE",)),
+    Column("ground_speed", "160", ("GS",)),
+    Column("track_angle", "160", ("TA",)),
+    Column("mode3a", "070", ("MODE3A",)),
+)
+"""The elements of a CAT021 record the reports are made of (``asterix.columns``)."""
+
+
+@cache
+def _cat021() -> ColumnReader:
+    return ColumnReader(CAT021, CAT021_COLUMNS)
+
+
+def _on_day_of(time_of_day: FloatArray, received: float) -> FloatArray:
+    """The POSIX times nearest ``received`` whose times of day are ``time_of_day``."""
+    shift = (time_of_day - received % DAY_S + DAY_S / 2) % DAY_S - DAY_S / 2
+    return received + shift
 
 
 def decode_reports(block: bytes, received: float, plane: SystemPlane) -> AdsbReports:
     """The reports of one CAT021 data block received at ``received`` (POSIX s), in the
     system plane: time of applicability I071 (else I073, reception of position),
     position I131 (else I130), velocity I160, quality I090 as ``position_sigma_m`` reads
-    it; records without address, time or position, or too inaccurate, are left out."""
-    columns: dict[str, list[Any]] = {name: [] for name in _REPORT_COLUMNS}
-    lat, lon, height, speed, track = [], [], [], [], []
-    station = ""
-    records = 0
-    for event in decode_blocks(block):
-        if not isinstance(event, Block):
-            continue
-        for items in event.records:
-            index = records
-            records += 1
-            source = items.get("010")
-            if isinstance(source, dict) and not station:
-                station = f"{source.get('SAC')}/{source.get('SIC')}"
-            quality = items.get("090")
-            quality = quality if isinstance(quality, dict) else {}
-            version = items.get("210")
-            vn = _int_or_none(version.get("VN")) if isinstance(version, dict) else None
-            position = items.get("131", items.get("130"))
-            tod = items.get("071", items.get("073"))
-            sigma = position_sigma_m(
-                vn, _int_or_none(quality.get("NACP")), _int_or_none(quality.get("NUCPNIC"))
-            )
-            if (
-                not isinstance(position, dict)
-                or not isinstance(tod, int | float)
-                or "080" not in items
-                or not math.isfinite(sigma)
-            ):
-                continue
-            velocity = items.get("160")
-            moving = isinstance(velocity, dict) and velocity.get("RE") == 0
-            columns["address"].append(int(str(items["080"]), 16))
-            columns["time"].append(float(tod))
-            columns["sigma"].append(sigma)
-            columns["sigma_v"].append(
-                velocity_sigma_m_s(_int_or_none(quality.get("NUCRNACV")))
-                if moving
-                else UNKNOWN_VELOCITY_SIGMA_M_S
-            )
-            level = items.get("145")
-            columns["flight_level"].append(
-                float(level) if isinstance(level, int | float) else math.nan
-            )
-            code = items.get("070")
-            columns["mode3a"].append(
-                int(str(code["MODE3A"]), 8) if isinstance(code, dict) and "MODE3A" in code else -1
-            )
-            columns["record"].append(index)
-            lat.append(float(position["LAT"]))
-            lon.append(float(position["LON"]))
-            height.append(float(items.get("140", 0.0)) * FT)
-            speed.append(float(velocity["GS"]) * NM if moving else 0.0)  # type: ignore[index]
-            track.append(float(velocity["TA"]) if moving else 0.0)  # type: ignore[index]
-    if not lat:
+    it; records without address, time or position, or too inaccurate, are left out.
+    ``records`` and ``latest`` count every record, fit or not (the status's). Never
+    raises on bad bytes: a malformed record ends its block, as in the general decoder
+    (``asterix.columns.ColumnReader``)."""
+    c = _cat021().read(block)
+    records = len(c["address"])
+    sources = np.flatnonzero(c["sac"] >= 0)
+    station = f"{c['sac'][sources[0]]}/{c['sic'][sources[0]]}" if len(sources) else ""
+    applicability = c["time_of_applicability"]
+    time_of_day = np.where(np.isnan(applicability), c["time_of_reception"], applicability)
+    timed = time_of_day[~np.isnan(time_of_day)]
+    latest = float(_on_day_of(timed, received).max()) if len(timed) else None
+    high = ~np.isnan(c["latitude"])
+    latitude = np.where(high, c["latitude"], c["latitude_low"])
+    longitude = np.where(high, c["longitude"], c["longitude_low"])
+    sigma = position_sigma_m(c["version"], c["nacp"], c["nucp_nic"])
+    rows = np.flatnonzero(
+        ~np.isnan(latitude) & ~np.isnan(time_of_day) & (c["address"] >= 0) & np.isfinite(sigma)
+    )
+    if not len(rows):
         empty = np.zeros(0)
         none = np.zeros(0, dtype=np.int64)
         return AdsbReports(
@@ -252,32 +269,37 @@ def decode_reports(block: bytes, received: float, plane: SystemPlane) -> AdsbRep
             none,
             station=station,
             records=records,
+            latest=latest,
         )
-    lat_a, lon_a, h = np.array(lat), np.array(lon), np.array(height)
+    moving = c["range_exceeded"][rows] == 0
+    lat_a, lon_a = latitude[rows], longitude[rows]
+    geometric = c["geometric_height"][rows]
+    h = np.where(np.isnan(geometric), 0.0, geometric) * FT
     x, y = plane.from_geodetic(lat_a, lon_a, h)
     # The plane's axes are not true north and east away from its centre: turn the
     # velocity with the plane by projecting a point one second ahead.
-    angle = np.radians(np.array(track))
-    step = np.array(speed)
+    angle = np.radians(np.where(moving, c["track_angle"][rows], 0.0))
+    step = np.where(moving, c["ground_speed"][rows] * NM, 0.0)
     ahead_lat = lat_a + np.degrees(step * np.cos(angle) / EARTH_RADIUS_M)
     ahead_lon = lon_a + np.degrees(
         step * np.sin(angle) / (EARTH_RADIUS_M * np.cos(np.radians(lat_a)))
     )
     x1, y1 = plane.from_geodetic(ahead_lat, ahead_lon, h)
     return AdsbReports(
-        np.array(columns["address"], dtype=np.int64),
-        posix_from_time_of_day(np.array(columns["time"]), received),
+        c["address"][rows],
+        posix_from_time_of_day(time_of_day[rows], received),
         np.asarray(x, dtype=np.float64),
         np.asarray(y, dtype=np.float64),
         np.asarray(x1 - x, dtype=np.float64),
         np.asarray(y1 - y, dtype=np.float64),
-        np.array(columns["sigma"]),
-        np.array(columns["sigma_v"]),
-        np.array(columns["flight_level"]),
-        np.array(columns["mode3a"], dtype=np.int64),
-        np.array(columns["record"], dtype=np.int64),
+        sigma[rows],
+        np.where(moving, velocity_sigma_m_s(c["nucr_nacv"][rows]), UNKNOWN_VELOCITY_SIGMA_M_S),
+        c["flight_level"][rows],
+        c["mode3a"][rows],
+        rows.astype(np.int64),
         station=station,
         records=records,
+        latest=latest,
     )
 
 

@@ -17,10 +17,11 @@ their input (the one-process chain: as they come; over Zenoh: merged by receptio
 - feeds the bias estimator the batch's observations (other radars' fused tracks, field
   monitors, ADS-B), then the fuser.
 
-CAT021 datagrams (``feed_adsb``) are the bias estimator's absolute reference and, with
-``[fusion] adsb = "fuse"``, a source of the fuser of their own (``fusion.adsb_source``:
-one per-address track across every ground station, each report either fused or kept
-as a reference, never both).
+CAT021 datagrams (``feed_adsb`` of their reports, ``decode_adsb``) are the bias
+estimator's absolute reference and, with ``[fusion] adsb = "fuse"``, a source of the fuser
+of their own (``fusion.adsb_source``: one per-address track across every ground station,
+each report either fused or kept as a reference, never both). The core decodes them once
+(``Chain.decode_adsb``), for this stage and for the status of the ADS-B feeds.
 
 The correction is the one of the central stage's own moment, so the output depends only
 on the order the batches are taken in, not on when they crossed the network.
@@ -30,7 +31,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -193,14 +194,25 @@ class CentralStage:
                 plane,
             )
 
-    def feed_adsb(self, payload: bytes, received: float) -> list[BatchOutput]:
-        """The CAT021 blocks of a datagram: the bias estimator's absolute reference, and
-        with ``[fusion] adsb = "fuse"`` the fuser's ADS-B source (one output per block)."""
-        if self.adsb is None and self.adsb_source is None:
+    @property
+    def takes_adsb(self) -> bool:
+        """Whether ``feed_adsb`` uses ADS-B reports (bias reference or fusion)."""
+        return self.adsb is not None or self.adsb_source is not None
+
+    def decode_adsb(self, payload: bytes, received: float) -> list[AdsbReports]:
+        """The reports of each CAT021 block of a datagram received at ``received`` (POSIX
+        s), in the system plane (``adsb.decode_reports``): what ``feed_adsb`` takes, and
+        what the status counts of an ADS-B feed (``adsb_status``)."""
+        return [decode_reports(block, received, self.plane) for block in blocks_of(payload, CAT021)]
+
+    def feed_adsb(self, blocks: Sequence[AdsbReports]) -> list[BatchOutput]:
+        """The reports of a datagram's CAT021 blocks (``decode_adsb``): the bias
+        estimator's absolute reference, and with ``[fusion] adsb = "fuse"`` the fuser's
+        ADS-B source (one output per block)."""
+        if not self.takes_adsb:
             return []
         outputs = []
-        for block in blocks_of(payload, CAT021):
-            reports = decode_reports(block, received, self.plane)
+        for reports in blocks:
             if self.adsb_source is None:
                 assert self.adsb is not None
                 self.adsb.rejected += reports.records - len(reports)

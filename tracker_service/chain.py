@@ -22,7 +22,7 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.adsb import AdsbReference
+from tracker_service.adsb import AdsbReference, AdsbReports
 from tracker_service.bias import BiasConfig, BiasEstimator, ObservedFrom
 from tracker_service.central_stage import BatchOutput, CentralStage
 from tracker_service.fixed_targets import FixedTargetConfig
@@ -202,12 +202,20 @@ class Chain:
         .clock_states``); empty without bias estimation."""
         return self.central.clock_estimates()
 
-    def feed(self, payload: bytes, received: float) -> list[BatchOutput]:
-        """Process one datagram received at ``received`` (POSIX s)."""
+    def decode_adsb(self, payload: bytes, received: float) -> list[AdsbReports]:
+        """The reports of each CAT021 block of a datagram (``CentralStage.decode_adsb``)."""
+        return self.central.decode_adsb(payload, received)
+
+    def feed(
+        self, payload: bytes, received: float, adsb: list[AdsbReports] | None = None
+    ) -> list[BatchOutput]:
+        """Process one datagram received at ``received`` (POSIX s); ``adsb``: its CAT021
+        reports when the caller has decoded them already (``decode_adsb``)."""
         order = self._order
         self._order += 1
-        adsb = self.central.feed_adsb(payload, received)
-        return adsb + [
+        if adsb is None:
+            adsb = self.decode_adsb(payload, received) if self.central.takes_adsb else []
+        return self.central.feed_adsb(adsb) + [
             self.central.process(batch) for batch in self.radar_stage.feed(payload, received, order)
         ]
 

@@ -24,6 +24,7 @@ from typing import Any, Self
 import numpy.typing as npt
 
 from asterix.containers import Datagram
+from tracker_service.adsb_status import AdsbCount
 from tracker_service.bias import ObservedFrom
 from tracker_service.chain import BatchOutput, RadarStageFailed, RadarStages
 from tracker_service.distribution import RemoteRadarStages
@@ -552,9 +553,9 @@ class OutputProcess:
             replace(state, restarts=self.restarts, last_restart=self.last_restart),
         )
 
-    def received(self, name: str, datagram: Datagram) -> None:
+    def received(self, name: str, datagram: Datagram, adsb: AdsbCount | None = None) -> None:
         self._data_time = datagram.time
-        self._call("received", name, datagram)
+        self._call("received", name, datagram, adsb)
 
     def error(self, name: str, kind: str, detail: str = "") -> None:
         self._call("error", name, kind, detail)

@@ -27,7 +27,8 @@ import numpy as np
 import numpy.typing as npt
 
 from asterix.containers import Datagram
-from tracker_service.adsb_status import adsb_reports
+from tracker_service.adsb import AdsbReports
+from tracker_service.adsb_status import AdsbCount, adsb_count
 from tracker_service.bias import BiasConfig, ObservedFrom
 from tracker_service.chain import (
     CAT021,
@@ -449,8 +450,9 @@ class Outputs:
             return self._radars[key]
         return None
 
-    def received(self, name: str, datagram: Datagram) -> None:
-        """A datagram reaches the core: data time moves to its reception, and it is logged."""
+    def received(self, name: str, datagram: Datagram, adsb: AdsbCount | None = None) -> None:
+        """A datagram reaches the core: data time moves to its reception, and it is logged;
+        ``adsb``: its CAT021 reports (``adsb_status``), counted if it is an ADS-B feed's."""
         assert datagram.time is not None
         self.advance(datagram.time)
         self.counts.datagrams += 1
@@ -458,17 +460,16 @@ class Outputs:
         entry = self._entry(key)
         if entry is not None:
             entry.last_reception = datagram.time
-            if key in self._adsb_feeds:
-                self._count_adsb(entry, datagram.payload, datagram.time)
+            if key in self._adsb_feeds and adsb is not None:
+                self._count_adsb(entry, adsb, datagram.time)
         for sink in self.sinks:
             sink.datagram(name, datagram)
 
-    def _count_adsb(self, entry: _RadarCounters, payload: bytes, received: float) -> None:
+    def _count_adsb(self, entry: _RadarCounters, adsb: AdsbCount, received: float) -> None:
         """An ADS-B feed's reports, which the chain makes no plots of (``adsb_status``)."""
-        reports, latest = adsb_reports(payload, received)
-        entry.plots += reports
-        if latest is not None:
-            entry.last_plot_time = max(entry.last_plot_time or latest, latest)
+        entry.plots += adsb.records
+        if adsb.latest is not None:
+            entry.last_plot_time = max(entry.last_plot_time or adsb.latest, adsb.latest)
             entry.plot_delay = received - entry.last_plot_time
 
     def error(self, name: str, kind: str, detail: str = "") -> None:
@@ -856,7 +857,7 @@ class OutputSink(Protocol):
     def advance(self, time: float) -> None: ...
     def set_input_counters(self, counters: dict[str, InputCounters]) -> None: ...
     def set_core_state(self, state: CoreState) -> None: ...
-    def received(self, name: str, datagram: Datagram) -> None: ...
+    def received(self, name: str, datagram: Datagram, adsb: AdsbCount | None = None) -> None: ...
     def error(self, name: str, kind: str, detail: str = "") -> None: ...
     def count(self, name: str, kind: str, n: int) -> None: ...
     def batch(self, output: BatchOutput, sources: Sequence[str]) -> None: ...
@@ -945,12 +946,14 @@ class TrackerService:
             raise ValueError("the service needs each datagram's reception time")
         received = datagram.time
         self._advance_to(received)
-        self.outputs.received(name, datagram)
+        # Decoded once: for the chain, and for the status of an ADS-B feed (adsb_status).
+        adsb = self.chain.decode_adsb(datagram.payload, received)
+        self.outputs.received(name, datagram, adsb_count(adsb))
         reason = block_chain_error(datagram.payload)
         if reason is not None:
             self.outputs.error(name, "not_asterix", reason)
         else:
-            self._feed(name, datagram.payload, received)
+            self._feed(name, datagram.payload, received, adsb)
         self._periodic()
 
     def process_batch(self, batch: RadarBatch) -> None:
@@ -971,14 +974,14 @@ class TrackerService:
             self.outputs.count(input_name(batch.source), "processing_failed", 1)
         self._periodic()
 
-    def _feed(self, name: str, payload: bytes, received: float) -> None:
+    def _feed(self, name: str, payload: bytes, received: float, adsb: list[AdsbReports]) -> None:
         unknown = [c for c in block_categories(payload) if c not in HANDLED_CATEGORIES]
         if unknown:
             self.outputs.error(name, "unknown_category", f"CAT{unknown[0]:03d} block(s) skipped")
         stats, admission = self.chain.stats, self.chain.admission
         errors, sources = stats.decode_errors, admission.counts
         try:
-            outputs = self.chain.feed(payload, received)
+            outputs = self.chain.feed(payload, received, adsb)
             for output in outputs:
                 self.outputs.batch(output, self.chain.sources)
         except (RadarStageFailed, OutputsFailed):
