@@ -133,22 +133,24 @@ class DaemonProcess:
     """``tracker-service run`` in another process; its stderr kept; ``status()`` is the
     last status it wrote into its health file."""
 
-    def __init__(self, config: Path, health: Path, *, wait: str | None = "running:") -> None:
+    def __init__(
+        self,
+        config: Path,
+        health: Path,
+        *,
+        wait: str | None = "running:",
+        role: tuple[str, ...] = (),
+    ) -> None:
+        """``role``: ``run``'s role arguments (``--role radar --radars 25/11
+        --stage-connect ...``); a radar process gets no health file (it has no status)."""
         self.health = health
         self.lines: list[str] = []
+        command = [sys.executable, "-m", "tracker_service.cli", "run", "--config", str(config)]
+        if "radar" not in role:
+            command += ["--zenoh-listen", f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
+            command += ["--health-file", str(health)]
         self.process = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "tracker_service.cli",
-                "run",
-                "--config",
-                str(config),
-                "--zenoh-listen",
-                f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}",
-                "--health-file",
-                str(health),
-            ],
+            [*command, *role],
             stderr=subprocess.PIPE,
             text=True,
             cwd=REPO,

@@ -13,6 +13,7 @@ import pytest
 from tracker_service.central_stage import corrected
 from tracker_service.chain import Chain, RadarStage
 from tracker_service.geodesy import convert_plots
+from tracker_service.inputs.udp import InputCounters
 from tracker_service.service.core import build_chain, build_radar_stage, config_from_recording
 from tracker_service.simulator.recording import read_recording
 from tracker_service.stage_messages import (
@@ -227,3 +228,18 @@ def test_a_section_cut_short_or_of_objects_is_refused() -> None:
         read_npy(data[:-8])
     with pytest.raises(ValueError, match="pickle"):
         read_npy(_npy_bytes(np.array([1, None], dtype=object), allow_pickle=True))
+
+
+def test_a_radar_process_input_counters_cross_on_its_watermark() -> None:
+    inputs = {
+        "25_11": InputCounters(received=12, delivered=9, duplicates=3, behind_dropped=2),
+        "25_12": InputCounters(kernel_drops=4, last_reception=1.78e9 + 0.25),
+    }
+    beat = decode_message(encode_message(DatagramResult(7, 7e-6, inputs=inputs)))
+    assert beat.inputs == inputs and beat.batches == []
+    assert decode_message(encode_message(DatagramResult(7, 7e-6))).inputs == {}
+    # A section of another shape is refused, not half read.
+    payload = encode_message(DatagramResult(7, 7e-6, inputs=inputs))
+    wrong = payload.replace(b"'behind_dropped'", b"'behind_droppes'")
+    with pytest.raises(StageMessageError, match="incomplete"):
+        decode_message(wrong)

@@ -38,6 +38,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.bias.reception import no_evidence
+from tracker_service.inputs.udp import InputCounters
 from tracker_service.sources import SourceCounts
 from tracker_service.time_sanity import TimeReport
 
@@ -123,6 +124,9 @@ class DatagramResult:
     sources: SourceCounts = field(default_factory=SourceCounts)
     """Cumulative source admission counts."""
     kind: MessageKind = MessageKind.DATAGRAM_RESULT
+    inputs: dict[str, InputCounters] = field(default_factory=dict)
+    """A radar process's input counters by input name ("25_11"), cumulative, on some
+    of its watermarks: the fusion process's status shows them as the daemon's own."""
 
 
 _META = np.dtype(
@@ -156,6 +160,41 @@ _BATCH_META = np.dtype(
     ]
 )
 _BATCH_ARRAYS = ("plots", "tracked", "jacobian", "monitor_xy", "local", "local_jacobian")
+_INPUT_COUNTS = (
+    "received",
+    "delivered",
+    "duplicates",
+    "repeats",
+    "malformed",
+    "dropped",
+    "held_dropped",
+    "kernel_drops",
+    "behind_dropped",
+    "bytes",
+)
+_INPUTS = np.dtype(
+    [("name", "U32"), *((name, np.int64) for name in _INPUT_COUNTS), ("last_reception", np.float64)]
+)
+
+
+def _inputs_array(inputs: dict[str, InputCounters]) -> npt.NDArray[Any]:
+    rows = np.zeros(len(inputs), dtype=_INPUTS)
+    for row, (name, counters) in zip(rows, inputs.items(), strict=True):
+        row["name"] = name
+        for count in _INPUT_COUNTS:
+            row[count] = getattr(counters, count)
+        row["last_reception"] = _nan(counters.last_reception)
+    return rows
+
+
+def _inputs_dict(rows: npt.NDArray[Any]) -> dict[str, InputCounters]:
+    return {
+        str(row["name"]): InputCounters(
+            **{count: int(row[count]) for count in _INPUT_COUNTS},
+            last_reception=_none(row["last_reception"]),
+        )
+        for row in rows
+    }
 
 
 def _nan(value: float | None) -> float:
@@ -266,6 +305,8 @@ def encode_message(result: DatagramResult) -> bytes:
         sections.append(_section(f"{k}/meta", _batch_meta(batch)))
         sections.extend(_section(f"{k}/{name}", getattr(batch, name)) for name in _BATCH_ARRAYS)
         sections.append(_section(f"{k}/clock_evidence", batch.clock_evidence))
+    if result.inputs:
+        sections.append(_section("inputs", _inputs_array(result.inputs)))
     return _HEAD.pack(MAGIC, int(result.kind), len(sections)) + b"".join(sections)
 
 
@@ -336,6 +377,7 @@ def decode_message(payload: bytes) -> DatagramResult:
                     **parts,
                 )
             )
+        inputs = _inputs_dict(arrays["inputs"]) if "inputs" in arrays else {}
     except (KeyError, IndexError, ValueError) as exc:
         raise StageMessageError(f"incomplete message: {exc!r}") from None
     return DatagramResult(
@@ -349,4 +391,5 @@ def decode_message(payload: bytes) -> DatagramResult:
             unknown_sources_dropped=int(meta["unknown_sources_dropped"]),
         ),
         kind=kind,
+        inputs=inputs,
     )

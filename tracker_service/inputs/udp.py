@@ -112,6 +112,10 @@ class InputCounters:
     kernel_drops: int = 0
     """Dropped by the kernel before this input could read them (receive buffer full),
     from SO_RXQ_OVFL: never seen, so not part of ``received`` either."""
+    behind_dropped: int = 0
+    """Dropped unprocessed later, when their turn came more than ``[system]
+    max_behind_s`` behind the wall clock (the chain overloaded: it sheds load rather than
+    fall further behind); not part of the sum above either."""
     bytes: int = 0
     last_reception: float | None = None
     """POSIX time of the last datagram received, valid or not."""

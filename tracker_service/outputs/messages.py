@@ -362,7 +362,9 @@ class RadarStatus(_Message):
     """Datagrams received twice on the same LAN within the duplicate window, dropped."""
     drop_causes: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
     """What ``drops`` counts, by cause: queue (the core behind), holding_window (a burst
-    beyond its bound), kernel (the socket's receive buffer full, SO_RXQ_OVFL)."""
+    beyond its bound), kernel (the socket's receive buffer full, SO_RXQ_OVFL), behind
+    (the chain overloaded: dropped unprocessed, their turn more than ``[system]
+    max_behind_s`` behind the wall clock)."""
     last_reception_time: float | None = None
     """Data time of the last datagram from this radar (reception, not plot time)."""
     plot_delay_s: float | None = None

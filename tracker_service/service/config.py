@@ -168,6 +168,12 @@ class SystemConfig(_Strict):
     holding_window_max_mb: Annotated[float, Field(gt=0.0, le=4096.0)] = 32.0
     """What the holding window may hold at most: a burst beyond is dropped and counted
     (``drops`` in status), not buffered in full."""
+    max_behind_s: Annotated[float, Field(gt=0.0, le=3600.0)] = 10.0
+    """Live (``run``): a datagram, or a radar process's batch, whose turn comes this many
+    seconds behind the wall clock (beyond the holding window) is dropped unprocessed and
+    counted (``drop_causes.behind`` in status). An overloaded chain so sheds load and
+    keeps its picture at most this late, its memory bounded, rather than fall further
+    behind with a backlog that grows without end."""
     max_output_restarts: Annotated[int, Field(ge=0, le=1000)] = 5
     """The daemon restarts its output process when it dies, up to this many times within
     10 minutes; one more death and it exits with status 1 (for systemd or Docker to

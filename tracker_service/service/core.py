@@ -400,6 +400,7 @@ class Outputs:
         self._start: float | None = None
         self._now = -math.inf
         self._unattributed: Counter[str] = Counter()
+        self._behind_at_last_status = 0
         self._core = CoreState()
         self._restarted_at: float | None = None
         self._failed_calls: dict[str, _FailedCalls] = {}
@@ -699,6 +700,7 @@ class Outputs:
                 "queue": inputs.dropped,
                 "holding_window": inputs.held_dropped,
                 "kernel": inputs.kernel_drops,
+                "behind": inputs.behind_dropped,
             }
             errors = {kind: counters.errors[kind] for kind in ERROR_KINDS if counters.errors[kind]}
             if counters.time is not None:
@@ -738,6 +740,12 @@ class Outputs:
         lag = self._core.lag_s
         if lag is not None and lag > LAG_LIMIT_S:
             reasons.append(f"the chain is {lag:.1f} s behind the wall clock")
+        shed = self._behind_dropped() - self._behind_at_last_status
+        if shed > 0:
+            reasons.append(
+                f"the chain is overloaded: {shed} datagram(s) dropped unprocessed since the "
+                "last status, their turn more than [system] max_behind_s behind the wall clock"
+            )
         unattributed = dict(self._unattributed)
         if self._core.sources.unknown_sources_dropped:
             unattributed["unknown_sources_dropped"] = self._core.sources.unknown_sources_dropped
@@ -753,8 +761,12 @@ class Outputs:
             unattributed=dict(sorted(unattributed.items())),
         )
 
+    def _behind_dropped(self) -> int:
+        return sum(c.behind_dropped for c in self.input_counters.values())
+
     def publish_status(self) -> None:
         message = self.status()
+        self._behind_at_last_status = self._behind_dropped()
         for counters in self._radars.values():
             counters.plots_at_last_status = counters.plots
             counters.implausible_at_last_status = counters.rejected["time_implausible"]

@@ -12,7 +12,9 @@ datagram is logged (at a bounded rate) and counted; the daemon goes on.
 The chain runs here; the outputs (messages, Zenoh, CAT062, MCAP) in a second process
 (``command.OutputProcess``, restarted when it dies), fed the chain's rows in order, so
 that the chain has a core of its own and the messages are those of a single process.
-The daemon measures how far the chain is behind the wall clock (``lag_s`` in status).
+The daemon measures how far the chain is behind the wall clock (``lag_s`` in status); a
+datagram whose turn comes more than ``system.max_behind_s`` behind is dropped unprocessed
+and counted (``Lateness``): an overloaded daemon sheds load, its picture at most that late.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from tracker_service.service.config import AdsbFeed, Lan, Radar, ServiceConfig
 from tracker_service.service.core import TrackerService, input_name
 from tracker_service.service.signals import Stop
 
-__all__ = ["Daemon", "InputError", "Merger", "open_inputs"]
+__all__ = ["Daemon", "InputError", "Lateness", "Merger", "open_inputs"]
 
 log = logging.getLogger(__name__)
 
@@ -143,13 +145,44 @@ class Merger:
         return out
 
 
+class Lateness:
+    """How far behind the wall clock the data is when its turn comes (``lag_s`` in
+    status), beyond the holding window ``window``; and the shedding of what is too late:
+    more than ``max_behind`` seconds behind, an item is dropped unprocessed and counted
+    by input name (``drop_causes.behind``). Skipping costs next to nothing, so an
+    overloaded chain catches up to ``max_behind`` at once and stays there, its backlog
+    (and memory) bounded, instead of falling ever further behind."""
+
+    def __init__(self, window: float, max_behind: float) -> None:
+        self.window = window
+        self.max_behind = max_behind
+        self.dropped: Counter[str] = Counter()
+        self._lag = 0.0
+
+    def admit(self, name: str, received: float) -> bool:
+        """Whether the item of input ``name`` received at ``received`` (POSIX s) is to
+        be processed now; False: it is dropped, and counted."""
+        behind = time.time() - received - self.window
+        self._lag = max(self._lag, behind)
+        if behind > self.max_behind:
+            self.dropped[name] += 1
+            return False
+        return True
+
+    def take_lag(self) -> float:
+        """The most any item was behind since the last call."""
+        lag, self._lag = self._lag, 0.0
+        return lag
+
+
 class Daemon:
     def __init__(self, config: ServiceConfig, health_file: Path | None = None) -> None:
         self.config = config
         self.health_file = health_file
         self.failures = 0
         self._warn = RateLimitedLog(log)
-        self._lag = 0.0
+        system = config.system
+        self.lateness = Lateness(system.holding_window_s, system.max_behind_s)
 
     def run(self, stop: Stop) -> int:
         """Until ``stop`` is set; then what the merger holds is processed (for at most
@@ -226,10 +259,10 @@ class Daemon:
         for udp in inputs:
             snapshot = udp.counters
             snapshot.held_dropped = merger.dropped[udp.name]
+            snapshot.behind_dropped = self.lateness.dropped[udp.name]
             counters[udp.name] = snapshot
         service.set_input_counters(counters)
-        service.core = replace(service.core, lag_s=self._lag)
-        self._lag = 0.0
+        service.core = replace(service.core, lag_s=self.lateness.take_lag())
 
     @staticmethod
     def _collect(inputs: list[UdpInput], merger: Merger) -> bool:
@@ -242,11 +275,8 @@ class Daemon:
 
     def _process(self, service: TrackerService, name: str, datagram: Datagram) -> None:
         assert datagram.time is not None
-        # Behind the wall clock beyond the holding window: the largest since the last
-        # copy of the counters.
-        self._lag = max(
-            self._lag, time.time() - datagram.time - self.config.system.holding_window_s
-        )
+        if not self.lateness.admit(name, datagram.time):
+            return
         try:
             service.process(name, datagram)
         except OutputProcessFailed:

@@ -8,7 +8,8 @@ stage, and publishes under ``<prefix>/stage/radars/<name>/`` (``name``: its rada
 
 - ``batches``: a ``stage_messages.DatagramResult`` per datagram with plots, ordered by
   reception time in microseconds; and every ``HEARTBEAT_S`` one without batches whose
-  order is a watermark (the process will send nothing older);
+  order is a watermark (the process will send nothing older), every ``COUNTERS_S`` with
+  its inputs' counters (duplicates, drops by cause) for the fusion process's status;
 - ``alive``: a liveliness token, gone when the process is (a SIGKILL closes its links:
   the fusion process learns it at once and stops waiting for it);
 - ``live``: a queryable that answers with its radars' live local tracks (``LIVE_TRACKS``).
@@ -17,6 +18,12 @@ The fusion process (``FusionRole``) subscribes to every radar process's batches 
 liveliness, merges the batches by reception time (order, then SAC/SIC), releasing one
 once every live radar process's watermark has passed it, and runs the central stage and
 the outputs (in a process of their own, as the daemon does). ADS-B inputs are its own.
+Both shed load as the daemon does (``daemon.Lateness``): a datagram or a batch whose turn
+comes more than ``[system] max_behind_s`` behind the wall clock is dropped unprocessed
+and counted; the fusion process's status shows that count and the radar processes'
+input counters per radar, and its lag is that of the batches it takes (reception at the
+radar process to its turn in fusion). What its Zenoh callbacks receive waits in a
+``StageInbox`` bounded in bytes, and the loop takes it at least every ``SLICE_S``.
 At its start it asks every radar process for its live tracks, so that the picture is
 back before the next antenna turn. A radar process that dies stops only its radars:
 their system tracks coast and end as if the radars were silent; restarted, it resumes
@@ -28,23 +35,31 @@ from __future__ import annotations
 import heapq
 import itertools
 import logging
-import queue
 import threading
 import time
-from dataclasses import dataclass
+from collections import Counter, deque
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import zenoh
 
 from asterix.containers import Datagram
 from tracker_service.chain import source_order
-from tracker_service.inputs.udp import UdpInput
+from tracker_service.inputs.udp import InputCounters, UdpInput
 from tracker_service.outputs.zenoh_session import zenoh_config
 from tracker_service.radar_stage import RadarState, StageStats
 from tracker_service.service.command import open_service
 from tracker_service.service.config import ServiceConfig
 from tracker_service.service.core import TrackerService, build_radar_stage, input_name
-from tracker_service.service.daemon import QUIET_S, InputError, Merger, open_inputs
+from tracker_service.service.daemon import (
+    COUNTERS_S,
+    QUIET_S,
+    InputError,
+    Lateness,
+    Merger,
+    open_inputs,
+)
 from tracker_service.service.signals import Stop
 from tracker_service.sources import SourceCounts
 from tracker_service.stage_messages import (
@@ -66,6 +81,10 @@ STALLED_S = 2.0
 """A live radar process silent this long (no batch, no heartbeat) is not waited for."""
 LIVE_QUERY_S = 2.0
 POLL_S = 0.002
+SLICE_S = 0.05
+"""The fusion process takes released batches for at most this long before it looks at
+its inbox again: what waits is in the merge (decoded, ordered, shed when too late), not
+in the inbox."""
 
 
 def stage_name(radars: list[str]) -> str:
@@ -122,6 +141,7 @@ class RadarRole:
             system.holding_window_max_datagrams,
             int(system.holding_window_max_mb * 1024 * 1024),
         )
+        lateness = Lateness(system.holding_window_s, system.max_behind_s)
         base = f"{config.zenoh.prefix}/stage/radars/{self.name}"
         watermark = _micro(time.time() - system.holding_window_s)
         session = _session(config, self.listen, self.connect)
@@ -143,7 +163,7 @@ class RadarRole:
             token = session.liveliness().declare_token(f"{base}/alive")
             queryable = session.declare_queryable(f"{base}/live", answer)
             log.info("radar stage %s: publishing under %s/", ", ".join(self.radars), base)
-            next_beat = 0.0
+            next_beat = next_counters = 0.0
             while not stop.is_set():
                 received = False
                 for udp in inputs:
@@ -151,8 +171,10 @@ class RadarRole:
                         merger.push(udp.name, datagram)
                         received = True
                 now = time.time()
-                for _name, datagram in merger.release(now):
+                for name, datagram in merger.release(now):
                     assert datagram.time is not None
+                    if not lateness.admit(name, datagram.time):
+                        continue
                     order = _micro(datagram.time)
                     with lock:
                         batches = stage.feed(datagram.payload, datagram.time, order)
@@ -170,7 +192,18 @@ class RadarRole:
                         )
                 if now >= next_beat:
                     watermark = _micro(now - system.holding_window_s)
-                    publisher.put(encode_message(DatagramResult(watermark, watermark / 1e6)))
+                    beat = DatagramResult(watermark, watermark / 1e6)
+                    if now >= next_counters:
+                        beat.inputs = {
+                            udp.name: replace(
+                                udp.counters,
+                                held_dropped=merger.dropped[udp.name],
+                                behind_dropped=lateness.dropped[udp.name],
+                            )
+                            for udp in inputs
+                        }
+                        next_counters = now + COUNTERS_S
+                    publisher.put(encode_message(beat))
                     next_beat = now + HEARTBEAT_S
                 if not received:
                     stop.wait(POLL_S)
@@ -241,15 +274,46 @@ class StageMerge:
         assert datagram.time is not None
         heapq.heappush(self._heap, (_micro(datagram.time), (), next(self._seq), (name, datagram)))
 
-    def release(self, now: float) -> list[RadarBatch | tuple[str, Datagram]]:
+    def release(self, now: float) -> Iterator[RadarBatch | tuple[str, Datagram]]:
+        """What every live producer has passed at ``now``, in order, taken one at a time:
+        what the caller does not take stays for the next call."""
         waited = [
             p.watermark for p in self.producers.values() if p.alive and now - p.heard < STALLED_S
         ]
         limit = min(waited) if waited else None
-        out = []
         while self._heap and (limit is None or self._heap[0][0] <= limit):
-            out.append(heapq.heappop(self._heap)[3])
-        return out
+            yield heapq.heappop(self._heap)[3]
+
+
+class StageInbox:
+    """What the fusion process's Zenoh callbacks received and its loop has not yet
+    taken: bounded in bytes, so that a loop that cannot even decode at the rate the
+    radar processes send drops and counts (by producer) rather than hold it all."""
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = max_bytes
+        self.size = 0
+        """Bytes held."""
+        self.dropped: Counter[str] = Counter()
+        self._items: deque[tuple[str, str, bytes]] = deque()
+        self._lock = threading.Lock()
+
+    def put(self, kind: str, producer: str, payload: bytes) -> None:
+        """From a Zenoh callback (any thread); never blocks."""
+        with self._lock:
+            if self.size + len(payload) > self.max_bytes:
+                self.dropped[producer] += 1
+                return
+            self._items.append((kind, producer, payload))
+            self.size += len(payload)
+
+    def take(self) -> list[tuple[str, str, bytes]]:
+        """Everything received so far, in arrival order."""
+        with self._lock:
+            items = list(self._items)
+            self._items.clear()
+            self.size = 0
+        return items
 
 
 class FusionRole:
@@ -265,13 +329,19 @@ class FusionRole:
         self.config = config
         self.listen, self.connect = listen, connect
         self.health_file = health_file
+        system = config.system
+        self.lateness = Lateness(system.holding_window_s, system.max_behind_s)
+        self.inbox = StageInbox(int(system.holding_window_max_mb * 1024 * 1024))
+        self.remote_inputs: dict[str, dict[str, InputCounters]] = {}
+        """Per radar process, its inputs' counters (from its watermarks)."""
+        self._inbox_counted = 0
 
     def run(self, stop: Stop) -> int:
         config = self.config
         prefix = f"{config.zenoh.prefix}/stage/radars"
         window = config.system.holding_window_s
         inputs = open_inputs(config.model_copy(update={"radars": []}))
-        events: queue.Queue[tuple[str, str, bytes]] = queue.Queue()
+        inbox = self.inbox
 
         def producer_of(key: zenoh.KeyExpr) -> str:
             return str(key).removeprefix(prefix + "/").split("/")[0]
@@ -288,17 +358,17 @@ class FusionRole:
                 service.advance(time.time() - window)
                 session.declare_subscriber(
                     f"{prefix}/*/batches",
-                    lambda s: events.put(("batch", producer_of(s.key_expr), s.payload.to_bytes())),
+                    lambda s: inbox.put("batch", producer_of(s.key_expr), s.payload.to_bytes()),
                 )
                 session.liveliness().declare_subscriber(
                     f"{prefix}/*/alive",
-                    lambda s: events.put((str(s.kind), producer_of(s.key_expr), b"")),
+                    lambda s: inbox.put(str(s.kind), producer_of(s.key_expr), b""),
                     history=True,
                 )
                 merge = StageMerge()
                 self._rebuild(session, prefix, merge)
                 log.info("fusion: taking the radar stages under %s/", prefix)
-                self._loop(service, inputs, events, merge, stop)
+                self._loop(service, inputs, merge, stop)
         finally:
             for udp in inputs:
                 udp.close()
@@ -324,53 +394,82 @@ class FusionRole:
                 sum(len(b.local) for b in result.batches),
             )
 
+    def _take_inbox(self, merge: StageMerge, now: float) -> bool:
+        """The inbox into the merge; whether there was anything."""
+        items = self.inbox.take()
+        for kind, producer, payload in items:
+            if kind == "batch":
+                try:
+                    result = decode_message(payload)
+                except StageMessageError as exc:
+                    log.warning("a batch from %s refused: %s", producer, exc)
+                    continue
+                merge.note(producer, result.order, now)
+                for batch in result.batches:
+                    merge.push_batch(batch)
+                if result.inputs:
+                    self.remote_inputs[producer] = result.inputs
+            elif kind.endswith("DELETE"):
+                log.warning("radar stage %s gone: its radars coast", producer)
+                merge.gone(producer)
+            else:
+                merge.note(producer, -1, now)
+        return bool(items)
+
     def _loop(
-        self,
-        service: TrackerService,
-        inputs: list[UdpInput],
-        events: queue.Queue[tuple[str, str, bytes]],
-        merge: StageMerge,
-        stop: Stop,
+        self, service: TrackerService, inputs: list[UdpInput], merge: StageMerge, stop: Stop
     ) -> None:
         window = self.config.system.holding_window_s
+        lateness = self.lateness
         last_data = time.time()
+        next_counters = 0.0
         while not stop.is_set():
             now = time.time()
-            busy = False
-            while True:
-                try:
-                    kind, producer, payload = events.get_nowait()
-                except queue.Empty:
-                    break
-                busy = True
-                if kind == "batch":
-                    try:
-                        result = decode_message(payload)
-                    except StageMessageError as exc:
-                        log.warning("a batch from %s refused: %s", producer, exc)
-                        continue
-                    merge.note(producer, result.order, now)
-                    for batch in result.batches:
-                        merge.push_batch(batch)
-                elif kind.endswith("DELETE"):
-                    log.warning("radar stage %s gone: its radars coast", producer)
-                    merge.gone(producer)
-                else:
-                    merge.note(producer, -1, now)
+            busy = self._take_inbox(merge, now)
             for udp in inputs:
                 while (datagram := udp.get(timeout=0)) is not None:
                     merge.push_datagram(udp.name, datagram)
                     busy = True
             if inputs:
                 merge.note("local", _micro(now - window), now)
+            deadline = now + SLICE_S
             for item in merge.release(now):
                 last_data = now
+                busy = True
                 if isinstance(item, RadarBatch):
-                    service.process_batch(item)
+                    if lateness.admit(input_name(item.source), item.received):
+                        service.process_batch(item)
                 else:
-                    service.process(*item)
+                    name, datagram = item
+                    assert datagram.time is not None
+                    if lateness.admit(name, datagram.time):
+                        service.process(name, datagram)
+                if time.time() >= deadline:
+                    break
+            if now >= next_counters:
+                self._update_counters(service, inputs)
+                next_counters = now + COUNTERS_S
             if now - last_data > QUIET_S and not merge:
                 service.advance(now - window)
                 last_data = now - QUIET_S + 0.1
             if not busy:
                 stop.wait(POLL_S)
+        self._update_counters(service, inputs)
+
+    def _update_counters(self, service: TrackerService, inputs: list[UdpInput]) -> None:
+        """The status's input counters: the radar processes' (as they last sent them) and
+        this process's own inputs', with what this process shed; and its lag."""
+        counters: dict[str, InputCounters] = {}
+        for remote in self.remote_inputs.values():
+            counters.update({name: replace(c) for name, c in remote.items()})
+        for udp in inputs:
+            counters[udp.name] = udp.counters
+        for name, n in self.lateness.dropped.items():
+            entry = counters.setdefault(name, InputCounters())
+            entry.behind_dropped += n
+        service.set_input_counters(counters)
+        lost = sum(self.inbox.dropped.values())
+        if lost > self._inbox_counted:
+            service.outputs.count("stage", "stage_inbox_full", lost - self._inbox_counted)
+            self._inbox_counted = lost
+        service.core = replace(service.core, lag_s=self.lateness.take_lag())
