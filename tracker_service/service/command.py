@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import fcntl
+import gc
 import logging
 import math
 import multiprocessing
@@ -365,6 +366,17 @@ def open_outputs(
             mcap.close()
 
 
+def freeze_start_up() -> None:
+    """What start-up built (modules, configuration, kernels' dispatchers: some 150,000
+    objects) lives as long as the process: out of the cyclic collector's sight
+    (``gc.freeze``), so that its full collections scan only what the chain made since.
+    The chain makes almost no cycles (a 120 s ``artas`` replay: 2,200 objects
+    collected in all), but each full collection scanned everything: 100-190 ms pauses
+    of the chain every 20-50 CPU-s on ``artas`` (docs/benchmarks.md, "Session 12")."""
+    gc.collect()
+    gc.freeze()
+
+
 @contextmanager
 def open_service(
     config: ServiceConfig,
@@ -386,6 +398,7 @@ def open_service(
             config, mcap_dir, zenoh=zenoh, health_file=health_file, supervised=supervised
         ) as outputs:
             service = TrackerService(config, outputs=outputs, radar_stage=radar_stage)
+            freeze_start_up()
             try:
                 yield service
             finally:
@@ -393,6 +406,7 @@ def open_service(
         return
     with open_outputs(config, mcap_dir, zenoh=zenoh) as (publisher, mcap):
         service = TrackerService(config, publisher, mcap, radar_stage=radar_stage)
+        freeze_start_up()
         try:
             yield service
         finally:
@@ -626,6 +640,7 @@ def _serve_outputs(
         with open_outputs(config, mcap_dir, zenoh=zenoh) as (publisher, mcap):
             outputs = Outputs(config, publisher, mcap)
             outputs.health_file = health_file
+            freeze_start_up()
             replies.put(None)
             try:
                 told_to_stop = _make_calls(outputs, parent, calls, failed)
