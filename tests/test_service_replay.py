@@ -3,6 +3,7 @@ process, the MCAP log read back, CAT062 decoded and compared with the JSON messa
 
 from __future__ import annotations
 
+import gc
 import json
 import re
 import socket
@@ -18,6 +19,8 @@ import pytest
 from asterix.codec import Block, decode_blocks
 from tracker_service.cli import main
 from tracker_service.outputs.mcap_log import LoggedMessage, read_log_messages
+from tracker_service.service.command import open_service
+from tracker_service.service.config import load_service_config
 from tracker_service.service.core import TrackerService
 from tracker_service.service.replay import open_replay
 
@@ -318,3 +321,16 @@ def test_a_radar_that_stops_and_resumes_is_tracked_again(recording: Path) -> Non
 
 def _radars_of_live_tracks(service: TrackerService) -> set[str]:
     return {s.radar for track in service.picture().values() for s in track.sources}
+
+
+def test_start_up_objects_are_out_of_the_collectors_sight() -> None:
+    """``command.freeze_start_up``: once the service is built, what start-up made is in
+    the permanent generation, so that a full collection scans only what came since."""
+    config = load_service_config(REPO / "config" / "example.toml")
+    gc.unfreeze()
+    try:
+        with open_service(config, None, zenoh=False) as service:
+            assert gc.get_freeze_count() > 10_000
+            assert service.chain.sources == ["25/11", "25/12", "25/13"]
+    finally:
+        gc.unfreeze()
