@@ -12,7 +12,7 @@ I140). Both clocks are this host's.
 
     python benchmarks/bench_latency.py [--scenario scale|three_sites|artas] [--rate 2000]
         [--speed 1] [--duration 180] [--holding-window 0.02] [--no-mcap] [--profile FILE]
-        [--radar-processes N]
+        [--radar-processes N] [--samples FILE] [--statuses FILE]
 
 A long slice (``artas`` for 30 minutes: minutes of simulation) is simulated ahead, dated
 in the future, then sent by a second run, so that the wait is not spent idle::
@@ -180,6 +180,10 @@ def main() -> int:
     parser.add_argument("--no-mcap", action="store_true", help="run the daemon without log")
     parser.add_argument("--profile", help="cProfile the daemon into this file")
     parser.add_argument("--samples", help="write each plot's send time (s) and latency (ms)")
+    parser.add_argument(
+        "--statuses",
+        help="write each status the daemon published (JSON lines): its lag, drops by cause",
+    )
     parser.add_argument(
         "--radar-processes",
         type=int,
@@ -362,6 +366,9 @@ def main() -> int:
         )
         + f"; this process (sender, subscriber) {own / cpu_wall:.0%}"
     )
+    if args.statuses is not None:
+        with open(args.statuses, "w", encoding="utf-8") as out:
+            out.writelines(json.dumps(status) + "\n" for status in statuses)
     if statuses:
         last = statuses[-1]
         causes: dict[str, int] = {}
