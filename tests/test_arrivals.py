@@ -1,6 +1,6 @@
 """The live loops' wake-up (``inputs.arrivals.Arrivals``): no lost wake-up with real
 threads racing, the wait bounded by its deadlines and its cap, and real UDP inputs that
-announce what they queue."""
+announce what they queue; the fusion merge's own deadline."""
 
 from __future__ import annotations
 
@@ -9,8 +9,12 @@ import threading
 import time
 from collections import deque
 
+import pytest
+
+from asterix.containers import Datagram
 from tracker_service.inputs.arrivals import WAIT_CAP_S, Arrivals
 from tracker_service.inputs.udp import UdpEndpoint, UdpInput
+from tracker_service.service.roles import LOCAL, STALLED_S, StageMerge
 
 ROUNDS = 3000
 PRODUCERS = 2
@@ -115,3 +119,27 @@ def test_a_datagram_wakes_the_waiter_and_only_its_input_is_named() -> None:
         sender.sendto(b"\x00\x00\x03", ("127.0.0.1", first.endpoints[0][1]))
         assert not arrivals.wait(0.2)
         assert first.counters.malformed == 1
+
+
+def test_the_fusion_merge_says_when_its_oldest_item_may_go() -> None:
+    """``StageMerge.next_release``: what the fusion loop waits for when nothing arrives.
+    A radar process behind the oldest item (here a datagram of the fusion process's own)
+    holds it until it stalls; the own inputs (clocked) until the wall clock, less their
+    lag, passes it."""
+    merge = StageMerge()
+    now = 1000.0
+    assert merge.next_release(now, LOCAL, 0.2) is None
+    datagram = Datagram(b"\x15\x00\x03", 0, 999.5, None, None)
+    merge.push_datagram("25_50", datagram)
+    merge.note("west", 999_400_000, now - 0.5)  # behind the batch, heard 0.5 s ago
+    merge.note("east", 999_600_000, now)  # past it
+    merge.note(LOCAL, 999_300_000, now)  # behind it too
+    assert merge.next_release(now, LOCAL, 0.2) == pytest.approx(999.5 + 0.2)
+    merge.note(LOCAL, 999_800_000, now)
+    assert merge.next_release(now, LOCAL, 0.2) == pytest.approx(now - 0.5 + STALLED_S)
+    assert list(merge.release(now)) == []
+    # Stalled: no longer waited for, the batch goes at once.
+    later = now - 0.5 + STALLED_S
+    assert merge.next_release(later, LOCAL, 0.2) == later
+    assert list(merge.release(later)) == [("25_50", datagram)]
+    assert merge.next_release(later, LOCAL, 0.2) is None
