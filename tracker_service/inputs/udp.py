@@ -15,16 +15,17 @@ import errno
 import ipaddress
 import logging
 import os
-import queue
 import socket
 import struct
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, replace
 
 from asterix.containers import Datagram
 from tracker_service.closing import Closing
 from tracker_service.ingest import DuplicateFilter, DuplicateWindow, Repetition
+from tracker_service.inputs.arrivals import Arrivals
 from tracker_service.ratelimit import RateLimitedLog
 
 __all__ = [
@@ -224,6 +225,9 @@ class UdpInput(Closing):
 
     ``Datagram.offset`` is the datagram's number in this input (from 0, both LANs), the
     nearest thing a live feed has to an offset in its input.
+
+    ``arrivals``: told this input's name each time a datagram is queued, so that a loop
+    over many inputs waits for data and takes from those that have some (``take``).
     """
 
     def __init__(
@@ -235,22 +239,26 @@ class UdpInput(Closing):
         queue_size: int = 1024,
         queue_bytes: int = QUEUE_BYTES,
         duplicate_window: DuplicateWindow | None = None,
+        arrivals: Arrivals | None = None,
     ) -> None:
         if queue_size < 1:
             raise ValueError(f"queue_size must be at least 1, not {queue_size}")
         self.name = name
-        self._queue: queue.Queue[Datagram] = queue.Queue(maxsize=queue_size)
+        self._queue: deque[Datagram] = deque()
+        self._queue_size = queue_size
         self._queue_bytes = queue_bytes
         self._queued_bytes = 0
+        self._arrivals = arrivals
         # On one LAN too: a datagram received twice within the window (a switch loop, a
         # radar that resends) would have every plot processed twice.
         self._duplicates = DuplicateFilter(duplicate_window)
         self._counters = InputCounters()
         self._socket_drops: list[int] = []
         self._rate_limited = RateLimitedLog(_log)
-        # One lock for the filter, the counters and the datagram numbers: the two LAN
-        # threads share them.
+        # One lock for the filter, the counters, the datagram numbers and the queue: the
+        # two LAN threads and the consumer share them.
         self._lock = threading.Lock()
+        self._queued = threading.Condition(self._lock)
         self._stop = threading.Event()
         endpoints = [lan_a] if lan_b is None else [lan_a, lan_b]
         self._sockets: list[socket.socket] = []
@@ -300,13 +308,20 @@ class UdpInput(Closing):
 
     def get(self, timeout: float | None = None) -> Datagram | None:
         """The next datagram, or None when none came within ``timeout`` seconds."""
-        try:
-            datagram = self._queue.get(timeout=timeout)
-        except queue.Empty:
-            return None
-        with self._lock:
+        with self._queued:
+            if not self._queued.wait_for(lambda: self._queue, timeout):
+                return None
+            datagram = self._queue.popleft()
             self._queued_bytes -= len(datagram.payload)
         return datagram
+
+    def take(self) -> list[Datagram]:
+        """Every datagram queued, in order; none waited for."""
+        with self._lock:
+            datagrams = list(self._queue)
+            self._queue.clear()
+            self._queued_bytes = 0
+        return datagrams
 
     def _receive(self, sock: socket.socket, destination: tuple[str, int], lan: int) -> None:
         while not self._stop.is_set():
@@ -324,7 +339,13 @@ class UdpInput(Closing):
                 continue
             received_at = time.time()
             drops = _kernel_drops(ancillary)
-            self._accept(payload, received_at, (sender[0], sender[1]), destination, lan, drops)
+            queued = self._accept(
+                payload, received_at, (sender[0], sender[1]), destination, lan, drops
+            )
+            if queued and self._arrivals is not None:
+                # After the datagram is queued (and outside this input's lock): see
+                # inputs.arrivals for why no wake-up is lost.
+                self._arrivals.notify(self.name)
 
     def _accept(
         self,
@@ -334,7 +355,8 @@ class UdpInput(Closing):
         destination: tuple[str, int],
         lan: int = 0,
         socket_drops: int | None = None,
-    ) -> None:
+    ) -> bool:
+        """Whether the datagram was queued."""
         with self._lock:
             counters = self._counters
             if socket_drops is not None and socket_drops != self._socket_drops[lan]:
@@ -363,11 +385,11 @@ class UdpInput(Closing):
                     len(payload),
                     reason,
                 )
-                return
+                return False
             repetition = self._duplicates.classify(payload, received_at, lan)
             if repetition is Repetition.COPY:
                 counters.duplicates += 1
-                return
+                return False
             if repetition is Repetition.REPEAT:
                 counters.repeats += 1
                 self._rate_limited.warning(
@@ -377,23 +399,21 @@ class UdpInput(Closing):
                     "AB"[lan],
                     self._duplicates.window.seconds,
                 )
-                return
-            full = self._queued_bytes + len(payload) > self._queue_bytes
-            if not full:
-                try:
-                    self._queue.put_nowait(
-                        Datagram(payload, number, received_at, source, destination)
-                    )
-                except queue.Full:
-                    full = True
-            if full:
+                return False
+            if (
+                len(self._queue) >= self._queue_size
+                or self._queued_bytes + len(payload) > self._queue_bytes
+            ):
                 counters.dropped += 1
                 self._rate_limited.warning(
                     "queue", "%s: queue full (the core is behind): datagram dropped", self.name
                 )
-                return
+                return False
+            self._queue.append(Datagram(payload, number, received_at, source, destination))
             self._queued_bytes += len(payload)
             counters.delivered += 1
+            self._queued.notify()
+            return True
 
     def close(self) -> None:
         """Stops the threads and closes the sockets; what is queued stays readable."""

@@ -1,11 +1,13 @@
 """The daemon behind ``tracker-service run``: live UDP feeds into the service core.
 
 Each feed has its input (``inputs.udp.UdpInput``: a thread per LAN, the duplicate filter,
-a bounded queue whose overflow is counted). One thread, this one, merges the inputs: a
-datagram waits until ``system.holding_window_s`` has passed since its reception, so that
-the datagrams of every radar reach the core in reception-time order (ties by input name)
-even when a thread ran late; the core logs them in that order, and the replay of the
-log feeds them the same way. The window holds at most a configured number of datagrams
+a bounded queue whose overflow is counted), which tells one ``inputs.arrivals.Arrivals``
+when it has queued something. One thread, this one, merges the inputs, waiting for data
+(or its next duty) rather than polling them: a datagram waits until
+``system.holding_window_s`` has passed since its reception, so that the datagrams of
+every radar reach the core in reception-time order (ties by input name) even when a
+thread ran late; the core logs them in that order, and the replay of the log feeds them
+the same way. The window holds at most a configured number of datagrams
 and bytes: a burst beyond is dropped and counted. An exception in the processing of one
 datagram is logged (at a bounded rate) and counted; the daemon goes on.
 
@@ -24,11 +26,13 @@ import heapq
 import logging
 import time
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
 from asterix.containers import Datagram
 from tracker_service.ingest import DuplicateWindow
+from tracker_service.inputs.arrivals import Arrivals
 from tracker_service.inputs.udp import EndpointError, UdpEndpoint, UdpInput
 from tracker_service.ratelimit import RateLimitedLog
 from tracker_service.service.command import OutputProcessFailed, open_service
@@ -36,12 +40,10 @@ from tracker_service.service.config import AdsbFeed, Lan, Radar, ServiceConfig
 from tracker_service.service.core import TrackerService, input_name
 from tracker_service.service.signals import Stop
 
-__all__ = ["Daemon", "InputError", "Lateness", "Merger", "open_inputs"]
+__all__ = ["Daemon", "InputError", "Lateness", "Merger", "open_inputs", "take_ready"]
 
 log = logging.getLogger(__name__)
 
-POLL_S = 0.001
-"""Sleep of the merge loop when no input has anything: the latency it may add."""
 COUNTERS_S = 0.5
 """How often the inputs' counters are copied for the status messages (wall clock)."""
 STOP_DRAIN_S = 2.0
@@ -50,9 +52,19 @@ the rest (a backlog of an overloaded core) are dropped and counted, so that a st
 prompt whatever the load."""
 ADVANCE_S = 0.1
 """While every feed is quiet, data time follows the wall clock in steps this long (each
-step is a call to the output process: at the loop's 1 ms it cost 10 % of a core idle)."""
+step is a call to the output process, and a wake-up of the loop)."""
 QUIET_S = 1.0
 """After this long without a datagram, data time follows the wall clock (status goes on)."""
+
+
+def take_ready(inputs: list[UdpInput], ready: set[str]) -> Iterator[tuple[str, Datagram]]:
+    """Every datagram queued by the inputs named in ``ready`` (from ``Arrivals.take``),
+    input by input in the order of ``inputs`` (that of the configuration), so that the
+    order of what is pushed does not depend on the order of a set."""
+    for udp in inputs:
+        if udp.name in ready:
+            for datagram in udp.take():
+                yield udp.name, datagram
 
 
 class InputError(ValueError):
@@ -72,9 +84,12 @@ def _feeds(config: ServiceConfig) -> list[tuple[str, Radar | AdsbFeed]]:
     ]
 
 
-def open_inputs(config: ServiceConfig, queue_size: int = 1024) -> list[UdpInput]:
-    """One input per configured feed (radars and ADS-B) that has an ``input`` table;
-    InputError when one cannot be bound."""
+def open_inputs(
+    config: ServiceConfig, queue_size: int = 1024, arrivals: Arrivals | None = None
+) -> list[UdpInput]:
+    """One input per configured feed (radars and ADS-B) that has an ``input`` table,
+    each telling ``arrivals`` when it has queued a datagram; InputError when one cannot be
+    bound."""
     inputs: list[UdpInput] = []
     try:
         for table, feed in _feeds(config):
@@ -91,6 +106,7 @@ def open_inputs(config: ServiceConfig, queue_size: int = 1024) -> list[UdpInput]
                         lan_b,
                         queue_size=queue_size,
                         duplicate_window=DuplicateWindow(seconds=feed.input.duplicate_window_s),
+                        arrivals=arrivals,
                     )
                 )
             except EndpointError as exc:
@@ -134,6 +150,10 @@ class Merger:
         heapq.heappush(self._heap, (datagram.time, name, datagram.offset, datagram))
         self.bytes += size
         return True
+
+    def due(self) -> float | None:
+        """When the oldest datagram held is ``window`` old (POSIX s); None when empty."""
+        return self._heap[0][0] + self.window if self._heap else None
 
     def release(self, now: float) -> list[tuple[str, Datagram]]:
         """What is at least ``window`` old at ``now`` (everything when ``now`` is inf)."""
@@ -188,7 +208,8 @@ class Daemon:
         """Until ``stop`` is set; then what the merger holds is processed (for at most
         ``STOP_DRAIN_S``), every live track ended and the log closed."""
         config = self.config
-        inputs = open_inputs(config)
+        arrivals = Arrivals()
+        inputs = open_inputs(config, arrivals=arrivals)
         if not inputs:
             log.warning("no radar has an [input]: nothing will arrive")
         for udp in inputs:
@@ -210,7 +231,7 @@ class Daemon:
                 next_counters = 0.0
                 next_advance = 0.0
                 while not stop.is_set():
-                    received = self._collect(inputs, merger)
+                    received = self._collect(inputs, arrivals.take(), merger)
                     now = time.time()
                     if received:
                         last_datagram = now
@@ -228,11 +249,14 @@ class Daemon:
                     if now - last_datagram > QUIET_S and not merger and now >= next_advance:
                         service.advance(now - config.system.holding_window_s)
                         next_advance = now + ADVANCE_S
-                    if not received:
-                        stop.wait(POLL_S)
+                    # Until data comes or the next duty: the oldest datagram held due (so
+                    # that it is released as late as it was at a 1 ms poll, or less), the
+                    # counters, data time's advance while quiet.
+                    advance_at = None if merger else max(last_datagram + QUIET_S, next_advance)
+                    arrivals.wait_until(merger.due(), next_counters, advance_at)
                 for udp in inputs:
                     udp.close()
-                self._collect(inputs, merger)
+                self._collect(inputs, {udp.name for udp in inputs}, merger)
                 # What the window holds goes through, for as long as a stop may take.
                 deadline = time.monotonic() + STOP_DRAIN_S
                 for name, datagram in merger.release(float("inf")):
@@ -265,12 +289,12 @@ class Daemon:
         service.core = replace(service.core, lag_s=self.lateness.take_lag())
 
     @staticmethod
-    def _collect(inputs: list[UdpInput], merger: Merger) -> bool:
+    def _collect(inputs: list[UdpInput], ready: set[str], merger: Merger) -> bool:
+        """What the inputs named ``ready`` hold into the window; whether there was any."""
         received = False
-        for udp in inputs:
-            while (datagram := udp.get(timeout=0)) is not None:
-                merger.push(udp.name, datagram)
-                received = True
+        for name, datagram in take_ready(inputs, ready):
+            merger.push(name, datagram)
+            received = True
         return received
 
     def _process(self, service: TrackerService, name: str, datagram: Datagram) -> None:

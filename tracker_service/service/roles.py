@@ -46,6 +46,7 @@ import zenoh
 
 from asterix.containers import Datagram
 from tracker_service.chain import source_order
+from tracker_service.inputs.arrivals import Arrivals
 from tracker_service.inputs.udp import InputCounters, UdpInput
 from tracker_service.outputs.zenoh_session import zenoh_config
 from tracker_service.radar_stage import RadarState, StageStats
@@ -59,6 +60,7 @@ from tracker_service.service.daemon import (
     Lateness,
     Merger,
     open_inputs,
+    take_ready,
 )
 from tracker_service.service.signals import Stop
 from tracker_service.sources import SourceCounts
@@ -80,7 +82,6 @@ HEARTBEAT_S = 0.1
 STALLED_S = 2.0
 """A live radar process silent this long (no batch, no heartbeat) is not waited for."""
 LIVE_QUERY_S = 2.0
-POLL_S = 0.002
 SLICE_S = 0.05
 """The fusion process takes released batches for at most this long before it looks at
 its inbox again: what waits is in the merge (decoded, ordered, shed when too late), not
@@ -132,7 +133,10 @@ class RadarRole:
     def run(self, stop: Stop) -> int:
         config = self.config
         mine = [r for r in config.radars if r.key in self.radars]
-        inputs = open_inputs(config.model_copy(update={"radars": mine, "adsb": []}))
+        arrivals = Arrivals()
+        inputs = open_inputs(
+            config.model_copy(update={"radars": mine, "adsb": []}), arrivals=arrivals
+        )
         stage = build_radar_stage(config, incarnation=time.time_ns() // 1_000_000)
         lock = threading.Lock()
         system = config.system
@@ -165,11 +169,8 @@ class RadarRole:
             log.info("radar stage %s: publishing under %s/", ", ".join(self.radars), base)
             next_beat = next_counters = 0.0
             while not stop.is_set():
-                received = False
-                for udp in inputs:
-                    while (datagram := udp.get(timeout=0)) is not None:
-                        merger.push(udp.name, datagram)
-                        received = True
+                for name, datagram in take_ready(inputs, arrivals.take()):
+                    merger.push(name, datagram)
                 now = time.time()
                 for name, datagram in merger.release(now):
                     assert datagram.time is not None
@@ -205,8 +206,8 @@ class RadarRole:
                         next_counters = now + COUNTERS_S
                     publisher.put(encode_message(beat))
                     next_beat = now + HEARTBEAT_S
-                if not received:
-                    stop.wait(POLL_S)
+                # Until data comes, the oldest datagram held is due, or the next beat.
+                arrivals.wait_until(merger.due(), next_beat)
             queryable.undeclare()  # type: ignore[no-untyped-call]
             token.undeclare()  # type: ignore[no-untyped-call]
         finally:
@@ -284,14 +285,40 @@ class StageMerge:
         while self._heap and (limit is None or self._heap[0][0] <= limit):
             yield heapq.heappop(self._heap)[3]
 
+    def next_release(self, now: float, clocked: str, lag: float) -> float | None:
+        """When (POSIX s) the oldest item held may be released though nothing more
+        arrives; None when nothing is held. Each live producer whose watermark holds it
+        back lets it go when it stalls (``STALLED_S`` after it was last heard), except
+        ``clocked``, whose watermark follows the wall clock ``lag`` s behind (the fusion
+        process's own inputs): it passes the item ``lag`` after the item's time. With
+        nothing holding it back (the caller stopped taking), that is ``now``."""
+        if not self._heap:
+            return None
+        oldest = self._heap[0][0]
+        times = [
+            oldest / 1e6 + lag if name == clocked else p.heard + STALLED_S
+            for name, p in self.producers.items()
+            if p.alive and now - p.heard < STALLED_S and p.watermark < oldest
+        ]
+        return min(times, default=now)
+
+
+INBOX = "stage inbox"
+"""The fusion process's inbox among the names its ``Arrivals`` hears (no input's name:
+those are SAC_SIC)."""
+LOCAL = "local"
+"""The fusion process's own inputs as a producer of its ``StageMerge``."""
+
 
 class StageInbox:
     """What the fusion process's Zenoh callbacks received and its loop has not yet
     taken: bounded in bytes, so that a loop that cannot even decode at the rate the
-    radar processes send drops and counts (by producer) rather than hold it all."""
+    radar processes send drops and counts (by producer) rather than hold it all. What it
+    holds is announced to ``arrivals`` under ``INBOX``, as an input's datagrams are."""
 
-    def __init__(self, max_bytes: int) -> None:
+    def __init__(self, max_bytes: int, arrivals: Arrivals | None = None) -> None:
         self.max_bytes = max_bytes
+        self.arrivals = arrivals
         self.size = 0
         """Bytes held."""
         self.dropped: Counter[str] = Counter()
@@ -306,6 +333,8 @@ class StageInbox:
                 return
             self._items.append((kind, producer, payload))
             self.size += len(payload)
+        if self.arrivals is not None:
+            self.arrivals.notify(INBOX)
 
     def take(self) -> list[tuple[str, str, bytes]]:
         """Everything received so far, in arrival order."""
@@ -331,7 +360,9 @@ class FusionRole:
         self.health_file = health_file
         system = config.system
         self.lateness = Lateness(system.holding_window_s, system.max_behind_s)
-        self.inbox = StageInbox(int(system.holding_window_max_mb * 1024 * 1024))
+        self.arrivals = Arrivals()
+        """Heard by the Zenoh callbacks (through the inbox) and by the own inputs."""
+        self.inbox = StageInbox(int(system.holding_window_max_mb * 1024 * 1024), self.arrivals)
         self.remote_inputs: dict[str, dict[str, InputCounters]] = {}
         """Per radar process, its inputs' counters (from its watermarks)."""
         self._inbox_counted = 0
@@ -340,7 +371,7 @@ class FusionRole:
         config = self.config
         prefix = f"{config.zenoh.prefix}/stage/radars"
         window = config.system.holding_window_s
-        inputs = open_inputs(config.model_copy(update={"radars": []}))
+        inputs = open_inputs(config.model_copy(update={"radars": []}), arrivals=self.arrivals)
         inbox = self.inbox
 
         def producer_of(key: zenoh.KeyExpr) -> str:
@@ -394,10 +425,9 @@ class FusionRole:
                 sum(len(b.local) for b in result.batches),
             )
 
-    def _take_inbox(self, merge: StageMerge, now: float) -> bool:
-        """The inbox into the merge; whether there was anything."""
-        items = self.inbox.take()
-        for kind, producer, payload in items:
+    def _take_inbox(self, merge: StageMerge, now: float) -> None:
+        """The inbox into the merge."""
+        for kind, producer, payload in self.inbox.take():
             if kind == "batch":
                 try:
                     result = decode_message(payload)
@@ -414,28 +444,27 @@ class FusionRole:
                 merge.gone(producer)
             else:
                 merge.note(producer, -1, now)
-        return bool(items)
 
     def _loop(
         self, service: TrackerService, inputs: list[UdpInput], merge: StageMerge, stop: Stop
     ) -> None:
         window = self.config.system.holding_window_s
         lateness = self.lateness
+        arrivals = self.arrivals
         last_data = time.time()
         next_counters = 0.0
         while not stop.is_set():
             now = time.time()
-            busy = self._take_inbox(merge, now)
-            for udp in inputs:
-                while (datagram := udp.get(timeout=0)) is not None:
-                    merge.push_datagram(udp.name, datagram)
-                    busy = True
+            ready = arrivals.take()
+            if INBOX in ready:
+                self._take_inbox(merge, now)
+            for name, datagram in take_ready(inputs, ready):
+                merge.push_datagram(name, datagram)
             if inputs:
-                merge.note("local", _micro(now - window), now)
+                merge.note(LOCAL, _micro(now - window), now)
             deadline = now + SLICE_S
             for item in merge.release(now):
                 last_data = now
-                busy = True
                 if isinstance(item, RadarBatch):
                     if lateness.admit(input_name(item.source), item.received):
                         service.process_batch(item)
@@ -452,8 +481,14 @@ class FusionRole:
             if now - last_data > QUIET_S and not merge:
                 service.advance(now - window)
                 last_data = now - QUIET_S + 0.1
-            if not busy:
-                stop.wait(POLL_S)
+            # Until a message or a datagram comes, or the next duty: what the merge holds
+            # releasable (at once when the slice above ended it), the counters, data
+            # time's advance while quiet.
+            arrivals.wait_until(
+                merge.next_release(now, LOCAL, window),
+                next_counters,
+                None if merge else last_data + QUIET_S,
+            )
         self._update_counters(service, inputs)
 
     def _update_counters(self, service: TrackerService, inputs: list[UdpInput]) -> None:
