@@ -11,8 +11,16 @@ publishes a ``stage_messages.DatagramResult`` on ``<prefix>/stage/replay/<k>/res
 The main process takes, for each datagram in input order, the next result of the worker
 that owns it, and checks that it is that datagram's (``order``): the central stage sees
 the same batches in the same order as in one process, so the system tracks are the same
-messages with the same numbers and values, whatever the timing of the network. The
-workers run ahead of the main process as far as Zenoh's queues let them.
+messages with the same numbers and values, whatever the timing of the network.
+
+Flow control: a worker runs ahead of the main process by at most ``WINDOW`` of its
+results. The main process says how many of worker k's results it has consumed, every
+``credit_step(window)`` of them, on ``<prefix>/stage/replay/<k>/consumed`` (a u64
+little-endian count); the worker, once ``WINDOW`` ahead of the last count it heard, waits
+for the next one. The main process's queues so hold at most ``WINDOW`` results per worker
+however slow its central stage and outputs are (docs/benchmarks.md, session 12), and no
+Zenoh callback ever blocks: the main process's only puts the payload in a queue, the
+worker's only raises a count under a lock.
 
 Sessions as everywhere in the service (``outputs.zenoh_session``): peers, scouting off,
 explicit endpoints only; the main process listens on 127.0.0.1 on a free port, the
@@ -28,6 +36,7 @@ import multiprocessing
 import os
 import queue
 import socket
+import struct
 import threading
 import time
 import zlib
@@ -63,6 +72,20 @@ READY_TIMEOUT_S = 30.0
 """A worker that has not reached the main process's session in this long gives up."""
 RESULT_TIMEOUT_S = 1.0
 """How long the main process waits for a result before it checks its worker still runs."""
+WINDOW = 2048
+"""How many results a worker may have published beyond what the main process has consumed
+of its results. Large enough that a worker never starves the main process in normal
+running: a credit comes back every ``WINDOW // 8`` results, within milliseconds on
+loopback, so a worker that keeps up always has most of its window open (2048 datagrams
+are 18 s of the 20-radar ``scale`` scenario). Small enough to bound the main process's
+memory: a result is a few kilobytes (the plots, Jacobians and local-track updates of one
+datagram), so at most ~10 MB per worker wait in its queue (docs/benchmarks.md, session
+12) where, unbounded, a slow main process held the whole recording's."""
+CREDIT_WAIT_S = 1.0
+"""How long a worker at the end of its window waits for a credit before it waits again
+(a main process that died is noticed by ``_exit_when_orphaned`` meanwhile)."""
+_COUNT = struct.Struct("<Q")
+"""A credit: how many of a worker's results the main process has consumed."""
 
 
 class WorkerFailed(RadarStageFailed):
@@ -86,6 +109,17 @@ def result_key(prefix: str, worker: int) -> str:
     return f"{prefix}/stage/replay/{worker}/result"
 
 
+def consumed_key(prefix: str, worker: int) -> str:
+    return f"{prefix}/stage/replay/{worker}/consumed"
+
+
+def credit_step(window: int) -> int:
+    """Every how many consumed results the main process sends a worker its count: an
+    eighth of the window, so that a credit is one message per many results and a worker
+    that keeps up never finds its window shut."""
+    return max(1, window // 8)
+
+
 def ready_key(prefix: str) -> str:
     return f"{prefix}/stage/replay/ready"
 
@@ -107,6 +141,32 @@ class _WorkerArgs:
     workers: int
     endpoint: str
     prefix: str
+    window: int
+
+
+class _Credit:
+    """In a worker, how many of its results the main process has consumed, as it last
+    said; fed by the worker's subscriber, waited on by the worker's loop."""
+
+    def __init__(self) -> None:
+        self._consumed = 0
+        self._changed = threading.Condition()
+
+    def heard(self, sample: zenoh.Sample) -> None:
+        """The subscriber's callback: a count, kept if it is the highest yet (it never
+        waits for more than the lock, held only between the loop's checks)."""
+        (consumed,) = _COUNT.unpack(sample.payload.to_bytes())
+        with self._changed:
+            if consumed > self._consumed:
+                self._consumed = consumed
+                self._changed.notify_all()
+
+    def wait_for_room(self, published: int, window: int) -> None:
+        """Until the main process has consumed enough that one more result keeps
+        ``published`` within ``window`` of it."""
+        with self._changed:
+            while published - self._consumed >= window:
+                self._changed.wait(CREDIT_WAIT_S)
 
 
 def _wait_ready(session: zenoh.Session, prefix: str) -> None:
@@ -142,14 +202,19 @@ def _run_worker(
     stage = build_radar_stage(config)
     assignment = assign([radar.key for radar in config.radars], args.workers)
     session = zenoh.open(zenoh_config("peer", connect=[args.endpoint]))
+    credit = _Credit()
     try:
         publisher = session.declare_publisher(
             result_key(args.prefix, args.worker),
             congestion_control=zenoh.CongestionControl.BLOCK,
             encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM,
         )
+        # Declared before the ready query: the main process has heard of it before it
+        # answers, so no credit it sends later goes unheard.
+        session.declare_subscriber(consumed_key(args.prefix, args.worker), credit.heard)
         _wait_ready(session, args.prefix)
         order = 0
+        published = 0
         for _name, datagram in source.datagrams:
             payload = datagram.payload
             if datagram.time is None or block_chain_error(payload) is not None:
@@ -159,7 +224,16 @@ def _run_worker(
                 result = DatagramResult(
                     order, datagram.time, batches, stage.stats.decode_errors, stage.admission.counts
                 )
+                # No deadlock: the main process consumes this worker's results in the
+                # order they are published, so the one it waits for from this worker is
+                # always its oldest not consumed. Here that is result ``published`` only
+                # when all before it are consumed, and the count the main process last
+                # sent is then at most ``credit_step - 1`` behind (it sends on every
+                # multiple of the step, and again whenever it waits): within the window.
+                # Other workers' windows do not matter, each is waited on for its own.
+                credit.wait_for_room(published, args.window)
                 publisher.put(encode_message(result))
+                published += 1
             order += 1
         publisher.put(encode_message(DatagramResult(order, 0.0, kind=MessageKind.END_OF_INPUT)))
         cpu.put((args.worker, time.process_time()))
@@ -196,18 +270,32 @@ class RemoteRadarStages:
         day_posix: float | None,
         workers: int,
         prefix: str = "tracker",
+        window: int = WINDOW,
     ) -> None:
         if workers < 1:
             raise ValueError(f"--workers {workers}: give 1 or more")
+        if window < 1:
+            raise ValueError(f"window {window}: give 1 or more")
         self.workers = workers
+        self.window = window
         self.stats = StageStats()
         self.radars: dict[str, RadarState] = {}
         self.admission = _RemoteAdmission([SourceCounts() for _ in range(workers)])
         self._assignment = assign([radar.key for radar in config.radars], workers)
         self._decode_errors = [0] * workers
+        # Unbounded as queues, bounded by the credits: each holds at most ``window``
+        # results (and the worker's end of input), and the callback never blocks.
         self._queues: list[queue.Queue[bytes]] = [queue.Queue() for _ in range(workers)]
+        self._consumed = [0] * workers
+        self._credit_step = credit_step(window)
         endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
         self._session = zenoh.open(zenoh_config("peer", listen=[endpoint]))
+        self._credits = [
+            self._session.declare_publisher(
+                consumed_key(prefix, k), encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM
+            )
+            for k in range(workers)
+        ]
         self._subscriber = self._session.declare_subscriber(
             f"{prefix}/stage/replay/*/result", self._received
         )
@@ -231,6 +319,7 @@ class RemoteRadarStages:
                         workers,
                         endpoint,
                         prefix,
+                        window,
                     ),
                     self._done,
                     self._cpu,
@@ -247,11 +336,22 @@ class RemoteRadarStages:
         worker = int(str(sample.key_expr).split("/")[-2])
         self._queues[worker].put(sample.payload.to_bytes())
 
+    @property
+    def backlog(self) -> list[int]:
+        """Per worker, the results received and not yet consumed (at most ``window``)."""
+        return [q.qsize() for q in self._queues]
+
+    def _send_credit(self, worker: int) -> None:
+        self._credits[worker].put(_COUNT.pack(self._consumed[worker]))
+
     def _next(self, worker: int) -> DatagramResult:
         while True:
             try:
                 return decode_message(self._queues[worker].get(timeout=RESULT_TIMEOUT_S))
             except queue.Empty:
+                # Its exact count again: a worker waiting for a credit lost on the way
+                # (none should be: the link is reliable) would wait no longer than this.
+                self._send_credit(worker)
                 process = self._processes[worker]
                 if not process.is_alive():
                     raise WorkerFailed(
@@ -267,6 +367,9 @@ class RemoteRadarStages:
                 f"radar worker {worker}: expected datagram {order}, got {result.kind.name} "
                 f"{result.order} (do the workers read the same input?)"
             )
+        self._consumed[worker] += 1
+        if self._consumed[worker] % self._credit_step == 0:
+            self._send_credit(worker)
         self.stats.datagrams += 1
         self.stats.decode_errors += result.decode_errors - self._decode_errors[worker]
         self._decode_errors[worker] = result.decode_errors
@@ -299,6 +402,8 @@ class RemoteRadarStages:
                 worker, seconds = self._cpu.get(timeout=0.1)
                 self.cpu_s[worker] = seconds
         with contextlib.suppress(zenoh.ZError):
+            for publisher in self._credits:
+                publisher.undeclare()  # type: ignore[no-untyped-call]
             self._queryable.undeclare()  # type: ignore[no-untyped-call]
             self._subscriber.undeclare()  # type: ignore[no-untyped-call]
             self._session.close()  # type: ignore[no-untyped-call]
