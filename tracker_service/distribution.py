@@ -72,15 +72,18 @@ READY_TIMEOUT_S = 30.0
 """A worker that has not reached the main process's session in this long gives up."""
 RESULT_TIMEOUT_S = 1.0
 """How long the main process waits for a result before it checks its worker still runs."""
-WINDOW = 2048
+WINDOW = 1024
 """How many results a worker may have published beyond what the main process has consumed
-of its results. Large enough that a worker never starves the main process in normal
-running: a credit comes back every ``WINDOW // 8`` results, within milliseconds on
-loopback, so a worker that keeps up always has most of its window open (2048 datagrams
-are 18 s of the 20-radar ``scale`` scenario). Small enough to bound the main process's
-memory: a result is a few kilobytes (the plots, Jacobians and local-track updates of one
-datagram), so at most ~10 MB per worker wait in its queue (docs/benchmarks.md, session
-12) where, unbounded, a slow main process held the whole recording's."""
+of its results. Large enough that a worker never starves the main process: when the main
+process is the slower, its queue holds a full window and a credit comes back every
+``WINDOW // 8`` results, within milliseconds on loopback, long before the 7/8 left run
+out (1024 results are 9 s of the 20-radar ``scale`` scenario, 3.5 s of ``artas``: more
+than a worker is ever descheduled); when the worker is the slower, its window never
+fills. Small enough to bound the main process's memory: an encoded result is 14 kB on
+average on ``scale``, 9 kB on ``artas``, 46 kB at most (the plots, Jacobians and
+local-track updates of one datagram), so at most ~15 MB per worker wait in its queue
+typically, 47 MB in the worst case, where unbounded a slow main process held the whole
+recording's (docs/benchmarks.md, session 12)."""
 CREDIT_WAIT_S = 1.0
 """How long a worker at the end of its window waits for a credit before it waits again
 (a main process that died is noticed by ``_exit_when_orphaned`` meanwhile)."""
