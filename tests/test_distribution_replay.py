@@ -231,3 +231,20 @@ def test_a_slow_main_process_holds_no_more_than_a_window_of_each_workers_results
             assert stages.stats.datagrams == len(inputs)
     finally:
         watchdog.cancel()
+
+
+def test_workers_held_by_their_window_end_at_once_when_the_replay_stops(
+    recording: Path,
+) -> None:
+    """A replay stopped early (^C) leaves its workers waiting for credits that will not
+    come: they end as soon as the main process says it is done, each with its CPU
+    seconds reported, rather than killed once the main process tires of waiting."""
+    source = open_replay(recording)
+    with RemoteRadarStages(recording, source.config, None, 2, window=16) as stages:
+        deadline = time.monotonic() + 30.0
+        while min(stages.backlog) < 16 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert stages.backlog == [16, 16]
+        closing = time.monotonic()
+    assert time.monotonic() - closing < 3.0
+    assert min(stages.cpu_s) > 0.0, stages.cpu_s

@@ -164,12 +164,16 @@ class _Credit:
                 self._consumed = consumed
                 self._changed.notify_all()
 
-    def wait_for_room(self, published: int, window: int) -> None:
+    def wait_for_room(self, published: int, window: int, done: Event) -> bool:
         """Until the main process has consumed enough that one more result keeps
-        ``published`` within ``window`` of it."""
+        ``published`` within ``window`` of it (True), or has said it reads no more
+        (``done``: a replay stopped early; False)."""
         with self._changed:
             while published - self._consumed >= window:
+                if done.is_set():
+                    return False
                 self._changed.wait(CREDIT_WAIT_S)
+        return True
 
 
 def _wait_ready(session: zenoh.Session, prefix: str) -> None:
@@ -229,16 +233,20 @@ def _run_worker(
                 )
                 # No deadlock: the main process consumes this worker's results in the
                 # order they are published, so the one it waits for from this worker is
-                # always its oldest not consumed. Here that is result ``published`` only
-                # when all before it are consumed, and the count the main process last
-                # sent is then at most ``credit_step - 1`` behind (it sends on every
-                # multiple of the step, and again whenever it waits): within the window.
-                # Other workers' windows do not matter, each is waited on for its own.
-                credit.wait_for_room(published, args.window)
+                # its oldest not consumed. When that is this one (number ``published``,
+                # all before it consumed), the count the main process last sent is at
+                # most ``credit_step - 1`` below ``published`` (it sends on every
+                # multiple of the step, and again whenever it has waited a second for a
+                # result), and ``credit_step <= window``: the wait ends. Other workers'
+                # windows play no part: each worker's results are waited for on their own.
+                if not credit.wait_for_room(published, args.window, done):
+                    break  # the main process stopped early: it reads no more
                 publisher.put(encode_message(result))
                 published += 1
             order += 1
-        publisher.put(encode_message(DatagramResult(order, 0.0, kind=MessageKind.END_OF_INPUT)))
+        else:
+            end = DatagramResult(order, 0.0, kind=MessageKind.END_OF_INPUT)
+            publisher.put(encode_message(end))
         cpu.put((args.worker, time.process_time()))
         # Until the main process has what it needs: closing at once could drop the tail.
         done.wait()
