@@ -188,6 +188,14 @@ def test_a_process_killed_stops_the_replay_with_a_clear_error(
     assert "Traceback" not in text, text
 
 
+def _wait_for_full_windows(stages: RemoteRadarStages) -> None:
+    """Until each worker has sent its window of results (at most 30 s: numba may compile
+    on a cold cache), nothing consumed."""
+    deadline = time.monotonic() + 30.0
+    while min(stages.backlog) < stages.window and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
 def test_a_slow_main_process_holds_no_more_than_a_window_of_each_workers_results(
     recording: Path,
 ) -> None:
@@ -215,9 +223,7 @@ def test_a_slow_main_process_holds_no_more_than_a_window_of_each_workers_results
         with RemoteRadarStages(recording, source.config, None, 2, window=window) as stages:
             # Nothing consumed: each worker stops at the window (without flow control,
             # each ran through its whole share of the recording into this queue).
-            deadline = time.monotonic() + 30.0
-            while min(stages.backlog) < window and time.monotonic() < deadline:
-                time.sleep(0.05)
+            _wait_for_full_windows(stages)
             time.sleep(1.0)  # time to go further, were they not held
             assert stages.backlog == [window, window]
             peak = [0, 0]
@@ -241,9 +247,7 @@ def test_workers_held_by_their_window_end_at_once_when_the_replay_stops(
     seconds reported, rather than killed once the main process tires of waiting."""
     source = open_replay(recording)
     with RemoteRadarStages(recording, source.config, None, 2, window=16) as stages:
-        deadline = time.monotonic() + 30.0
-        while min(stages.backlog) < 16 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        _wait_for_full_windows(stages)
         assert stages.backlog == [16, 16]
         closing = time.monotonic()
     assert time.monotonic() - closing < 3.0
