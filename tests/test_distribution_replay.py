@@ -250,5 +250,7 @@ def test_workers_held_by_their_window_end_at_once_when_the_replay_stops(
         _wait_for_full_windows(stages)
         assert stages.backlog == [16, 16]
         closing = time.monotonic()
-    assert time.monotonic() - closing < 3.0
+    # Killed, a worker would not report its CPU seconds, and the main process kills a
+    # worker after waiting 5 s for it.
     assert min(stages.cpu_s) > 0.0, stages.cpu_s
+    assert time.monotonic() - closing < 5.0
