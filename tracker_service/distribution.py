@@ -80,10 +80,11 @@ process is the slower, its queue holds a full window and a credit comes back eve
 out (1024 results are 9 s of the 20-radar ``scale`` scenario, 3.5 s of ``artas``: more
 than a worker is ever descheduled); when the worker is the slower, its window never
 fills. Small enough to bound the main process's memory: an encoded result is 14 kB on
-average on ``scale``, 9 kB on ``artas``, 46 kB at most (the plots, Jacobians and
-local-track updates of one datagram), so at most ~15 MB per worker wait in its queue
-typically, 47 MB in the worst case, where unbounded a slow main process held the whole
-recording's (docs/benchmarks.md, session 12)."""
+average on ``scale``, 9 kB on ``artas``, 47 kB at most (the plots, Jacobians and
+local-track updates of one datagram), and the largest 1024 consecutive results are 15 MB
+on ``scale``, 10 MB on ``artas``: so much per worker waits in the main process's queue
+at most (47 MB were every result the largest seen), where unbounded a slow main process
+held every result of the recording it had not reached (docs/benchmarks.md, session 12)."""
 CREDIT_WAIT_S = 1.0
 """How long a worker at the end of its window waits for a credit before it waits again
 (a main process that died is noticed by ``_exit_when_orphaned`` meanwhile)."""
