@@ -86,8 +86,9 @@ on ``scale``, 10 MB on ``artas``: so much per worker waits in the main process's
 at most (47 MB were every result the largest seen), where unbounded a slow main process
 held every result of the recording it had not reached (docs/benchmarks.md, session 12)."""
 CREDIT_WAIT_S = 1.0
-"""How long a worker at the end of its window waits for a credit before it waits again
-(a main process that died is noticed by ``_exit_when_orphaned`` meanwhile)."""
+"""How long a worker at the end of its window waits for a credit before it looks whether
+the main process is done (a replay stopped early) and waits again (a main process that
+died is noticed by ``_exit_when_orphaned`` meanwhile)."""
 _COUNT = struct.Struct("<Q")
 """A credit: how many of a worker's results the main process has consumed."""
 
