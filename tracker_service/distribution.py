@@ -303,9 +303,14 @@ class RemoteRadarStages:
         self._credit_step = credit_step(window)
         endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
         self._session = zenoh.open(zenoh_config("peer", listen=[endpoint]))
+        # BLOCK, not the default DROP: a credit dropped on a congested link would hold
+        # its worker until the main process's next one (safe: the worker's callback that
+        # takes it never waits).
         self._credits = [
             self._session.declare_publisher(
-                consumed_key(prefix, k), encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM
+                consumed_key(prefix, k),
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM,
             )
             for k in range(workers)
         ]
