@@ -1,12 +1,13 @@
 """``replay --workers N``: the radar stages in worker processes over real Zenoh sessions
 (loopback), the central stage in the main process, the outputs in a process of their own
-(``--output-process``, the default with workers): the same messages as one process, and
-a worker or the output process killed with SIGKILL stops the replay with a one-line
-error."""
+(``--output-process``, the default with workers): the same messages as one process; a
+worker or the output process killed with SIGKILL stops the replay with a one-line error;
+and a main process slower than its workers holds no more than a window of their results."""
 
 from __future__ import annotations
 
 import contextlib
+import multiprocessing
 import os
 import signal
 import socket
@@ -20,7 +21,10 @@ from typing import Any
 import pytest
 
 from tracker_service.cli import main
+from tracker_service.distribution import RemoteRadarStages
+from tracker_service.inputs.udp import block_chain_error
 from tracker_service.outputs.mcap_log import read_log_messages
+from tracker_service.service.replay import open_replay
 
 SCENARIO = Path(__file__).resolve().parents[1] / "config" / "scenarios" / "three_sites.toml"
 
@@ -182,3 +186,71 @@ def test_a_process_killed_stops_the_replay_with_a_clear_error(
     assert f"{victim} " in text and "exited with code -9" in text, text
     assert len(text.strip().splitlines()[-1]) < 200  # one line says it, no traceback
     assert "Traceback" not in text, text
+
+
+def _wait_for_full_windows(stages: RemoteRadarStages) -> None:
+    """Until each worker has sent its window of results (at most 30 s: numba may compile
+    on a cold cache), nothing consumed."""
+    deadline = time.monotonic() + 30.0
+    while min(stages.backlog) < stages.window and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
+def test_a_slow_main_process_holds_no_more_than_a_window_of_each_workers_results(
+    recording: Path,
+) -> None:
+    """Flow control: a worker stops ``window`` results ahead of what the main process has
+    consumed of its results, so that a main process slower than its workers (the central
+    stage and the outputs are, on a long recording) holds a bounded number of results,
+    not the rest of the recording. Driven here from ``RemoteRadarStages`` itself: nothing
+    consumed at first, then every result taken slowly, then the rest at once, in input
+    order across the two workers (which must not deadlock at any window)."""
+    source = open_replay(recording)
+    inputs = [
+        (datagram.payload, datagram.time)
+        for _, datagram in source.datagrams
+        if datagram.time is not None and block_chain_error(datagram.payload) is None
+    ]
+    window = 16
+    assert len(inputs) > 20 * window
+    # A deadlock would leave feed() waiting for ever on live workers: killed after a
+    # minute, they make it raise WorkerFailed instead.
+    watchdog = threading.Timer(
+        60.0, lambda: [child.kill() for child in multiprocessing.active_children()]
+    )
+    watchdog.start()
+    try:
+        with RemoteRadarStages(recording, source.config, None, 2, window=window) as stages:
+            # Nothing consumed: each worker stops at the window (without flow control,
+            # each ran through its whole share of the recording into this queue).
+            _wait_for_full_windows(stages)
+            time.sleep(1.0)  # time to go further, were they not held
+            assert stages.backlog == [window, window]
+            peak = [0, 0]
+            for order, (payload, received) in enumerate(inputs):
+                stages.feed(payload, received, order)
+                if order < 8 * window:
+                    time.sleep(0.002)  # the slow central stage: the workers wait
+                peak = [max(p, b) for p, b in zip(peak, stages.backlog, strict=True)]
+            # At most the window, and the worker's end of input beyond it.
+            assert max(peak) <= window + 1, peak
+            assert stages.stats.datagrams == len(inputs)
+    finally:
+        watchdog.cancel()
+
+
+def test_workers_held_by_their_window_end_at_once_when_the_replay_stops(
+    recording: Path,
+) -> None:
+    """A replay stopped early (^C) leaves its workers waiting for credits that will not
+    come: they end as soon as the main process says it is done, each with its CPU
+    seconds reported, rather than killed once the main process tires of waiting."""
+    source = open_replay(recording)
+    with RemoteRadarStages(recording, source.config, None, 2, window=16) as stages:
+        _wait_for_full_windows(stages)
+        assert stages.backlog == [16, 16]
+        closing = time.monotonic()
+    # Killed, a worker would not report its CPU seconds, and the main process kills a
+    # worker after waiting 5 s for it.
+    assert min(stages.cpu_s) > 0.0, stages.cpu_s
+    assert time.monotonic() - closing < 5.0
