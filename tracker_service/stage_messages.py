@@ -30,7 +30,7 @@ import io
 import math
 import re
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from enum import IntEnum
 from typing import Any
 
@@ -160,18 +160,8 @@ _BATCH_META = np.dtype(
     ]
 )
 _BATCH_ARRAYS = ("plots", "tracked", "jacobian", "monitor_xy", "local", "local_jacobian")
-_INPUT_COUNTS = (
-    "received",
-    "delivered",
-    "duplicates",
-    "repeats",
-    "malformed",
-    "dropped",
-    "held_dropped",
-    "kernel_drops",
-    "behind_dropped",
-    "bytes",
-)
+_INPUT_COUNTS = tuple(f.name for f in fields(InputCounters) if f.name != "last_reception")
+"""``InputCounters``' counts, in its order: every one crosses, none is listed twice."""
 _INPUTS = np.dtype(
     [("name", "U32"), *((name, np.int64) for name in _INPUT_COUNTS), ("last_reception", np.float64)]
 )

@@ -33,14 +33,22 @@ from pathlib import Path
 from asterix.containers import Datagram
 from tracker_service.ingest import DuplicateWindow
 from tracker_service.inputs.arrivals import Arrivals
-from tracker_service.inputs.udp import EndpointError, UdpEndpoint, UdpInput
+from tracker_service.inputs.udp import EndpointError, InputCounters, UdpEndpoint, UdpInput
 from tracker_service.ratelimit import RateLimitedLog
 from tracker_service.service.command import OutputProcessFailed, open_service
 from tracker_service.service.config import AdsbFeed, Lan, Radar, ServiceConfig
 from tracker_service.service.core import TrackerService, input_name
 from tracker_service.service.signals import Stop
 
-__all__ = ["Daemon", "InputError", "Lateness", "Merger", "open_inputs", "take_ready"]
+__all__ = [
+    "Daemon",
+    "InputError",
+    "Lateness",
+    "Merger",
+    "input_counters",
+    "open_inputs",
+    "take_ready",
+]
 
 log = logging.getLogger(__name__)
 
@@ -195,6 +203,21 @@ class Lateness:
         return lag
 
 
+def input_counters(
+    inputs: list[UdpInput], merger: Merger, lateness: Lateness
+) -> dict[str, InputCounters]:
+    """Each input's counters by name, with what the holding window and the shedding
+    dropped of its datagrams later (the daemon's status; a radar process's watermark)."""
+    return {
+        udp.name: replace(
+            udp.counters,
+            held_dropped=merger.dropped[udp.name],
+            behind_dropped=lateness.dropped[udp.name],
+        )
+        for udp in inputs
+    }
+
+
 class Daemon:
     def __init__(self, config: ServiceConfig, health_file: Path | None = None) -> None:
         self.config = config
@@ -279,13 +302,7 @@ class Daemon:
     def _update_counters(
         self, service: TrackerService, inputs: list[UdpInput], merger: Merger
     ) -> None:
-        counters = {}
-        for udp in inputs:
-            snapshot = udp.counters
-            snapshot.held_dropped = merger.dropped[udp.name]
-            snapshot.behind_dropped = self.lateness.dropped[udp.name]
-            counters[udp.name] = snapshot
-        service.set_input_counters(counters)
+        service.set_input_counters(input_counters(inputs, merger, self.lateness))
         service.core = replace(service.core, lag_s=self.lateness.take_lag())
 
     @staticmethod

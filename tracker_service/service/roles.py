@@ -59,6 +59,7 @@ from tracker_service.service.daemon import (
     InputError,
     Lateness,
     Merger,
+    input_counters,
     open_inputs,
     take_ready,
 )
@@ -195,14 +196,7 @@ class RadarRole:
                     watermark = _micro(now - system.holding_window_s)
                     beat = DatagramResult(watermark, watermark / 1e6)
                     if now >= next_counters:
-                        beat.inputs = {
-                            udp.name: replace(
-                                udp.counters,
-                                held_dropped=merger.dropped[udp.name],
-                                behind_dropped=lateness.dropped[udp.name],
-                            )
-                            for udp in inputs
-                        }
+                        beat.inputs = input_counters(inputs, merger, lateness)
                         next_counters = now + COUNTERS_S
                     publisher.put(encode_message(beat))
                     next_beat = now + HEARTBEAT_S
