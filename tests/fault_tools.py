@@ -4,6 +4,7 @@ process with its status read from the health file."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -244,6 +245,25 @@ def send(port: int, payloads: list[bytes], pause_every: int = 0, pause_s: float 
             sock.sendto(payload, ("127.0.0.1", port))
             if pause_every and (i + 1) % pause_every == 0:
                 time.sleep(pause_s)
+
+
+def stop_process(pid: int, timeout: float = 10.0) -> None:
+    """SIGSTOP ``pid`` and wait until every thread of it is stopped: the group stop
+    reaches each thread when it next runs, and on a loaded machine a socket thread could
+    still read for a while after the signal was sent."""
+    os.kill(pid, signal.SIGSTOP)
+    deadline = time.monotonic() + timeout
+    tasks = Path(f"/proc/{pid}/task")
+    while True:
+        states = []
+        for task in tasks.iterdir():
+            with contextlib.suppress(OSError):
+                stat = (task / "stat").read_text(encoding="utf-8")
+                states.append(stat[stat.rindex(")") + 2])
+        if states and all(state in "Tt" for state in states):
+            return
+        assert time.monotonic() < deadline, f"process {pid} not stopped: {states}"
+        time.sleep(0.01)
 
 
 def pids_alive(pids: list[int]) -> list[int]:

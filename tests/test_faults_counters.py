@@ -20,6 +20,7 @@ from tests.fault_tools import (
     hostile_datagrams,
     plot_block,
     send,
+    stop_process,
     write_config,
 )
 from tracker_service.ingest import _MAX_REMEMBERED, DuplicateFilter, DuplicateWindow, Repetition
@@ -123,7 +124,7 @@ def test_kernel_drops_bursts_and_floods_are_counted(tmp_path: Path) -> None:
         filler = bytes(30_000 - 3)
         # 1. Frozen (SIGSTOP: no thread reads its socket), its port flooded: the kernel
         # drops what the receive buffer cannot hold.
-        daemon.process.send_signal(signal.SIGSTOP)
+        stop_process(daemon.process.pid)
         flood = [
             bytes([99]) + (30_000).to_bytes(2) + n.to_bytes(4) + filler[4:] for n in range(300)
         ]

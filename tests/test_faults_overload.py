@@ -19,7 +19,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from tests.fault_tools import DaemonProcess, free_port, plot_block, send, write_config
+from tests.fault_tools import (
+    DaemonProcess,
+    free_port,
+    plot_block,
+    send,
+    stop_process,
+    write_config,
+)
 
 MAX_BEHIND_S = 1.0
 FROZEN_S = 3.0
@@ -43,7 +50,7 @@ def _freeze_outputs_and_feed(chain: DaemonProcess, port: int) -> int:
     """The chain's output process frozen while ``FROZEN_S`` of plots reach ``port``;
     then thawed. How many were sent."""
     output = chain.output_process()
-    os.kill(output, signal.SIGSTOP)
+    stop_process(output)
     try:
         sent = 0
         deadline = time.monotonic() + FROZEN_S
