@@ -18,7 +18,7 @@ from tests.test_service_replay import endpoint, logged
 from tracker_service.cli import main
 from tracker_service.outputs.messages import StatusMessage
 from tracker_service.service.config import load_service_config
-from tracker_service.service.core import ServiceTimings, TrackerService
+from tracker_service.service.core import ServiceTimings, TrackerService, build_radar_stage
 
 T0 = 1780300800.0  # 2026-06-01T08:00:00Z
 SRC, DST = ("10.0.0.1", 40000), ("127.0.0.1", 8600)
@@ -34,6 +34,23 @@ def service() -> TrackerService:
 
 def radar(status: StatusMessage, key: str) -> dict[str, int]:
     return next(r.errors for r in status.radars if r.radar == key)
+
+
+def test_radar_batches_alone_move_the_outputs_data_time() -> None:
+    """The fusion role's input is radar batches, not datagrams: its outputs' data time (the
+    status's time, a radar's plot delay, the periodic CAT062/CAT065) must follow them. It
+    stood at the start (or at -inf) while batches kept coming: a status that called every
+    radar's clock ahead, and a CAT065 whose time was not a number."""
+    core = service()
+    stage = build_radar_stage(load_service_config(EXAMPLE))
+    for k in range(4):
+        t = T0 + 2.0 * k
+        for batch in stage.feed(plot_block(25, 12, t % 86400), t, k):
+            core.process_batch(batch)
+        status = core.outputs.status()
+        assert status.time == t
+        assert not [r for r in status.reasons if "25/12" in r], status.reasons
+    assert core.periodic_failures == 0
 
 
 def test_a_record_without_i010_is_counted_and_status_goes_on() -> None:

@@ -970,8 +970,12 @@ class TrackerService:
 
     def process_batch(self, batch: RadarBatch) -> None:
         """One radar stage's batch (``run --role fusion``): the central stage and the
-        outputs, as ``process`` takes a datagram through the whole chain."""
+        outputs, as ``process`` takes a datagram through the whole chain. Data time moves
+        to the batch's reception on both sides: the outputs' own clock (status, log times,
+        a radar's plot delay, CAT062/CAT065) follows no datagram here, and without this it
+        stood still while radar batches kept arriving."""
         self._advance_to(batch.received)
+        self.outputs.advance(batch.received)
         try:
             self.outputs.batch(self.chain.central.process(batch), self.chain.sources)
         except OutputsFailed:
