@@ -388,9 +388,11 @@ class CentralStage:
         table = self.fuser.state.local
         rows = table.find(radar, local, create=False)
         systems = np.where(rows >= 0, table.rows["system"][np.maximum(rows, 0)], 0)
-        self.heights.observe(
-            radar, message.plots, batch, self.fuser.references(radar, local, batch)
-        )
+        # The heights are measured on the plots without one: their references only.
+        without_height = _updates_of_plots(local, message.plots, ~message.plots["height_known"])
+        if len(without_height):
+            refs = self.fuser.references(radar, without_height, batch)
+            self.heights.observe(radar, message.plots, batch, refs)
         moved = self.heights.reproject(radar, message.plots, batch, local, systems)
         return moved.local, moved.tracked, moved.extra
 
@@ -498,6 +500,11 @@ class CentralStage:
         # ADS-B's local tracks are no relative reference: its reports are fused or are the
         # absolute reference already (fusion/adsb_source.py: no double use).
         n_radars = len(self.sources)
+        if self._geometry is None:
+            # Only plots with a height serve: the references of the others are not made.
+            local = _updates_of_plots(local, table, table["height_known"])
+            if not len(local):
+                return None
         refs = self.fuser.references(radar, local, batch, sources=n_radars)
         if self._geometry is not None:
             self._remember_geometry(radar, refs, table["R"], c, first_id)
@@ -595,6 +602,19 @@ class CentralStage:
             self.bias_history.append((time, source, s, p))
             self.clock_history.append((time, source, *self.bias.clock_correction(radar)))
             self._bias_recorded[source] = time
+
+
+def _updates_of_plots(
+    local: npt.NDArray[Any], table: npt.NDArray[Any], wanted: npt.NDArray[np.bool_]
+) -> npt.NDArray[Any]:
+    """The local updates whose plot is ``wanted`` (a mask over the batch's plot table
+    ``table``): the fuser's references cost per row (each a fusion of the track's
+    sources), and each of their users needs some plots only."""
+    with_plot = np.flatnonzero(local["plot_id"] >= 0)
+    if not with_plot.size:
+        return local[:0]
+    first_id = int(table["plot_id"][0])
+    return local[with_plot[wanted[local["plot_id"][with_plot] - first_id]]]
 
 
 def _report_table(reports: AdsbReports, step: AdsbStep) -> npt.NDArray[Any]:

@@ -29,6 +29,7 @@ correction: the two are first order in different parameters and add.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,7 +39,7 @@ import numpy.typing as npt
 from tracker_service.fusion.cover import PSR_TYPES, RadarCover
 from tracker_service.fusion.references import References
 from tracker_service.geodesy import RadarSite, SystemPlane, convert_plots
-from tracker_service.geodesy.unknown_height import HeightBand, feasible_band, height_jacobian
+from tracker_service.geodesy.unknown_height import JACOBIAN_STEP_M, HeightBand, feasible_band
 from tracker_service.tracking.plots import FloatArray, IntArray
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
 
@@ -164,38 +165,50 @@ class PsrHeights:
         return entry
 
     def _convert(
-        self, radar: int, rows: npt.NDArray[Any], height: FloatArray, jacobian: bool = True
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Plane xy (n, 2), noise-only R (n, 2, 2) and J (n, 2; zeros unless
-        ``jacobian``) of plot table rows at the given heights, clipped to what each slant
-        range allows."""
+        self, radar: int, parts: Sequence[tuple[npt.NDArray[Any], FloatArray, bool]]
+    ) -> list[tuple[FloatArray, FloatArray, FloatArray]]:
+        """Per part (plot table rows, their heights, whether J is wanted): plane xy (n, 2),
+        noise-only R (n, 2, 2) and J (n, 2; ``height_jacobian``'s forward difference, zeros
+        unless wanted) of the rows at the given heights, clipped to what each slant range
+        allows. All parts and the Jacobians' stepped heights in one conversion: a batch
+        has a few dozen such plots, where a conversion's calls cost more than its
+        arithmetic (which is row by row: the same numbers as one call per part)."""
         g = self.radars[radar]
-        low, high = feasible_band(g.site, rows["rho_m"], g.band)
-        height = np.clip(height, low, high)
-        psr = rows["typ"] == 1
+        rho = np.concatenate([rows["rho_m"] for rows, _, _ in parts])
+        theta = np.concatenate([rows["theta_deg"] for rows, _, _ in parts])
+        psr = np.concatenate([rows["typ"] == 1 for rows, _, _ in parts])
+        low, high = feasible_band(g.site, rho, g.band)
+        height = np.clip(np.concatenate([h for _, h, _ in parts]), low, high)
+        stepped = np.flatnonzero(
+            np.concatenate([np.full(len(rows), wanted) for rows, _, wanted in parts])
+        )
+        sigma_range = np.where(psr, g.psr_sigma_range_m, g.sigma_range_m)
+        sigma_azimuth = np.where(psr, g.psr_sigma_azimuth_deg, g.sigma_azimuth_deg)
+        n = rho.size
         converted = convert_plots(
             g.site,
             self.plane,
-            rows["rho_m"],
-            rows["theta_deg"],
-            height,
+            np.concatenate([rho, rho[stepped]]),
+            np.concatenate([theta, theta[stepped]]),
+            np.concatenate([height, height[stepped] + JACOBIAN_STEP_M]),
             0.0,
-            np.where(psr, g.psr_sigma_range_m, g.sigma_range_m),
-            np.where(psr, g.psr_sigma_azimuth_deg, g.sigma_azimuth_deg),
+            np.concatenate([sigma_range, sigma_range[stepped]]),
+            np.concatenate([sigma_azimuth, sigma_azimuth[stepped]]),
         )
-        j = (
-            height_jacobian(
-                g.site,
-                self.plane,
-                rows["rho_m"],
-                rows["theta_deg"],
-                height,
-                at=(converted.x, converted.y),
-            )
-            if jacobian
-            else np.zeros((len(rows), 2))
+        x, y = converted.x[:n], converted.y[:n]
+        j = np.zeros((n, 2))
+        j[stepped] = (
+            np.column_stack([converted.x[n:] - x[stepped], converted.y[n:] - y[stepped]])
+            / JACOBIAN_STEP_M
         )
-        return np.column_stack([converted.x, converted.y]), converted.R, j
+        xy = np.column_stack([x, y])
+        out = []
+        start = 0
+        for rows, _, _ in parts:
+            end = start + len(rows)
+            out.append((xy[start:end], converted.R[start:end], j[start:end]))
+            start = end
+        return out
 
     def observe(
         self,
@@ -221,7 +234,9 @@ class PsrHeights:
             self._system(int(refs.system_number[k]), radar, float(t))
             for k, t in zip(picked.tolist(), plots["time"].tolist(), strict=True)
         ]
-        xy, r, j = self._convert(radar, plots, np.array([e.height_m for e in entries]))
+        [(xy, r, j)] = self._convert(
+            radar, [(plots, np.array([e.height_m for e in entries]), True)]
+        )
         # The bias correction the central stage applied to each plot.
         at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
         at = np.minimum(at, max(len(tracked) - 1, 0))
@@ -283,9 +298,15 @@ class PsrHeights:
         picked = np.flatnonzero(unknown)
         if picked.size:
             self._move_plotted(radar, table[row[picked]], picked, tracked, local, systems, extra)
-        # Coasting updates (no plot): their last plot's shift at today's height.
-        for k in np.flatnonzero(~with_plot).tolist():
-            key = (radar, int(local["track_number"][k]))
+        # Coasting updates (no plot): their last plot's shift at today's height. Only
+        # tracks that had a plot without a height are remembered (``_move_plotted``).
+        coasting = np.flatnonzero(~with_plot)
+        if not coasting.size or not self._last_plot:
+            return Reprojection(tracked, local, extra)
+        numbers = local["track_number"][coasting].tolist()
+        deleted = (local["status"][coasting] == LOCAL_DELETED).tolist()
+        for k, number, gone in zip(coasting.tolist(), numbers, deleted, strict=True):
+            key = (radar, number)
             last = self._last_plot.get(key)
             if last is not None:
                 j, used, number = last
@@ -295,7 +316,7 @@ class PsrHeights:
                     local["x"][k] += shift[0]
                     local["y"][k] += shift[1]
                     extra[k] = entry.variance_m2 * np.outer(j, j)
-            if local["status"][k] == LOCAL_DELETED:
+            if gone:
                 self._last_plot.pop(key, None)
                 self._previous.pop(key, None)
         return Reprojection(tracked, local, extra)
@@ -332,7 +353,13 @@ class PsrHeights:
                 height[m], variance[m] = entry.height_m, entry.variance_m2
             entries.append(entry)
         applied = np.array([e is not None and _applies(e) for e in entries], dtype=bool)
-        xy, r, j = self._convert(radar, plots, height)
+        keys = [(radar, int(t)) for t in local["track_number"][picked].tolist()]
+        rate, before, which = self._previous_plots(keys, plots)
+        parts = [(plots, height, True)]
+        if which.size:
+            parts.append((before, height[which], False))
+        converted = self._convert(radar, parts)
+        xy, r, j = converted[0]
         shift = xy - np.column_stack([plots["x"], plots["y"]])
         shift[~applied] = 0.0
         local["x"][picked] += shift[:, 0]
@@ -342,9 +369,12 @@ class PsrHeights:
         extra[picked] = np.where(applied, variance, 0.0)[:, None, None] * (
             j[:, :, None] * j[:, None, :]
         )
-        keys = [(radar, int(t)) for t in local["track_number"][picked].tolist()]
+        if which.size:
+            self._shift_rates(rate, which, plots, shift, before, converted[1][0])
+        for m, key in enumerate(keys):
+            self._previous[key] = (plots[m : m + 1].copy(), rate[m].copy())
         # Not applied, the plot is not moved, and neither is its velocity.
-        rate = self._shift_rates(radar, keys, plots, shift, height) * applied[:, None]
+        rate = rate * applied[:, None]
         local["vx"][picked] += rate[:, 0]
         local["vy"][picked] += rate[:, 1]
         # The rate is first order and lags the geometry: as uncertain as it is large
@@ -367,18 +397,12 @@ class PsrHeights:
                 entry.jacobians[radar] = (j[m], time)
             self._last_plot[keys[m]] = (j[m], float(plots["height_m"][m]), int(systems[picked[m]]))
 
-    def _shift_rates(
-        self,
-        radar: int,
-        keys: list[tuple[int, int]],
-        plots: npt.NDArray[Any],
-        shift: FloatArray,
-        height: FloatArray,
-    ) -> FloatArray:
-        """How fast the re-projection's shift changes along each track (m/s, n x 2): near
-        the radar the band's error changes by kilometres a minute, and the local track's
-        velocity carries that rate. The previous plot is re-projected at the same height
-        so that a new height estimate is not taken for motion."""
+    def _previous_plots(
+        self, keys: list[tuple[int, int]], plots: npt.NDArray[Any]
+    ) -> tuple[FloatArray, npt.NDArray[Any], IntArray]:
+        """Per local track (``keys``) of ``plots``: the rate of its shift so far (m/s,
+        n x 2: zeros for a track without one), and its previous plot where it is over
+        half a second old (those rows and which tracks they are), for ``_shift_rates``."""
         rate = np.zeros((len(keys), 2))
         before_rows: list[npt.NDArray[Any]] = []
         which: list[int] = []
@@ -390,14 +414,25 @@ class PsrHeights:
             if float(plots["time"][m] - previous[0]["time"][0]) > 0.5:
                 before_rows.append(previous[0])
                 which.append(m)
-        if which:
-            before = np.concatenate(before_rows)
-            index = np.array(which)
-            xy, _, _ = self._convert(radar, before, height[index], jacobian=False)
-            shift_before = xy - np.column_stack([before["x"], before["y"]])
-            dt = (plots["time"][index] - before["time"])[:, None]
-            raw = (shift[index] - shift_before) / dt
-            rate[index] += SHIFT_RATE_SMOOTHING * (raw - rate[index])
-        for m, key in enumerate(keys):
-            self._previous[key] = (plots[m : m + 1].copy(), rate[m].copy())
-        return rate
+        if not which:
+            return rate, plots[:0], np.zeros(0, dtype=np.int64)
+        return rate, np.concatenate(before_rows), np.array(which)
+
+    def _shift_rates(
+        self,
+        rate: FloatArray,
+        which: IntArray,
+        plots: npt.NDArray[Any],
+        shift: FloatArray,
+        before: npt.NDArray[Any],
+        xy_before: FloatArray,
+    ) -> None:
+        """How fast the re-projection's shift changes along the tracks ``which`` (m/s,
+        into ``rate``): near the radar the band's error changes by kilometres a minute,
+        and the local track's velocity carries that rate. Their previous plots
+        (``before``) re-projected at the same heights (``xy_before``) so that a new
+        height estimate is not taken for motion."""
+        shift_before = xy_before - np.column_stack([before["x"], before["y"]])
+        dt = (plots["time"][which] - before["time"])[:, None]
+        raw = (shift[which] - shift_before) / dt
+        rate[which] += SHIFT_RATE_SMOOTHING * (raw - rate[which])
