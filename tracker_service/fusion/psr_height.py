@@ -38,7 +38,8 @@ import numpy.typing as npt
 
 from tracker_service.fusion.cover import PSR_TYPES, RadarCover
 from tracker_service.fusion.references import References
-from tracker_service.geodesy import RadarSite, SystemPlane, convert_plots
+from tracker_service.geodesy import RadarSite, SystemPlane
+from tracker_service.geodesy.compiled import convert_plots_compiled
 from tracker_service.geodesy.unknown_height import JACOBIAN_STEP_M, HeightBand, feasible_band
 from tracker_service.tracking.plots import FloatArray, IntArray
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
@@ -134,9 +135,9 @@ class PsrHeights:
         self.systems: dict[int, SystemHeight] = {}
         self._last_plot: dict[tuple[int, int], tuple[FloatArray, float, int]] = {}
         """Per (radar, local track number): its last plot's J, height used, system."""
-        self._previous: dict[tuple[int, int], tuple[npt.NDArray[Any], FloatArray]] = {}
-        """Per (radar, local track number): its last plot (a table row) and the rate of
-        its shift (m/s, smoothed)."""
+        self._previous: dict[tuple[int, int], tuple[tuple[float, ...], tuple[float, ...]]] = {}
+        """Per (radar, local track number): its last plot (``_PREVIOUS_FIELDS``) and the
+        rate of its shift (m/s, smoothed)."""
         self.cover = RadarCover(self.config.cover_cell_m, self.config.cover_memory_s, PSR_TYPES)
         """The radars' primary cover, from their tracked plots (not clutter)."""
         self.measurements = 0
@@ -165,33 +166,34 @@ class PsrHeights:
         return entry
 
     def _convert(
-        self, radar: int, parts: Sequence[tuple[npt.NDArray[Any], FloatArray, bool]]
+        self, radar: int, parts: Sequence[_Slant]
     ) -> list[tuple[FloatArray, FloatArray, FloatArray]]:
-        """Per part (plot table rows, their heights, whether J is wanted): plane xy (n, 2),
+        """Per part (``_Slant``: plots, their heights, whether J is wanted): plane xy (n, 2),
         noise-only R (n, 2, 2) and J (n, 2; ``height_jacobian``'s forward difference, zeros
         unless wanted) of the rows at the given heights, clipped to what each slant range
         allows. All parts and the Jacobians' stepped heights in one conversion: a batch
         has a few dozen such plots, where a conversion's calls cost more than its
-        arithmetic (which is row by row: the same numbers as one call per part)."""
+        arithmetic (which is row by row: the same numbers as one call per part), and in
+        compiled passes (``geodesy.compiled``: the same numbers as ``convert_plots``)."""
         g = self.radars[radar]
-        rho = np.concatenate([rows["rho_m"] for rows, _, _ in parts])
-        theta = np.concatenate([rows["theta_deg"] for rows, _, _ in parts])
-        psr = np.concatenate([rows["typ"] == 1 for rows, _, _ in parts])
+        rho = np.concatenate([part.rho_m for part in parts])
+        theta = np.concatenate([part.theta_deg for part in parts])
+        psr = np.concatenate([part.typ == 1 for part in parts])
         low, high = feasible_band(g.site, rho, g.band)
-        height = np.clip(np.concatenate([h for _, h, _ in parts]), low, high)
+        height = np.clip(np.concatenate([part.height_m for part in parts]), low, high)
         stepped = np.flatnonzero(
-            np.concatenate([np.full(len(rows), wanted) for rows, _, wanted in parts])
+            np.concatenate([np.full(len(part.rho_m), part.jacobian) for part in parts])
         )
         sigma_range = np.where(psr, g.psr_sigma_range_m, g.sigma_range_m)
         sigma_azimuth = np.where(psr, g.psr_sigma_azimuth_deg, g.sigma_azimuth_deg)
         n = rho.size
-        converted = convert_plots(
+        converted, _ = convert_plots_compiled(
             g.site,
             self.plane,
             np.concatenate([rho, rho[stepped]]),
             np.concatenate([theta, theta[stepped]]),
             np.concatenate([height, height[stepped] + JACOBIAN_STEP_M]),
-            0.0,
+            np.zeros(n + stepped.size),
             np.concatenate([sigma_range, sigma_range[stepped]]),
             np.concatenate([sigma_azimuth, sigma_azimuth[stepped]]),
         )
@@ -204,8 +206,8 @@ class PsrHeights:
         xy = np.column_stack([x, y])
         out = []
         start = 0
-        for rows, _, _ in parts:
-            end = start + len(rows)
+        for part in parts:
+            end = start + len(part.rho_m)
             out.append((xy[start:end], converted.R[start:end], j[start:end]))
             start = end
         return out
@@ -235,7 +237,7 @@ class PsrHeights:
             for k, t in zip(picked.tolist(), plots["time"].tolist(), strict=True)
         ]
         [(xy, r, j)] = self._convert(
-            radar, [(plots, np.array([e.height_m for e in entries]), True)]
+            radar, [_Slant.of(plots, np.array([e.height_m for e in entries]), True)]
         )
         # The bias correction the central stage applied to each plot.
         at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
@@ -355,9 +357,9 @@ class PsrHeights:
         applied = np.array([e is not None and _applies(e) for e in entries], dtype=bool)
         keys = [(radar, int(t)) for t in local["track_number"][picked].tolist()]
         rate, before, which = self._previous_plots(keys, plots)
-        parts = [(plots, height, True)]
+        parts = [_Slant.of(plots, height, True)]
         if which.size:
-            parts.append((before, height[which], False))
+            parts.append(_Slant(before[:, 3], before[:, 4], before[:, 5], height[which], False))
         converted = self._convert(radar, parts)
         xy, r, j = converted[0]
         shift = xy - np.column_stack([plots["x"], plots["y"]])
@@ -371,8 +373,9 @@ class PsrHeights:
         )
         if which.size:
             self._shift_rates(rate, which, plots, shift, before, converted[1][0])
-        for m, key in enumerate(keys):
-            self._previous[key] = (plots[m : m + 1].copy(), rate[m].copy())
+        fields = zip(*(plots[name].tolist() for name in _PREVIOUS_FIELDS), strict=True)
+        for key, plot, plot_rate in zip(keys, fields, rate.tolist(), strict=True):
+            self._previous[key] = (plot, tuple(plot_rate))
         # Not applied, the plot is not moved, and neither is its velocity.
         rate = rate * applied[:, None]
         local["vx"][picked] += rate[:, 0]
@@ -399,24 +402,24 @@ class PsrHeights:
 
     def _previous_plots(
         self, keys: list[tuple[int, int]], plots: npt.NDArray[Any]
-    ) -> tuple[FloatArray, npt.NDArray[Any], IntArray]:
+    ) -> tuple[FloatArray, FloatArray, IntArray]:
         """Per local track (``keys``) of ``plots``: the rate of its shift so far (m/s,
         n x 2: zeros for a track without one), and its previous plot where it is over
-        half a second old (those rows and which tracks they are), for ``_shift_rates``."""
+        half a second old (rows of ``_PREVIOUS_FIELDS``, and which tracks they are), for
+        ``_shift_rates``."""
         rate = np.zeros((len(keys), 2))
-        before_rows: list[npt.NDArray[Any]] = []
+        before_rows: list[tuple[float, ...]] = []
         which: list[int] = []
-        for m, key in enumerate(keys):
+        for m, (key, time) in enumerate(zip(keys, plots["time"].tolist(), strict=True)):
             previous = self._previous.get(key)
             if previous is None:
                 continue
             rate[m] = previous[1]
-            if float(plots["time"][m] - previous[0]["time"][0]) > 0.5:
+            if time - previous[0][0] > 0.5:
                 before_rows.append(previous[0])
                 which.append(m)
-        if not which:
-            return rate, plots[:0], np.zeros(0, dtype=np.int64)
-        return rate, np.concatenate(before_rows), np.array(which)
+        before = np.array(before_rows, dtype=np.float64).reshape(-1, len(_PREVIOUS_FIELDS))
+        return rate, before, np.array(which, dtype=np.int64)
 
     def _shift_rates(
         self,
@@ -424,7 +427,7 @@ class PsrHeights:
         which: IntArray,
         plots: npt.NDArray[Any],
         shift: FloatArray,
-        before: npt.NDArray[Any],
+        before: FloatArray,
         xy_before: FloatArray,
     ) -> None:
         """How fast the re-projection's shift changes along the tracks ``which`` (m/s,
@@ -432,7 +435,28 @@ class PsrHeights:
         and the local track's velocity carries that rate. Their previous plots
         (``before``) re-projected at the same heights (``xy_before``) so that a new
         height estimate is not taken for motion."""
-        shift_before = xy_before - np.column_stack([before["x"], before["y"]])
-        dt = (plots["time"][which] - before["time"])[:, None]
+        shift_before = xy_before - before[:, 1:3]
+        dt = (plots["time"][which] - before[:, 0])[:, None]
         raw = (shift[which] - shift_before) / dt
         rate[which] += SHIFT_RATE_SMOOTHING * (raw - rate[which])
+
+
+_PREVIOUS_FIELDS = ("time", "x", "y", "rho_m", "theta_deg", "typ")
+"""What ``PsrHeights`` keeps of a local track's last plot (``_shift_rates``)."""
+
+
+@dataclass(frozen=True)
+class _Slant:
+    """Plots to convert at given heights (``PsrHeights._convert``): their slant ranges,
+    azimuths, types (I048/020 TYP: 1 primary), the heights, and whether the height
+    Jacobian is wanted."""
+
+    rho_m: FloatArray
+    theta_deg: FloatArray
+    typ: npt.NDArray[Any]
+    height_m: FloatArray
+    jacobian: bool
+
+    @staticmethod
+    def of(plots: npt.NDArray[Any], height: FloatArray, jacobian: bool) -> _Slant:
+        return _Slant(plots["rho_m"], plots["theta_deg"], plots["typ"], height, jacobian)
