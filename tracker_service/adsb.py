@@ -15,6 +15,7 @@ hundredths of a second apart (aircraft report at their own pace).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, replace
 from functools import cache
 from typing import Any
@@ -318,12 +319,7 @@ class AdsbReferences:
 
 
 class AdsbReference:
-    """The recent ADS-B track of every address (see the module docstring): per address its
-    latest ``keep`` reports in a ring of rows of one array (``_history``, columns
-    ``_COLUMNS``), so that the references of a batch's plots are taken in array
-    operations over its rows."""
-
-    _COLUMNS = ("time", "x", "y", "vx", "vy", "sigma_squared")
+    """The recent ADS-B track of every address (see the module docstring)."""
 
     def __init__(
         self, plane: SystemPlane, max_gap_s: float = 1.5, keep: int = 4, max_age_s: float = 30.0
@@ -332,13 +328,7 @@ class AdsbReference:
         self.max_gap_s = max_gap_s
         self.max_age_s = max_age_s
         self._keep = keep
-        self._slots: dict[int, int] = {}
-        """Per address its row in ``_history`` and ``_added``."""
-        self._history = np.zeros((0, keep, len(self._COLUMNS)))
-        self._added = np.zeros(0, dtype=np.int64)
-        """Reports kept per address so far: the next goes to ring position added % keep."""
-        self._latest: list[float] = []
-        """Per row the time of its latest report (read once per report added)."""
+        self._tracks: dict[int, deque[tuple[float, float, float, float, float, float]]] = {}
         self.reports = 0
         self.rejected = 0
 
@@ -352,88 +342,57 @@ class AdsbReference:
     def add(self, reports: AdsbReports) -> None:
         """Reports (decoded) that serve as the reference: those with a velocity, which
         moves them to a plot's time stamp."""
-        moving = np.flatnonzero(reports.sigma_v < UNKNOWN_VELOCITY_SIGMA_M_S)
-        self.rejected += len(reports) - moving.size
-        columns = zip(
-            reports.address[moving].tolist(),
-            reports.time[moving].tolist(),
-            reports.x[moving].tolist(),
-            reports.y[moving].tolist(),
-            reports.vx[moving].tolist(),
-            reports.vy[moving].tolist(),
-            reports.sigma[moving].tolist(),
-            strict=True,
-        )
-        for address, t, x, y, vx, vy, sigma in columns:
-            row = self._slots.get(address)
-            if row is None:
-                row = self._slots[address] = self._new_row()
-            elif t <= self._latest[row]:
+        moving = reports.sigma_v < UNKNOWN_VELOCITY_SIGMA_M_S
+        self.rejected += int(np.count_nonzero(~moving))
+        for k in np.flatnonzero(moving).tolist():
+            history = self._tracks.setdefault(int(reports.address[k]), deque(maxlen=self._keep))
+            t = float(reports.time[k])
+            if history and t <= history[-1][0]:
                 continue  # a repeated or late report adds nothing
-            # sigma**2 of a Python float: the variance ``at`` adds to, as it always was.
-            self._history[row, self._added[row] % self._keep] = (t, x, y, vx, vy, sigma**2)
-            self._added[row] += 1
-            self._latest[row] = t
-        self.reports += moving.size
-
-    def _new_row(self) -> int:
-        row = len(self._slots)
-        if row == len(self._history):
-            grown = max(64, 2 * row)
-            history = np.zeros((grown, self._keep, len(self._COLUMNS)))
-            history[:row] = self._history
-            added = np.zeros(grown, dtype=np.int64)
-            added[:row] = self._added
-            self._history, self._added = history, added
-        self._latest.append(-math.inf)
-        return row
+            history.append(
+                (
+                    t,
+                    float(reports.x[k]),
+                    float(reports.y[k]),
+                    float(reports.vx[k]),
+                    float(reports.vy[k]),
+                    float(reports.sigma[k]),
+                )
+            )
+        self.reports += int(np.count_nonzero(moving))
 
     def at(self, address: IntArray, time: FloatArray) -> AdsbReferences:
-        """The ADS-B position of each (address, time): the nearest report (the oldest of
-        equally near ones), at most ``max_gap_s`` away, moved along its velocity."""
+        """The ADS-B position of each (address, time): the nearest report, at most
+        ``max_gap_s`` away, moved along its velocity."""
         n = len(address)
         valid = np.zeros(n, dtype=bool)
         xy = np.zeros((n, 2))
         p = np.zeros((n, 2, 2))
         v = np.zeros((n, 2))
-        slots = self._slots
-        row = np.fromiter((slots.get(a, -1) for a in address.tolist()), np.int64, count=n)
-        known = np.flatnonzero(row >= 0)
-        if not known.size:
-            return AdsbReferences(valid, xy, p, v)
-        row = row[known]
-        keep = self._keep
-        added = self._added[row]
-        # Each ring oldest first: a full one starts where the next report goes.
-        oldest = np.where(added > keep, added % keep, 0)
-        ring = self._history[row[:, None], (oldest[:, None] + np.arange(keep)) % keep]
-        t = time[known]
-        distance = np.where(
-            np.arange(keep) < np.minimum(added, keep)[:, None],
-            np.abs(ring[:, :, 0] - t[:, None]),
-            np.inf,
-        )
-        nearest = ring[np.arange(known.size), np.argmin(distance, axis=1)]
-        dt = t - nearest[:, 0]
-        near = ~(np.abs(dt) > self.max_gap_s)
-        rows, nearest, dt = known[near], nearest[near], dt[near]
-        if not rows.size:
-            return AdsbReferences(valid, xy, p, v)
-        # Position noise, and a manoeuvre of up to MANOEUVRE_M_S2 since the report (its
-        # square as Python's float power takes it: the numbers the references always had).
-        manoeuvre = [m**2 for m in (0.5 * MANOEUVRE_M_S2 * dt * dt).tolist()]
-        valid[rows] = True
-        xy[rows, 0] = nearest[:, 1] + nearest[:, 3] * dt
-        xy[rows, 1] = nearest[:, 2] + nearest[:, 4] * dt
-        v[rows] = nearest[:, 3:5]
-        p[rows, 0, 0] = p[rows, 1, 1] = nearest[:, 5] + np.array(manoeuvre)
+        rows: list[int] = []
+        found: list[tuple[float, float, float, float, float]] = []
+        for k, (a, t) in enumerate(zip(address.tolist(), time.tolist(), strict=True)):
+            history = self._tracks.get(a)
+            if not history:
+                continue
+            t0, x0, y0, vx, vy, sigma = min(history, key=lambda r: abs(r[0] - t))
+            dt = t - t0
+            if abs(dt) > self.max_gap_s:
+                continue
+            rows.append(k)
+            # Position noise, and a manoeuvre of up to MANOEUVRE_M_S2 since the report.
+            variance = sigma**2 + (0.5 * MANOEUVRE_M_S2 * dt * dt) ** 2
+            found.append((x0 + vx * dt, y0 + vy * dt, vx, vy, variance))
+        if rows:
+            values = np.array(found)
+            valid[rows] = True
+            xy[rows] = values[:, :2]
+            v[rows] = values[:, 2:4]
+            p[rows, 0, 0] = p[rows, 1, 1] = values[:, 4]
         return AdsbReferences(valid, xy, p, v)
 
     def forget(self, now: float) -> None:
         """Drop the tracks silent for ``max_age_s``."""
-        live = [(a, r) for a, r in self._slots.items() if now - self._latest[r] <= self.max_age_s]
-        rows = np.array([r for _, r in live], dtype=np.int64)
-        self._slots = {a: k for k, (a, _) in enumerate(live)}
-        self._history = self._history[rows]
-        self._added = self._added[rows]
-        self._latest = [self._latest[r] for r in rows.tolist()]
+        stale = [a for a, track in self._tracks.items() if now - track[-1][0] > self.max_age_s]
+        for a in stale:
+            del self._tracks[a]

@@ -342,9 +342,10 @@ class PsrHeights:
         covered = self.cover.covered(
             plots["x"], plots["y"], float(plots["time"].max()), besides=radar
         )
-        for m, k in enumerate(picked.tolist()):
-            number = int(systems[k])
-            entry = self._system(number, radar, float(plots["time"][m])) if number > 0 else None
+        times = plots["time"].tolist()
+        numbers = systems[picked].tolist()
+        for m, (number, time) in enumerate(zip(numbers, times, strict=True)):
+            entry = self._system(number, radar, time) if number > 0 else None
             if entry is not None:
                 entry.shared |= bool(covered[m])
             # Where no other radar can see the aircraft, the plot stays where its radar
@@ -387,18 +388,21 @@ class PsrHeights:
             "ka,ka->k", rate, rate
         )[:, None, None] * np.eye(2)
         local["P"][picked] = p.reshape(n, 16)
+        # The tracked plots move with their local updates (np.add.at: in order, as one
+        # plot per update would be moved).
         at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
-        for m in range(n):
-            found = at[m] < len(tracked) and tracked["plot_id"][at[m]] == plots["plot_id"][m]
-            if found and applied[m]:
-                tracked["x"][at[m]] += shift[m, 0]
-                tracked["y"][at[m]] += shift[m, 1]
-                tracked["R"][at[m]] = r[m]
-            entry = entries[m]
-            time = float(plots["time"][m])
+        inside = np.flatnonzero(at < len(tracked))
+        moved = np.zeros(n, dtype=bool)
+        moved[inside] = tracked["plot_id"][at[inside]] == plots["plot_id"][inside]
+        moved &= applied
+        np.add.at(tracked["x"], at[moved], shift[moved, 0])
+        np.add.at(tracked["y"], at[moved], shift[moved, 1])
+        tracked["R"][at[moved]] = r[moved]
+        used = plots["height_m"].tolist()
+        for m, entry in enumerate(entries):
             if entry is not None:
-                entry.jacobians[radar] = (j[m], time)
-            self._last_plot[keys[m]] = (j[m], float(plots["height_m"][m]), int(systems[picked[m]]))
+                entry.jacobians[radar] = (j[m], times[m])
+            self._last_plot[keys[m]] = (j[m], used[m], numbers[m])
 
     def _previous_plots(
         self, keys: list[tuple[int, int]], plots: npt.NDArray[Any]
