@@ -499,7 +499,8 @@ class CentralStage:
         with_plot = np.flatnonzero(local["plot_id"] >= 0)
         if with_plot.size:
             cu = c[local["plot_id"][with_plot] - first_id].copy()
-            cu[:, :, 3] = -np.column_stack([local["vx"][with_plot], local["vy"][with_plot]])
+            cu[:, 0, 3] = -local["vx"][with_plot]
+            cu[:, 1, 3] = -local["vy"][with_plot]
             extra[with_plot] = cu @ bias_cov @ np.swapaxes(cu, 1, 2)
         return extra
 

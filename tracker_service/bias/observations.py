@@ -59,10 +59,15 @@ class BiasObservations:
     def __post_init__(self) -> None:
         n = self.radar.shape[0]
         n_radars = self.contributors.shape[1] if self.contributors.ndim == 2 else -1
-        for (name, _), expected in zip(_TRAILING_SHAPES, _shapes(n, n_radars), strict=True):
-            actual = getattr(self, name).shape
-            if actual != expected:
-                raise ValueError(f"BiasObservations.{name}: shape {actual}, expected {expected}")
+        shapes = _shapes(n, n_radars)
+        # All at once (a batch is built several times): then the first one off, named.
+        if tuple(getattr(self, name).shape for name, _ in _TRAILING_SHAPES) != shapes:
+            for (name, _), expected in zip(_TRAILING_SHAPES, shapes, strict=True):
+                actual = getattr(self, name).shape
+                if actual != expected:
+                    raise ValueError(
+                        f"BiasObservations.{name}: shape {actual}, expected {expected}"
+                    )
         if n and (self.radar.min() < 0 or self.radar.max() >= n_radars):
             raise ValueError(f"BiasObservations.radar: indices must lie in [0, {n_radars})")
 

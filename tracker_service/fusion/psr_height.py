@@ -262,7 +262,8 @@ class PsrHeights:
                 continue
             # y = g (H - H_hat) + n: the scalar Kalman update of H.
             gain = entry.variance_m2 * np.linalg.solve(s, g)
-            entry.height_m = float(np.clip(entry.height_m + gain @ y, band.min_m, band.max_m))
+            # min and max of Python floats: np.clip's value, without its call on a scalar.
+            entry.height_m = min(max(float(entry.height_m + gain @ y), band.min_m), band.max_m)
             entry.variance_m2 = max(entry.variance_m2 * (1.0 - float(gain @ g)), 1.0)
             entry.measurements += 1
             self.measurements += 1
