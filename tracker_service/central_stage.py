@@ -600,6 +600,8 @@ class CentralStage:
         any."""
         assert self.adsb is not None
         rows = np.flatnonzero((table["address"] >= 0) & ~table["rab"])
+        if not rows.size:  # a conventional SSR or a primary radar's batch
+            return None
         refs = self.adsb.at(table["address"][rows], table["time"][rows])
         rows = rows[refs.valid]
         if not rows.size:
