@@ -641,7 +641,8 @@ def _updates_of_plots(
     if not with_plot.size:
         return local[:0]
     first_id = int(table["plot_id"][0])
-    return local[with_plot[wanted[local["plot_id"][with_plot] - first_id]]]
+    keep: npt.NDArray[np.bool_] = wanted[local["plot_id"][with_plot] - first_id]
+    return local[with_plot[keep]]
 
 
 def _report_table(reports: AdsbReports, step: AdsbStep) -> npt.NDArray[Any]:
