@@ -114,7 +114,8 @@ def _compiled(
     everyone: bool,
 ) -> Fused:
     """``references`` past the slots by the compiled kernels: the sources chosen in one
-    pass, both fusions of each row from one prediction of its sources."""
+    pass, both fusions of each row from one prediction of its sources (the others' alone
+    without ``everyone``)."""
     from tracker_service.fusion.kernels import fuse_references, reference_sources
 
     loc, cfg = state.local.rows, state.config
