@@ -106,14 +106,19 @@ def replay(calls: list[Call]) -> tuple[float, str]:
 
 
 def instrument(clock: StageClock) -> list[tuple[type, str, Any]]:
-    """``bench_stages.py``'s timers on the stage's parts (undone by ``restore``)."""
+    """``bench_stages.py``'s timers on the stage's parts (undone by ``restore``); the
+    stage's own way to the fuser's references where it has one (a version without is
+    timed all the same: a base copy)."""
     targets = [
         (CentralStage, "_estimate_biases", "bias"),
+        (CentralStage, "_references", "bias references"),
         (SystemTracker, "references", "bias references"),
         (SystemTracker, "process", "fusion"),
     ]
     saved = []
     for owner, name, stage in targets:
+        if name not in vars(owner):
+            continue
         original = vars(owner)[name]
         saved.append((owner, name, original))
         setattr(owner, name, clock.wrap(stage, original))

@@ -27,6 +27,7 @@ from tracker_service.fusion import (
     nearby,
 )
 from tracker_service.fusion.estimator_tracks import fuse_local_tracks
+from tracker_service.fusion.references import References, references
 from tracker_service.fusion.state import FusionState
 from tracker_service.fusion.table import Columns, LocalTrackTable
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
@@ -221,6 +222,15 @@ def test_compiled_and_numpy_fusers_give_the_same_rows(method: str) -> None:
             for name in ("plot_id", "system_number", "time", "others_valid", "radars_seen"):
                 a, b = getattr(refs["numpy"], name), getattr(refs["compiled"], name)
                 np.testing.assert_array_equal(a, b, err_msg=name)
+            # The others' predictions alone are the same numbers, bit for bit.
+            for impl, f in fusers.items():
+                alone = references(f.state, ri, updates, as_plot_arrays(plots), sources, False)
+                for name in References.__dataclass_fields__:
+                    a, b = getattr(alone, name), getattr(refs[impl], name)
+                    if name.startswith("all_"):
+                        assert np.isnan(a).all(), name
+                    else:
+                        assert a.tobytes() == b.tobytes(), (impl, name)
         for impl, f in fusers.items():
             rows[impl].append(f.process(ri, updates, plots, extra))
     a, b = np.concatenate(rows["numpy"]), np.concatenate(rows["compiled"])

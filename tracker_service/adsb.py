@@ -275,16 +275,20 @@ def decode_reports(block: bytes, received: float, plane: SystemPlane) -> AdsbRep
     lat_a, lon_a = latitude[rows], longitude[rows]
     geometric = c["geometric_height"][rows]
     h = np.where(np.isnan(geometric), 0.0, geometric) * FT
-    x, y = plane.from_geodetic(lat_a, lon_a, h)
     # The plane's axes are not true north and east away from its centre: turn the
-    # velocity with the plane by projecting a point one second ahead.
+    # velocity with the plane by projecting a point one second ahead (in the same
+    # projection call as the reports: a block is a few dozen reports).
     angle = np.radians(np.where(moving, c["track_angle"][rows], 0.0))
     step = np.where(moving, c["ground_speed"][rows] * NM, 0.0)
     ahead_lat = lat_a + np.degrees(step * np.cos(angle) / EARTH_RADIUS_M)
     ahead_lon = lon_a + np.degrees(
         step * np.sin(angle) / (EARTH_RADIUS_M * np.cos(np.radians(lat_a)))
     )
-    x1, y1 = plane.from_geodetic(ahead_lat, ahead_lon, h)
+    both_x, both_y = plane.from_geodetic(
+        np.concatenate([lat_a, ahead_lat]), np.concatenate([lon_a, ahead_lon]), np.tile(h, 2)
+    )
+    n = len(rows)
+    x, y, x1, y1 = both_x[:n], both_y[:n], both_x[n:], both_y[n:]
     return AdsbReports(
         c["address"][rows],
         posix_from_time_of_day(time_of_day[rows], received),

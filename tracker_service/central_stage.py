@@ -52,6 +52,7 @@ from tracker_service.bias import (
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, References, SystemTracker
 from tracker_service.fusion.adsb_source import AdsbSource, AdsbStep, ReportUse
 from tracker_service.fusion.psr_height import PsrHeights, RadarGeometry
+from tracker_service.fusion.references import references as fusion_references
 from tracker_service.geodesy import SystemPlane
 from tracker_service.radar_stage import (
     CAT021,
@@ -64,6 +65,7 @@ from tracker_service.radar_stage import (
 )
 from tracker_service.stage_messages import RadarBatch
 from tracker_service.time_sanity import TimeConsensus, TimeReport, TimeSanityConfig
+from tracker_service.tracking.plots import as_plot_arrays
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
 
 __all__ = ["BatchOutput", "CentralStage", "corrected"]
@@ -388,11 +390,30 @@ class CentralStage:
         table = self.fuser.state.local
         rows = table.find(radar, local, create=False)
         systems = np.where(rows >= 0, table.rows["system"][np.maximum(rows, 0)], 0)
-        self.heights.observe(
-            radar, message.plots, batch, self.fuser.references(radar, local, batch)
-        )
+        # The heights are measured on the plots without one: their references only.
+        without_height = _updates_of_plots(local, message.plots, ~message.plots["height_known"])
+        if len(without_height):
+            refs = self._references(radar, without_height, batch, everyone=False)
+            self.heights.observe(radar, message.plots, batch, refs)
         moved = self.heights.reproject(radar, message.plots, batch, local, systems)
         return moved.local, moved.tracked, moved.extra
+
+    def _references(
+        self,
+        radar: int,
+        local: npt.NDArray[Any],
+        batch: npt.NDArray[Any],
+        sources: int | None = None,
+        *,
+        everyone: bool,
+    ) -> References:
+        """``SystemTracker.references`` of the updates ``local``; ``everyone`` False: the
+        other radars' predictions only, without the prediction from all local tracks (a
+        second fusion per row, which only the macro filter's observations take)."""
+        assert self.fuser is not None
+        return fusion_references(
+            self.fuser.state, radar, local, as_plot_arrays(batch), sources, everyone
+        )
 
     def _renumber(self, message: RadarBatch) -> bool:
         """Plot ids for the system, in the order batches are taken; a restarted radar
@@ -464,19 +485,22 @@ class CentralStage:
             )
         if self.adsb is not None:
             adsb = self._adsb_observations(radar, table, c)
-            self._absolute_references[radar] += len(adsb)
-            observations.append(adsb)
+            if adsb is not None:
+                self._absolute_references[radar] += len(adsb)
+                observations.append(adsb)
         if observations:
             self.bias.update(
                 observations[0] if len(observations) == 1 else concatenate(observations)
             )
+        if observations or self.adsb is not None:
             self._record_bias(radar, message.source, float(table["time"].max()))
         # Each local update's share of the residual bias, at its plot.
         extra = np.zeros((len(local), 2, 2))
         with_plot = np.flatnonzero(local["plot_id"] >= 0)
         if with_plot.size:
             cu = c[local["plot_id"][with_plot] - first_id].copy()
-            cu[:, :, 3] = -np.column_stack([local["vx"][with_plot], local["vy"][with_plot]])
+            cu[:, 0, 3] = -local["vx"][with_plot]
+            cu[:, 1, 3] = -local["vy"][with_plot]
             extra[with_plot] = cu @ bias_cov @ np.swapaxes(cu, 1, 2)
         return extra
 
@@ -498,7 +522,12 @@ class CentralStage:
         # ADS-B's local tracks are no relative reference: its reports are fused or are the
         # absolute reference already (fusion/adsb_source.py: no double use).
         n_radars = len(self.sources)
-        refs = self.fuser.references(radar, local, batch, sources=n_radars)
+        if self._geometry is None:
+            # Only plots with a height serve: the references of the others are not made.
+            local = _updates_of_plots(local, table, table["height_known"])
+            if not len(local):
+                return None
+        refs = self._references(radar, local, batch, n_radars, everyone=self._geometry is not None)
         if self._geometry is not None:
             self._remember_geometry(radar, refs, table["R"], c, first_id)
         # A plot without a height is off by an error of its aircraft's, not its radar's.
@@ -565,13 +594,18 @@ class CentralStage:
 
     def _adsb_observations(
         self, radar: int, table: npt.NDArray[Any], c: FloatArray
-    ) -> BiasObservations:
+    ) -> BiasObservations | None:
         """The batch's Mode S plots against the ADS-B track of their address at their
-        time stamp (an absolute reference: see ``tracker_service.adsb``)."""
+        time stamp (an absolute reference: see ``tracker_service.adsb``); None without
+        any."""
         assert self.adsb is not None
         rows = np.flatnonzero((table["address"] >= 0) & ~table["rab"])
+        if not rows.size:  # a conventional SSR or a primary radar's batch
+            return None
         refs = self.adsb.at(table["address"][rows], table["time"][rows])
         rows = rows[refs.valid]
+        if not rows.size:
+            return None
         rc = c[rows].copy()
         rc[:, :, 3] = -refs.v[refs.valid]
         return make_observations(
@@ -595,6 +629,20 @@ class CentralStage:
             self.bias_history.append((time, source, s, p))
             self.clock_history.append((time, source, *self.bias.clock_correction(radar)))
             self._bias_recorded[source] = time
+
+
+def _updates_of_plots(
+    local: npt.NDArray[Any], table: npt.NDArray[Any], wanted: npt.NDArray[np.bool_]
+) -> npt.NDArray[Any]:
+    """The local updates whose plot is ``wanted`` (a mask over the batch's plot table
+    ``table``): the fuser's references cost per row (each a fusion of the track's
+    sources), and each of their users needs some plots only."""
+    with_plot = np.flatnonzero(local["plot_id"] >= 0)
+    if not with_plot.size:
+        return local[:0]
+    first_id = int(table["plot_id"][0])
+    keep: npt.NDArray[np.bool_] = wanted[local["plot_id"][with_plot] - first_id]
+    return local[with_plot[keep]]
 
 
 def _report_table(reports: AdsbReports, step: AdsbStep) -> npt.NDArray[Any]:

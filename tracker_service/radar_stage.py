@@ -43,9 +43,8 @@ from tracker_service.geodesy import (
     HeightModel,
     RadarSite,
     SystemPlane,
-    convert_plots,
 )
-from tracker_service.geodesy.compiled import PlaneSteps, convert_batch_plots
+from tracker_service.geodesy.compiled import PlaneSteps, convert_plots_compiled
 from tracker_service.geodesy.unknown_height import (
     HeightBand,
     height_jacobian,
@@ -283,7 +282,7 @@ def convert_batch(
             info.site, rho_m[unknown], info.height_band
         )
     sigma_rho, sigma_theta = columns.sigma_rho, columns.sigma_theta
-    converted, steps = _convert(
+    converted, steps = convert_plots_compiled(
         info.site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
     )
     c = np.zeros((n, 2, 4))
@@ -342,27 +341,6 @@ def convert_batch(
             at=(converted.x[unknown], converted.y[unknown]),
         )
     return batch, table, c
-
-
-def _convert(
-    site: RadarSite,
-    plane: SystemPlane,
-    rho_m: FloatArray,
-    theta: FloatArray,
-    height: FloatArray,
-    height_sigma: FloatArray,
-    sigma_rho: FloatArray,
-    sigma_theta: FloatArray,
-) -> tuple[ConvertedPlots, PlaneSteps | None]:
-    """``convert_plots`` of one batch: in compiled passes in the stereographic plane
-    (``geodesy.compiled``, the same values), with the projections it made."""
-    if plane.kind != "stereographic":
-        converted = convert_plots(
-            site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
-        )
-        return converted, None
-    columns = (rho_m, theta, height, height_sigma, sigma_rho, sigma_theta)
-    return convert_batch_plots(site, plane, *(np.ascontiguousarray(c) for c in columns))
 
 
 def _fill_daps(

@@ -59,10 +59,15 @@ class BiasObservations:
     def __post_init__(self) -> None:
         n = self.radar.shape[0]
         n_radars = self.contributors.shape[1] if self.contributors.ndim == 2 else -1
-        for (name, _), expected in zip(_TRAILING_SHAPES, _shapes(n, n_radars), strict=True):
-            actual = getattr(self, name).shape
-            if actual != expected:
-                raise ValueError(f"BiasObservations.{name}: shape {actual}, expected {expected}")
+        shapes = _shapes(n, n_radars)
+        # All at once (a batch is built several times): then the first one off, named.
+        if tuple(getattr(self, name).shape for name, _ in _TRAILING_SHAPES) != shapes:
+            for (name, _), expected in zip(_TRAILING_SHAPES, shapes, strict=True):
+                actual = getattr(self, name).shape
+                if actual != expected:
+                    raise ValueError(
+                        f"BiasObservations.{name}: shape {actual}, expected {expected}"
+                    )
         if n and (self.radar.min() < 0 or self.radar.max() >= n_radars):
             raise ValueError(f"BiasObservations.radar: indices must lie in [0, {n_radars})")
 
@@ -152,8 +157,8 @@ def make_observations(
         y=np.asarray(y, dtype=np.float64),
         R=np.asarray(R, dtype=np.float64),
         C=np.asarray(C, dtype=np.float64),
-        kind=np.broadcast_to(np.asarray(kind, dtype=np.int8), (n,)).copy(),
-        group=np.broadcast_to(np.asarray(group, dtype=np.int64), (n,)).copy(),
+        kind=np.full(n, kind, dtype=np.int8),
+        group=np.full(n, group, dtype=np.int64),
         reference_xy=ref_xy,
         reference_P=ref_p,
         reference_v=_or_zeros(reference_v, (n, 2)),

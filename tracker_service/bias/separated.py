@@ -42,6 +42,8 @@ class SeparatedBiasFilter(BiasFilterBase):
         )
         self._time = np.full(n_radars, np.nan)
         self._offset, self._extra = self.clock.indices(1)
+        self._observable: tuple[bytes, BoolArray, FloatArray] | None = None
+        """``_free_and_walk``'s inputs and results (read-only)."""
 
     def bias_state(self) -> tuple[FloatArray, FloatArray]:
         return self._s[:, :N_BIAS], self._P[:, :N_BIAS, :N_BIAS]
@@ -81,12 +83,24 @@ class SeparatedBiasFilter(BiasFilterBase):
             self.reception_rejected[radar] += not used
 
     def _process(self, obs: BiasObservations) -> None:
-        free_now = self.free()
-        free = self.state_free(free_now)
-        walk = self.state_walk_rate(free_now)
+        free, walk = self._free_and_walk()
         for radar in np.unique(obs.radar):
             r = int(radar)
             self._update_radar(r, obs.subset(obs.radar == radar), free[r], walk[r])
+
+    def _free_and_walk(self) -> tuple[BoolArray, FloatArray]:
+        """``state_free`` and ``state_walk_rate`` (a few dozen array operations, every
+        batch), made again only when what the data have shown (``free``'s inputs: the
+        radars seen in traffic, with an absolute reference, with a clock reference)
+        changed, which after the first minutes it no longer does."""
+        seen = self._traffic_seen.tobytes() + self._absolute_seen.tobytes()
+        seen += self._clock_seen.tobytes()
+        if self._observable is None or self._observable[0] != seen:
+            free_now = self.free()
+            free, walk = self.state_free(free_now), self.state_walk_rate(free_now)
+            free.flags.writeable = walk.flags.writeable = False
+            self._observable = (seen, free, walk)
+        return self._observable[1], self._observable[2]
 
     def _update_radar(
         self, radar: int, obs: BiasObservations, free: BoolArray, walk: FloatArray

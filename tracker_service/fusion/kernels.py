@@ -739,11 +739,13 @@ def fuse_references(
     loc_extra: FloatArray,
     q: float,
     correlation: float,
+    everyone: bool,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
     """``fuse_local_tracks`` of both of ``references``' sets of each row at once: its
     sources (``kept``, valid first) predicted once, and fused as a whole and without
     those ``others`` leaves out (a subsequence of ``kept``); the others' x and P, then
-    all's."""
+    all's. Without ``everyone``, the others' only (all's stay NaN): each source's
+    prediction is its own, so the others' are the same numbers predicted alone."""
     k, width = kept.shape
     out = np.full((2, k, 4), np.nan)
     out_p = np.full((2, k, 4, 4), np.nan)
@@ -751,6 +753,14 @@ def fuse_references(
     order = np.arange(width)
     chosen = np.empty(width, dtype=np.int64)
     for r in range(k):
+        if not everyone:
+            m = _count_sources(others[r])
+            if m:
+                _predict_sources(others[r], m, t[r], loc_t, loc_x, loc_P, correlation, scratch)
+                _fuse_sources(
+                    others[r], order, m, loc_extra, q, correlation, scratch, out[0, r], out_p[0, r]
+                )
+            continue
         n = _count_sources(kept[r])
         if n == 0:
             continue

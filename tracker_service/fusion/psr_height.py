@@ -29,6 +29,7 @@ correction: the two are first order in different parameters and add.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,8 +38,9 @@ import numpy.typing as npt
 
 from tracker_service.fusion.cover import PSR_TYPES, RadarCover
 from tracker_service.fusion.references import References
-from tracker_service.geodesy import RadarSite, SystemPlane, convert_plots
-from tracker_service.geodesy.unknown_height import HeightBand, feasible_band, height_jacobian
+from tracker_service.geodesy import RadarSite, SystemPlane
+from tracker_service.geodesy.compiled import convert_plots_compiled
+from tracker_service.geodesy.unknown_height import JACOBIAN_STEP_M, HeightBand, feasible_band
 from tracker_service.tracking.plots import FloatArray, IntArray
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
 
@@ -133,9 +135,9 @@ class PsrHeights:
         self.systems: dict[int, SystemHeight] = {}
         self._last_plot: dict[tuple[int, int], tuple[FloatArray, float, int]] = {}
         """Per (radar, local track number): its last plot's J, height used, system."""
-        self._previous: dict[tuple[int, int], tuple[npt.NDArray[Any], FloatArray]] = {}
-        """Per (radar, local track number): its last plot (a table row) and the rate of
-        its shift (m/s, smoothed)."""
+        self._previous: dict[tuple[int, int], tuple[tuple[float, ...], tuple[float, ...]]] = {}
+        """Per (radar, local track number): its last plot (``_PREVIOUS_FIELDS``) and the
+        rate of its shift (m/s, smoothed)."""
         self.cover = RadarCover(self.config.cover_cell_m, self.config.cover_memory_s, PSR_TYPES)
         """The radars' primary cover, from their tracked plots (not clutter)."""
         self.measurements = 0
@@ -164,38 +166,51 @@ class PsrHeights:
         return entry
 
     def _convert(
-        self, radar: int, rows: npt.NDArray[Any], height: FloatArray, jacobian: bool = True
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Plane xy (n, 2), noise-only R (n, 2, 2) and J (n, 2; zeros unless
-        ``jacobian``) of plot table rows at the given heights, clipped to what each slant
-        range allows."""
+        self, radar: int, parts: Sequence[_Slant]
+    ) -> list[tuple[FloatArray, FloatArray, FloatArray]]:
+        """Per part (``_Slant``: plots, their heights, whether J is wanted): plane xy (n, 2),
+        noise-only R (n, 2, 2) and J (n, 2; ``height_jacobian``'s forward difference, zeros
+        unless wanted) of the rows at the given heights, clipped to what each slant range
+        allows. All parts and the Jacobians' stepped heights in one conversion: a batch
+        has a few dozen such plots, where a conversion's calls cost more than its
+        arithmetic (which is row by row: the same numbers as one call per part), and in
+        compiled passes (``geodesy.compiled``: the same numbers as ``convert_plots``)."""
         g = self.radars[radar]
-        low, high = feasible_band(g.site, rows["rho_m"], g.band)
-        height = np.clip(height, low, high)
-        psr = rows["typ"] == 1
-        converted = convert_plots(
+        rho = np.concatenate([part.rho_m for part in parts])
+        theta = np.concatenate([part.theta_deg for part in parts])
+        psr = np.concatenate([part.typ == 1 for part in parts])
+        low, high = feasible_band(g.site, rho, g.band)
+        height = np.clip(np.concatenate([part.height_m for part in parts]), low, high)
+        stepped = np.flatnonzero(
+            np.concatenate([np.full(len(part.rho_m), part.jacobian) for part in parts])
+        )
+        sigma_range = np.where(psr, g.psr_sigma_range_m, g.sigma_range_m)
+        sigma_azimuth = np.where(psr, g.psr_sigma_azimuth_deg, g.sigma_azimuth_deg)
+        n = rho.size
+        converted, _ = convert_plots_compiled(
             g.site,
             self.plane,
-            rows["rho_m"],
-            rows["theta_deg"],
-            height,
-            0.0,
-            np.where(psr, g.psr_sigma_range_m, g.sigma_range_m),
-            np.where(psr, g.psr_sigma_azimuth_deg, g.sigma_azimuth_deg),
+            np.concatenate([rho, rho[stepped]]),
+            np.concatenate([theta, theta[stepped]]),
+            np.concatenate([height, height[stepped] + JACOBIAN_STEP_M]),
+            np.zeros(n + stepped.size),
+            np.concatenate([sigma_range, sigma_range[stepped]]),
+            np.concatenate([sigma_azimuth, sigma_azimuth[stepped]]),
         )
-        j = (
-            height_jacobian(
-                g.site,
-                self.plane,
-                rows["rho_m"],
-                rows["theta_deg"],
-                height,
-                at=(converted.x, converted.y),
-            )
-            if jacobian
-            else np.zeros((len(rows), 2))
+        x, y = converted.x[:n], converted.y[:n]
+        j = np.zeros((n, 2))
+        j[stepped] = (
+            np.column_stack([converted.x[n:] - x[stepped], converted.y[n:] - y[stepped]])
+            / JACOBIAN_STEP_M
         )
-        return np.column_stack([converted.x, converted.y]), converted.R, j
+        xy = np.column_stack([x, y])
+        out = []
+        start = 0
+        for part in parts:
+            end = start + len(part.rho_m)
+            out.append((xy[start:end], converted.R[start:end], j[start:end]))
+            start = end
+        return out
 
     def observe(
         self,
@@ -221,7 +236,9 @@ class PsrHeights:
             self._system(int(refs.system_number[k]), radar, float(t))
             for k, t in zip(picked.tolist(), plots["time"].tolist(), strict=True)
         ]
-        xy, r, j = self._convert(radar, plots, np.array([e.height_m for e in entries]))
+        [(xy, r, j)] = self._convert(
+            radar, [_Slant.of(plots, np.array([e.height_m for e in entries]), True)]
+        )
         # The bias correction the central stage applied to each plot.
         at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
         at = np.minimum(at, max(len(tracked) - 1, 0))
@@ -245,7 +262,8 @@ class PsrHeights:
                 continue
             # y = g (H - H_hat) + n: the scalar Kalman update of H.
             gain = entry.variance_m2 * np.linalg.solve(s, g)
-            entry.height_m = float(np.clip(entry.height_m + gain @ y, band.min_m, band.max_m))
+            # min and max of Python floats: np.clip's value, without its call on a scalar.
+            entry.height_m = min(max(float(entry.height_m + gain @ y), band.min_m), band.max_m)
             entry.variance_m2 = max(entry.variance_m2 * (1.0 - float(gain @ g)), 1.0)
             entry.measurements += 1
             self.measurements += 1
@@ -283,9 +301,15 @@ class PsrHeights:
         picked = np.flatnonzero(unknown)
         if picked.size:
             self._move_plotted(radar, table[row[picked]], picked, tracked, local, systems, extra)
-        # Coasting updates (no plot): their last plot's shift at today's height.
-        for k in np.flatnonzero(~with_plot).tolist():
-            key = (radar, int(local["track_number"][k]))
+        # Coasting updates (no plot): their last plot's shift at today's height. Only
+        # tracks that had a plot without a height are remembered (``_move_plotted``).
+        coasting = np.flatnonzero(~with_plot)
+        if not coasting.size or not self._last_plot:
+            return Reprojection(tracked, local, extra)
+        numbers = local["track_number"][coasting].tolist()
+        deleted = (local["status"][coasting] == LOCAL_DELETED).tolist()
+        for k, number, gone in zip(coasting.tolist(), numbers, deleted, strict=True):
+            key = (radar, number)
             last = self._last_plot.get(key)
             if last is not None:
                 j, used, number = last
@@ -295,7 +319,7 @@ class PsrHeights:
                     local["x"][k] += shift[0]
                     local["y"][k] += shift[1]
                     extra[k] = entry.variance_m2 * np.outer(j, j)
-            if local["status"][k] == LOCAL_DELETED:
+            if gone:
                 self._last_plot.pop(key, None)
                 self._previous.pop(key, None)
         return Reprojection(tracked, local, extra)
@@ -319,9 +343,10 @@ class PsrHeights:
         covered = self.cover.covered(
             plots["x"], plots["y"], float(plots["time"].max()), besides=radar
         )
-        for m, k in enumerate(picked.tolist()):
-            number = int(systems[k])
-            entry = self._system(number, radar, float(plots["time"][m])) if number > 0 else None
+        times = plots["time"].tolist()
+        numbers = systems[picked].tolist()
+        for m, (number, time) in enumerate(zip(numbers, times, strict=True)):
+            entry = self._system(number, radar, time) if number > 0 else None
             if entry is not None:
                 entry.shared |= bool(covered[m])
             # Where no other radar can see the aircraft, the plot stays where its radar
@@ -332,7 +357,13 @@ class PsrHeights:
                 height[m], variance[m] = entry.height_m, entry.variance_m2
             entries.append(entry)
         applied = np.array([e is not None and _applies(e) for e in entries], dtype=bool)
-        xy, r, j = self._convert(radar, plots, height)
+        keys = [(radar, int(t)) for t in local["track_number"][picked].tolist()]
+        rate, before, which = self._previous_plots(keys, plots)
+        parts = [_Slant.of(plots, height, True)]
+        if which.size:
+            parts.append(_Slant(before[:, 3], before[:, 4], before[:, 5], height[which], False))
+        converted = self._convert(radar, parts)
+        xy, r, j = converted[0]
         shift = xy - np.column_stack([plots["x"], plots["y"]])
         shift[~applied] = 0.0
         local["x"][picked] += shift[:, 0]
@@ -342,9 +373,13 @@ class PsrHeights:
         extra[picked] = np.where(applied, variance, 0.0)[:, None, None] * (
             j[:, :, None] * j[:, None, :]
         )
-        keys = [(radar, int(t)) for t in local["track_number"][picked].tolist()]
+        if which.size:
+            self._shift_rates(rate, which, plots, shift, before, converted[1][0])
+        fields = zip(*(plots[name].tolist() for name in _PREVIOUS_FIELDS), strict=True)
+        for key, plot, plot_rate in zip(keys, fields, rate.tolist(), strict=True):
+            self._previous[key] = (plot, tuple(plot_rate))
         # Not applied, the plot is not moved, and neither is its velocity.
-        rate = self._shift_rates(radar, keys, plots, shift, height) * applied[:, None]
+        rate = rate * applied[:, None]
         local["vx"][picked] += rate[:, 0]
         local["vy"][picked] += rate[:, 1]
         # The rate is first order and lags the geometry: as uncertain as it is large
@@ -354,50 +389,79 @@ class PsrHeights:
             "ka,ka->k", rate, rate
         )[:, None, None] * np.eye(2)
         local["P"][picked] = p.reshape(n, 16)
+        # The tracked plots move with their local updates (np.add.at: in order, as one
+        # plot per update would be moved).
         at = np.searchsorted(tracked["plot_id"], plots["plot_id"])
-        for m in range(n):
-            found = at[m] < len(tracked) and tracked["plot_id"][at[m]] == plots["plot_id"][m]
-            if found and applied[m]:
-                tracked["x"][at[m]] += shift[m, 0]
-                tracked["y"][at[m]] += shift[m, 1]
-                tracked["R"][at[m]] = r[m]
-            entry = entries[m]
-            time = float(plots["time"][m])
+        inside = np.flatnonzero(at < len(tracked))
+        moved = np.zeros(n, dtype=bool)
+        moved[inside] = tracked["plot_id"][at[inside]] == plots["plot_id"][inside]
+        moved &= applied
+        np.add.at(tracked["x"], at[moved], shift[moved, 0])
+        np.add.at(tracked["y"], at[moved], shift[moved, 1])
+        tracked["R"][at[moved]] = r[moved]
+        used = plots["height_m"].tolist()
+        for m, entry in enumerate(entries):
             if entry is not None:
-                entry.jacobians[radar] = (j[m], time)
-            self._last_plot[keys[m]] = (j[m], float(plots["height_m"][m]), int(systems[picked[m]]))
+                entry.jacobians[radar] = (j[m], times[m])
+            self._last_plot[keys[m]] = (j[m], used[m], numbers[m])
 
-    def _shift_rates(
-        self,
-        radar: int,
-        keys: list[tuple[int, int]],
-        plots: npt.NDArray[Any],
-        shift: FloatArray,
-        height: FloatArray,
-    ) -> FloatArray:
-        """How fast the re-projection's shift changes along each track (m/s, n x 2): near
-        the radar the band's error changes by kilometres a minute, and the local track's
-        velocity carries that rate. The previous plot is re-projected at the same height
-        so that a new height estimate is not taken for motion."""
+    def _previous_plots(
+        self, keys: list[tuple[int, int]], plots: npt.NDArray[Any]
+    ) -> tuple[FloatArray, FloatArray, IntArray]:
+        """Per local track (``keys``) of ``plots``: the rate of its shift so far (m/s,
+        n x 2: zeros for a track without one), and its previous plot where it is over
+        half a second old (rows of ``_PREVIOUS_FIELDS``, and which tracks they are), for
+        ``_shift_rates``."""
         rate = np.zeros((len(keys), 2))
-        before_rows: list[npt.NDArray[Any]] = []
+        before_rows: list[tuple[float, ...]] = []
         which: list[int] = []
-        for m, key in enumerate(keys):
+        for m, (key, time) in enumerate(zip(keys, plots["time"].tolist(), strict=True)):
             previous = self._previous.get(key)
             if previous is None:
                 continue
             rate[m] = previous[1]
-            if float(plots["time"][m] - previous[0]["time"][0]) > 0.5:
+            if time - previous[0][0] > 0.5:
                 before_rows.append(previous[0])
                 which.append(m)
-        if which:
-            before = np.concatenate(before_rows)
-            index = np.array(which)
-            xy, _, _ = self._convert(radar, before, height[index], jacobian=False)
-            shift_before = xy - np.column_stack([before["x"], before["y"]])
-            dt = (plots["time"][index] - before["time"])[:, None]
-            raw = (shift[index] - shift_before) / dt
-            rate[index] += SHIFT_RATE_SMOOTHING * (raw - rate[index])
-        for m, key in enumerate(keys):
-            self._previous[key] = (plots[m : m + 1].copy(), rate[m].copy())
-        return rate
+        before = np.array(before_rows, dtype=np.float64).reshape(-1, len(_PREVIOUS_FIELDS))
+        return rate, before, np.array(which, dtype=np.int64)
+
+    def _shift_rates(
+        self,
+        rate: FloatArray,
+        which: IntArray,
+        plots: npt.NDArray[Any],
+        shift: FloatArray,
+        before: FloatArray,
+        xy_before: FloatArray,
+    ) -> None:
+        """How fast the re-projection's shift changes along the tracks ``which`` (m/s,
+        into ``rate``): near the radar the band's error changes by kilometres a minute,
+        and the local track's velocity carries that rate. Their previous plots
+        (``before``) re-projected at the same heights (``xy_before``) so that a new
+        height estimate is not taken for motion."""
+        shift_before = xy_before - before[:, 1:3]
+        dt = (plots["time"][which] - before[:, 0])[:, None]
+        raw = (shift[which] - shift_before) / dt
+        rate[which] += SHIFT_RATE_SMOOTHING * (raw - rate[which])
+
+
+_PREVIOUS_FIELDS = ("time", "x", "y", "rho_m", "theta_deg", "typ")
+"""What ``PsrHeights`` keeps of a local track's last plot (``_shift_rates``)."""
+
+
+@dataclass(frozen=True)
+class _Slant:
+    """Plots to convert at given heights (``PsrHeights._convert``): their slant ranges,
+    azimuths, types (I048/020 TYP: 1 primary), the heights, and whether the height
+    Jacobian is wanted."""
+
+    rho_m: FloatArray
+    theta_deg: FloatArray
+    typ: npt.NDArray[Any]
+    height_m: FloatArray
+    jacobian: bool
+
+    @staticmethod
+    def of(plots: npt.NDArray[Any], height: FloatArray, jacobian: bool) -> _Slant:
+        return _Slant(plots["rho_m"], plots["theta_deg"], plots["typ"], height, jacobian)

@@ -20,9 +20,10 @@ class References:
     """Per update row with a plot whose local track feeds a system track: predictions of
     that system track at the plot's time, from the other radars' local tracks only
     (``others_*``, valid when one contributes within ``max_reference_age_s``) and from all
-    its local tracks as they were before this batch (``all_*``); positions (N, 2), their
-    covariances (N, 2, 2), the velocity of the others' prediction (N, 2), and which radars
-    contribute (N, n_radars)."""
+    its local tracks as they were before this batch (``all_*``, NaN unless asked for:
+    ``references``' ``everyone``); positions (N, 2), their covariances (N, 2, 2), the
+    velocity of the others' prediction (N, 2), and which radars contribute (N,
+    n_radars)."""
 
     plot_id: IntArray
     system_number: IntArray
@@ -47,9 +48,12 @@ def references(
     updates: npt.NDArray[Any],
     p: PlotArrays,
     sources: int | None = None,
+    everyone: bool = True,
 ) -> References:
     """See ``SystemTracker.references``; only the local tracks of sources below
-    ``sources`` serve (None: all)."""
+    ``sources`` serve (None: all). ``everyone`` False: the others' predictions only (the
+    prediction from all local tracks is a second fusion per row, which only the macro
+    bias filter takes)."""
     with_plot = updates[updates["plot_id"] >= 0]
     rows = state.local.find(radar, with_plot, create=False)
     loc = state.local.rows
@@ -60,7 +64,7 @@ def references(
     t = np.where(at >= 0, p.time[np.maximum(at, 0)], with_plot["time"])
     slots = state.local.slots(numbers, state.config.max_sources)
     chosen = _compiled if state.compiled else _reference
-    others_valid, x_o, p_o, x_a, p_a, seen = chosen(state, radar, t, slots, sources)
+    others_valid, x_o, p_o, x_a, p_a, seen = chosen(state, radar, t, slots, sources, everyone)
     return References(
         plot_id=with_plot["plot_id"].astype(np.int64),
         system_number=numbers,
@@ -76,7 +80,12 @@ def references(
 
 
 def _reference(
-    state: FusionState, radar: int, t: FloatArray, slots: IntArray, sources: int | None
+    state: FusionState,
+    radar: int,
+    t: FloatArray,
+    slots: IntArray,
+    sources: int | None,
+    everyone: bool,
 ) -> Fused:
     """``references`` past the slots in numpy (the reference of ``_compiled``)."""
     loc = state.local.rows
@@ -86,7 +95,10 @@ def _reference(
     recent = (slots >= 0) & (t[:, None] - loc["t_plot"][s] <= state.config.reference_age_s)
     others = recent & (loc["radar"][s] != radar)
     x_o, p_o = fuse_local_tracks(state, compact_slots(slots, others), t)
-    x_a, p_a = fuse_local_tracks(state, slots, t)
+    if everyone:
+        x_a, p_a = fuse_local_tracks(state, slots, t)
+    else:
+        x_a, p_a = np.full((t.size, 4), np.nan), np.full((t.size, 4, 4), np.nan)
     seen = np.zeros((t.size, state.n_radars), dtype=bool)
     r, c = np.nonzero(recent)
     seen[r, loc["radar"][s[r, c]]] = True
@@ -94,10 +106,16 @@ def _reference(
 
 
 def _compiled(
-    state: FusionState, radar: int, t: FloatArray, slots: IntArray, sources: int | None
+    state: FusionState,
+    radar: int,
+    t: FloatArray,
+    slots: IntArray,
+    sources: int | None,
+    everyone: bool,
 ) -> Fused:
     """``references`` past the slots by the compiled kernels: the sources chosen in one
-    pass, both fusions of each row from one prediction of its sources."""
+    pass, both fusions of each row from one prediction of its sources (the others' alone
+    without ``everyone``)."""
     from tracker_service.fusion.kernels import fuse_references, reference_sources
 
     loc, cfg = state.local.rows, state.config
@@ -112,6 +130,15 @@ def _compiled(
         state.n_radars,
     )
     x_o, p_o, x_a, p_a = fuse_references(
-        others, kept, t, loc["t"], loc["x"], loc["P"], loc["extra"], cfg.q, cfg.correlation
+        others,
+        kept,
+        t,
+        loc["t"],
+        loc["x"],
+        loc["P"],
+        loc["extra"],
+        cfg.q,
+        cfg.correlation,
+        everyone,
     )
     return others[:, 0] >= 0, x_o, p_o, x_a, p_a, seen

@@ -1,5 +1,6 @@
-"""``convert_plots`` in a few compiled passes, for the radar stage's batches: the same
-values to the bit, in the stereographic plane.
+"""``convert_plots`` in a few compiled passes, for the radar stage's batches and the
+central stage's re-projection of plots without a height (``fusion.psr_height``): the
+same values to the bit, in the stereographic plane.
 
 A radar's batch is a few dozen plots, and ``convert_plots`` spends most of its time in the
 set-up of its ~120 numpy calls. Here the arithmetic runs as numba loops over the batch
@@ -21,8 +22,8 @@ NaN results (a plot without a range) may differ in their sign bit: no output tel
 apart.
 
 ``tests/test_geodesy_compiled.py`` holds every output to ``convert_plots``'s, bit for bit,
-on drawn and recorded batches. The tangent plane, and any caller outside the radar stage,
-uses ``convert_plots`` itself.
+on drawn and recorded batches. The tangent plane uses ``convert_plots`` itself
+(``convert_plots_compiled`` chooses).
 """
 
 from __future__ import annotations
@@ -38,13 +39,13 @@ from numba.extending import intrinsic
 from pyproj.enums import TransformDirection
 
 from tracker_service.compiled_arrays import maximum, minimum
-from tracker_service.geodesy.convert import ConvertedPlots
+from tracker_service.geodesy.convert import ConvertedPlots, convert_plots
 from tracker_service.geodesy.ellipsoid import E2, A, FloatArray, ecef_to_geodetic_transformer
 from tracker_service.geodesy.plane import STEP_DEG, SystemPlane
 from tracker_service.geodesy.plots import MIN_COS_ELEVATION, MIN_RANGE_M
 from tracker_service.geodesy.sites import RadarSite
 
-__all__ = ["PlaneSteps", "convert_batch_plots", "plane_jacobian_at"]
+__all__ = ["PlaneSteps", "convert_batch_plots", "convert_plots_compiled", "plane_jacobian_at"]
 
 _MERIDIAN_NUMERATOR = A * (1.0 - E2)
 """As ``radii_m`` computes it: one Python constant, then divided by w^1.5."""
@@ -352,3 +353,25 @@ def convert_batch_plots(
         polar_jacobian=polar_jacobian,
     )
     return converted, steps
+
+
+def convert_plots_compiled(
+    site: RadarSite,
+    plane: SystemPlane,
+    rho_m: FloatArray,
+    theta: FloatArray,
+    height: FloatArray,
+    height_sigma: FloatArray,
+    sigma_rho: FloatArray,
+    sigma_theta: FloatArray,
+) -> tuple[ConvertedPlots, PlaneSteps | None]:
+    """``convert_plots`` of one batch (1-D arrays of one length): in compiled passes in
+    the stereographic plane (``convert_batch_plots``, the same values), with the
+    projections it made."""
+    if plane.kind != "stereographic":
+        converted = convert_plots(
+            site, plane, rho_m, theta, height, height_sigma, sigma_rho, sigma_theta
+        )
+        return converted, None
+    columns = (rho_m, theta, height, height_sigma, sigma_rho, sigma_theta)
+    return convert_batch_plots(site, plane, *(np.ascontiguousarray(c) for c in columns))
