@@ -914,3 +914,26 @@ def finish_pairs(
         o.address = address[row]
         for j in range(mu_new.shape[1]):
             o.model_probabilities[j] = mu_new[s, j]
+
+
+@numba.njit(cache=True)
+def untaken_plots(
+    plot_id: IntArray,
+    reply: BoolArray,
+    taken_plot_id: IntArray,
+    taken_status: npt.NDArray[np.int8],
+    confirmed: int,
+) -> BoolArray:  # pragma: no cover - compiled
+    """The plots ``LocalTracker._learn_clutter`` teaches the clutter map: those without a
+    secondary reply, and those of no output row (``taken_*``) of a confirmed track."""
+    free = np.empty(plot_id.size, np.bool_)
+    for j in range(plot_id.size):
+        free[j] = not reply[j]
+        if free[j]:
+            continue
+        free[j] = True
+        for k in range(taken_plot_id.size):
+            if taken_plot_id[k] == plot_id[j] and taken_status[k] == confirmed:
+                free[j] = False
+                break
+    return free

@@ -500,15 +500,10 @@ class LocalTracker:
 
     def _batch_plots(self, p: PlotArrays) -> _BatchPlots:
         """The batch's ``_BatchPlots``."""
-        reply = secondary_reply(p.typ, p.address, p.mode3a)
         if self.clutter is None:
+            reply = secondary_reply(p.typ, p.address, p.mode3a)
             return _BatchPlots(reply, _NO_CELLS, _NO_FLOATS, _NO_FLAGS)
-        cell = self.clutter.cells(p.x, p.y)
-        floor = self.config.clutter_density_per_km2 * 1e-6
-        density = np.asarray(
-            np.where(reply, floor, self.clutter.density_in(cell)), dtype=np.float64
-        )
-        return _BatchPlots(reply, cell, density, self.clutter.dense_in(cell))
+        return _BatchPlots(*self.clutter.describe(p.x, p.y, p.typ, p.address, p.mode3a))
 
     def _clutter_density(self, p: PlotArrays) -> FloatArray:
         """The clutter map's density (per m^2) at each plot, for JPDA's and MHT's
@@ -542,15 +537,18 @@ class LocalTracker:
         a primary-only aircraft adds one plot to each cell it crosses."""
         if self.clutter is None:
             return
-        taken = [r["plot_id"][r["status"] == CONFIRMED] for r in rows]
-        free = ~is_one_of(p.plot_id, np.concatenate(taken)) if taken else np.ones(len(p), bool)
         batch = self._batch
         if batch is None:
+            taken = [r["plot_id"][r["status"] == CONFIRMED] for r in rows]
+            free = ~is_one_of(p.plot_id, np.concatenate(taken)) if taken else np.ones(len(p), bool)
             free |= ~secondary_reply(p.typ, p.address, p.mode3a)
             self.clutter.learn(p.x[free], p.y[free], p.time[free])
         else:
-            free |= ~batch.reply
-            self.clutter.learn_cells(batch.cell[free], p.time[free])
+            taken = _join(rows, self.output_dtype)
+            free = kernels.untaken_plots(
+                p.plot_id, batch.reply, taken["plot_id"], taken["status"], CONFIRMED
+            )
+            self.clutter.learn_cells(batch.cell, p.time, free)
 
     def _apply_pairs(
         self,
