@@ -127,6 +127,163 @@ def _nan_min(a: float, b: float) -> float:  # pragma: no cover - compiled
     return min(a, b)
 
 
+@numba.njit(cache=True, inline="always")
+def _precedes(values: FloatArray, a: int, b: int) -> bool:  # pragma: no cover - compiled
+    """scipy's ``index_compare`` (build.cxx): by value alone."""
+    return values[a] < values[b]
+
+
+@numba.njit(cache=True)
+def _nth_element(
+    values: FloatArray, index: IntArray, first: int, nth: int, last: int
+) -> bool:  # pragma: no cover - compiled
+    """``std::nth_element(index + first, index + nth, index + last)`` of libstdc++ (its
+    introselect: the median of three moved to the front, the unguarded partition,
+    insertion sort below four elements), arranging ``index`` in place as scipy's build
+    does. False, with ``index`` partly arranged, where libstdc++ would go on with a
+    heap selection (its depth limit, 2 log2 n, reached): the caller asks scipy."""
+    if first == last or nth == last:
+        return True
+    depth_limit = 0
+    size = last - first
+    while size > 1:
+        size >>= 1
+        depth_limit += 1
+    depth_limit *= 2
+    while last - first > 3:
+        if depth_limit == 0:
+            return False
+        depth_limit -= 1
+        a, b, c = first + 1, first + (last - first) // 2, last - 1
+        if _precedes(values, index[a], index[b]):
+            if _precedes(values, index[b], index[c]):
+                median = b
+            elif _precedes(values, index[a], index[c]):
+                median = c
+            else:
+                median = a
+        elif _precedes(values, index[a], index[c]):
+            median = a
+        elif _precedes(values, index[b], index[c]):
+            median = c
+        else:
+            median = b
+        index[first], index[median] = index[median], index[first]
+        pivot = index[first]
+        lo, hi = first + 1, last
+        while True:
+            while _precedes(values, index[lo], pivot):
+                lo += 1
+            hi -= 1
+            while _precedes(values, pivot, index[hi]):
+                hi -= 1
+            if not lo < hi:
+                break
+            index[lo], index[hi] = index[hi], index[lo]
+            lo += 1
+        if lo <= nth:
+            first = lo
+        else:
+            last = lo
+    for p in range(first + 1, last):
+        moving = index[p]
+        if _precedes(values, moving, index[first]):
+            index[first + 1 : p + 1] = index[first:p].copy()
+            index[first] = moving
+            continue
+        q = p
+        while q > first and _precedes(values, moving, index[q - 1]):
+            index[q] = index[q - 1]
+            q -= 1
+        index[q] = moving
+    return True
+
+
+@numba.njit(cache=True)
+def _partition_below(
+    values: FloatArray, index: IntArray, first: int, last: int, split: float
+) -> int:  # pragma: no cover - compiled
+    """``std::partition`` of libstdc++ (bidirectional) of ``index[first:last]`` by
+    ``values < split``: where the greater part starts."""
+    while True:
+        while True:
+            if first == last:
+                return first
+            if values[index[first]] < split:
+                first += 1
+            else:
+                break
+        last -= 1
+        while True:
+            if first == last:
+                return first
+            if not values[index[last]] < split:
+                last -= 1
+            else:
+                break
+        index[first], index[last] = index[last], index[first]
+        first += 1
+
+
+@numba.njit(cache=True)
+def kdtree_indices(x: FloatArray, y: FloatArray) -> tuple[IntArray, bool]:  # pragma: no cover
+    """``cKDTree(np.column_stack([x, y]), leafsize=KDTREE_LEAF_SIZE).indices`` and True,
+    or False where ``_nth_element`` cannot follow libstdc++. scipy's balanced build
+    with compact nodes (build.cxx, ``split_and_partition``): a node of more than a leaf
+    is split in the dimension of the widest spread of its points (the first of equal
+    ones; a node of equal points is a leaf) by ``std::nth_element`` at its middle, the
+    points below the middle one's value then moved ahead of the others in the lesser
+    half (``std::partition``); none below it: the node's least value is the split."""
+    n = x.size
+    index = np.arange(n)
+    stack_start = np.empty(2 * n + 2, np.int64)
+    stack_end = np.empty(2 * n + 2, np.int64)
+    stack_start[0] = 0
+    stack_end[0] = n
+    top = 1
+    while top > 0:
+        top -= 1
+        start = stack_start[top]
+        end = stack_end[top]
+        if end - start <= KDTREE_LEAF_SIZE:
+            continue
+        first = index[start]
+        hi_x = lo_x = x[first]
+        hi_y = lo_y = y[first]
+        for p in range(start + 1, end):
+            q = index[p]
+            hi_x = hi_x if hi_x > x[q] else x[q]
+            lo_x = lo_x if lo_x < x[q] else x[q]
+            hi_y = hi_y if hi_y > y[q] else y[q]
+            lo_y = lo_y if lo_y < y[q] else y[q]
+        spread = 0.0
+        if hi_x - lo_x > spread:
+            spread = hi_x - lo_x
+        values = x
+        if hi_y - lo_y > spread:
+            values = y
+        elif hi_x == lo_x:
+            continue  # all points equal: a leaf
+        middle = start + (end - start) // 2
+        if not _nth_element(values, index, start, middle, end):
+            return index, False
+        split = values[index[middle]]
+        cut = _partition_below(values, index, start, middle, split)
+        if cut == start:
+            least = index[start]
+            for p in range(start + 1, end):
+                if values[index[p]] < values[least]:
+                    least = index[p]
+            split = np.nextafter(values[least], np.inf)
+            cut = _partition_below(values, index, start, end, split)
+        stack_start[top] = start
+        stack_end[top] = cut
+        stack_start[top + 1] = cut
+        stack_end[top + 1] = end
+        top += 2
+    return index, True
+
+
 @numba.njit(cache=True)
 def _tree_paths(
     x: FloatArray, y: FloatArray, indices: IntArray
@@ -336,3 +493,77 @@ def gate_pairs(
         return ti, pj, xp, pp, c, xc, pc, nis, log_det, cost
     g = inside[:n_inside]
     return ti[g], pj[g], xp[g], pp[g], c[g], xc[g], pc[g], nis[g], log_det[g], cost[g]
+
+
+@numba.njit(cache=True)
+def gate_batch(
+    plot_time: FloatArray,
+    plot_x: FloatArray,
+    plot_y: FloatArray,
+    plot_r: FloatArray,
+    plot_address: IntArray,
+    plot_code: IntArray,
+    plot_code_valid: BoolArray,
+    n: int,
+    t: FloatArray,
+    xc: FloatArray,
+    pc: FloatArray,
+    x: FloatArray,
+    P: FloatArray,
+    mu: FloatArray,
+    address: IntArray,
+    code: IntArray,
+    omega: FloatArray,
+    q: FloatArray,
+    sojourn: FloatArray,
+    constants: FloatArray,
+    apply_gate: bool,
+    shared_codes: IntArray,
+    too_old: BoolArray,
+) -> tuple[Any, ...]:  # pragma: no cover - compiled
+    """``Gate.__call__`` of a batch against the ``n`` live tracks in one call: the
+    batch's middle time and half spread, each track's step to it, the plots' radii,
+    ``preselect``, the two trees' leaf orders (``kdtree_indices``) and ``gate_pairs``.
+    ``constants``: q_max, turn_max, the widest gate, the radius's safety factor and
+    margin, max_backward_s, the gate, the address gate, the address mismatch penalty,
+    the address bonus and the Mode 3/A bonus. The step's cube is this loop's, where
+    numpy's SIMD power differs in the last bit of some values: the pre-selection
+    radius is a bound that no gated pair comes near. Returns False first (and nothing
+    else written) when a tree needs scipy (``kdtree_indices``), else True and
+    ``gate_pairs``' arrays."""
+    t_min = t_max = plot_time[0]
+    for j in range(1, plot_time.size):
+        t_min = _nan_min(t_min, plot_time[j])
+        t_max = _nan_max(t_max, plot_time[j])
+    t_mid = 0.5 * (t_min + t_max)
+    spread = max(t_max - t_mid, t_mid - t_min)
+    dt = np.empty(n)
+    a = np.empty(n)
+    a_cubed = np.empty(n)
+    for r in range(n):
+        dt[r] = t_mid - t[r]
+        a[r] = abs(dt[r]) + spread
+        a_cubed[r] = a[r] * a[r] * a[r]
+    gate = constants[6]
+    plot_radius = np.empty(plot_x.size)
+    for j in range(plot_x.size):
+        plot_radius[j] = np.sqrt(gate * (plot_r[j, 0, 0] + plot_r[j, 1, 1]))
+    near, coarse_x, coarse_y, radius, reach = preselect(
+        xc, pc, dt, a, a_cubed, spread, constants[0], constants[1], constants[2],
+        constants[3], constants[4], plot_x, plot_y, plot_radius,
+    )  # fmt: skip
+    tree_a = np.zeros(0, np.int64)  # one leaf: the points' own order
+    tree_b = tree_a
+    ok = True
+    if near.size > KDTREE_LEAF_SIZE:
+        tree_a, ok = kdtree_indices(coarse_x, coarse_y)
+    if ok and plot_x.size > KDTREE_LEAF_SIZE:
+        tree_b, ok = kdtree_indices(plot_x, plot_y)
+    if not ok:
+        near = near[:0]
+    return (ok,) + gate_pairs(
+        near, coarse_x, coarse_y, radius, tree_a, plot_x, plot_y, plot_radius, tree_b,
+        reach, plot_time, plot_r, plot_address, plot_code, plot_code_valid, t, x, P, mu,
+        address, code, omega, q, sojourn, constants[5], gate, constants[7], apply_gate,
+        shared_codes, constants[8], constants[9], constants[10], too_old,
+    )  # fmt: skip
