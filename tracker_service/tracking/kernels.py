@@ -937,3 +937,33 @@ def untaken_plots(
                 free[j] = False
                 break
     return free
+
+
+@numba.njit(cache=True)
+def screen_pairs(
+    track: IntArray,
+    plot: IntArray,
+    status: npt.NDArray[np.int8],
+    secondary: BoolArray,
+    reply: BoolArray,
+    density: FloatArray,
+    tentative: int,
+) -> tuple[IntArray, FloatArray]:  # pragma: no cover - compiled
+    """``LocalTracker._screen`` of the gated pairs (``track``, ``plot``) with the
+    batch's ``_BatchPlots`` (``reply``, ``density``: empty without a clutter map): the
+    pairs kept, ascending (not those of a tentative track seeded only by primary plots
+    and a plot with a secondary reply, ``clutter.primary_seed_takes_reply``), and the
+    density at each kept pair's plot (empty without a map)."""
+    n = track.size
+    kept = np.empty(n, np.int64)
+    n_kept = 0
+    for k in range(n):
+        t = track[k]
+        if not (status[t] == tentative and not secondary[t] and reply[plot[k]]):
+            kept[n_kept] = k
+            n_kept += 1
+    kept = kept[:n_kept]
+    kept_density = np.empty(n_kept if density.size else 0)
+    for s in range(kept_density.size):
+        kept_density[s] = density[plot[kept[s]]]
+    return kept, kept_density

@@ -477,11 +477,21 @@ class LocalTracker:
         cols = self._cols
         t, j = pairs.track, pairs.plot
         batch = self._batch
-        reply = (
-            secondary_reply(p.typ[j], p.address[j], p.mode3a[j])
-            if batch is None
-            else batch.reply[j]
-        )
+        if batch is not None:
+            kept, density = kernels.screen_pairs(
+                t, j, cols["status"], cols["secondary"], batch.reply, batch.density, TENTATIVE
+            )
+            if kept.size < t.size:
+                if kept.size == 0:
+                    return None
+                pairs = pairs.take(kept)
+            if self.clutter is None:
+                return pairs
+            return GatedPairs(
+                pairs.track, pairs.plot, pairs.nis, pairs.log_det, pairs.identity_cost,
+                pairs.pred, density,
+            )  # fmt: skip
+        reply = secondary_reply(p.typ[j], p.address[j], p.mode3a[j])
         refused = (cols["status"][t] == TENTATIVE) & primary_seed_takes_reply(
             cols["secondary"][t], reply
         )
@@ -490,11 +500,7 @@ class LocalTracker:
                 return None
             pairs = pairs.take(np.flatnonzero(~refused))
         if self.clutter is not None:
-            density = (
-                self._clutter_density(p.take(pairs.plot))
-                if batch is None
-                else batch.density[pairs.plot]
-            )
+            density = self._clutter_density(p.take(pairs.plot))
             pairs = dataclasses.replace(pairs, clutter_density=density)
         return pairs
 
