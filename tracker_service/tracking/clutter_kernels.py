@@ -61,10 +61,11 @@ def plot_cells(
         cell[j] = c
         if not learnt:
             density[j] = floor_per_m2
-            dense[j] = 0.0 > dense_per_scan
+            dense[j] = dense_per_scan < 0.0
             continue
         rate = counts[c] / window_scans
-        density[j] = floor_per_m2 if reply[j] else max(rate / cell_area_m2[c // n_azimuth], floor_per_m2)
+        cell_density = max(rate / cell_area_m2[c // n_azimuth], floor_per_m2)
+        density[j] = floor_per_m2 if reply[j] else cell_density
         dense[j] = rate > dense_per_scan
     return reply, cell, density, dense
 

@@ -550,9 +550,9 @@ class LocalTracker:
             free |= ~secondary_reply(p.typ, p.address, p.mode3a)
             self.clutter.learn(p.x[free], p.y[free], p.time[free])
         else:
-            taken = _join(rows, self.output_dtype)
+            joined = _join(rows, self.output_dtype)
             free = kernels.untaken_plots(
-                p.plot_id, batch.reply, taken["plot_id"], taken["status"], CONFIRMED
+                p.plot_id, batch.reply, joined["plot_id"], joined["status"], CONFIRMED
             )
             self.clutter.learn_cells(batch.cell, p.time, free)
 

@@ -240,7 +240,7 @@ class Gate:
             cols["xc"], cols["Pc"], dt, a, a * a * a, spread, self._q_max, self._turn_max,
             self._widest_gate, RADIUS_SAFETY, RADIUS_MARGIN_M, px, py, plot_radius,
         )  # fmt: skip
-        return gate_kernels.gate_pairs(  # type: ignore[no-any-return]
+        return gate_kernels.gate_pairs(
             near, coarse_x, coarse_y, radius, _leaf_order(coarse_x, coarse_y), px, py,
             plot_radius, _leaf_order(px, py), reach, time, r, p.address, p.mode3a,
             p.mode3a_valid, cols["t"], cols["x"], cols["P"], cols["mu"], cols["address"],

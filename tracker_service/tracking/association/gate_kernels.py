@@ -130,7 +130,7 @@ def _nan_min(a: float, b: float) -> float:  # pragma: no cover - compiled
 @numba.njit(cache=True, inline="always")
 def _precedes(values: FloatArray, a: int, b: int) -> bool:  # pragma: no cover - compiled
     """scipy's ``index_compare`` (build.cxx): by value alone."""
-    return values[a] < values[b]
+    return bool(values[a] < values[b])
 
 
 @numba.njit(cache=True)
@@ -561,9 +561,10 @@ def gate_batch(
         tree_b, ok = kdtree_indices(plot_x, plot_y)
     if not ok:
         near = near[:0]
-    return (ok,) + gate_pairs(
+    pairs = gate_pairs(
         near, coarse_x, coarse_y, radius, tree_a, plot_x, plot_y, plot_radius, tree_b,
         reach, plot_time, plot_r, plot_address, plot_code, plot_code_valid, t, x, P, mu,
         address, code, omega, q, sojourn, constants[5], gate, constants[7], apply_gate,
         shared_codes, constants[8], constants[9], constants[10], too_old,
     )  # fmt: skip
+    return (ok, *pairs)
