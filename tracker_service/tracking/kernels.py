@@ -967,3 +967,35 @@ def screen_pairs(
     for s in range(kept_density.size):
         kept_density[s] = density[plot[kept[s]]]
     return kept, kept_density
+
+
+@numba.njit(cache=True)
+def hard_assignment(
+    track: IntArray,
+    plot: IntArray,
+    chosen: IntArray,
+    status: npt.NDArray[np.int8],
+    too_old: BoolArray,
+    used: BoolArray,
+    blocked: BoolArray,
+    updated: BoolArray,
+    confirmed: int,
+) -> tuple[IntArray, IntArray, int]:  # pragma: no cover - compiled
+    """``LocalTracker._associate``'s bookkeeping of a hard assignment (GNN): every plot
+    in a confirmed track's gate ``blocked`` from initiation, the ``chosen`` pairs'
+    plots ``used`` and tracks ``updated`` (all three written in place); returns the
+    chosen pairs' tracks and plots and the number of plots too old for any track that
+    none took (dropped late)."""
+    for k in range(track.size):
+        if status[track[k]] == confirmed:
+            blocked[plot[k]] = True
+    tracks = track[chosen]
+    plot_index = plot[chosen]
+    for s in range(chosen.size):
+        used[plot_index[s]] = True
+        updated[tracks[s]] = True
+    late = 0
+    for j in range(too_old.size):
+        if too_old[j] and not used[j]:
+            late += 1
+    return tracks, plot_index, late

@@ -389,6 +389,16 @@ class LocalTracker:
         if isinstance(self.associator, MultipleHypothesisTracking):
             return self._associate_hypotheses(p, pairs, too_old, rows, used, blocked, updated)
         weighted = self.associator.associate(pairs)
+        if weighted.is_hard and self._compiled:
+            tracks, plot_index, late = kernels.hard_assignment(
+                pairs.track, pairs.plot, weighted.pair, cols["status"], too_old, used, blocked,
+                updated, CONFIRMED,
+            )  # fmt: skip
+            self.stats.late_plots_dropped += late
+            if tracks.size:
+                self.stats.plots_associated += int(tracks.size)
+                rows.append(self._apply_pairs(tracks, p, plot_index, pairs.pred, weighted.pair))
+            return used, blocked, updated
         if weighted.is_hard:
             # One plot per track (GNN): the plain IMM update.
             blocked[pairs.plot[cols["status"][pairs.track] == CONFIRMED]] = True
