@@ -999,3 +999,54 @@ def hard_assignment(
         if too_old[j] and not used[j]:
             late += 1
     return tracks, plot_index, late
+
+
+@numba.njit(cache=True)
+def missed_scans(
+    now: float,
+    updated: BoolArray,
+    t_hit: FloatArray,
+    misses: IntArray,
+    due: FloatArray,
+    n: int,
+    scan_period_s: float,
+    miss_tolerance: float,
+) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled
+    """The first part of ``LocalTracker._age``: of the ``n`` oldest rows, those not
+    ``updated`` that missed a scan more than they had counted (none while ``now`` is
+    before every ``due``), and each one's count of missed scans."""
+    idle = np.empty(0, np.int64)
+    n_miss = np.empty(0, np.int64)
+    earliest_due = np.inf
+    for r in range(n):
+        earliest_due = nan_min(earliest_due, due[r])
+    if now < earliest_due:
+        return idle, n_miss
+    idle = np.empty(n, np.int64)
+    n_miss = np.empty(n, np.int64)
+    k = 0
+    for r in range(n):
+        if updated[r]:
+            continue
+        missed = max(np.floor((now - t_hit[r]) / scan_period_s - miss_tolerance), 0.0)
+        if int(missed) > misses[r]:
+            idle[k] = r
+            n_miss[k] = int(missed)
+            k += 1
+    return idle[:k], n_miss[:k]
+
+
+@numba.njit(cache=True, inline="always")
+def nan_max(a: float, b: float) -> float:  # pragma: no cover - compiled
+    """numpy's ``max``: NaN wins."""
+    if np.isnan(a) or np.isnan(b):
+        return np.nan
+    return max(a, b)
+
+
+@numba.njit(cache=True, inline="always")
+def nan_min(a: float, b: float) -> float:  # pragma: no cover - compiled
+    """numpy's ``min``: NaN wins."""
+    if np.isnan(a) or np.isnan(b):
+        return np.nan
+    return min(a, b)

@@ -970,14 +970,22 @@ class LocalTracker:
         output rows, if any, are appended to ``rows``."""
         cfg = self.config
         cols = self._cols
-        if n_old == 0 or now < cols["due"][:n_old].min():
-            return  # no track can have missed a scan yet: the usual sector
-        idle = np.flatnonzero(~updated[:n_old])
-        elapsed = now - cols["t_hit"][idle]
-        n_miss = np.maximum(np.floor(elapsed / cfg.scan_period_s - cfg.miss_tolerance), 0)
-        n_miss = n_miss.astype(np.int64)
-        grow = n_miss > cols["misses"][idle]
-        idle, n_miss = idle[grow], n_miss[grow]
+        if n_old == 0:
+            return
+        if self._compiled:
+            idle, n_miss = kernels.missed_scans(
+                now, updated, cols["t_hit"], cols["misses"], cols["due"], n_old,
+                cfg.scan_period_s, cfg.miss_tolerance,
+            )  # fmt: skip
+        else:
+            if now < cols["due"][:n_old].min():
+                return  # no track can have missed a scan yet: the usual sector
+            idle = np.flatnonzero(~updated[:n_old])
+            elapsed = now - cols["t_hit"][idle]
+            n_miss = np.maximum(np.floor(elapsed / cfg.scan_period_s - cfg.miss_tolerance), 0)
+            n_miss = n_miss.astype(np.int64)
+            grow = n_miss > cols["misses"][idle]
+            idle, n_miss = idle[grow], n_miss[grow]
         if idle.size == 0:
             return
         shift = np.minimum(n_miss - cols["misses"][idle], 32)

@@ -31,7 +31,7 @@ from typing import Any
 import numba
 import numpy as np
 
-from tracker_service.tracking.kernels import imm_predict, innovation_test
+from tracker_service.tracking.kernels import imm_predict, innovation_test, nan_max, nan_min
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
 KDTREE_LEAF_SIZE = 16
@@ -83,16 +83,16 @@ def preselect(
         )
         coarse_x[r] = xc[r, 0] + xc[r, 2] * dt[r]
         coarse_y[r] = xc[r, 1] + xc[r, 3] * dt[r]
-        reach_max = _nan_max(reach_max, radius[r])
+        reach_max = nan_max(reach_max, radius[r])
     plot_reach = -np.inf
     lo_x = hi_x = plot_x[0]
     lo_y = hi_y = plot_y[0]
     for j in range(plot_x.size):
-        plot_reach = _nan_max(plot_reach, plot_radius[j])
-        lo_x = _nan_min(lo_x, plot_x[j])
-        hi_x = _nan_max(hi_x, plot_x[j])
-        lo_y = _nan_min(lo_y, plot_y[j])
-        hi_y = _nan_max(hi_y, plot_y[j])
+        plot_reach = nan_max(plot_reach, plot_radius[j])
+        lo_x = nan_min(lo_x, plot_x[j])
+        hi_x = nan_max(hi_x, plot_x[j])
+        lo_y = nan_min(lo_y, plot_y[j])
+        hi_y = nan_max(hi_y, plot_y[j])
     reach = reach_max + plot_reach
     lo_x -= reach
     hi_x += reach
@@ -105,26 +105,10 @@ def preselect(
         inside_x = coarse_x[r] >= lo_x and coarse_x[r] <= hi_x
         if inside_x and coarse_y[r] >= lo_y and coarse_y[r] <= hi_y:
             near[k] = r
-            near_max = _nan_max(near_max, radius[r])
+            near_max = nan_max(near_max, radius[r])
             k += 1
     near = near[:k]
     return near, coarse_x[near], coarse_y[near], radius[near], near_max + plot_reach
-
-
-@numba.njit(cache=True, inline="always")
-def _nan_max(a: float, b: float) -> float:  # pragma: no cover - compiled
-    """numpy's ``max``: NaN wins."""
-    if np.isnan(a) or np.isnan(b):
-        return np.nan
-    return max(a, b)
-
-
-@numba.njit(cache=True, inline="always")
-def _nan_min(a: float, b: float) -> float:  # pragma: no cover - compiled
-    """numpy's ``min``: NaN wins."""
-    if np.isnan(a) or np.isnan(b):
-        return np.nan
-    return min(a, b)
 
 
 @numba.njit(cache=True, inline="always")
@@ -533,8 +517,8 @@ def gate_batch(
     ``gate_pairs``' arrays."""
     t_min = t_max = plot_time[0]
     for j in range(1, plot_time.size):
-        t_min = _nan_min(t_min, plot_time[j])
-        t_max = _nan_max(t_max, plot_time[j])
+        t_min = nan_min(t_min, plot_time[j])
+        t_max = nan_max(t_max, plot_time[j])
     t_mid = 0.5 * (t_min + t_max)
     spread = max(t_max - t_mid, t_mid - t_min)
     dt = np.empty(n)
