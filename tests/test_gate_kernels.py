@@ -132,13 +132,13 @@ def pair_order(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], reach: fl
     tree_a = cKDTree(a, leafsize=16).indices if na > 16 else np.zeros(0, np.int64)
     tree_b = cKDTree(b, leafsize=16).indices if nb > 16 else np.zeros(0, np.int64)
     m = 1
-    ti, pj, *_ = gate_pairs(
+    _, ti, pj, *_ = gate_pairs(
         np.arange(na), a[:, 0].copy(), a[:, 1].copy(), np.full(na, reach), tree_a,
         b[:, 0].copy(), b[:, 1].copy(), np.zeros(nb), tree_b, reach, np.zeros(nb),
         np.tile(np.eye(2), (nb, 1, 1)), np.full(nb, -1), np.full(nb, -1), np.ones(nb, bool),
         np.zeros(na), np.zeros((na, m, 4)), np.tile(np.eye(4), (na, m, 1, 1)),
         np.ones((na, m)), np.full(na, -1), np.full(na, -1), np.zeros(m), np.zeros(m),
-        np.ones(m), 1e9, 1e9, 1e9, False, np.zeros(0, np.int64), 0.0, 0.0, 0.0,
+        np.ones(m), 1e9, 1e9, 1e9, False, np.zeros(0, np.int64), 0.0, 0.0, 0.0, False,
         np.zeros(nb, bool),
     )  # fmt: skip
     return ti, pj

@@ -226,8 +226,8 @@ class Gate:
         self, cols: dict[str, npt.NDArray[Any]], n: int, p: PlotArrays, too_old: BoolArray
     ) -> tuple[Any, ...]:
         """``gate_kernels.gate_batch``'s pairs with the trees' leaf orders from scipy
-        itself, for the rare points where ``gate_kernels.kdtree_indices`` cannot follow
-        libstdc++'s ``nth_element``."""
+        itself, for the rare points where the compiled build cannot follow libstdc++'s
+        ``nth_element`` (``gate_kernels._tree_paths``)."""
         cfg = self.config
         time, px, py, r = p.time, p.x, p.y, p.R
         t_min, t_max = float(time.min()), float(time.max())
@@ -246,8 +246,8 @@ class Gate:
             p.mode3a_valid, cols["t"], cols["x"], cols["P"], cols["mu"], cols["address"],
             cols["mode3a"], self._omega, self._q, self._sojourn, cfg.max_backward_s,
             cfg.gate, cfg.address_gate, self.turn_prior is None, self._shared_codes,
-            cfg.address_mismatch_penalty, cfg.address_bonus, cfg.mode3a_bonus, too_old,
-        )  # fmt: skip
+            cfg.address_mismatch_penalty, cfg.address_bonus, cfg.mode3a_bonus, False, too_old,
+        )[1:]  # fmt: skip
 
     def _reach(
         self, cols: dict[str, npt.NDArray[Any]], n: int, t_mid: float, spread: float
