@@ -14,9 +14,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from tracker_service.tracking import PLOT_DTYPE, TrackerConfig
-from tracker_service.tracking.association import Gate, GateResult
-from tracker_service.tracking.association.gate_kernels import gate_pairs
-from tracker_service.tracking.imm import make_imm
+from tracker_service.tracking.association import Gate, GatedPairs, GateResult
+from tracker_service.tracking.association.gate_kernels import gate_pairs, kdtree_indices
+from tracker_service.tracking.imm import ImmPrediction, make_imm
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import PlotArrays
 
@@ -132,13 +132,13 @@ def pair_order(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], reach: fl
     tree_a = cKDTree(a, leafsize=16).indices if na > 16 else np.zeros(0, np.int64)
     tree_b = cKDTree(b, leafsize=16).indices if nb > 16 else np.zeros(0, np.int64)
     m = 1
-    ti, pj, *_ = gate_pairs(
+    _, ti, pj, *_ = gate_pairs(
         np.arange(na), a[:, 0].copy(), a[:, 1].copy(), np.full(na, reach), tree_a,
         b[:, 0].copy(), b[:, 1].copy(), np.zeros(nb), tree_b, reach, np.zeros(nb),
         np.tile(np.eye(2), (nb, 1, 1)), np.full(nb, -1), np.full(nb, -1), np.ones(nb, bool),
         np.zeros(na), np.zeros((na, m, 4)), np.tile(np.eye(4), (na, m, 1, 1)),
         np.ones((na, m)), np.full(na, -1), np.full(na, -1), np.zeros(m), np.zeros(m),
-        np.ones(m), 1e9, 1e9, 1e9, False, np.zeros(0, np.int64), 0.0, 0.0, 0.0,
+        np.ones(m), 1e9, 1e9, 1e9, False, np.zeros(0, np.int64), 0.0, 0.0, 0.0, False,
         np.zeros(nb, bool),
     )  # fmt: skip
     return ti, pj
@@ -158,3 +158,51 @@ def test_pairs_in_the_order_of_scipys_search(sizes: tuple[int, int]) -> None:
         ti, pj = pair_order(a, b, reach)
         np.testing.assert_array_equal(ti, found["i"])
         np.testing.assert_array_equal(pj, found["j"])
+
+
+def point_sets(rng: np.random.Generator, n: int, kind: int) -> npt.NDArray[np.float64]:
+    """n points: spread, on a small grid (many equal values and points), on a line,
+    repeated, sorted (an introselect's hard case)."""
+    if kind == 0:
+        return rng.normal(0.0, 1e5, (n, 2))
+    if kind == 1:
+        return rng.integers(0, 5, (n, 2)).astype(np.float64)
+    if kind == 2:
+        return np.column_stack([rng.normal(0.0, 1.0, n), np.zeros(n)])
+    if kind == 3:
+        points = np.repeat(rng.normal(0.0, 1.0, (n // 7 + 1, 2)), 7, axis=0)[:n]
+        return points[rng.permutation(n)]
+    return np.sort(rng.normal(0.0, 1.0, (n, 2)), axis=0)
+
+
+def test_kdtree_indices_are_scipys() -> None:
+    """The compiled balanced build gives scipy's leaf order, or says it cannot."""
+    rng = np.random.default_rng(11)
+    followed = fallen_back = 0
+    for trial in range(3000):
+        points = point_sets(rng, int(rng.integers(17, 300)), trial % 5)
+        indices, ok = kdtree_indices(points[:, 0].copy(), points[:, 1].copy())
+        if not ok:
+            fallen_back += 1
+            continue
+        followed += 1
+        np.testing.assert_array_equal(indices, cKDTree(points, leafsize=16).indices)
+    assert fallen_back < 0.01 * followed
+    assert fallen_back > 0  # the hard cases reach libstdc++'s heap selection
+
+
+def test_gate_with_scipys_trees_is_the_reference() -> None:
+    """The gate's path for the trees the compiled build cannot follow."""
+    config = TrackerConfig()
+    numpy_gate, compiled_gate = gates(config)
+    models = ModelSet.from_config(config)
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        cols = track_table(rng, 150, models)
+        batch = plot_batch(rng, cols, 45)
+        too_old = np.zeros(len(batch), dtype=bool)
+        ti, pj, xp, pp, c, xc, pc, nis, log_det, cost = compiled_gate._gate_with_scipy_trees(
+            cols, 150, batch, too_old
+        )
+        pairs = GatedPairs(ti, pj, nis, log_det, cost, ImmPrediction(xp, pp, c, xc, pc))
+        assert_same(numpy_gate(cols, 150, batch), GateResult(pairs if ti.size else None, too_old))

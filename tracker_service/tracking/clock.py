@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -68,18 +69,17 @@ class DataClock:
         times = np.asarray(times, dtype=np.float64)
         if times.size == 0:
             return ClockStep(np.zeros(0, dtype=bool))
-        # A time of the batch (the upper middle one), never the mean of two that disagree.
-        centre = float(np.partition(times, times.size // 2)[times.size // 2])
+        # A time of the batch (the upper middle one), never the mean of two that
+        # disagree; the times within reach of the clock (of that one for the first
+        # batch: its own median is all the evidence there is), and the latest of them.
+        centre, accepted, latest = _judge(times, self.now, self.max_ahead_s, self.max_behind_s)
         if not math.isfinite(self.now):
-            # The first batch: its own median is all the evidence there is.
-            accepted = self._near(times, centre)
-            self.now = float(times[accepted].max())
+            self.now = latest
             return ClockStep(accepted)
-        accepted = (times <= self.now + self.max_ahead_s) & (times >= self.now - self.max_behind_s)
         jump = centre - self.now
         if -self.max_behind_s <= jump <= self.max_ahead_s:
             self._run = 0
-            self._advance(times, accepted)
+            self.now = max(self.now, latest)
             return ClockStep(accepted)
         # Most of the batch is out of line: evidence of a jump if the previous batches
         # jumped the same way by about as much.
@@ -91,7 +91,7 @@ class DataClock:
             self._run_start = centre
         self._run_jump = jump
         if self._run < self.resync_batches or centre - self._run_start < self.resync_span_s:
-            self._advance(times, accepted)
+            self.now = max(self.now, latest)
             return ClockStep(accepted, out_of_line=self._run)
         old = self.now
         accepted = self._near(times, centre)
@@ -106,6 +106,23 @@ class DataClock:
             dtype=bool,
         )
 
-    def _advance(self, times: FloatArray, accepted: BoolArray) -> None:
-        if accepted.any():
-            self.now = max(self.now, float(times[accepted].max()))
+
+@numba.njit(cache=True)
+def _judge(
+    times: FloatArray, now: float, max_ahead_s: float, max_behind_s: float
+) -> tuple[float, BoolArray, float]:  # pragma: no cover - compiled
+    """``DataClock.step``'s look at a batch in one pass: its upper middle time (what
+    ``np.partition`` puts at n // 2), which times lie within ``max_ahead_s`` and
+    ``max_behind_s`` of ``now`` (of that middle time while ``now`` is not finite), and
+    the latest of those (-inf without any)."""
+    centre = np.sort(times)[times.size // 2]
+    around = now if math.isfinite(now) else centre
+    ahead = around + max_ahead_s
+    behind = around - max_behind_s
+    accepted = np.empty(times.size, np.bool_)
+    latest = -np.inf
+    for k in range(times.size):
+        accepted[k] = times[k] <= ahead and times[k] >= behind
+        if accepted[k]:
+            latest = max(latest, times[k])
+    return centre, accepted, latest

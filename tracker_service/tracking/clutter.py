@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tracker_service.tracking import clutter_kernels
 from tracker_service.tracking.config import TrackerConfig
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
@@ -63,6 +64,10 @@ class ClutterMap:
         self._n_azimuth = max(1, round(360.0 / config.azimuth_cell_deg))
         self.counts = np.zeros(self._n_range * self._n_azimuth)
         """Decayed number of plots per cell (flat: range-major), as of ``time``."""
+        self._active = np.empty(self.counts.size, dtype=np.int64)
+        self._n_active = 0
+        """``_active[:_n_active]``: the cells whose count is not zero (``learn_cells``
+        decays only those)."""
         self.time = -math.inf
         """Time of the latest learnt plot: the counts are decayed to it."""
         self._start = math.inf
@@ -86,17 +91,23 @@ class ClutterMap:
         if x.size:
             self.learn_cells(self.cells(x, y), time)
 
-    def learn_cells(self, cell: IntArray, time: FloatArray) -> None:
-        """``learn`` of plots given by their cells (``cells``)."""
+    def learn_cells(self, cell: IntArray, time: FloatArray, free: BoolArray | None = None) -> None:
+        """``learn`` of plots given by their cells (``cells``); only the ``free`` ones when
+        given. Every count decays by exp(-(latest - ``time``) / tau), then each plot
+        adds one to its cell (``clutter_kernels.learn``)."""
         if cell.size == 0:
             return
-        latest = float(time.max())
-        if latest > self.time:
-            if math.isfinite(self.time):
-                self.counts *= math.exp(-(latest - self.time) / self.config.time_constant_s)
-            self.time = latest
-        self._start = min(self._start, float(time.min()))
-        np.add.at(self.counts, cell, 1.0)
+        self._n_active, self.time, earliest = clutter_kernels.learn(
+            self.counts,
+            self._active,
+            self._n_active,
+            self.time,
+            self.config.time_constant_s,
+            cell,
+            time,
+            np.ones(cell.size, dtype=bool) if free is None else free,
+        )
+        self._start = min(self._start, earliest)
 
     def _window_scans(self) -> float:
         """The number of scans the counts stand for (see the module docstring)."""
@@ -135,6 +146,31 @@ class ClutterMap:
     def dense_in(self, cell: IntArray) -> BoolArray:
         """``dense`` of these cells (``cells``)."""
         return np.asarray(self.rate_in(cell) > self.config.dense_per_scan)
+
+    def describe(
+        self, x: FloatArray, y: FloatArray, typ: IntArray, address: IntArray, mode3a: IntArray
+    ) -> tuple[BoolArray, IntArray, FloatArray, BoolArray]:
+        """Of a batch's plots in one pass (``clutter_kernels.plot_cells``): whether each
+        has a secondary reply (``secondary_reply``), its cell (``cells``), the density
+        of others there (``density_in``, the floor for a plot with a reply) and whether
+        its cell is dense (``dense_in``)."""
+        dx, dy = x - self.config.origin_m[0], y - self.config.origin_m[1]
+        return clutter_kernels.plot_cells(
+            dx,
+            dy,
+            np.arctan2(dx, dy),
+            typ,
+            address,
+            mode3a,
+            self.counts,
+            self._cell_area_m2,
+            self._n_range,
+            self._n_azimuth,
+            self.config.range_cell_m,
+            self._window_scans() if math.isfinite(self.time) else math.nan,
+            self._floor_per_m2,
+            self.config.dense_per_scan,
+        )
 
 
 def make_clutter_map(config: TrackerConfig) -> ClutterMap | None:

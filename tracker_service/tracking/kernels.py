@@ -914,3 +914,139 @@ def finish_pairs(
         o.address = address[row]
         for j in range(mu_new.shape[1]):
             o.model_probabilities[j] = mu_new[s, j]
+
+
+@numba.njit(cache=True)
+def untaken_plots(
+    plot_id: IntArray,
+    reply: BoolArray,
+    taken_plot_id: IntArray,
+    taken_status: npt.NDArray[np.int8],
+    confirmed: int,
+) -> BoolArray:  # pragma: no cover - compiled
+    """The plots ``LocalTracker._learn_clutter`` teaches the clutter map: those without a
+    secondary reply, and those of no output row (``taken_*``) of a confirmed track."""
+    free = np.empty(plot_id.size, np.bool_)
+    for j in range(plot_id.size):
+        free[j] = not reply[j]
+        if free[j]:
+            continue
+        free[j] = True
+        for k in range(taken_plot_id.size):
+            if taken_plot_id[k] == plot_id[j] and taken_status[k] == confirmed:
+                free[j] = False
+                break
+    return free
+
+
+@numba.njit(cache=True)
+def screen_pairs(
+    track: IntArray,
+    plot: IntArray,
+    status: npt.NDArray[np.int8],
+    secondary: BoolArray,
+    reply: BoolArray,
+    density: FloatArray,
+    tentative: int,
+) -> tuple[IntArray, FloatArray]:  # pragma: no cover - compiled
+    """``LocalTracker._screen`` of the gated pairs (``track``, ``plot``) with the
+    batch's ``_BatchPlots`` (``reply``, ``density``: empty without a clutter map): the
+    pairs kept, ascending (not those of a tentative track seeded only by primary plots
+    and a plot with a secondary reply, ``clutter.primary_seed_takes_reply``), and the
+    density at each kept pair's plot (empty without a map)."""
+    n = track.size
+    kept = np.empty(n, np.int64)
+    n_kept = 0
+    for k in range(n):
+        t = track[k]
+        if not (status[t] == tentative and not secondary[t] and reply[plot[k]]):
+            kept[n_kept] = k
+            n_kept += 1
+    kept = kept[:n_kept]
+    kept_density = np.empty(n_kept if density.size else 0)
+    for s in range(kept_density.size):
+        kept_density[s] = density[plot[kept[s]]]
+    return kept, kept_density
+
+
+@numba.njit(cache=True)
+def hard_assignment(
+    track: IntArray,
+    plot: IntArray,
+    chosen: IntArray,
+    status: npt.NDArray[np.int8],
+    too_old: BoolArray,
+    used: BoolArray,
+    blocked: BoolArray,
+    updated: BoolArray,
+    confirmed: int,
+) -> tuple[IntArray, IntArray, int]:  # pragma: no cover - compiled
+    """``LocalTracker._associate``'s bookkeeping of a hard assignment (GNN): every plot
+    in a confirmed track's gate ``blocked`` from initiation, the ``chosen`` pairs'
+    plots ``used`` and tracks ``updated`` (all three written in place); returns the
+    chosen pairs' tracks and plots and the number of plots too old for any track that
+    none took (dropped late)."""
+    for k in range(track.size):
+        if status[track[k]] == confirmed:
+            blocked[plot[k]] = True
+    tracks = track[chosen]
+    plot_index = plot[chosen]
+    for s in range(chosen.size):
+        used[plot_index[s]] = True
+        updated[tracks[s]] = True
+    late = 0
+    for j in range(too_old.size):
+        if too_old[j] and not used[j]:
+            late += 1
+    return tracks, plot_index, late
+
+
+@numba.njit(cache=True)
+def missed_scans(
+    now: float,
+    updated: BoolArray,
+    t_hit: FloatArray,
+    misses: IntArray,
+    due: FloatArray,
+    n: int,
+    scan_period_s: float,
+    miss_tolerance: float,
+) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled
+    """The first part of ``LocalTracker._age``: of the ``n`` oldest rows, those not
+    ``updated`` that missed a scan more than they had counted (none while ``now`` is
+    before every ``due``), and each one's count of missed scans."""
+    idle = np.empty(0, np.int64)
+    n_miss = np.empty(0, np.int64)
+    earliest_due = np.inf
+    for r in range(n):
+        earliest_due = nan_min(earliest_due, due[r])
+    if now < earliest_due:
+        return idle, n_miss
+    idle = np.empty(n, np.int64)
+    n_miss = np.empty(n, np.int64)
+    k = 0
+    for r in range(n):
+        if updated[r]:
+            continue
+        missed = max(np.floor((now - t_hit[r]) / scan_period_s - miss_tolerance), 0.0)
+        if int(missed) > misses[r]:
+            idle[k] = r
+            n_miss[k] = int(missed)
+            k += 1
+    return idle[:k], n_miss[:k]
+
+
+@numba.njit(cache=True, inline="always")
+def nan_max(a: float, b: float) -> float:  # pragma: no cover - compiled
+    """numpy's ``max``: NaN wins."""
+    if np.isnan(a) or np.isnan(b):
+        return np.nan
+    return max(a, b)
+
+
+@numba.njit(cache=True, inline="always")
+def nan_min(a: float, b: float) -> float:  # pragma: no cover - compiled
+    """numpy's ``min``: NaN wins."""
+    if np.isnan(a) or np.isnan(b):
+        return np.nan
+    return min(a, b)

@@ -389,6 +389,16 @@ class LocalTracker:
         if isinstance(self.associator, MultipleHypothesisTracking):
             return self._associate_hypotheses(p, pairs, too_old, rows, used, blocked, updated)
         weighted = self.associator.associate(pairs)
+        if weighted.is_hard and self._compiled:
+            tracks, plot_index, late = kernels.hard_assignment(
+                pairs.track, pairs.plot, weighted.pair, cols["status"], too_old, used, blocked,
+                updated, CONFIRMED,
+            )  # fmt: skip
+            self.stats.late_plots_dropped += late
+            if tracks.size:
+                self.stats.plots_associated += int(tracks.size)
+                rows.append(self._apply_pairs(tracks, p, plot_index, pairs.pred, weighted.pair))
+            return used, blocked, updated
         if weighted.is_hard:
             # One plot per track (GNN): the plain IMM update.
             blocked[pairs.plot[cols["status"][pairs.track] == CONFIRMED]] = True
@@ -477,11 +487,21 @@ class LocalTracker:
         cols = self._cols
         t, j = pairs.track, pairs.plot
         batch = self._batch
-        reply = (
-            secondary_reply(p.typ[j], p.address[j], p.mode3a[j])
-            if batch is None
-            else batch.reply[j]
-        )
+        if batch is not None:
+            kept, density = kernels.screen_pairs(
+                t, j, cols["status"], cols["secondary"], batch.reply, batch.density, TENTATIVE
+            )
+            if kept.size < t.size:
+                if kept.size == 0:
+                    return None
+                pairs = pairs.take(kept)
+            if self.clutter is None:
+                return pairs
+            return GatedPairs(
+                pairs.track, pairs.plot, pairs.nis, pairs.log_det, pairs.identity_cost,
+                pairs.pred, density,
+            )  # fmt: skip
+        reply = secondary_reply(p.typ[j], p.address[j], p.mode3a[j])
         refused = (cols["status"][t] == TENTATIVE) & primary_seed_takes_reply(
             cols["secondary"][t], reply
         )
@@ -490,25 +510,16 @@ class LocalTracker:
                 return None
             pairs = pairs.take(np.flatnonzero(~refused))
         if self.clutter is not None:
-            density = (
-                self._clutter_density(p.take(pairs.plot))
-                if batch is None
-                else batch.density[pairs.plot]
-            )
+            density = self._clutter_density(p.take(pairs.plot))
             pairs = dataclasses.replace(pairs, clutter_density=density)
         return pairs
 
     def _batch_plots(self, p: PlotArrays) -> _BatchPlots:
         """The batch's ``_BatchPlots``."""
-        reply = secondary_reply(p.typ, p.address, p.mode3a)
         if self.clutter is None:
+            reply = secondary_reply(p.typ, p.address, p.mode3a)
             return _BatchPlots(reply, _NO_CELLS, _NO_FLOATS, _NO_FLAGS)
-        cell = self.clutter.cells(p.x, p.y)
-        floor = self.config.clutter_density_per_km2 * 1e-6
-        density = np.asarray(
-            np.where(reply, floor, self.clutter.density_in(cell)), dtype=np.float64
-        )
-        return _BatchPlots(reply, cell, density, self.clutter.dense_in(cell))
+        return _BatchPlots(*self.clutter.describe(p.x, p.y, p.typ, p.address, p.mode3a))
 
     def _clutter_density(self, p: PlotArrays) -> FloatArray:
         """The clutter map's density (per m^2) at each plot, for JPDA's and MHT's
@@ -542,15 +553,18 @@ class LocalTracker:
         a primary-only aircraft adds one plot to each cell it crosses."""
         if self.clutter is None:
             return
-        taken = [r["plot_id"][r["status"] == CONFIRMED] for r in rows]
-        free = ~is_one_of(p.plot_id, np.concatenate(taken)) if taken else np.ones(len(p), bool)
         batch = self._batch
         if batch is None:
+            taken = [r["plot_id"][r["status"] == CONFIRMED] for r in rows]
+            free = ~is_one_of(p.plot_id, np.concatenate(taken)) if taken else np.ones(len(p), bool)
             free |= ~secondary_reply(p.typ, p.address, p.mode3a)
             self.clutter.learn(p.x[free], p.y[free], p.time[free])
         else:
-            free |= ~batch.reply
-            self.clutter.learn_cells(batch.cell[free], p.time[free])
+            joined = _join(rows, self.output_dtype)
+            free = kernels.untaken_plots(
+                p.plot_id, batch.reply, joined["plot_id"], joined["status"], CONFIRMED
+            )
+            self.clutter.learn_cells(batch.cell, p.time, free)
 
     def _apply_pairs(
         self,
@@ -956,14 +970,22 @@ class LocalTracker:
         output rows, if any, are appended to ``rows``."""
         cfg = self.config
         cols = self._cols
-        if n_old == 0 or now < cols["due"][:n_old].min():
-            return  # no track can have missed a scan yet: the usual sector
-        idle = np.flatnonzero(~updated[:n_old])
-        elapsed = now - cols["t_hit"][idle]
-        n_miss = np.maximum(np.floor(elapsed / cfg.scan_period_s - cfg.miss_tolerance), 0)
-        n_miss = n_miss.astype(np.int64)
-        grow = n_miss > cols["misses"][idle]
-        idle, n_miss = idle[grow], n_miss[grow]
+        if n_old == 0:
+            return
+        if self._compiled:
+            idle, n_miss = kernels.missed_scans(
+                now, updated, cols["t_hit"], cols["misses"], cols["due"], n_old,
+                cfg.scan_period_s, cfg.miss_tolerance,
+            )  # fmt: skip
+        else:
+            if now < cols["due"][:n_old].min():
+                return  # no track can have missed a scan yet: the usual sector
+            idle = np.flatnonzero(~updated[:n_old])
+            elapsed = now - cols["t_hit"][idle]
+            n_miss = np.maximum(np.floor(elapsed / cfg.scan_period_s - cfg.miss_tolerance), 0)
+            n_miss = n_miss.astype(np.int64)
+            grow = n_miss > cols["misses"][idle]
+            idle, n_miss = idle[grow], n_miss[grow]
         if idle.size == 0:
             return
         shift = np.minimum(n_miss - cols["misses"][idle], 32)

@@ -20,15 +20,17 @@ class WeightedPairs:
 
     pair: IntArray
     weight: FloatArray
+    all_ones: bool = False
+    """Known to weigh every pair 1 (``hard``), without looking."""
 
     @classmethod
     def hard(cls, pair: IntArray) -> WeightedPairs:
-        return cls(pair, np.ones(pair.size))
+        return cls(pair, np.ones(pair.size), all_ones=True)
 
     @property
     def is_hard(self) -> bool:
         """Every weight 1: each kept pair is an outright assignment."""
-        return bool(np.all(self.weight == 1.0))
+        return self.all_ones or bool(np.all(self.weight == 1.0))
 
 
 class Associator(Protocol):

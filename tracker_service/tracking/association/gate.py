@@ -117,6 +117,22 @@ class Gate:
         self._omega = np.ascontiguousarray(models.turn_rates_rad_s, dtype=np.float64)
         self._q = np.ascontiguousarray(models.q, dtype=np.float64)
         self._sojourn = np.ascontiguousarray(models.mean_sojourn_s, dtype=np.float64)
+        self._constants = np.array(
+            [
+                self._q_max,
+                self._turn_max,
+                self._widest_gate,
+                RADIUS_SAFETY,
+                RADIUS_MARGIN_M,
+                config.max_backward_s,
+                config.gate,
+                config.address_gate,
+                config.address_mismatch_penalty,
+                config.address_bonus,
+                config.mode3a_bonus,
+            ]
+        )
+        """``gate_kernels.gate_batch``'s floats."""
 
     def __call__(self, cols: dict[str, npt.NDArray[Any]], n: int, p: PlotArrays) -> GateResult:
         """The gated pairs of the batch ``p`` against the ``n`` live rows of ``cols``."""
@@ -171,34 +187,23 @@ class Gate:
     ) -> GateResult:
         """``__call__`` by ``gate_kernels``: the same pairs, in the same order, with the
         same values."""
-        cfg = self.config
         too_old = np.zeros(len(p), dtype=bool)
-        time, px, py, r = p.time, p.x, p.y, p.R
-        t_min, t_max = float(time.min()), float(time.max())
-        t_mid = 0.5 * (t_min + t_max)
-        spread = max(t_max - t_mid, t_mid - t_min)
-        dt = t_mid - cols["t"][:n]
-        a = np.abs(dt) + spread
-        plot_radius = np.sqrt(cfg.gate * (r[:, 0, 0] + r[:, 1, 1]))
-        near, coarse_x, coarse_y, radius, reach = gate_kernels.preselect(
-            cols["xc"], cols["Pc"], dt, a, a**3, spread, self._q_max, self._turn_max,
-            self._widest_gate, RADIUS_SAFETY, RADIUS_MARGIN_M, px, py, plot_radius,
-        )  # fmt: skip
-        if near.size == 0:
-            return GateResult(None, too_old)
         turn_prior = self.turn_prior
-        ti, pj, xp, pp, c, xc, pc, nis, log_det, cost = gate_kernels.gate_pairs(
-            near, coarse_x, coarse_y, radius, _leaf_order(coarse_x, coarse_y), px, py,
-            plot_radius, _leaf_order(px, py), reach, time, r, p.address, p.mode3a,
-            p.mode3a_valid, cols["t"], cols["x"], cols["P"], cols["mu"], cols["address"],
-            cols["mode3a"], self._omega, self._q, self._sojourn, cfg.max_backward_s,
-            cfg.gate, cfg.address_gate, turn_prior is None, self._shared_codes,
-            cfg.address_mismatch_penalty, cfg.address_bonus, cfg.mode3a_bonus, too_old,
+        ok, ti, pj, xp, pp, c, xc, pc, nis, log_det, cost = gate_kernels.gate_batch(
+            p.time, p.x, p.y, p.R, p.address, p.mode3a, p.mode3a_valid, n, cols["t"],
+            cols["xc"], cols["Pc"], cols["x"], cols["P"], cols["mu"], cols["address"],
+            cols["mode3a"], self._omega, self._q, self._sojourn, self._constants,
+            turn_prior is None, self._shared_codes, too_old,
         )  # fmt: skip
+        if not ok:
+            ti, pj, xp, pp, c, xc, pc, nis, log_det, cost = self._gate_with_scipy_trees(
+                cols, n, p, too_old
+            )
         if ti.size == 0:
             return GateResult(None, too_old)
         pred = imm.ImmPrediction(xp, pp, c, xc, pc)
         if turn_prior is not None:
+            cfg = self.config
             pred, gate_nis = turn_prior(pred, nis, p, pj)
             same_address = (cols["address"][ti] >= 0) & (cols["address"][ti] == p.address[pj])
             gated = np.flatnonzero(gate_nis <= np.where(same_address, cfg.address_gate, cfg.gate))
@@ -216,6 +221,33 @@ class Gate:
             track=ti, plot=pj, nis=nis, log_det=log_det, identity_cost=cost, pred=pred
         )
         return GateResult(pairs, too_old)
+
+    def _gate_with_scipy_trees(
+        self, cols: dict[str, npt.NDArray[Any]], n: int, p: PlotArrays, too_old: BoolArray
+    ) -> tuple[Any, ...]:
+        """``gate_kernels.gate_batch``'s pairs with the trees' leaf orders from scipy
+        itself, for the rare points where the compiled build cannot follow libstdc++'s
+        ``nth_element`` (``gate_kernels._tree_paths``)."""
+        cfg = self.config
+        time, px, py, r = p.time, p.x, p.y, p.R
+        t_min, t_max = float(time.min()), float(time.max())
+        t_mid = 0.5 * (t_min + t_max)
+        spread = max(t_max - t_mid, t_mid - t_min)
+        dt = t_mid - cols["t"][:n]
+        a = np.abs(dt) + spread
+        plot_radius = np.sqrt(cfg.gate * (r[:, 0, 0] + r[:, 1, 1]))
+        near, coarse_x, coarse_y, radius, reach = gate_kernels.preselect(
+            cols["xc"], cols["Pc"], dt, a, a * a * a, spread, self._q_max, self._turn_max,
+            self._widest_gate, RADIUS_SAFETY, RADIUS_MARGIN_M, px, py, plot_radius,
+        )  # fmt: skip
+        return gate_kernels.gate_pairs(
+            near, coarse_x, coarse_y, radius, _leaf_order(coarse_x, coarse_y), px, py,
+            plot_radius, _leaf_order(px, py), reach, time, r, p.address, p.mode3a,
+            p.mode3a_valid, cols["t"], cols["x"], cols["P"], cols["mu"], cols["address"],
+            cols["mode3a"], self._omega, self._q, self._sojourn, cfg.max_backward_s,
+            cfg.gate, cfg.address_gate, self.turn_prior is None, self._shared_codes,
+            cfg.address_mismatch_penalty, cfg.address_bonus, cfg.mode3a_bonus, False, too_old,
+        )[1:]  # fmt: skip
 
     def _reach(
         self, cols: dict[str, npt.NDArray[Any]], n: int, t_mid: float, spread: float
