@@ -1,6 +1,7 @@
 """The fuser's exchange test (fusion/associate.py ``_exchange``): a radar's two local
 tracks of two close aircraft joined crosswise to two system tracks go back to the right
-ones; and a local track the review gave back does not rejoin the system track it left."""
+ones; and a local track the review gave back does not rejoin the system track it left;
+the test's evidence store (fusion/state.py ``PairEvidence``) against a plain dictionary."""
 
 from __future__ import annotations
 
@@ -9,8 +10,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from tests.fuser_inputs import east_batch, system_of
 from tracker_service.fusion import FusionConfig, SystemTracker
+from tracker_service.fusion.state import NO_EVIDENCE, PairEvidence
 
 T0 = 1.7e9
 SIGMA = 150.0
@@ -93,3 +98,58 @@ def test_two_tracks_that_never_swapped_are_not_exchanged() -> None:
     assert fuser.state.stats.exchanges == 0
     assert system_of(fuser, 0, 10) == system_of(fuser, 1, 11) == system_of(fuser, 2, 12)
     assert system_of(fuser, 0, 10) != system_of(fuser, 0, 20)
+
+
+class PlainEvidence:
+    """``PairEvidence``'s reference: a dictionary of pairs, every pair of a dropped key
+    deleted at once."""
+
+    def __init__(self) -> None:
+        self.of_pair: dict[tuple[int, int], tuple[int, float, float]] = {}
+
+    def table(self, pairs: list[tuple[int, int]]) -> npt.NDArray[np.float64]:
+        rows = [self.of_pair.get(pair, NO_EVIDENCE) for pair in pairs]
+        return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+    def set_many(
+        self, pairs: list[tuple[int, int]], evidence: list[tuple[int, float, float]]
+    ) -> None:
+        self.of_pair.update(zip(pairs, evidence, strict=True))
+
+    def drop(self, keys: list[int]) -> None:
+        gone = set(keys)
+        self.of_pair = {p: e for p, e in self.of_pair.items() if not gone & set(p)}
+
+
+OPERATIONS = st.lists(
+    st.tuples(
+        st.booleans(),  # a drop (else a write)
+        st.lists(st.tuples(st.integers(0, 30), st.integers(0, 30)), max_size=12),
+    ),
+    max_size=200,
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(operations=OPERATIONS, sweep_min=st.integers(1, 40))
+def test_pair_evidence_forgets_as_the_plain_reference(
+    operations: list[tuple[bool, list[tuple[int, int]]]], sweep_min: int
+) -> None:
+    """Drops and writes in any order, keys dropped before and after their pairs'
+    writes, pairs written again after a drop, sweeps at every size: each lookup finds
+    what the plain dictionary holds (the evidence of a written pair, ``NO_EVIDENCE``
+    of one forgotten or never written)."""
+    evidence, plain = PairEvidence(), PlainEvidence()
+    evidence._sweep_at = sweep_min
+    every = [(a, b) for a in range(31) for b in range(a, 31) if (a * b) % 7 == 0]
+    for step, (is_drop, drawn) in enumerate(operations):
+        pairs = sorted({(min(a, b), max(a, b)) for a, b in drawn})
+        if is_drop:
+            keys = [a for a, _ in drawn]
+            evidence.drop(keys)
+            plain.drop(keys)
+        else:
+            values = [(step, 0.5 * step + k, 1.0 / (k + 1)) for k in range(len(pairs))]
+            evidence.set_many(pairs, values)
+            plain.set_many(pairs, values)
+        np.testing.assert_array_equal(evidence.table(every), plain.table(every))

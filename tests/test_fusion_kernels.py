@@ -436,6 +436,25 @@ def test_segment_sums_are_numpy_sums_to_the_bit(seed: int, sizes: list[int]) -> 
 
 
 @settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=SIZES, pairs=st.integers(0, 12))
+def test_exchange_votes_are_the_reference(seed: int, k: int, pairs: int) -> None:
+    """The exchange test's deltas and agreements in one pass (``kernels.exchange_votes``)
+    against ``associate._votes``'s numpy path: deltas to 1e-9, agreements equal; a pair
+    of 1 to 8 votes, witnesses repeating, some votes unanimous."""
+    compiled, reference, rng = _states(seed, 2, k)
+    ends = np.concatenate([[0], np.cumsum(rng.integers(1, 9, pairs))]).astype(np.int64)
+    n = int(ends[-1])
+    closer, farther, witness = rng.integers(0, k, n), rng.integers(0, k, n), rng.integers(0, k, n)
+    # A witness that is the track it should be farther from favours the exchange.
+    same = rng.random(n) < 0.5
+    witness[same] = farther[same]
+    got = associate._votes(compiled, closer, farther, witness, ends)
+    want = associate._votes(reference, closer, farther, witness, ends)
+    np.testing.assert_allclose(got[0], want[0], rtol=TOLERANCE, atol=0.0)
+    np.testing.assert_array_equal(got[1], want[1])
+
+
+@settings(max_examples=25, deadline=None)
 @given(seed=SEEDS, k=SIZES)
 def test_track_distances_are_the_reference(seed: int, k: int) -> None:
     """The exchange test's distances between local tracks (``kernels.track_distances``)

@@ -120,10 +120,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     ka, kb = loc["key"][pair_a], loc["key"][pair_b]
     pairs = list(zip(np.minimum(ka, kb).tolist(), np.maximum(ka, kb).tolist(), strict=True))
     if pairs:
-        all_votes = track_distance(state, closer, witness)
-        all_votes -= track_distance(state, farther, witness)
-        deltas = _segment_sums(state, all_votes, ends)
-        favoured = np.logical_and.reduceat(all_votes > 0, ends[:-1])
+        deltas, favoured = _votes(state, closer, farther, witness, ends)
         # Each pair's running means, over the batch's pairs at once (the arithmetic of
         # one pair at a time: the same bits).
         before = evidence.table(pairs)
@@ -260,14 +257,36 @@ def _exchange_witnesses(
     return a, b, closer, farther, witness, ends
 
 
-def _segment_sums(state: FusionState, values: FloatArray, ends: IntArray) -> FloatArray:
-    """Each segment's ``values[ends[k]:ends[k + 1]].sum()``, to the bit (numpy's pairwise
-    summation: compiled, ``kernels.segment_sums``)."""
+def _votes(
+    state: FusionState,
+    closer: IntArray,
+    farther: IntArray,
+    witness: IntArray,
+    ends: IntArray,
+) -> tuple[FloatArray, BoolArray]:
+    """The exchange test's pairs' deltas (each the sum of its votes: a witness's distance
+    to the track it should be closer to less that to the other) and whether all of a
+    pair's votes favour the exchange; compiled: in one pass (``kernels.exchange_votes``),
+    the same bits."""
     if state.compiled:
-        from tracker_service.fusion.kernels import segment_sums  # numba only when compiled
+        from tracker_service.fusion.kernels import exchange_votes  # numba only when compiled
 
-        return segment_sums(values, ends)
-    return np.array([values[lo:hi].sum() for lo, hi in itertools.pairwise(ends.tolist())])
+        loc = state.local.rows
+        return exchange_votes(
+            loc["t"],
+            loc["x"],
+            loc["P"],
+            loc["extra"],
+            kernel_indices(closer),
+            kernel_indices(farther),
+            kernel_indices(witness),
+            ends,
+            state.config.q,
+        )
+    votes = track_distance(state, closer, witness)
+    votes -= track_distance(state, farther, witness)
+    deltas = np.array([votes[lo:hi].sum() for lo, hi in itertools.pairwise(ends.tolist())])
+    return deltas, np.logical_and.reduceat(votes > 0, ends[:-1])
 
 
 def track_distance(state: FusionState, a: IntArray, b: IntArray) -> FloatArray:
