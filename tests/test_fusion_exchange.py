@@ -9,7 +9,6 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
