@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -104,20 +105,25 @@ class PlainEvidence:
     deleted at once."""
 
     def __init__(self) -> None:
-        self.of_pair: dict[tuple[int, int], tuple[int, float, float]] = {}
+        self.of_pair: dict[tuple[int, int], tuple[float, ...]] = {}
 
     def table(self, pairs: list[tuple[int, int]]) -> npt.NDArray[np.float64]:
         rows = [self.of_pair.get(pair, NO_EVIDENCE) for pair in pairs]
         return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
-    def set_many(
-        self, pairs: list[tuple[int, int]], evidence: list[tuple[int, float, float]]
-    ) -> None:
-        self.of_pair.update(zip(pairs, evidence, strict=True))
+    def set_many(self, pairs: list[tuple[int, int]], evidence: npt.NDArray[np.float64]) -> None:
+        self.of_pair.update(zip(pairs, map(tuple, evidence.tolist()), strict=True))
 
     def drop(self, keys: list[int]) -> None:
         gone = set(keys)
         self.of_pair = {p: e for p, e in self.of_pair.items() if not gone & set(p)}
+
+
+def _columns(pairs: list[tuple[int, int]]) -> tuple[npt.NDArray[np.int64], ...]:
+    return tuple(np.array(c, dtype=np.int64).reshape(-1) for c in zip(*pairs, strict=True)) or (
+        np.zeros(0, dtype=np.int64),
+        np.zeros(0, dtype=np.int64),
+    )
 
 
 OPERATIONS = st.lists(
@@ -129,26 +135,29 @@ OPERATIONS = st.lists(
 )
 
 
-@settings(max_examples=60, deadline=None)
+@pytest.mark.parametrize("compiled", [False, True])
+@settings(max_examples=40, deadline=None)
 @given(operations=OPERATIONS, sweep_min=st.integers(1, 40))
 def test_pair_evidence_forgets_as_the_plain_reference(
-    operations: list[tuple[bool, list[tuple[int, int]]]], sweep_min: int
+    compiled: bool, operations: list[tuple[bool, list[tuple[int, int]]]], sweep_min: int
 ) -> None:
     """Drops and writes in any order, keys dropped before and after their pairs'
-    writes, pairs written again after a drop, sweeps at every size: each lookup finds
-    what the plain dictionary holds (the evidence of a written pair, ``NO_EVIDENCE``
-    of one forgotten or never written)."""
-    evidence, plain = PairEvidence(), PlainEvidence()
+    writes, pairs written again after a drop, sweeps at every size, in Python's
+    dictionaries and in the kernels' typed ones: each lookup finds what the plain
+    dictionary holds (the evidence of a written pair, ``NO_EVIDENCE`` of one forgotten
+    or never written)."""
+    evidence, plain = PairEvidence(compiled), PlainEvidence()
     evidence._sweep_at = sweep_min
     every = [(a, b) for a in range(31) for b in range(a, 31) if (a * b) % 7 == 0]
     for step, (is_drop, drawn) in enumerate(operations):
         pairs = sorted({(min(a, b), max(a, b)) for a, b in drawn})
         if is_drop:
             keys = [a for a, _ in drawn]
-            evidence.drop(keys)
+            evidence.drop(np.array(keys, dtype=np.int64))
             plain.drop(keys)
         else:
-            values = [(step, 0.5 * step + k, 1.0 / (k + 1)) for k in range(len(pairs))]
-            evidence.set_many(pairs, values)
+            k = np.arange(len(pairs))
+            values = np.column_stack([np.full(k.size, step), 0.5 * step + k, 1.0 / (k + 1)])
+            evidence.set_many(*_columns(pairs), values)
             plain.set_many(pairs, values)
-        np.testing.assert_array_equal(evidence.table(every), plain.table(every))
+        np.testing.assert_array_equal(evidence.table(*_columns(every)), plain.table(every))

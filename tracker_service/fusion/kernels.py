@@ -1583,3 +1583,63 @@ def segment_sums(values: FloatArray, ends: IntArray) -> FloatArray:  # pragma: n
     for k in range(ends.size - 1):
         out[k] = _pairwise_sum(values, ends[k], ends[k + 1] - ends[k])
     return out
+
+
+EVIDENCE_PAIR = numba.types.UniTuple(numba.types.int64, 2)
+EVIDENCE_ENTRY = numba.types.UniTuple(numba.types.float64, 4)
+"""``state.PairEvidence``'s entries: (low key, high key) -> (updates, mean, agreement,
+stamp of the write)."""
+
+
+def new_pair_evidence() -> tuple[Any, Any]:
+    """The compiled ``state.PairEvidence``'s dictionaries: its entries, and each dropped
+    key's stamp of its latest drop."""
+    return (
+        numba.typed.Dict.empty(EVIDENCE_PAIR, EVIDENCE_ENTRY),
+        numba.typed.Dict.empty(numba.types.int64, numba.types.int64),
+    )
+
+
+@numba.njit(cache=True)
+def evidence_table(
+    of_pair: Any, dropped: Any, low: IntArray, high: IntArray
+) -> FloatArray:  # pragma: no cover - compiled
+    """``state.PairEvidence.table``: each pair's entry written after both its keys'
+    latest drops, else zeros."""
+    out = np.zeros((low.size, 3))
+    for i in range(low.size):
+        pair = (low[i], high[i])
+        if pair in of_pair:
+            entry = of_pair[pair]
+            if entry[3] > dropped.get(low[i], -1) and entry[3] > dropped.get(high[i], -1):
+                out[i, 0], out[i, 1], out[i, 2] = entry[0], entry[1], entry[2]
+    return out
+
+
+@numba.njit(cache=True)
+def evidence_set(
+    of_pair: Any, stamp: int, low: IntArray, high: IntArray, evidence: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """``state.PairEvidence.set_many``: each pair's entry, stamped."""
+    for i in range(low.size):
+        of_pair[(low[i], high[i])] = (evidence[i, 0], evidence[i, 1], evidence[i, 2], float(stamp))
+
+
+@numba.njit(cache=True)
+def evidence_drop(dropped: Any, stamp: int, keys: IntArray) -> None:  # pragma: no cover
+    """``state.PairEvidence.drop``: each key's stamp of its latest drop."""
+    for key in keys:
+        dropped[key] = stamp
+
+
+@numba.njit(cache=True)
+def evidence_sweep(of_pair: Any, dropped: Any) -> None:  # pragma: no cover - compiled
+    """``state.PairEvidence``'s sweep: the entries written before a drop of one of their
+    keys go, and the drops with them."""
+    gone = []
+    for pair, entry in of_pair.items():
+        if entry[3] <= dropped.get(pair[0], -1) or entry[3] <= dropped.get(pair[1], -1):
+            gone.append(pair)
+    for pair in gone:
+        del of_pair[pair]
+    dropped.clear()
