@@ -119,11 +119,10 @@ class PlainEvidence:
         self.of_pair = {p: e for p, e in self.of_pair.items() if not gone & set(p)}
 
 
-def _columns(pairs: list[tuple[int, int]]) -> tuple[npt.NDArray[np.int64], ...]:
-    return tuple(np.array(c, dtype=np.int64).reshape(-1) for c in zip(*pairs, strict=True)) or (
-        np.zeros(0, dtype=np.int64),
-        np.zeros(0, dtype=np.int64),
-    )
+def _columns(pairs: list[tuple[int, int]]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """The pairs' low and high keys."""
+    both = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    return both[:, 0].copy(), both[:, 1].copy()
 
 
 OPERATIONS = st.lists(

@@ -1585,8 +1585,8 @@ def segment_sums(values: FloatArray, ends: IntArray) -> FloatArray:  # pragma: n
     return out
 
 
-EVIDENCE_PAIR = numba.types.UniTuple(numba.types.int64, 2)
-EVIDENCE_ENTRY = numba.types.UniTuple(numba.types.float64, 4)
+EVIDENCE_PAIR = numba.types.UniTuple(numba.types.int64, 2)  # type: ignore[no-untyped-call]
+EVIDENCE_ENTRY = numba.types.UniTuple(numba.types.float64, 4)  # type: ignore[no-untyped-call]
 """``state.PairEvidence``'s entries: (low key, high key) -> (updates, mean, agreement,
 stamp of the write)."""
 
