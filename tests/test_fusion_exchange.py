@@ -111,7 +111,10 @@ class PlainEvidence:
         rows = [self.of_pair.get(pair, NO_EVIDENCE) for pair in pairs]
         return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
-    def set_many(self, pairs: list[tuple[int, int]], evidence: npt.NDArray[np.float64]) -> None:
+    def renew(
+        self, tested: list[int], pairs: list[tuple[int, int]], evidence: npt.NDArray[np.float64]
+    ) -> None:
+        self.drop(tested)
         self.of_pair.update(zip(pairs, map(tuple, evidence.tolist()), strict=True))
 
     def drop(self, keys: list[int]) -> None:
@@ -127,8 +130,9 @@ def _columns(pairs: list[tuple[int, int]]) -> tuple[npt.NDArray[np.int64], npt.N
 
 OPERATIONS = st.lists(
     st.tuples(
-        st.booleans(),  # a drop (else a write)
+        st.booleans(),  # a drop (else a renewal)
         st.lists(st.tuples(st.integers(0, 30), st.integers(0, 30)), max_size=12),
+        st.lists(st.integers(0, 30), max_size=6),  # a renewal's tested keys
     ),
     max_size=200,
 )
@@ -138,17 +142,20 @@ OPERATIONS = st.lists(
 @settings(max_examples=40, deadline=None)
 @given(operations=OPERATIONS, sweep_min=st.integers(1, 40))
 def test_pair_evidence_forgets_as_the_plain_reference(
-    compiled: bool, operations: list[tuple[bool, list[tuple[int, int]]]], sweep_min: int
+    compiled: bool,
+    operations: list[tuple[bool, list[tuple[int, int]], list[int]]],
+    sweep_min: int,
 ) -> None:
-    """Drops and writes in any order, keys dropped before and after their pairs'
-    writes, pairs written again after a drop, sweeps at every size, in Python's
+    """Drops and renewals in any order, keys dropped before and after their pairs'
+    writes, pairs written again after a drop, a renewal's tested keys among its pairs'
+    and not, sweeps at every size, in Python's
     dictionaries and in the kernels' typed ones: each lookup finds what the plain
     dictionary holds (the evidence of a written pair, ``NO_EVIDENCE`` of one forgotten
     or never written)."""
     evidence, plain = PairEvidence(compiled), PlainEvidence()
     evidence._sweep_at = sweep_min
     every = [(a, b) for a in range(31) for b in range(a, 31) if (a * b) % 7 == 0]
-    for step, (is_drop, drawn) in enumerate(operations):
+    for step, (is_drop, drawn, tested) in enumerate(operations):
         pairs = sorted({(min(a, b), max(a, b)) for a, b in drawn})
         if is_drop:
             keys = [a for a, _ in drawn]
@@ -157,6 +164,6 @@ def test_pair_evidence_forgets_as_the_plain_reference(
         else:
             k = np.arange(len(pairs))
             values = np.column_stack([np.full(k.size, step), 0.5 * step + k, 1.0 / (k + 1)])
-            evidence.set_many(*_columns(pairs), values)
-            plain.set_many(pairs, values)
+            evidence.renew(np.array(tested, dtype=np.int64), *_columns(pairs), values)
+            plain.renew(tested, pairs, values)
         np.testing.assert_array_equal(evidence.table(*_columns(every)), plain.table(every))

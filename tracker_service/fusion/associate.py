@@ -134,8 +134,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         evidence_now[:, 2] = before[:, 2] + (favoured.astype(np.float64) - before[:, 2]) * weight
     # A pair's evidence lives while it is tested in a row: a pair of a tested track not
     # tested now is out of reach (a coasting update, no plot, tests nothing).
-    evidence.drop(tested)
-    evidence.set_many(low, high, evidence_now)
+    evidence.renew(tested, low, high, evidence_now)
     n, mean, agree = evidence_now.T
     weak = (mean <= cfg.exchange_margin) | (agree < EXCHANGE_AGREEMENT)
     ready = (n >= cfg.reassociate_window) & ~weak

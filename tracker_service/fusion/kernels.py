@@ -1350,31 +1350,37 @@ def slots_of(
 ) -> IntArray:  # pragma: no cover - compiled
     """``table.LocalTrackTable.slots``: the alive local rows feeding each system track of
     ``numbers`` (which may repeat), most recent plot first (ties in row order), at most
-    ``max_sources``, -1 padding to ``width``; one pass over the table."""
+    ``max_sources``, -1 padding to ``width``; one pass over the table, then over the
+    few rows it found."""
     size = 1
     for n in numbers:
         size = max(size, n + 1)
     wanted = np.zeros(size, dtype=np.bool_)
     for n in numbers:
         wanted[n] = True
-    count = np.zeros(size + 1, dtype=np.int64)
+    found = np.empty(system.size, dtype=np.int64)
+    n_found = 0
     for r in range(system.size):
         g = system[r]
-        if alive[r] and 0 <= g < size and wanted[g]:
-            count[g + 1] += 1
+        if 0 <= g < size and wanted[g] and alive[r]:
+            found[n_found] = r
+            n_found += 1
+    count = np.zeros(size + 1, dtype=np.int64)
+    for q in range(n_found):
+        count[system[found[q]] + 1] += 1
     start = np.cumsum(count)
     fill = start[:-1].copy()
-    rows = np.empty(start[-1], dtype=np.int64)
-    for r in range(system.size):
+    rows = np.empty(n_found, dtype=np.int64)
+    for q in range(n_found):
+        r = found[q]
         g = system[r]
-        if alive[r] and 0 <= g < size and wanted[g]:
-            # Insertion by descending t_plot, after the equal ones: a stable sort.
-            at = fill[g]
-            while at > start[g] and t_plot[rows[at - 1]] < t_plot[r]:
-                rows[at] = rows[at - 1]
-                at -= 1
-            rows[at] = r
-            fill[g] += 1
+        # Insertion by descending t_plot, after the equal ones: a stable sort.
+        at = fill[g]
+        while at > start[g] and t_plot[rows[at - 1]] < t_plot[r]:
+            rows[at] = rows[at - 1]
+            at -= 1
+        rows[at] = r
+        fill[g] += 1
     out = np.full((numbers.size, width), -1, dtype=np.int64)
     for i in range(numbers.size):
         g = numbers[i]
@@ -1617,12 +1623,21 @@ def evidence_table(
 
 
 @numba.njit(cache=True)
-def evidence_set(
-    of_pair: Any, stamp: int, low: IntArray, high: IntArray, evidence: FloatArray
-) -> None:  # pragma: no cover - compiled
-    """``state.PairEvidence.set_many``: each pair's entry, stamped."""
+def evidence_renew(
+    of_pair: Any,
+    dropped: Any,
+    stamp: int,
+    tested: IntArray,
+    low: IntArray,
+    high: IntArray,
+    evidence: FloatArray,
+) -> int:  # pragma: no cover - compiled
+    """``state.PairEvidence.renew``: the tested keys dropped at ``stamp`` - 1, then each
+    pair's entry stamped ``stamp``; returns the number of entries."""
+    evidence_drop(dropped, stamp - 1, tested)
     for i in range(low.size):
         of_pair[(low[i], high[i])] = (evidence[i, 0], evidence[i, 1], evidence[i, 2], float(stamp))
+    return len(of_pair)
 
 
 @numba.njit(cache=True)

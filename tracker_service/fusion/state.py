@@ -104,14 +104,18 @@ class PairEvidence:
         rows[(rows[:, 3] <= dropped[0]) | (rows[:, 3] <= dropped[1]), :3] = NO_EVIDENCE
         return rows[:, :3]
 
-    def set_many(self, low: IntArray, high: IntArray, evidence: FloatArray) -> None:
-        """Each pair's evidence (k, 3), in order."""
-        self._stamp += 1
+    def renew(self, tested: IntArray, low: IntArray, high: IntArray, evidence: FloatArray) -> None:
+        """Forget every pair with one of the keys ``tested``, then hold each pair's
+        evidence (k, 3), in order (the pairs a batch's tested tracks found)."""
+        self._stamp += 2
         if self.compiled:
-            from tracker_service.fusion.kernels import evidence_set
+            from tracker_service.fusion.kernels import evidence_renew
 
-            evidence_set(self._of_pair, self._stamp, low, high, evidence)
+            held = evidence_renew(
+                self._of_pair, self._dropped, self._stamp, tested, low, high, evidence
+            )
         else:
+            self._dropped.update(zip(tested.tolist(), itertools.repeat(self._stamp - 1)))
             stamp = float(self._stamp)
             self._of_pair.update(
                 zip(
@@ -120,7 +124,8 @@ class PairEvidence:
                     strict=True,
                 )
             )
-        if len(self._of_pair) >= self._sweep_at:
+            held = len(self._of_pair)
+        if held >= self._sweep_at:
             self._sweep()
 
     def drop(self, keys: IntArray) -> None:
