@@ -93,7 +93,9 @@ def _predict_track(
                 acc += w[i, j] * mx[n, i, a]
             x0[a] = acc
         p0[:, :] = 0.0
-        m0[:, :, :] = 0.0
+        for sensor in range(n_radars):
+            if active[sensor]:  # the others are neither summed nor read
+                m0[sensor] = 0.0
         for i in range(m):
             wij = w[i, j]
             for a in range(4):
