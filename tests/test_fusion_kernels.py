@@ -20,6 +20,7 @@ from tests.test_tracking_kernels import TOLERANCE, close
 from tracker_service.fusion import (
     FusionConfig,
     SystemTracker,
+    arrays,
     associate,
     consider,
     estimator_plots,
@@ -464,3 +465,20 @@ def test_track_distances_are_the_reference(seed: int, k: int) -> None:
     got = associate.track_distance(compiled, a, b)
     want = associate.track_distance(reference, a, b)
     np.testing.assert_allclose(got, want, rtol=TOLERANCE, atol=0.0)
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    values=st.lists(st.integers(-1, 40), max_size=30),
+    members=st.lists(st.integers(-1, 40), max_size=80),
+)
+def test_membership_helpers_are_isin(values: list[int], members: list[int]) -> None:
+    """``arrays.among`` (few values, many members) and the table of ``marked_numbers``
+    against ``np.isin``: repeated and unknown (-1) values, no member, no value."""
+    v, m = np.array(values, dtype=np.int64), np.array(members, dtype=np.int64)
+    want = np.isin(v, m)
+    np.testing.assert_array_equal(arrays.among(v, m), want)
+    numbers = v[v >= 0]
+    np.testing.assert_array_equal(
+        arrays.marked_numbers(m[m >= 0])[numbers], np.isin(numbers, m[m >= 0])
+    )

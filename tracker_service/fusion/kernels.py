@@ -1312,30 +1312,46 @@ def exchange_witnesses(
     return pair_a[:n_pairs].copy(), pair_b[:n_pairs].copy(), closer, farther, witness, ends
 
 
+IDENTITY_HASH = 4096
+"""``identity_candidates``' tables of low bits (a power of two)."""
+
+
+@numba.njit(cache=True, inline="always")
+def _in_sorted(values: IntArray, value: int) -> bool:  # pragma: no cover - compiled
+    """Whether ``value`` is among the sorted ``values``."""
+    at = np.searchsorted(values, value)
+    return at < values.size and values[at] == value
+
+
 @numba.njit(cache=True)
 def identity_candidates(
     address: IntArray, mode3a: IntArray, touched: IntArray, alive: IntArray
 ) -> IntArray:  # pragma: no cover - compiled
     """``lifecycle._identity_candidates`` from the system table's fields: the live tracks
     ``alive`` whose address is unknown or some touched track's (any, when a touched
-    track's is unknown), and likewise their Mode 3/A code."""
+    track's is unknown), and likewise their Mode 3/A code. A table of the touched
+    tracks' values' low bits rules most live tracks out before a search."""
     addresses = np.sort(address[touched])
     codes = np.sort(mode3a[touched])
     any_address = addresses.size > 0 and addresses[0] < 0
     any_code = codes.size > 0 and codes[0] < 0
+    address_bits = np.zeros(IDENTITY_HASH, dtype=np.bool_)
+    code_bits = np.zeros(IDENTITY_HASH, dtype=np.bool_)
+    for a in addresses:
+        address_bits[a & (IDENTITY_HASH - 1)] = True
+    for c in codes:
+        code_bits[c & (IDENTITY_HASH - 1)] = True
     keep = np.empty(alive.size, dtype=np.int64)
     n = 0
     for i in range(alive.size):
         a, c = address[alive[i]], mode3a[alive[i]]
-        address_ok = any_address or a < 0
-        if not address_ok and addresses.size:
-            at = np.searchsorted(addresses, a)
-            address_ok = at < addresses.size and addresses[at] == a
-        code_ok = any_code or c < 0
-        if not code_ok and codes.size:
-            at = np.searchsorted(codes, c)
-            code_ok = at < codes.size and codes[at] == c
-        if address_ok and code_ok:
+        if not (
+            any_address
+            or a < 0
+            or (address_bits[a & (IDENTITY_HASH - 1)] and _in_sorted(addresses, a))
+        ):
+            continue
+        if any_code or c < 0 or (code_bits[c & (IDENTITY_HASH - 1)] and _in_sorted(codes, c)):
             keep[n] = alive[i]
             n += 1
     return keep[:n].copy()

@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion import consider, nearby
-from tracker_service.fusion.arrays import is_member, kernel_indices
+from tracker_service.fusion.arrays import among, is_member, kernel_indices, marked_numbers
 from tracker_service.fusion.associate import compatible_pairs
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import cv_prediction
@@ -41,8 +41,8 @@ def may_found(state: FusionState, candidates: IntArray) -> BoolArray:
     address, code = loc["address"][candidates], loc["mode3a"][candidates]
     live = sys["alive"].copy()
     live[0] = False
-    known = (is_member(address, sys["address"][live]) & (address >= 0)) | (
-        is_member(code, sys["mode3a"][live]) & (code >= 0) & ~is_shared_code(code)
+    known = (among(address, sys["address"][live]) & (address >= 0)) | (
+        among(code, sys["mode3a"][live]) & (code >= 0) & ~is_shared_code(code)
     )
     waited = state.now - loc["t_founder"][candidates]
     return np.asarray(~known | (waited >= state.config.found_delay), dtype=bool)
@@ -109,7 +109,7 @@ def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> 
     if joined.size == 0:
         return
     same = np.flatnonzero(
-        loc["alive"][:n] & (loc["radar"][:n] == radar) & is_member(loc["system"][:n], target)
+        loc["alive"][:n] & (loc["radar"][:n] == radar) & marked_numbers(target)[loc["system"][:n]]
     )
     loc["system"][same] = 0
     loc["system"][joined] = target
@@ -406,7 +406,7 @@ def _release(state: FusionState, numbers: IntArray, moved_to: IntArray | None = 
     sys = state.sys
     loc = state.local.used
     if moved_to is None:
-        loc["system"][is_member(loc["system"], numbers)] = 0
+        loc["system"][marked_numbers(numbers)[loc["system"]]] = 0
     else:
         for number, target in zip(numbers.tolist(), moved_to.tolist(), strict=True):
             loc["system"][loc["system"] == number] = target
