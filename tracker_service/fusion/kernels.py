@@ -1320,7 +1320,7 @@ IDENTITY_HASH = 4096
 def _in_sorted(values: IntArray, value: int) -> bool:  # pragma: no cover - compiled
     """Whether ``value`` is among the sorted ``values``."""
     at = np.searchsorted(values, value)
-    return at < values.size and values[at] == value
+    return bool(at < values.size and values[at] == value)
 
 
 @numba.njit(cache=True)
