@@ -260,10 +260,9 @@ def orphan(state: FusionState, radar: int, numbers: IntArray) -> npt.NDArray[Any
     sys = state.sys
     numbers = numbers[numbers > 0]
     numbers = numbers[sys["alive"][numbers] & np.isnan(sys["orphaned"][numbers])]
-    loc = state.local.used
-    fed = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
-    fed[loc["system"][loc["alive"]]] = True
-    orphans = numbers[~fed[numbers]]
+    # Fed: a first slot (a live local track feeding it); compiled, one pass over the
+    # table for the few numbers.
+    orphans = numbers[state.local.slots(numbers, 1)[:, 0] < 0]
     if state.config.orphan_coast <= 0:
         return end(state, radar, orphans)
     sys["orphaned"][orphans] = state.now
