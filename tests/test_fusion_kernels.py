@@ -455,18 +455,6 @@ def test_exchange_votes_are_the_reference(seed: int, k: int, pairs: int) -> None
     np.testing.assert_array_equal(got[1], want[1])
 
 
-@settings(max_examples=25, deadline=None)
-@given(seed=SEEDS, k=SIZES)
-def test_track_distances_are_the_reference(seed: int, k: int) -> None:
-    """The exchange test's distances between local tracks (``kernels.track_distances``)
-    against ``associate.track_distance``'s numpy path, steps both ways."""
-    compiled, reference, rng = _states(seed, 2, k)
-    a, b = rng.integers(0, k, 3 * k), rng.integers(0, k, 3 * k)
-    got = associate.track_distance(compiled, a, b)
-    want = associate.track_distance(reference, a, b)
-    np.testing.assert_allclose(got, want, rtol=TOLERANCE, atol=0.0)
-
-
 @settings(max_examples=50, deadline=None)
 @given(
     values=st.lists(st.integers(-1, 40), max_size=30),

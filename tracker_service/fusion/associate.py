@@ -290,20 +290,9 @@ def _votes(
 def track_distance(state: FusionState, a: IntArray, b: IntArray) -> FloatArray:
     """Chi-square distance (4 dof) of local tracks a and b (of other radars) at a's
     times, b predicted there (constant velocity), both radars' residual biases in the
-    covariance."""
+    covariance: the exchange test's votes by the numpy path (compiled, each pair's in
+    ``kernels.exchange_votes``)."""
     loc = state.local.rows
-    if state.compiled:
-        from tracker_service.fusion.kernels import track_distances  # numba only when compiled
-
-        return track_distances(
-            loc["t"],
-            loc["x"],
-            loc["P"],
-            loc["extra"],
-            kernel_indices(a),
-            kernel_indices(b),
-            state.config.q,
-        )
     xb, pb = predict_cv(loc["x"][b], loc["P"][b], loc["t"][a] - loc["t"][b], state.config.q)
     d = loc["x"][a] - xb
     s = loc["P"][a] + pb

@@ -345,10 +345,12 @@ def _track_distance(
     y: FloatArray,
     solution: FloatArray,
 ) -> float:  # pragma: no cover - compiled
-    """The distance of ``track_distances`` for local rows i and j; xb, s, d, y, solution:
-    working arrays. The constant-velocity prediction F x_j, F P_j F^T is summed term by
-    term as ``propagate`` sums it with F's zero terms left out: the same bits for finite
-    states at a fifth of the multiplications."""
+    """``associate.track_distance`` of local rows i and j from the local table's fields
+    in place: j predicted to i's time at constant velocity (process noise q), both
+    radars' residual biases (``extra``) in the covariance, the 4-dof chi-square
+    distance; xb, s, d, y, solution: working arrays. The constant-velocity prediction
+    F x_j, F P_j F^T is summed term by term as ``propagate`` sums it with F's zero terms
+    left out: the same bits for finite states at a fifth of the multiplications."""
     step = t[i] - t[j]
     for a in range(2):
         xb[a] = x[j, a] + step * x[j, a + 2]
@@ -373,30 +375,6 @@ def _track_distance(
 
 
 @numba.njit(cache=True)
-def track_distances(
-    t: FloatArray,
-    x: FloatArray,
-    P: FloatArray,
-    extra: FloatArray,
-    a: IntArray,
-    b: IntArray,
-    q: float,
-) -> FloatArray:  # pragma: no cover - compiled
-    """``associate.track_distance`` from the local table's fields in place: local track
-    b[r] predicted to a[r]'s time at constant velocity (process noise q), both radars'
-    residual biases (``extra``) in the covariance, the 4-dof chi-square distance."""
-    out = np.empty(a.size)
-    xb = np.empty(4)
-    s = np.empty((4, 4))
-    d = np.empty(4)
-    y = np.empty(4)
-    solution = np.empty(4)
-    for r in range(a.size):
-        out[r] = _track_distance(t, x, P, extra, a[r], b[r], q, xb, s, d, y, solution)
-    return out
-
-
-@numba.njit(cache=True)
 def exchange_votes(
     t: FloatArray,
     x: FloatArray,
@@ -409,7 +387,7 @@ def exchange_votes(
     q: float,
 ) -> tuple[FloatArray, npt.NDArray[np.bool_]]:  # pragma: no cover - compiled
     """``associate._exchange``'s votes in one pass: each witness's distance to the track
-    it should be closer to less its distance to the other (``track_distances``), then
+    it should be closer to less its distance to the other (``_track_distance``), then
     each pair's sum of its votes (``segment_sums``: numpy's bits) and whether every one
     of them favours the exchange (the pairs' vote segments are not empty)."""
     votes = np.empty(witness.size)
