@@ -1,6 +1,7 @@
 """The fuser's exchange test (fusion/associate.py ``_exchange``): a radar's two local
 tracks of two close aircraft joined crosswise to two system tracks go back to the right
-ones; and a local track the review gave back does not rejoin the system track it left."""
+ones; and a local track the review gave back does not rejoin the system track it left;
+the test's evidence store (fusion/state.py ``PairEvidence``) against a plain dictionary."""
 
 from __future__ import annotations
 
@@ -8,9 +9,13 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tests.fuser_inputs import east_batch, system_of
 from tracker_service.fusion import FusionConfig, SystemTracker
+from tracker_service.fusion.state import NO_EVIDENCE, PairEvidence
 
 T0 = 1.7e9
 SIGMA = 150.0
@@ -93,3 +98,72 @@ def test_two_tracks_that_never_swapped_are_not_exchanged() -> None:
     assert fuser.state.stats.exchanges == 0
     assert system_of(fuser, 0, 10) == system_of(fuser, 1, 11) == system_of(fuser, 2, 12)
     assert system_of(fuser, 0, 10) != system_of(fuser, 0, 20)
+
+
+class PlainEvidence:
+    """``PairEvidence``'s reference: a dictionary of pairs, every pair of a dropped key
+    deleted at once."""
+
+    def __init__(self) -> None:
+        self.of_pair: dict[tuple[int, int], tuple[float, ...]] = {}
+
+    def table(self, pairs: list[tuple[int, int]]) -> npt.NDArray[np.float64]:
+        rows = [self.of_pair.get(pair, NO_EVIDENCE) for pair in pairs]
+        return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+    def renew(
+        self, tested: list[int], pairs: list[tuple[int, int]], evidence: npt.NDArray[np.float64]
+    ) -> None:
+        self.drop(tested)
+        self.of_pair.update(zip(pairs, map(tuple, evidence.tolist()), strict=True))
+
+    def drop(self, keys: list[int]) -> None:
+        gone = set(keys)
+        self.of_pair = {p: e for p, e in self.of_pair.items() if not gone & set(p)}
+
+
+def _columns(pairs: list[tuple[int, int]]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """The pairs' low and high keys."""
+    both = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    return both[:, 0].copy(), both[:, 1].copy()
+
+
+OPERATIONS = st.lists(
+    st.tuples(
+        st.booleans(),  # a drop (else a renewal)
+        st.lists(st.tuples(st.integers(0, 30), st.integers(0, 30)), max_size=12),
+        st.lists(st.integers(0, 30), max_size=6),  # a renewal's tested keys
+    ),
+    max_size=200,
+)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+@settings(max_examples=40, deadline=None)
+@given(operations=OPERATIONS, sweep_min=st.integers(1, 40))
+def test_pair_evidence_forgets_as_the_plain_reference(
+    compiled: bool,
+    operations: list[tuple[bool, list[tuple[int, int]], list[int]]],
+    sweep_min: int,
+) -> None:
+    """Drops and renewals in any order, keys dropped before and after their pairs'
+    writes, pairs written again after a drop, a renewal's tested keys among its pairs'
+    and not, sweeps at every size, in Python's
+    dictionaries and in the kernels' typed ones: each lookup finds what the plain
+    dictionary holds (the evidence of a written pair, ``NO_EVIDENCE`` of one forgotten
+    or never written)."""
+    evidence, plain = PairEvidence(compiled), PlainEvidence()
+    evidence._sweep_at = sweep_min
+    every = [(a, b) for a in range(31) for b in range(a, 31) if (a * b) % 7 == 0]
+    for step, (is_drop, drawn, tested) in enumerate(operations):
+        pairs = sorted({(min(a, b), max(a, b)) for a, b in drawn})
+        if is_drop:
+            keys = [a for a, _ in drawn]
+            evidence.drop(np.array(keys, dtype=np.int64))
+            plain.drop(keys)
+        else:
+            k = np.arange(len(pairs))
+            values = np.column_stack([np.full(k.size, step), 0.5 * step + k, 1.0 / (k + 1)])
+            evidence.renew(np.array(tested, dtype=np.int64), *_columns(pairs), values)
+            plain.renew(tested, pairs, values)
+        np.testing.assert_array_equal(evidence.table(*_columns(every)), plain.table(every))

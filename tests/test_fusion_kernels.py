@@ -20,6 +20,7 @@ from tests.test_tracking_kernels import TOLERANCE, close
 from tracker_service.fusion import (
     FusionConfig,
     SystemTracker,
+    arrays,
     associate,
     consider,
     estimator_plots,
@@ -446,12 +447,36 @@ def test_segment_sums_are_numpy_sums_to_the_bit(seed: int, sizes: list[int]) -> 
 
 
 @settings(max_examples=25, deadline=None)
-@given(seed=SEEDS, k=SIZES)
-def test_track_distances_are_the_reference(seed: int, k: int) -> None:
-    """The exchange test's distances between local tracks (``kernels.track_distances``)
-    against ``associate.track_distance``'s numpy path, steps both ways."""
+@given(seed=SEEDS, k=SIZES, pairs=st.integers(0, 12))
+def test_exchange_votes_are_the_reference(seed: int, k: int, pairs: int) -> None:
+    """The exchange test's deltas and agreements in one pass (``kernels.exchange_votes``)
+    against ``associate._votes``'s numpy path: deltas to 1e-9, agreements equal; a pair
+    of 1 to 8 votes, witnesses repeating, some votes unanimous."""
     compiled, reference, rng = _states(seed, 2, k)
-    a, b = rng.integers(0, k, 3 * k), rng.integers(0, k, 3 * k)
-    got = associate.track_distance(compiled, a, b)
-    want = associate.track_distance(reference, a, b)
-    np.testing.assert_allclose(got, want, rtol=TOLERANCE, atol=0.0)
+    ends = np.concatenate([[0], np.cumsum(rng.integers(1, 9, pairs))]).astype(np.int64)
+    n = int(ends[-1])
+    closer, farther, witness = rng.integers(0, k, n), rng.integers(0, k, n), rng.integers(0, k, n)
+    # A witness that is the track it should be farther from favours the exchange.
+    same = rng.random(n) < 0.5
+    witness[same] = farther[same]
+    got = associate._votes(compiled, closer, farther, witness, ends)
+    want = associate._votes(reference, closer, farther, witness, ends)
+    np.testing.assert_allclose(got[0], want[0], rtol=TOLERANCE, atol=0.0)
+    np.testing.assert_array_equal(got[1], want[1])
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    values=st.lists(st.integers(-1, 40), max_size=30),
+    members=st.lists(st.integers(-1, 40), max_size=80),
+)
+def test_membership_helpers_are_isin(values: list[int], members: list[int]) -> None:
+    """``arrays.among`` (few values, many members) and the table of ``marked_numbers``
+    against ``np.isin``: repeated and unknown (-1) values, no member, no value."""
+    v, m = np.array(values, dtype=np.int64), np.array(members, dtype=np.int64)
+    want = np.isin(v, m)
+    np.testing.assert_array_equal(arrays.among(v, m), want)
+    numbers = v[v >= 0]
+    np.testing.assert_array_equal(
+        arrays.marked_numbers(m[m >= 0])[numbers], np.isin(numbers, m[m >= 0])
+    )

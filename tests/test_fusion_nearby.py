@@ -54,10 +54,7 @@ def test_preselection_keeps_every_gated_pair(method: str, monkeypatch: pytest.Mo
         )
         assert wanted <= near
         checked_local += len(wanted)
-        radars_of = np.zeros((state.sys.shape[0], state.n_radars), dtype=bool)
-        fed = loc["alive"] & (loc["system"] > 0)
-        radars_of[loc["system"][fed], loc["radar"][fed]] = True
-        a, b, d2 = lifecycle._merge_tests(state, systems, systems, radars_of)
+        a, b, d2 = lifecycle._merge_tests(state, systems, systems)
         kept = set(
             zip(
                 a[d2 <= state.config.gate].tolist(),
@@ -67,7 +64,7 @@ def test_preselection_keeps_every_gated_pair(method: str, monkeypatch: pytest.Mo
         )
         with monkeypatch.context() as patch:
             patch.setattr(nearby, "near_pairs", _all_pairs)
-            a, b, d2 = lifecycle._merge_tests(state, systems, systems, radars_of)
+            a, b, d2 = lifecycle._merge_tests(state, systems, systems)
         exhaustive = set(
             zip(
                 a[d2 <= state.config.gate].tolist(),

@@ -49,13 +49,33 @@ def is_member(values: IntArray, members: IntArray) -> BoolArray:
     return np.asarray(ordered[at] == values, dtype=bool)
 
 
+def among(values: IntArray, members: IntArray) -> BoolArray:
+    """``is_member(values, members)`` for a few values against many members (a batch's
+    identities against every live system track's): the members looked up among the
+    sorted distinct values, where ``is_member`` sorts the members."""
+    distinct, inverse = np.unique(values, return_inverse=True)
+    if distinct.size == 0 or members.size == 0:
+        return np.zeros(values.shape, dtype=bool)
+    at = np.minimum(np.searchsorted(distinct, members), distinct.size - 1)
+    found = np.zeros(distinct.size, dtype=bool)
+    found[at[distinct[at] == members]] = True
+    return np.asarray(found[inverse.reshape(values.shape)], dtype=bool)
+
+
+def marked_numbers(numbers: IntArray) -> BoolArray:
+    """A table of every system-track number (0..MAX_SYSTEM_NUMBER), true at ``numbers``:
+    indexed by a column of numbers, ``is_member(column, numbers)`` in one gather (a
+    search per row of the local-track table cost more)."""
+    marked = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
+    marked[numbers] = True
+    return marked
+
+
 def numbers_in(numbers: IntArray) -> IntArray:
     """The distinct values of ``numbers`` (system-track numbers, 0..MAX_SYSTEM_NUMBER)
     in ascending order, as ``np.unique`` gives them, by marking a table of every number
     rather than sorting (a batch's exchange test takes those of every fed local track)."""
-    marked = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
-    marked[numbers] = True
-    return np.flatnonzero(marked)
+    return np.flatnonzero(marked_numbers(numbers))
 
 
 def first_where(mask: BoolArray) -> IntArray:

@@ -30,9 +30,7 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     cfg = state.config
     loc = state.local.rows
     live: IntArray = touched[loc["status"][touched] != LOCAL_DELETED]
-    state.exchange_evidence.drop(
-        loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]].tolist()
-    )
+    state.exchange_evidence.drop(loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]])
     # Only confirmed local tracks feed system tracks: one that its tracker took back
     # to tentative (a slow primary-only track: clutter) leaves its system track.
     demoted = live[(loc["system"][live] > 0) & (loc["status"][live] == LOCAL_TENTATIVE)]
@@ -93,7 +91,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         return
     used = state.local.used
     confirmed = held[loc["status"][held] == LOCAL_CONFIRMED]
-    tested = set(loc["key"][confirmed].tolist())
+    tested = loc["key"][confirmed]
     # Only a system track that a track of the batch's radar feeds can hold the l' of a
     # pair (``_exchange_witnesses``): the pre-selection reaches those alone (a fifth of
     # the fed ones on ``scale``), with the bias bound of every fed one as before, so
@@ -118,34 +116,31 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     # pairs built in Python a third of the fuser).
     pair_a, pair_b, closer, farther, witness, ends = _exchange_witnesses(state, li, sj, involved)
     ka, kb = loc["key"][pair_a], loc["key"][pair_b]
-    pairs = list(zip(np.minimum(ka, kb).tolist(), np.maximum(ka, kb).tolist(), strict=True))
-    if pairs:
-        all_votes = track_distance(state, closer, witness)
-        all_votes -= track_distance(state, farther, witness)
-        deltas = _segment_sums(state, all_votes, ends)
-        favoured = np.logical_and.reduceat(all_votes > 0, ends[:-1])
+    low, high = np.minimum(ka, kb), np.maximum(ka, kb)
+    evidence_now = np.zeros((low.size, 3))
+    if low.size:
+        deltas, favoured = _votes(state, closer, farther, witness, ends)
         # Each pair's running means, over the batch's pairs at once (the arithmetic of
         # one pair at a time: the same bits).
-        before = evidence.table(pairs)
-        n = before[:, 0].astype(np.int64) + 1
+        before = evidence.table(low, high)
+        n = before[:, 0] + 1.0
         weight = 1.0 / np.minimum(n, cfg.reassociate_window)
-        mean = before[:, 1] + (deltas - before[:, 1]) * weight
+        evidence_now[:, 0] = n
+        evidence_now[:, 1] = before[:, 1] + (deltas - before[:, 1]) * weight
         # Every other radar's track must favour it (in EXCHANGE_AGREEMENT of the
         # updates): where the system tracks are mixtures (each radar's first joins made
         # at one moment), an exchange that one of them opposes moves the mixture around
         # instead of undoing it (PAR10 with a shared code).
-        agree = before[:, 2] + (favoured.astype(np.float64) - before[:, 2]) * weight
-    else:
-        n, mean, agree = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
+        evidence_now[:, 2] = before[:, 2] + (favoured.astype(np.float64) - before[:, 2]) * weight
     # A pair's evidence lives while it is tested in a row: a pair of a tested track not
     # tested now is out of reach (a coasting update, no plot, tests nothing).
-    evidence.drop(tested)
-    evidence.set_many(pairs, zip(n.tolist(), mean.tolist(), agree.tolist(), strict=True))
+    evidence.renew(tested, low, high, evidence_now)
+    n, mean, agree = evidence_now.T
     weak = (mean <= cfg.exchange_margin) | (agree < EXCHANGE_AGREEMENT)
     ready = (n >= cfg.reassociate_window) & ~weak
     done: set[int] = set()
     for k in np.flatnonzero(ready).tolist():
-        pair = pairs[k]
+        pair = (int(low[k]), int(high[k]))
         if pair[0] in done or pair[1] in done:
             continue
         a, b = int(pair_a[k]), int(pair_b[k])
@@ -153,7 +148,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         _restart_tests(state, np.array([a, b]))
         done.update(pair)
         state.stats.exchanges += 1
-    evidence.drop(done)
+    evidence.drop(np.array(sorted(done), dtype=np.int64))
 
 
 def _feeding(state: FusionState, radar: int) -> tuple[IntArray, bool, IntArray, IntArray]:
@@ -260,33 +255,44 @@ def _exchange_witnesses(
     return a, b, closer, farther, witness, ends
 
 
-def _segment_sums(state: FusionState, values: FloatArray, ends: IntArray) -> FloatArray:
-    """Each segment's ``values[ends[k]:ends[k + 1]].sum()``, to the bit (numpy's pairwise
-    summation: compiled, ``kernels.segment_sums``)."""
+def _votes(
+    state: FusionState,
+    closer: IntArray,
+    farther: IntArray,
+    witness: IntArray,
+    ends: IntArray,
+) -> tuple[FloatArray, BoolArray]:
+    """The exchange test's pairs' deltas (each the sum of its votes: a witness's distance
+    to the track it should be closer to less that to the other) and whether all of a
+    pair's votes favour the exchange; compiled: in one pass (``kernels.exchange_votes``),
+    the same bits."""
     if state.compiled:
-        from tracker_service.fusion.kernels import segment_sums  # numba only when compiled
+        from tracker_service.fusion.kernels import exchange_votes  # numba only when compiled
 
-        return segment_sums(values, ends)
-    return np.array([values[lo:hi].sum() for lo, hi in itertools.pairwise(ends.tolist())])
+        loc = state.local.rows
+        return exchange_votes(
+            loc["t"],
+            loc["x"],
+            loc["P"],
+            loc["extra"],
+            kernel_indices(closer),
+            kernel_indices(farther),
+            kernel_indices(witness),
+            ends,
+            state.config.q,
+        )
+    votes = track_distance(state, closer, witness)
+    votes -= track_distance(state, farther, witness)
+    deltas = np.array([votes[lo:hi].sum() for lo, hi in itertools.pairwise(ends.tolist())])
+    return deltas, np.logical_and.reduceat(votes > 0, ends[:-1])
 
 
 def track_distance(state: FusionState, a: IntArray, b: IntArray) -> FloatArray:
     """Chi-square distance (4 dof) of local tracks a and b (of other radars) at a's
     times, b predicted there (constant velocity), both radars' residual biases in the
-    covariance."""
+    covariance: the exchange test's votes by the numpy path (compiled, each pair's in
+    ``kernels.exchange_votes``)."""
     loc = state.local.rows
-    if state.compiled:
-        from tracker_service.fusion.kernels import track_distances  # numba only when compiled
-
-        return track_distances(
-            loc["t"],
-            loc["x"],
-            loc["P"],
-            loc["extra"],
-            kernel_indices(a),
-            kernel_indices(b),
-            state.config.q,
-        )
     xb, pb = predict_cv(loc["x"][b], loc["P"][b], loc["t"][a] - loc["t"][b], state.config.q)
     d = loc["x"][a] - xb
     s = loc["P"][a] + pb

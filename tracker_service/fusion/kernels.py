@@ -93,7 +93,9 @@ def _predict_track(
                 acc += w[i, j] * mx[n, i, a]
             x0[a] = acc
         p0[:, :] = 0.0
-        m0[:, :, :] = 0.0
+        for sensor in range(n_radars):
+            if active[sensor]:  # the others are neither summed nor read
+                m0[sensor] = 0.0
         for i in range(m):
             wij = w[i, j]
             for a in range(4):
@@ -328,43 +330,83 @@ def gate_distances(
     return out
 
 
-@numba.njit(cache=True)
-def track_distances(
+@numba.njit(cache=True, inline="always")
+def _track_distance(
     t: FloatArray,
     x: FloatArray,
     P: FloatArray,
     extra: FloatArray,
-    a: IntArray,
-    b: IntArray,
+    i: int,
+    j: int,
     q: float,
-) -> FloatArray:  # pragma: no cover - compiled
-    """``associate.track_distance`` from the local table's fields in place: local track
-    b[r] predicted to a[r]'s time at constant velocity (process noise q), both radars'
-    residual biases (``extra``) in the covariance, the 4-dof chi-square distance."""
-    out = np.empty(a.size)
-    f = np.eye(4)
-    fp = np.empty((4, 4))
+    xb: FloatArray,
+    s: FloatArray,
+    d: FloatArray,
+    y: FloatArray,
+    solution: FloatArray,
+) -> float:  # pragma: no cover - compiled
+    """``associate.track_distance`` of local rows i and j from the local table's fields
+    in place: j predicted to i's time at constant velocity (process noise q), both
+    radars' residual biases (``extra``) in the covariance, the 4-dof chi-square
+    distance; xb, s, d, y, solution: working arrays. The constant-velocity prediction
+    F x_j, F P_j F^T is summed term by term as ``propagate`` sums it with F's zero terms
+    left out: the same bits for finite states at a fifth of the multiplications."""
+    step = t[i] - t[j]
+    for a in range(2):
+        xb[a] = x[j, a] + step * x[j, a + 2]
+        xb[a + 2] = x[j, a + 2]
+    # s = F P_j F^T: rows of F P_j (position rows take the velocity rows times step),
+    # then its columns likewise.
+    for a in range(4):
+        for b in range(4):
+            s[a, b] = P[j, a, b] + step * P[j, a + 2, b] if a < 2 else P[j, a, b]
+    for a in range(4):
+        for b in range(2):
+            s[a, b] = s[a, b] + s[a, b + 2] * step
+    add_white_acceleration_q(s, step, q)
+    for e in range(4):
+        d[e] = x[i, e] - xb[e]
+        for c in range(4):
+            s[e, c] += P[i, e, c]
+    for e in range(2):
+        for c in range(2):
+            s[e, c] += extra[i, e, c] + extra[j, e, c]
+    return _quadratic_form_lu(s, d, y, solution)
+
+
+@numba.njit(cache=True)
+def exchange_votes(
+    t: FloatArray,
+    x: FloatArray,
+    P: FloatArray,
+    extra: FloatArray,
+    closer: IntArray,
+    farther: IntArray,
+    witness: IntArray,
+    ends: IntArray,
+    q: float,
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:  # pragma: no cover - compiled
+    """``associate._exchange``'s votes in one pass: each witness's distance to the track
+    it should be closer to less its distance to the other (``_track_distance``), then
+    each pair's sum of its votes (``segment_sums``: numpy's bits) and whether every one
+    of them favours the exchange (the pairs' vote segments are not empty)."""
+    votes = np.empty(witness.size)
     xb = np.empty(4)
     s = np.empty((4, 4))
     d = np.empty(4)
     y = np.empty(4)
     solution = np.empty(4)
-    for r in range(a.size):
-        i, j = a[r], b[r]
-        step = t[i] - t[j]
-        f[0, 2] = step
-        f[1, 3] = step
-        propagate(f, x[j], P[j], fp, xb, s)
-        add_white_acceleration_q(s, step, q)
-        for e in range(4):
-            d[e] = x[i, e] - xb[e]
-            for c in range(4):
-                s[e, c] += P[i, e, c]
-        for e in range(2):
-            for c in range(2):
-                s[e, c] += extra[i, e, c] + extra[j, e, c]
-        out[r] = _quadratic_form_lu(s, d, y, solution)
-    return out
+    for r in range(witness.size):
+        w = witness[r]
+        near = _track_distance(t, x, P, extra, closer[r], w, q, xb, s, d, y, solution)
+        votes[r] = near - _track_distance(t, x, P, extra, farther[r], w, q, xb, s, d, y, solution)
+    favoured = np.empty(ends.size - 1, dtype=np.bool_)
+    for k in range(ends.size - 1):
+        agree = True
+        for r in range(ends[k], ends[k + 1]):
+            agree = agree and votes[r] > 0.0
+        favoured[k] = agree
+    return segment_sums(votes, ends), favoured
 
 
 @numba.njit(cache=True)
@@ -1258,30 +1300,46 @@ def exchange_witnesses(
     return pair_a[:n_pairs].copy(), pair_b[:n_pairs].copy(), closer, farther, witness, ends
 
 
+IDENTITY_HASH = 4096
+"""``identity_candidates``' tables of low bits (a power of two)."""
+
+
+@numba.njit(cache=True, inline="always")
+def _in_sorted(values: IntArray, value: int) -> bool:  # pragma: no cover - compiled
+    """Whether ``value`` is among the sorted ``values``."""
+    at = np.searchsorted(values, value)
+    return bool(at < values.size and values[at] == value)
+
+
 @numba.njit(cache=True)
 def identity_candidates(
     address: IntArray, mode3a: IntArray, touched: IntArray, alive: IntArray
 ) -> IntArray:  # pragma: no cover - compiled
     """``lifecycle._identity_candidates`` from the system table's fields: the live tracks
     ``alive`` whose address is unknown or some touched track's (any, when a touched
-    track's is unknown), and likewise their Mode 3/A code."""
+    track's is unknown), and likewise their Mode 3/A code. A table of the touched
+    tracks' values' low bits rules most live tracks out before a search."""
     addresses = np.sort(address[touched])
     codes = np.sort(mode3a[touched])
     any_address = addresses.size > 0 and addresses[0] < 0
     any_code = codes.size > 0 and codes[0] < 0
+    address_bits = np.zeros(IDENTITY_HASH, dtype=np.bool_)
+    code_bits = np.zeros(IDENTITY_HASH, dtype=np.bool_)
+    for a in addresses:
+        address_bits[a & (IDENTITY_HASH - 1)] = True
+    for c in codes:
+        code_bits[c & (IDENTITY_HASH - 1)] = True
     keep = np.empty(alive.size, dtype=np.int64)
     n = 0
     for i in range(alive.size):
         a, c = address[alive[i]], mode3a[alive[i]]
-        address_ok = any_address or a < 0
-        if not address_ok and addresses.size:
-            at = np.searchsorted(addresses, a)
-            address_ok = at < addresses.size and addresses[at] == a
-        code_ok = any_code or c < 0
-        if not code_ok and codes.size:
-            at = np.searchsorted(codes, c)
-            code_ok = at < codes.size and codes[at] == c
-        if address_ok and code_ok:
+        if not (
+            any_address
+            or a < 0
+            or (address_bits[a & (IDENTITY_HASH - 1)] and _in_sorted(addresses, a))
+        ):
+            continue
+        if any_code or c < 0 or (code_bits[c & (IDENTITY_HASH - 1)] and _in_sorted(codes, c)):
             keep[n] = alive[i]
             n += 1
     return keep[:n].copy()
@@ -1298,31 +1356,37 @@ def slots_of(
 ) -> IntArray:  # pragma: no cover - compiled
     """``table.LocalTrackTable.slots``: the alive local rows feeding each system track of
     ``numbers`` (which may repeat), most recent plot first (ties in row order), at most
-    ``max_sources``, -1 padding to ``width``; one pass over the table."""
+    ``max_sources``, -1 padding to ``width``; one pass over the table, then over the
+    few rows it found."""
     size = 1
     for n in numbers:
         size = max(size, n + 1)
     wanted = np.zeros(size, dtype=np.bool_)
     for n in numbers:
         wanted[n] = True
-    count = np.zeros(size + 1, dtype=np.int64)
+    found = np.empty(system.size, dtype=np.int64)
+    n_found = 0
     for r in range(system.size):
         g = system[r]
-        if alive[r] and 0 <= g < size and wanted[g]:
-            count[g + 1] += 1
+        if 0 <= g < size and wanted[g] and alive[r]:
+            found[n_found] = r
+            n_found += 1
+    count = np.zeros(size + 1, dtype=np.int64)
+    for q in range(n_found):
+        count[system[found[q]] + 1] += 1
     start = np.cumsum(count)
     fill = start[:-1].copy()
-    rows = np.empty(start[-1], dtype=np.int64)
-    for r in range(system.size):
+    rows = np.empty(n_found, dtype=np.int64)
+    for q in range(n_found):
+        r = found[q]
         g = system[r]
-        if alive[r] and 0 <= g < size and wanted[g]:
-            # Insertion by descending t_plot, after the equal ones: a stable sort.
-            at = fill[g]
-            while at > start[g] and t_plot[rows[at - 1]] < t_plot[r]:
-                rows[at] = rows[at - 1]
-                at -= 1
-            rows[at] = r
-            fill[g] += 1
+        # Insertion by descending t_plot, after the equal ones: a stable sort.
+        at = fill[g]
+        while at > start[g] and t_plot[rows[at - 1]] < t_plot[r]:
+            rows[at] = rows[at - 1]
+            at -= 1
+        rows[at] = r
+        fill[g] += 1
     out = np.full((numbers.size, width), -1, dtype=np.int64)
     for i in range(numbers.size):
         g = numbers[i]
@@ -1531,3 +1595,74 @@ def segment_sums(values: FloatArray, ends: IntArray) -> FloatArray:  # pragma: n
     for k in range(ends.size - 1):
         out[k] = _pairwise_sum(values, ends[k], ends[k + 1] - ends[k])
     return out
+
+
+EVIDENCE_PAIR = numba.types.UniTuple(numba.types.int64, 2)  # type: ignore[no-untyped-call]
+EVIDENCE_ENTRY = numba.types.UniTuple(numba.types.float64, 4)  # type: ignore[no-untyped-call]
+"""``state.PairEvidence``'s entries: (low key, high key) -> (updates, mean, agreement,
+stamp of the write)."""
+
+
+@numba.njit(cache=True)
+def new_pair_evidence() -> tuple[Any, Any]:  # pragma: no cover - compiled
+    """The compiled ``state.PairEvidence``'s dictionaries: its entries, and each dropped
+    key's stamp of its latest drop (made in a cached kernel: from Python, each process
+    compiled the typed dictionaries' constructor, 0.4 s)."""
+    return (
+        numba.typed.Dict.empty(EVIDENCE_PAIR, EVIDENCE_ENTRY),
+        numba.typed.Dict.empty(numba.types.int64, numba.types.int64),
+    )
+
+
+@numba.njit(cache=True)
+def evidence_table(
+    of_pair: Any, dropped: Any, low: IntArray, high: IntArray
+) -> FloatArray:  # pragma: no cover - compiled
+    """``state.PairEvidence.table``: each pair's entry written after both its keys'
+    latest drops, else zeros."""
+    out = np.zeros((low.size, 3))
+    for i in range(low.size):
+        pair = (low[i], high[i])
+        if pair in of_pair:
+            entry = of_pair[pair]
+            if entry[3] > dropped.get(low[i], -1) and entry[3] > dropped.get(high[i], -1):
+                out[i, 0], out[i, 1], out[i, 2] = entry[0], entry[1], entry[2]
+    return out
+
+
+@numba.njit(cache=True)
+def evidence_renew(
+    of_pair: Any,
+    dropped: Any,
+    stamp: int,
+    tested: IntArray,
+    low: IntArray,
+    high: IntArray,
+    evidence: FloatArray,
+) -> int:  # pragma: no cover - compiled
+    """``state.PairEvidence.renew``: the tested keys dropped at ``stamp`` - 1, then each
+    pair's entry stamped ``stamp``; returns the number of entries."""
+    evidence_drop(dropped, stamp - 1, tested)
+    for i in range(low.size):
+        of_pair[(low[i], high[i])] = (evidence[i, 0], evidence[i, 1], evidence[i, 2], float(stamp))
+    return len(of_pair)
+
+
+@numba.njit(cache=True)
+def evidence_drop(dropped: Any, stamp: int, keys: IntArray) -> None:  # pragma: no cover
+    """``state.PairEvidence.drop``: each key's stamp of its latest drop."""
+    for key in keys:
+        dropped[key] = stamp
+
+
+@numba.njit(cache=True)
+def evidence_sweep(of_pair: Any, dropped: Any) -> None:  # pragma: no cover - compiled
+    """``state.PairEvidence``'s sweep: the entries written before a drop of one of their
+    keys go, and the drops with them."""
+    gone = []
+    for pair, entry in of_pair.items():
+        if entry[3] <= dropped.get(pair[0], -1) or entry[3] <= dropped.get(pair[1], -1):
+            gone.append(pair)
+    for pair in gone:
+        del of_pair[pair]
+    dropped.clear()

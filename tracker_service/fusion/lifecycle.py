@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion import consider, nearby
-from tracker_service.fusion.arrays import is_member, kernel_indices
+from tracker_service.fusion.arrays import among, is_member, kernel_indices, marked_numbers
 from tracker_service.fusion.associate import compatible_pairs
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import cv_prediction
@@ -41,8 +41,8 @@ def may_found(state: FusionState, candidates: IntArray) -> BoolArray:
     address, code = loc["address"][candidates], loc["mode3a"][candidates]
     live = sys["alive"].copy()
     live[0] = False
-    known = (is_member(address, sys["address"][live]) & (address >= 0)) | (
-        is_member(code, sys["mode3a"][live]) & (code >= 0) & ~is_shared_code(code)
+    known = (among(address, sys["address"][live]) & (address >= 0)) | (
+        among(code, sys["mode3a"][live]) & (code >= 0) & ~is_shared_code(code)
     )
     waited = state.now - loc["t_founder"][candidates]
     return np.asarray(~known | (waited >= state.config.found_delay), dtype=bool)
@@ -109,7 +109,7 @@ def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> 
     if joined.size == 0:
         return
     same = np.flatnonzero(
-        loc["alive"][:n] & (loc["radar"][:n] == radar) & is_member(loc["system"][:n], target)
+        loc["alive"][:n] & (loc["radar"][:n] == radar) & marked_numbers(target)[loc["system"][:n]]
     )
     loc["system"][same] = 0
     loc["system"][joined] = target
@@ -125,18 +125,8 @@ def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> 
 def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]:
     """Merge each touched system track with a live one it duplicates (see
     ``FusionConfig.merge_after``); returns the ended rows of the merged-away ones."""
-    sys, loc = state.sys, state.local.used
+    sys = state.sys
     touched = touched[(touched > 0) & sys["alive"][touched]]
-    if state.compiled:
-        from tracker_service.fusion.kernels import radars_feeding  # numba only when compiled
-
-        radars_of = radars_feeding(
-            loc["alive"], loc["system"], loc["radar"], MAX_SYSTEM_NUMBER + 1, state.n_radars
-        )
-    else:
-        fed = loc["alive"] & (loc["system"] > 0)
-        radars_of = np.zeros((MAX_SYSTEM_NUMBER + 1, state.n_radars), dtype=bool)
-        radars_of[loc["system"][fed], loc["radar"][fed]] = True
     # An orphan is taken up through the gate only (``associate.assign``), where its
     # identity must agree: merged, its number would pass to a track it never gated.
     alive = np.flatnonzero(sys["alive"] & np.isnan(sys["orphaned"]))
@@ -149,14 +139,16 @@ def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]
         for p, c in state.merge_counts.items()
         if p[0] not in touched_set and p[1] not in touched_set
     }
+    pair_a, pair_b, d2 = _merge_tests(state, touched, alive)
+    passing = d2 <= state.config.gate
+    if not passing.any():
+        # Mostly (artas: in each of 7,000 batches): no pass over the local tracks follows.
+        state.merge_counts = counts
+        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
+    radars_of = _radars_feeding(state)
     young: list[int] = []
     old: list[int] = []
-    pair_a, pair_b, d2 = _merge_tests(state, touched, alive, radars_of)
-    for a, b in zip(
-        pair_a[d2 <= state.config.gate].tolist(),
-        pair_b[d2 <= state.config.gate].tolist(),
-        strict=True,
-    ):
+    for a, b in zip(pair_a[passing].tolist(), pair_b[passing].tolist(), strict=True):
         pair = (min(a, b), max(a, b))
         count = counts[pair] = state.merge_counts.get(pair, 0) + 1
         # A track that took another in this batch now holds that one's radars too: two
@@ -179,8 +171,24 @@ def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]
     return ended
 
 
+def _radars_feeding(state: FusionState) -> npt.NDArray[np.bool_]:
+    """Whether each radar feeds each system track (MAX_SYSTEM_NUMBER + 1, radars): by one
+    of its live local tracks."""
+    loc = state.local.used
+    if state.compiled:
+        from tracker_service.fusion.kernels import radars_feeding  # numba only when compiled
+
+        return radars_feeding(
+            loc["alive"], loc["system"], loc["radar"], MAX_SYSTEM_NUMBER + 1, state.n_radars
+        )
+    fed = loc["alive"] & (loc["system"] > 0)
+    radars_of = np.zeros((MAX_SYSTEM_NUMBER + 1, state.n_radars), dtype=bool)
+    radars_of[loc["system"][fed], loc["radar"][fed]] = True
+    return radars_of
+
+
 def _merge_tests(
-    state: FusionState, touched: IntArray, alive: IntArray, radars_of: npt.NDArray[np.bool_]
+    state: FusionState, touched: IntArray, alive: IntArray
 ) -> tuple[IntArray, IntArray, FloatArray]:
     """Each touched system track a against the live ones b that no radar feeds both and
     whose identities do not tell apart, near enough to pass (``nearby.py``): the 4-dof
@@ -206,10 +214,14 @@ def _merge_tests(
 
     i, j = nearby.near_pairs(*reach(touched), *reach(alive), state.compiled)
     a, b = touched[i], alive[j]
-    apart = (a != b) & ~np.any(radars_of[a] & radars_of[b], axis=1)
-    a, b = a[apart], b[apart]
-    same = compatible_pairs(state, a, b)
+    same = (a != b) & compatible_pairs(state, a, b)
     a, b = a[same], b[same]
+    if a.size == 0:
+        return empty, empty, np.zeros(0)
+    # The radars' table (a pass over the local tracks) for the few pairs left, if any.
+    radars_of = _radars_feeding(state)
+    apart = ~np.any(radars_of[a] & radars_of[b], axis=1)
+    a, b = a[apart], b[apart]
     if a.size == 0:
         return empty, empty, np.zeros(0)
     dt = sys["t"][a] - sys["t"][b]
@@ -248,10 +260,9 @@ def orphan(state: FusionState, radar: int, numbers: IntArray) -> npt.NDArray[Any
     sys = state.sys
     numbers = numbers[numbers > 0]
     numbers = numbers[sys["alive"][numbers] & np.isnan(sys["orphaned"][numbers])]
-    loc = state.local.used
-    fed = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
-    fed[loc["system"][loc["alive"]]] = True
-    orphans = numbers[~fed[numbers]]
+    # Fed: a first slot (a live local track feeding it); compiled, one pass over the
+    # table for the few numbers.
+    orphans = numbers[state.local.slots(numbers, 1)[:, 0] < 0]
     if state.config.orphan_coast <= 0:
         return end(state, radar, orphans)
     sys["orphaned"][orphans] = state.now
@@ -394,7 +405,7 @@ def _release(state: FusionState, numbers: IntArray, moved_to: IntArray | None = 
     sys = state.sys
     loc = state.local.used
     if moved_to is None:
-        loc["system"][is_member(loc["system"], numbers)] = 0
+        loc["system"][marked_numbers(numbers)[loc["system"]]] = 0
     else:
         for number, target in zip(numbers.tolist(), moved_to.tolist(), strict=True):
             loc["system"][loc["system"] == number] = target

@@ -5,18 +5,17 @@ is a module of functions over a ``FusionState``."""
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import numpy.typing as npt
 
 from tracker_service.fusion.config import FusionConfig
 from tracker_service.fusion.table import Columns, LocalTrackTable, new_system_table
 from tracker_service.tracking.daps import DapUpdate
 from tracker_service.tracking.models import ModelSet
+from tracker_service.tracking.plots import FloatArray, IntArray
 
 if TYPE_CHECKING:
     from tracker_service.fusion.kernels import ModelConstants
@@ -47,54 +46,112 @@ class FusionStats:
     dap_velocity_gated_out: int = 0
 
 
-ExchangeEvidence = tuple[int, float, float]
-"""Updates in a row, the running means of the exchange test's delta and of its agreement."""
+NO_EVIDENCE = (0.0, 0.0, 0.0)
+"""A pair's evidence (updates in a row, the running means of the exchange test's delta
+and of its agreement) before its first test."""
 
 
-NO_EVIDENCE: ExchangeEvidence = (0, 0.0, 0.0)
-"""A pair's evidence before its first test."""
+FORGOTTEN = (*NO_EVIDENCE, -1.0)
+"""``PairEvidence``'s entry of a pair it holds none of: older than any drop."""
+
+
+SWEEP_MIN_PAIRS = 4096
+"""``PairEvidence`` sweeps out its forgotten pairs once they may be half its entries, and
+not below this many entries."""
 
 
 class PairEvidence:
-    """The exchange test's evidence per pair of local-track keys (``associate._exchange``),
-    indexed by key as well: a batch drops the pairs of its own tracks without a pass over
-    every pair (that pass was a tenth of the fuser on ``scale``)."""
+    """The exchange test's evidence per pair of local-track keys (low, high) of one radar
+    (``associate._exchange``); compiled: in numba's typed dictionaries, read and written
+    by kernels (``kernels.evidence_*``) a batch's pairs at a time.
 
-    def __init__(self) -> None:
-        self._of_pair: dict[tuple[int, int], ExchangeEvidence] = {}
-        self._pairs_of: dict[int, set[tuple[int, int]]] = {}
+    Forgetting is lazy: each dropped key holds the stamp of its latest drop, each entry
+    the stamp of its latest write, and an entry counts only while it was written after
+    both its keys' latest drops. A batch drops the pairs of its own tracks in one update
+    of their keys, where a pass over each key's pairs (kept in sets of pairs per key)
+    cost a tenth of the fuser on ``artas``, with some 80,000 pairs held. The entries
+    that no longer count are swept out when the entries have doubled since the last
+    sweep; after a sweep every entry counts, and no drop before it matters."""
 
-    def __len__(self) -> int:
-        return len(self._of_pair)
+    def __init__(self, compiled: bool = False) -> None:
+        self.compiled = compiled
+        self._of_pair: Any
+        self._dropped: Any
+        if compiled:
+            from tracker_service.fusion.kernels import new_pair_evidence  # numba on use
 
-    def table(self, pairs: list[tuple[int, int]]) -> npt.NDArray[np.float64]:
+            self._of_pair, self._dropped = new_pair_evidence()
+        else:
+            self._of_pair, self._dropped = {}, {}
+        self._stamp = 0
+        self._sweep_at = SWEEP_MIN_PAIRS
+
+    def table(self, low: IntArray, high: IntArray) -> FloatArray:
         """Each pair's evidence as a row (updates, mean, agreement), ``NO_EVIDENCE`` for
-        a pair not tested before."""
-        found = map(self._of_pair.get, pairs, itertools.repeat(NO_EVIDENCE))
-        flat = np.fromiter(itertools.chain.from_iterable(found), np.float64, 3 * len(pairs))
-        return flat.reshape(-1, 3)
+        a pair not tested before or forgotten since."""
+        if self.compiled:
+            from tracker_service.fusion.kernels import evidence_table
 
-    def set_many(self, pairs: list[tuple[int, int]], evidence: Iterable[ExchangeEvidence]) -> None:
-        """Each pair's evidence, in order."""
-        self._of_pair.update(zip(pairs, evidence, strict=True))
-        pairs_of = self._pairs_of
-        for pair in pairs:
-            for key in pair:
-                if (known := pairs_of.get(key)) is None:
-                    pairs_of[key] = {pair}
-                else:
-                    known.add(pair)
+            return evidence_table(self._of_pair, self._dropped, low, high)
+        pairs = list(zip(low.tolist(), high.tolist(), strict=True))
+        found = map(self._of_pair.get, pairs, itertools.repeat(FORGOTTEN))
+        flat = np.fromiter(itertools.chain.from_iterable(found), np.float64, 4 * len(pairs))
+        rows = flat.reshape(-1, 4)
+        dropped = [
+            np.fromiter(map(self._dropped.get, keys.tolist(), itertools.repeat(-1)), np.float64)
+            for keys in (low, high)
+        ]
+        rows[(rows[:, 3] <= dropped[0]) | (rows[:, 3] <= dropped[1]), :3] = NO_EVIDENCE
+        return rows[:, :3]
 
-    def drop(self, keys: Iterable[int]) -> None:
+    def renew(self, tested: IntArray, low: IntArray, high: IntArray, evidence: FloatArray) -> None:
+        """Forget every pair with one of the keys ``tested``, then hold each pair's
+        evidence (k, 3), in order (the pairs a batch's tested tracks found)."""
+        self._stamp += 2
+        if self.compiled:
+            from tracker_service.fusion.kernels import evidence_renew
+
+            held = evidence_renew(
+                self._of_pair, self._dropped, self._stamp, tested, low, high, evidence
+            )
+        else:
+            self._dropped.update(zip(tested.tolist(), itertools.repeat(self._stamp - 1)))
+            stamp = float(self._stamp)
+            self._of_pair.update(
+                zip(
+                    zip(low.tolist(), high.tolist(), strict=True),
+                    ((*e, stamp) for e in evidence.tolist()),
+                    strict=True,
+                )
+            )
+            held = len(self._of_pair)
+        if held >= self._sweep_at:
+            self._sweep()
+
+    def drop(self, keys: IntArray) -> None:
         """Forget every pair with one of ``keys``."""
-        for key in keys:
-            for pair in self._pairs_of.pop(key, ()):
-                del self._of_pair[pair]
-                other = pair[1] if pair[0] == key else pair[0]
-                if (left := self._pairs_of.get(other)) is not None:
-                    left.discard(pair)
-                    if not left:
-                        del self._pairs_of[other]
+        self._stamp += 1
+        if self.compiled:
+            from tracker_service.fusion.kernels import evidence_drop
+
+            evidence_drop(self._dropped, self._stamp, keys)
+        else:
+            self._dropped.update(zip(keys.tolist(), itertools.repeat(self._stamp)))
+
+    def _sweep(self) -> None:
+        if self.compiled:
+            from tracker_service.fusion.kernels import evidence_sweep
+
+            evidence_sweep(self._of_pair, self._dropped)
+        else:
+            dropped = self._dropped
+            self._of_pair = {
+                pair: entry
+                for pair, entry in self._of_pair.items()
+                if entry[3] > dropped.get(pair[0], -1) and entry[3] > dropped.get(pair[1], -1)
+            }
+            dropped.clear()
+        self._sweep_at = max(2 * len(self._of_pair), SWEEP_MIN_PAIRS)
 
 
 @dataclass
@@ -110,7 +167,7 @@ class FusionState:
     """The fuser's clock at the batch in hand."""
     merge_counts: dict[tuple[int, int], int] = field(default_factory=dict)
     """Consecutive joint gate passes of each pair of system tracks (track life's merge)."""
-    exchange_evidence: PairEvidence = field(default_factory=PairEvidence)
+    exchange_evidence: PairEvidence = field(init=False)
     """Per pair of local-track keys of one radar in two system tracks."""
 
     @property
@@ -140,3 +197,4 @@ class FusionState:
     def __post_init__(self) -> None:
         self.local = LocalTrackTable(self.models.n_models, compiled=self.compiled)
         self.sys = new_system_table(self.models.n_models, self.n_radars)
+        self.exchange_evidence = PairEvidence(self.compiled)
