@@ -52,7 +52,6 @@ from tracker_service.bias import (
 from tracker_service.fusion import SYSTEM_UPDATE_DTYPE, FusionConfig, References, SystemTracker
 from tracker_service.fusion.adsb_source import AdsbSource, AdsbStep, ReportUse
 from tracker_service.fusion.psr_height import PsrHeights, RadarGeometry
-from tracker_service.fusion.references import references as fusion_references
 from tracker_service.geodesy import SystemPlane
 from tracker_service.radar_stage import (
     CAT021,
@@ -65,7 +64,6 @@ from tracker_service.radar_stage import (
 )
 from tracker_service.stage_messages import RadarBatch
 from tracker_service.time_sanity import TimeConsensus, TimeReport, TimeSanityConfig
-from tracker_service.tracking.plots import as_plot_arrays
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
 
 __all__ = ["BatchOutput", "CentralStage", "corrected"]
@@ -411,9 +409,7 @@ class CentralStage:
         other radars' predictions only, without the prediction from all local tracks (a
         second fusion per row, which only the macro filter's observations take)."""
         assert self.fuser is not None
-        return fusion_references(
-            self.fuser.state, radar, local, as_plot_arrays(batch), sources, everyone
-        )
+        return self.fuser.references(radar, local, batch, sources, everyone=everyone)
 
     def _renumber(self, message: RadarBatch) -> bool:
         """Plot ids for the system, in the order batches are taken; a restarted radar

@@ -143,13 +143,17 @@ class SystemTracker:
         updates: npt.NDArray[Any],
         plots: PlotArrays | npt.NDArray[Any],
         sources: int | None = None,
+        *,
+        everyone: bool = True,
     ) -> References:
         """Predictions at each plot's time that the plot has not updated (call before
         ``process`` on the same batch): from the other radars' local tracks, and from all
         local tracks of its system track (see ``References``); ``sources``: only the
-        sources below this index serve (the radars, not ADS-B: fusion/adsb_source.py)."""
+        sources below this index serve (the radars, not ADS-B: fusion/adsb_source.py);
+        ``everyone`` False: the others' predictions only (the one from all local tracks
+        is a second fusion per row, which only the macro bias filter takes)."""
         self._check_radar(radar)
-        return references(self.state, radar, updates, as_plot_arrays(plots), sources)
+        return references(self.state, radar, updates, as_plot_arrays(plots), sources, everyone)
 
     def _associate(
         self, radar: int, touched: IntArray, has_plot: BoolArray, local_rows: IntArray
