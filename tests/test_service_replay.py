@@ -224,7 +224,13 @@ def test_cat062_content_matches_the_json_messages(published: Published) -> None:
     zenoh_cat062 = [s.payload for s in published.samples if s.key == "tracker/cat062"]
     messages = logged(published.log_dir)
     logged_cat062 = [bytes.fromhex(m.data["payload"]) for m in messages if m.topic == "/cat062"]
-    assert zenoh_cat062 and zenoh_cat062 == logged_cat062[: len(zenoh_cat062)]
+    # In the log's order; a CAT062 put is dropped, not blocked, under congestion (only a
+    # track's end blocks: zenoh_out.py), and a loaded CI machine dropped one once.
+    assert zenoh_cat062
+    positions = {block: i for i, block in enumerate(logged_cat062)}
+    indices = [positions[block] for block in zenoh_cat062]
+    assert indices == sorted(indices)
+    assert len(zenoh_cat062) >= 0.95 * (indices[-1] + 1)
     latest: dict[int, dict[str, Any]] = {}
     compared = named = 0
     for message in messages:
