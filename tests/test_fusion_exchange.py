@@ -6,6 +6,7 @@ the test's evidence store (fusion/state.py ``PairEvidence``) against a plain dic
 from __future__ import annotations
 
 from typing import Any
+from unittest import mock
 
 import numpy as np
 import numpy.typing as npt
@@ -14,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.fuser_inputs import east_batch, system_of
-from tracker_service.fusion import FusionConfig, SystemTracker
+from tracker_service.fusion import FusionConfig, SystemTracker, state
 from tracker_service.fusion.state import NO_EVIDENCE, PairEvidence
 
 T0 = 1.7e9
@@ -152,8 +153,14 @@ def test_pair_evidence_forgets_as_the_plain_reference(
     dictionaries and in the kernels' typed ones: each lookup finds what the plain
     dictionary holds (the evidence of a written pair, ``NO_EVIDENCE`` of one forgotten
     or never written)."""
-    evidence, plain = PairEvidence(compiled), PlainEvidence()
-    evidence._sweep_at = sweep_min
+    with mock.patch.object(state, "SWEEP_MIN_PAIRS", sweep_min):
+        _replay_against_plain(PairEvidence(compiled), operations)
+
+
+def _replay_against_plain(
+    evidence: PairEvidence, operations: list[tuple[bool, list[tuple[int, int]], list[int]]]
+) -> None:
+    plain = PlainEvidence()
     every = [(a, b) for a in range(31) for b in range(a, 31) if (a * b) % 7 == 0]
     for step, (is_drop, drawn, tested) in enumerate(operations):
         pairs = sorted({(min(a, b), max(a, b)) for a, b in drawn})
@@ -167,3 +174,19 @@ def test_pair_evidence_forgets_as_the_plain_reference(
             evidence.renew(np.array(tested, dtype=np.int64), *_columns(pairs), values)
             plain.renew(tested, pairs, values)
         np.testing.assert_array_equal(evidence.table(*_columns(every)), plain.table(every))
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_pair_evidence_stays_bounded_when_tracks_end_without_pairs(compiled: bool) -> None:
+    """A site with few pairs still ends local tracks, whose keys are never used again
+    (ADS-B tracks and a restarted radar stage number on): their drop stamps are swept
+    like the entries, so the store does not grow with the daemon's age."""
+    evidence = PairEvidence(compiled)
+    pair = np.array([1], dtype=np.int64), np.array([2], dtype=np.int64)
+    for batch in range(3 * state.SWEEP_MIN_PAIRS // 50):
+        evidence.renew(np.array([1], dtype=np.int64), *pair, np.array([[batch, 0.5, 1.0]]))
+        evidence.drop(np.arange(1000 + 50 * batch, 1000 + 50 * (batch + 1), dtype=np.int64))
+        assert evidence.held <= state.SWEEP_MIN_PAIRS
+    np.testing.assert_array_equal(
+        evidence.table(*pair), [[3 * state.SWEEP_MIN_PAIRS // 50 - 1, 0.5, 1.0]]
+    )

@@ -1641,11 +1641,11 @@ def evidence_renew(
     evidence: FloatArray,
 ) -> int:  # pragma: no cover - compiled
     """``state.PairEvidence.renew``: the tested keys dropped at ``stamp`` - 1, then each
-    pair's entry stamped ``stamp``; returns the number of entries."""
+    pair's entry stamped ``stamp``; returns the number of entries and drop stamps held."""
     evidence_drop(dropped, stamp - 1, tested)
     for i in range(low.size):
         of_pair[(low[i], high[i])] = (evidence[i, 0], evidence[i, 1], evidence[i, 2], float(stamp))
-    return len(of_pair)
+    return len(of_pair) + len(dropped)
 
 
 @numba.njit(cache=True)

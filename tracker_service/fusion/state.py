@@ -70,8 +70,10 @@ class PairEvidence:
     both its keys' latest drops. A batch drops the pairs of its own tracks in one update
     of their keys, where a pass over each key's pairs (kept in sets of pairs per key)
     cost a tenth of the fuser on ``artas``, with some 80,000 pairs held. The entries
-    that no longer count are swept out when the entries have doubled since the last
-    sweep; after a sweep every entry counts, and no drop before it matters."""
+    that no longer count are swept out when the entries and drop stamps together have
+    doubled since the last sweep (the drops count too: a site with few pairs still ends
+    tracks, and ended keys are never reused); after a sweep every entry counts, and no
+    drop before it matters."""
 
     def __init__(self, compiled: bool = False) -> None:
         self.compiled = compiled
@@ -124,7 +126,7 @@ class PairEvidence:
                     strict=True,
                 )
             )
-            held = len(self._of_pair)
+            held = len(self._of_pair) + len(self._dropped)
         if held >= self._sweep_at:
             self._sweep()
 
@@ -137,6 +139,13 @@ class PairEvidence:
             evidence_drop(self._dropped, self._stamp, keys)
         else:
             self._dropped.update(zip(keys.tolist(), itertools.repeat(self._stamp)))
+        if len(self._of_pair) + len(self._dropped) >= self._sweep_at:
+            self._sweep()
+
+    @property
+    def held(self) -> int:
+        """Entries and drop stamps held (what the sweep bounds)."""
+        return len(self._of_pair) + len(self._dropped)
 
     def _sweep(self) -> None:
         if self.compiled:

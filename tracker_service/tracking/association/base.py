@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -20,12 +20,15 @@ class WeightedPairs:
 
     pair: IntArray
     weight: FloatArray
-    all_ones: bool = False
-    """Known to weigh every pair 1 (``hard``), without looking."""
+    all_ones: bool = field(default=False, init=False)
+    """Known to weigh every pair 1 (made by ``hard``), without looking; not an argument,
+    so that no caller can claim it of weights that are not all 1."""
 
     @classmethod
     def hard(cls, pair: IntArray) -> WeightedPairs:
-        return cls(pair, np.ones(pair.size), all_ones=True)
+        pairs = cls(pair, np.ones(pair.size))
+        object.__setattr__(pairs, "all_ones", True)  # frozen: set once, here
+        return pairs
 
     @property
     def is_hard(self) -> bool:
