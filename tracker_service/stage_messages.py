@@ -240,9 +240,12 @@ def read_npy(data: memoryview) -> npt.NDArray[Any]:
     dtype, fortran = layout
     shape = tuple(int(n) for n in match.group(1).split(b",") if n.strip())
     count = math.prod(shape)
-    if len(body) < count * dtype.itemsize:
+    size = count * dtype.itemsize
+    if len(body) < size:
         raise ValueError(f"{len(body)} bytes for {count} items of {dtype.itemsize} bytes")
-    array = np.frombuffer(body, dtype=dtype, count=count).copy()  # writable, as numpy's
+    # Writable, as numpy's; copied as bytes: a structured copy goes field by field (see
+    # ``small_arrays.row_bytes``). numpy's allocation is aligned for any dtype.
+    array = np.frombuffer(body, dtype=np.uint8, count=size).copy().view(dtype)
     if fortran:
         return array.reshape(shape[::-1]).transpose()
     return array.reshape(shape)
