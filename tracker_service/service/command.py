@@ -43,6 +43,7 @@ from tracker_service.outputs.zenoh_session import (
     zenoh_config,
 )
 from tracker_service.ratelimit import RateLimitedLog
+from tracker_service.service.call_pickle import CallPickler
 from tracker_service.service.config import (
     ConfigError,
     ServiceConfig,
@@ -69,7 +70,6 @@ from tracker_service.service.replay import (
     parse_date,
     parse_speed,
 )
-from tracker_service.service.call_pickle import CallPickler
 from tracker_service.service.signals import StopSignal, stop_on_signals
 
 __all__ = [
