@@ -60,9 +60,11 @@ def copy_rows(rows: npt.NDArray[Any]) -> npt.NDArray[Any]:
 
 def take_rows(rows: npt.NDArray[Any], index: npt.NDArray[Any]) -> npt.NDArray[Any]:
     """``rows[index]`` of a 1-D structured array, ``index`` integers or a mask."""
-    return row_bytes(rows)[index].view(rows.dtype)
+    taken: npt.NDArray[Any] = row_bytes(rows)[index]
+    return taken.view(rows.dtype)
 
 
 def concatenate_rows(parts: Sequence[npt.NDArray[Any]]) -> npt.NDArray[Any]:
     """``np.concatenate(parts)`` of 1-D structured arrays of one dtype."""
-    return np.concatenate([row_bytes(p) for p in parts]).view(parts[0].dtype)
+    joined: npt.NDArray[Any] = np.concatenate([row_bytes(p) for p in parts])
+    return joined.view(parts[0].dtype)

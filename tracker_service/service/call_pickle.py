@@ -57,7 +57,8 @@ class _NumberingPickler(pickle.Pickler):
         dtype = obj.dtype
         known = self.numbers.get(id(dtype))
         # In band as a bytearray (protocol 5): unpickled writable, as an array's own.
-        data = pickle.PickleBuffer(np.ascontiguousarray(obj).view(np.uint8).reshape(-1))
+        raw = np.ascontiguousarray(obj).view(np.uint8).reshape(-1)
+        data = pickle.PickleBuffer(raw)  # type: ignore[arg-type]  # numpy's buffer
         if known is not None:
             return _rebuild, (known[0], obj.shape, data)
         if len(self.numbers) >= MAX_DTYPES:
