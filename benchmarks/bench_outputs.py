@@ -89,7 +89,9 @@ class _Recorder:
     def error(self, *args: object) -> None: ...
     def count(self, *args: object) -> None: ...
 
-    def batch(self, output: BatchOutput, sources: Any) -> None:
+    def batch(self, output: BatchOutput, sources: Any, received: float | None = None) -> None:
+        if received is not None:
+            self.advance(received)
         self.calls.append(("batch", output, tuple(sources), self.now))
 
     def publish_cat062(self) -> None:

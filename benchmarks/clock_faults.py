@@ -63,8 +63,10 @@ class Recorded(Outputs):
         super().__init__(config)
         self.local: list[tuple[str, Any]] = []
 
-    def batch(self, output: BatchOutput, sources: Sequence[str]) -> None:
-        super().batch(output, sources)
+    def batch(
+        self, output: BatchOutput, sources: Sequence[str], received: float | None = None
+    ) -> None:
+        super().batch(output, sources, received)
         self.local += [(output.source, u) for u in output.local]
 
 

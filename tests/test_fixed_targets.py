@@ -104,9 +104,11 @@ class KeptOutputs(Outputs):
         super().__init__(config)
         self.kept: list[BatchOutput] = []
 
-    def batch(self, output: BatchOutput, sources: Sequence[str]) -> None:
+    def batch(
+        self, output: BatchOutput, sources: Sequence[str], received: float | None = None
+    ) -> None:
         self.kept.append(output)
-        super().batch(output, sources)
+        super().batch(output, sources, received)
 
 
 @dataclass

@@ -73,8 +73,10 @@ class Recorded(Outputs):
         self.local: list[tuple[str, Any]] = []
         self.plots: list[tuple[str, Any]] = []
 
-    def batch(self, output: BatchOutput, sources: Sequence[str]) -> None:
-        super().batch(output, sources)
+    def batch(
+        self, output: BatchOutput, sources: Sequence[str], received: float | None = None
+    ) -> None:
+        super().batch(output, sources, received)
         self.local += [(output.source, u) for u in output.local]
         self.plots += [(output.source, p) for p in output.plots]
 

@@ -62,6 +62,7 @@ from tracker_service.radar_stage import (
     blocks_of,
     source_order,
 )
+from tracker_service.small_arrays import concatenate_rows, copy_rows, take_rows
 from tracker_service.stage_messages import RadarBatch
 from tracker_service.time_sanity import TimeConsensus, TimeReport, TimeSanityConfig
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
@@ -96,7 +97,7 @@ def corrected(rows: npt.NDArray[Any], c: FloatArray, bias: FloatArray) -> npt.ND
     """A copy of plot or track ``rows`` (fields time, x, y) with the radar's bias
     ``bias`` [range offset m, gain, azimuth rad, time s] taken off through their Jacobian
     ``c`` (N, 2, 4; the time column unused: a time offset moves the time stamp)."""
-    out = rows.copy()
+    out = copy_rows(rows)
     if len(out):
         shift = c[:, :, :3] @ bias[:3]
         out["x"] -= shift[:, 0]
@@ -291,7 +292,7 @@ class CentralStage:
             ended = self._end_local_tracks(index, source, message)
         output = self._process(message, index)
         if len(ended):
-            output.system = np.concatenate([ended, output.system])
+            output.system = concatenate_rows([ended, output.system])
         self._remember(source, output.local)
         return output
 
@@ -320,7 +321,7 @@ class CentralStage:
         if not len(local):
             return
         live = self._live_local.setdefault(source, {})
-        kept = local.copy()
+        kept = copy_rows(local)
         numbers = kept["track_number"].tolist()
         deleted = kept["status"] == LOCAL_DELETED
         if not deleted.any():
@@ -638,7 +639,7 @@ def _updates_of_plots(
         return local[:0]
     first_id = int(table["plot_id"][0])
     keep: npt.NDArray[np.bool_] = wanted[local["plot_id"][with_plot] - first_id]
-    return local[with_plot[keep]]
+    return take_rows(local, with_plot[keep])
 
 
 def _report_table(reports: AdsbReports, step: AdsbStep) -> npt.NDArray[Any]:

@@ -211,38 +211,54 @@ the dtype and the order, as numpy's own reader parsed them the first time."""
 MAX_NPY_LAYOUTS = 256
 """Layouts remembered at most: a peer that sends ever new dtypes costs a parse each,
 not memory."""
+_npy_headers: dict[bytes, tuple[np.dtype[Any], bool, tuple[int, ...]]] = {}
+"""Per whole .npy header (the shape in it): its layout and its shape. A batch's arrays
+come in a few dozen row counts: after the first minute each header is one look-up."""
+MAX_NPY_HEADERS = 4096
 
 
 def read_npy(data: memoryview) -> npt.NDArray[Any]:
     """``np.lib.format.read_array(..., allow_pickle=False)`` of one section, the same
     array, but each header layout parsed once: numpy parses a header (a Python literal)
     with ``ast.literal_eval`` at every call, which was a third of the main process's CPU
-    in a replay with workers. Only the shape, digits and commas, is read at each call."""
+    in a replay with workers. Only the shape, digits and commas, is read at each new
+    header; a header seen before is looked up whole."""
     header = None
-    if bytes(data[:6]) == _NPY_MAGIC and data[6] in _NPY_HEADER_LENGTH:
+    if data[:6] == _NPY_MAGIC and data[6] in _NPY_HEADER_LENGTH:
         length = _NPY_HEADER_LENGTH[data[6]]
         start = 8 + length.size
         if len(data) >= start:
             (size,) = length.unpack_from(data, 8)
             header = bytes(data[start : start + size])
             body = data[start + size :]
-    match = None if header is None else _NPY_SHAPE.search(header)
-    if header is None or match is None:
+    if header is None:
         return np.lib.format.read_array(io.BytesIO(data), allow_pickle=False)  # says why
-    layout_key = (header[: match.start(1)] + header[match.end(1) :]).rstrip()
-    layout = _npy_layouts.get(layout_key)
-    if layout is None:
-        # numpy's reader, with its checks (no object arrays), once for this layout.
-        array = np.lib.format.read_array(io.BytesIO(data), allow_pickle=False)
-        if len(_npy_layouts) < MAX_NPY_LAYOUTS:
-            _npy_layouts[layout_key] = (array.dtype, bool(b"'fortran_order': True" in header))
-        return array
-    dtype, fortran = layout
-    shape = tuple(int(n) for n in match.group(1).split(b",") if n.strip())
+    known = _npy_headers.get(header)
+    if known is None:
+        match = _NPY_SHAPE.search(header)
+        if match is None:
+            return np.lib.format.read_array(io.BytesIO(data), allow_pickle=False)  # says why
+        layout_key = (header[: match.start(1)] + header[match.end(1) :]).rstrip()
+        layout = _npy_layouts.get(layout_key)
+        if layout is None:
+            # numpy's reader, with its checks (no object arrays), once for this layout.
+            array = np.lib.format.read_array(io.BytesIO(data), allow_pickle=False)
+            if len(_npy_layouts) < MAX_NPY_LAYOUTS:
+                fortran = b"'fortran_order': True" in header
+                _npy_layouts[layout_key] = (array.dtype, fortran)
+            return array
+        shape = tuple(int(n) for n in match.group(1).split(b",") if n.strip())
+        known = (*layout, shape)
+        if len(_npy_headers) < MAX_NPY_HEADERS:
+            _npy_headers[header] = known
+    dtype, fortran, shape = known
     count = math.prod(shape)
-    if len(body) < count * dtype.itemsize:
+    size = count * dtype.itemsize
+    if len(body) < size:
         raise ValueError(f"{len(body)} bytes for {count} items of {dtype.itemsize} bytes")
-    array = np.frombuffer(body, dtype=dtype, count=count).copy()  # writable, as numpy's
+    # Writable, as numpy's; copied as bytes: a structured copy goes field by field (see
+    # ``small_arrays.row_bytes``). numpy's allocation is aligned for any dtype.
+    array = np.frombuffer(body, dtype=np.uint8, count=size).copy().view(dtype)
     if fortran:
         return array.reshape(shape[::-1]).transpose()
     return array.reshape(shape)
@@ -340,7 +356,10 @@ def decode_message(payload: bytes) -> DatagramResult:
         meta = arrays["meta"][0]
         batches = []
         for k in range(int(meta["batches"])):
-            m = arrays[f"{k}/meta"][0]
+            # The row as Python values at once: a structured scalar's field costs
+            # as much as a small array's.
+            row = arrays[f"{k}/meta"][0]
+            m = dict(zip(row.dtype.names or (), row.item(), strict=True))
             report = TimeReport(
                 source=str(m["source"]),
                 time_base=str(m["time_base"]),  # type: ignore[arg-type]

@@ -498,9 +498,14 @@ class Outputs:
 
     # --- per batch ---------------------------------------------------------------------
 
-    def batch(self, output: BatchOutput, sources: Sequence[str]) -> None:
+    def batch(
+        self, output: BatchOutput, sources: Sequence[str], received: float | None = None
+    ) -> None:
         """What the chain made of one radar's part of a datagram; ``sources`` names the
-        chain's radars by index (``Chain.sources``)."""
+        chain's radars by index (``Chain.sources``); ``received``: data time moves there
+        first (``advance``)."""
+        if received is not None:
+            self.advance(received)
         plots = output.plots
         counters = self._radars[output.source]
         counters.last_reception = self._now
@@ -872,7 +877,9 @@ class OutputSink(Protocol):
     def received(self, name: str, datagram: Datagram, adsb: AdsbCount | None = None) -> None: ...
     def error(self, name: str, kind: str, detail: str = "") -> None: ...
     def count(self, name: str, kind: str, n: int) -> None: ...
-    def batch(self, output: BatchOutput, sources: Sequence[str]) -> None: ...
+    def batch(
+        self, output: BatchOutput, sources: Sequence[str], received: float | None = None
+    ) -> None: ...
     def publish_cat062(self) -> None: ...
     def publish_bias(
         self,
@@ -975,12 +982,15 @@ class TrackerService:
         a radar's plot delay, CAT062/CAT065) follows no datagram here, and without this it
         stood still while radar batches kept arriving."""
         self._advance_to(batch.received)
-        self.outputs.advance(batch.received)
+        output = None
         try:
-            self.outputs.batch(self.chain.central.process(batch), self.chain.sources)
+            output = self.chain.central.process(batch)
+            self.outputs.batch(output, self.chain.sources, batch.received)
         except OutputsFailed:
             raise
         except Exception:
+            if output is None:  # the outputs' data time moves all the same
+                self.outputs.advance(batch.received)
             self._warn.exception(
                 "processing",
                 "radar %s: batch at %.3f could not be processed",
