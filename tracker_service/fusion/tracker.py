@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion import associate, lifecycle, rows
+from tracker_service.fusion.arrays import marked_numbers
 from tracker_service.fusion.config import FusionConfig
 from tracker_service.fusion.estimator import make_system_estimator
 from tracker_service.fusion.references import References, references
@@ -130,7 +131,12 @@ class SystemTracker:
         lifecycle.published(state, fed)
         out += [merged, fed]
         table.remove(touched[table.rows["status"][touched] == LOCAL_DELETED])
-        out.append(lifecycle.orphan(state, radar, np.union1d(old_system, systems)))
+        # A system track that a touched local track still feeds is no orphan: only those
+        # the batch's tracks left take the pass over the table (mostly none).
+        left = marked_numbers(old_system)
+        left[systems] = True
+        left[table.rows["system"][touched]] = False
+        out.append(lifecycle.orphan(state, radar, np.flatnonzero(left)))
         out.append(self._expire(radar))
         table.compact()
         result = rows.joined(out)
