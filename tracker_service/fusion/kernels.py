@@ -1805,7 +1805,10 @@ def near_local_system(
         turn = 0.5 * speed * turn_max * a * a
         var += turn * turn
         r_l[i] = (
-            RADIUS_SAFETY * math.sqrt(gate * max(var, 0.0)) + speed * spread + turn + RADIUS_MARGIN_M
+            RADIUS_SAFETY * math.sqrt(gate * max(var, 0.0))
+            + speed * spread
+            + turn
+            + RADIUS_MARGIN_M
         )
         xy_l[i, 0] = loc_x[r, 0] + loc_x[r, 2] * dt
         xy_l[i, 1] = loc_x[r, 1] + loc_x[r, 3] * dt
