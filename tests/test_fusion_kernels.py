@@ -28,6 +28,7 @@ from tracker_service.fusion import (
     nearby,
 )
 from tracker_service.fusion.estimator_tracks import fuse_local_tracks
+from tracker_service.fusion.messages import COASTING, ENDED
 from tracker_service.fusion.references import References, references
 from tracker_service.fusion.state import FusionState
 from tracker_service.fusion.table import Columns, LocalTrackTable
@@ -533,3 +534,37 @@ def test_near_pairs_of_local_tracks_are_the_reference(seed: int, k: int, n_radar
             want = associate._near(reference, estimator, free, candidates, bias_over)
             for a, b in zip(want, got, strict=True):
                 np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=1, max_value=60))
+def test_expiry_sets_are_the_reference(seed: int, k: int) -> None:
+    """``lifecycle.expire`` with its sets by one compiled pass (``kernels.expiring``)
+    against the numpy path: the same rows (numbers and statuses) of the silent tracks'
+    ends and the orphans' coast and ends, and the same tracks released."""
+    rng = np.random.default_rng(seed)
+    models = ModelSet.from_config(FusionConfig().plot_filter)
+    states = [
+        FusionState(
+            FusionConfig(implementation=impl, orphan_coast_s=10.0, max_silence_s=5.0), 2, models
+        )
+        for impl in ("compiled", "numpy")
+    ]
+    sys = states[0].sys
+    n = np.arange(1, k + 1)
+    sys["alive"][n] = rng.uniform(size=k) < 0.8
+    sys["t"][n] = sys["t_plot"][n] = rng.uniform(0.0, 20.0, k)
+    sys["x"][n] = rng.normal(0.0, 1e4, (k, 4))
+    sys["P"][n] = np.eye(4) * 100.0
+    sys["t_row"][n] = rng.uniform(10.0, 20.0, k)
+    orphan = rng.uniform(size=k) < 0.4
+    sys["orphaned"][n[orphan]] = rng.uniform(0.0, 20.0, int(orphan.sum()))
+    states[1].sys[...] = sys
+    for state in states:
+        state.now = 20.0
+    got, want = (lifecycle.expire(state, 0) for state in states)
+    assert (got["status"] == ENDED).sum() + (got["status"] == COASTING).sum() == len(got)
+    for name in ("system_number", "status"):
+        np.testing.assert_array_equal(got[name], want[name])
+    for name in ("alive", "orphaned", "freed_at"):
+        np.testing.assert_array_equal(states[0].sys[name], states[1].sys[name])

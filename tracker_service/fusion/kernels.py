@@ -1814,3 +1814,25 @@ def near_local_system(
         xy_l[i, 1] = loc_x[r, 1] + loc_x[r, 3] * dt
     i_l, j_s = near_pairs(xy_l, r_l, xy_s, r_s)
     return free[i_l], candidates[j_s]
+
+
+@numba.njit(cache=True)
+def expiring(
+    alive: BoolArray, orphaned: FloatArray, t_plot: FloatArray, silent_before: float
+) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled
+    """``lifecycle.expire``'s two sets in one pass over the system table: the live fed
+    tracks whose latest plot is before ``silent_before``, and the live orphans."""
+    silent = np.empty(alive.size, dtype=np.int64)
+    orphans = np.empty(alive.size, dtype=np.int64)
+    n_silent = n_orphans = 0
+    for r in range(alive.size):
+        if not alive[r]:
+            continue
+        if np.isnan(orphaned[r]):
+            if t_plot[r] < silent_before:
+                silent[n_silent] = r
+                n_silent += 1
+        else:
+            orphans[n_orphans] = r
+            n_orphans += 1
+    return silent[:n_silent].copy(), orphans[:n_orphans].copy()

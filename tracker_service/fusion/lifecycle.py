@@ -296,19 +296,36 @@ def orphan(state: FusionState, radar: int, numbers: IntArray) -> npt.NDArray[Any
     return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
 
 
-def coast_orphans(state: FusionState, radar: int) -> npt.NDArray[Any]:
-    """Rows of the orphans at the fuser's clock, their latest state extrapolated in a
-    straight line (an ATC display's coasting track): the last row of those whose
-    ``orphan_coast_s`` is over, which end; a coasting row of those due one (``due``).
-    The gate that takes an orphan up predicts it so too (``associate.assign``). Not the
-    "plots" IMM's prediction: its turn models, averaged, slow the mean down (a 160 m/s
-    aircraft leaving cover coasted at 60 m/s after 60 s, three_sites seed 102)."""
+def expire(state: FusionState, radar: int) -> npt.NDArray[Any]:
+    """The orphans' coasting and last rows (``coast_orphans``), and the silent system
+    tracks' ends: system tracks none of whose local tracks had a plot for ``silence_s``
+    (orphans at the end of their own coast instead). Both sets from one pass over the
+    system table, compiled (``kernels.expiring``): the orphans' coast changes neither
+    (an orphan ending leaves both sets, as it was in none of the silent)."""
+    sys = state.sys
+    silent_before = state.now - state.config.silence_s
+    if state.compiled:
+        from tracker_service.fusion.kernels import expiring  # numba only when compiled
+
+        silent, orphans = expiring(sys["alive"], sys["orphaned"], sys["t_plot"], silent_before)
+    else:
+        fed = np.isnan(sys["orphaned"])
+        silent = np.flatnonzero(sys["alive"] & fed & (sys["t_plot"] < silent_before))
+        orphans = np.flatnonzero(sys["alive"] & ~fed)
+    return joined([coast_orphans(state, radar, orphans), end(state, radar, silent)])
+
+
+def coast_orphans(state: FusionState, radar: int, orphans: IntArray) -> npt.NDArray[Any]:
+    """Rows of the ``orphans`` (every live orphaned system track) at the fuser's clock,
+    their latest state extrapolated in a straight line (an ATC display's coasting
+    track): the last row of those whose ``orphan_coast_s`` is over, which end; a coasting
+    row of those due one (``due``). The gate that takes an orphan up predicts it so too
+    (``associate.assign``). Not the "plots" IMM's prediction: its turn models, averaged,
+    slow the mean down (a 160 m/s aircraft leaving cover coasted at 60 m/s after 60 s,
+    three_sites seed 102)."""
     sys, now = state.sys, state.now
-    if state.config.orphan_coast <= 0:
-        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)  # off: no orphan, no pass over the table
-    orphans = np.flatnonzero(sys["alive"] & ~np.isnan(sys["orphaned"]))
-    if orphans.size == 0:
-        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
+    if state.config.orphan_coast <= 0 or orphans.size == 0:
+        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)  # off: no orphan
     over = now >= sys["orphaned"][orphans] + state.config.orphan_coast
     ending, coasting = orphans[over], orphans[~over & due(state, orphans)]
     out = [
@@ -377,18 +394,6 @@ def _predicted_rows(
     out["flight_level"][known] = sys["fl"][n] + sys["rate"][n] * (now - sys["t_fl"][n])
     out["climb_rate_fl_per_s"][known] = sys["rate"][n]
     return out
-
-
-def end_silent(state: FusionState, radar: int) -> npt.NDArray[Any]:
-    """System tracks none of whose local tracks had a plot for ``silence_s`` end
-    (orphans at the end of their own coast instead: ``coast_orphans``)."""
-    sys = state.sys
-    quiet = (
-        sys["alive"]
-        & np.isnan(sys["orphaned"])
-        & (sys["t_plot"] < state.now - state.config.silence_s)
-    )
-    return end(state, radar, np.flatnonzero(quiet))
 
 
 def end_future(state: FusionState, radar: int, max_ahead_s: float) -> npt.NDArray[Any]:
