@@ -1488,6 +1488,28 @@ def refresh_moments(
 
 
 @numba.njit(cache=True)
+def _radius(
+    pos: float,
+    cross: float,
+    vel: float,
+    bias_var: float,
+    a: float,
+    speed: float,
+    spread: float,
+    gate: float,
+    q_max: float,
+    turn_max: float,
+) -> float:  # pragma: no cover - compiled
+    """``nearby.reach``'s radius of one track from its covariance's P00 + P11, P02 + P13
+    and P22 + P33, its bias term, the time a it is moved over (|dt| + spread) and its
+    speed."""
+    var = pos + 2.0 * a * abs(cross) + a * a * vel + 2.0 * q_max * a**3 / 3.0 + bias_var
+    turn = 0.5 * speed * turn_max * a * a
+    var += turn * turn
+    return RADIUS_SAFETY * math.sqrt(gate * max(var, 0.0)) + speed * spread + turn + RADIUS_MARGIN_M
+
+
+@numba.njit(cache=True)
 def system_reach(
     x: FloatArray,
     P: FloatArray,
@@ -1529,17 +1551,9 @@ def system_reach(
         dt = t_mid - t[r]
         a = abs(dt) + spread
         norm = 2.0 * (sensitivity[r, 0] + a * a * sensitivity[r, 1])
-        var = (
-            pos + 2.0 * a * abs(cross) + a * a * vel + 2.0 * q_max * a**3 / 3.0 + bias_scale * norm
-        )
         speed = math.hypot(xc[2], xc[3])
-        turn = 0.5 * speed * turn_max * a * a
-        var += turn * turn
-        radius[i] = (
-            RADIUS_SAFETY * math.sqrt(gate * max(var, 0.0))
-            + speed * spread
-            + turn
-            + RADIUS_MARGIN_M
+        radius[i] = _radius(
+            pos, cross, vel, bias_scale * norm, a, speed, spread, gate, q_max, turn_max
         )
         xy[i, 0] = xc[0] + xc[2] * dt
         xy[i, 1] = xc[1] + xc[3] * dt
@@ -1792,23 +1806,18 @@ def near_local_system(
         r = free[i]
         p = loc_P[r]
         dt = t_mid - loc_t[r]
-        a = abs(dt) + spread
-        var = (
-            p[0, 0]
-            + p[1, 1]
-            + 2.0 * a * abs(p[0, 2] + p[1, 3])
-            + a * a * (p[2, 2] + p[3, 3])
-            + 2.0 * q_max * a**3 / 3.0
-            + bias_var
-        )
         speed = math.hypot(loc_x[r, 2], loc_x[r, 3])
-        turn = 0.5 * speed * turn_max * a * a
-        var += turn * turn
-        r_l[i] = (
-            RADIUS_SAFETY * math.sqrt(gate * max(var, 0.0))
-            + speed * spread
-            + turn
-            + RADIUS_MARGIN_M
+        r_l[i] = _radius(
+            p[0, 0] + p[1, 1],
+            p[0, 2] + p[1, 3],
+            p[2, 2] + p[3, 3],
+            bias_var,
+            abs(dt) + spread,
+            speed,
+            spread,
+            gate,
+            q_max,
+            turn_max,
         )
         xy_l[i, 0] = loc_x[r, 0] + loc_x[r, 2] * dt
         xy_l[i, 1] = loc_x[r, 1] + loc_x[r, 3] * dt
