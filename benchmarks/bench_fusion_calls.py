@@ -8,6 +8,12 @@ minute of a whole-chain run (``bench_stages.py``).
 
     python benchmarks/bench_fusion_calls.py record scale60.mcap --seconds 20 -o calls.pkl
     python benchmarks/bench_fusion_calls.py replay calls.pkl [--repeats 3] [--profile FILE]
+        [--split S]
+
+``--split S``: also the distribution of ``process``'s CPU time per batch (p50, p99, max)
+and its CPU per local-track update, over the batches whose latest update is before and
+after S seconds from the first (the founding burst and the steady state after): the
+largest batches set a fusion role's latency tail.
 
 The recording is made with the code in hand; the calls are pickled numpy arrays, to be
 read back only from a file of one's own making. A replay's first pass is untimed (numba
@@ -85,8 +91,13 @@ def run_service(path: str, seconds: float) -> int:
     return plots
 
 
-def replay(calls: list[Call]) -> tuple[dict[str, float], str]:
-    """CPU seconds of each kind of call, and the sha256 of every result in order."""
+Batch = tuple[float, int, float]
+"""A ``process`` call's latest update time, updates and CPU seconds."""
+
+
+def replay(calls: list[Call], batches: list[Batch] | None = None) -> tuple[dict[str, float], str]:
+    """CPU seconds of each kind of call, and the sha256 of every result in order; each
+    ``process`` call with updates appended to ``batches`` if given."""
     digest = hashlib.sha256()
     cpu = {"process": 0.0, "references": 0.0}
     fuser: SystemTracker | None = None
@@ -98,16 +109,41 @@ def replay(calls: list[Call]) -> tuple[dict[str, float], str]:
         kind, args, kwargs = call
         started = time.process_time()
         result = getattr(fuser, kind)(*args, **kwargs)
-        cpu[kind] += time.process_time() - started
+        elapsed = time.process_time() - started
+        cpu[kind] += elapsed
         if kind == "process":
             digest.update(result.tobytes())
+            updates = args[1]
+            if batches is not None and len(updates):
+                batches.append((float(updates["time"].max()), len(updates), elapsed))
         else:
             for field in dataclasses.fields(result):
                 digest.update(np.ascontiguousarray(getattr(result, field.name)).tobytes())
     return cpu, digest.hexdigest()
 
 
-def record_replay_parser(doc: str, calls_of: str) -> argparse.ArgumentParser:
+def batch_distribution(batches: list[Batch], split: float) -> str:
+    """``process``'s CPU per update and per batch (p50, p99, max), before and after
+    ``split`` seconds from the first batch."""
+    t, updates, cpu = (np.array(column, dtype=np.float64) for column in zip(*batches, strict=True))
+    after = t - t.min() >= split
+    lines = []
+    for name, part in ((f"first {split:g} s", ~after), ("after", after), ("all", after | ~after)):
+        if not part.any():
+            continue
+        ms = cpu[part] * 1e3
+        lines.append(
+            f"  {name}: {int(part.sum())} batches, {int(updates[part].sum())} updates, "
+            f"{cpu[part].sum() / updates[part].sum() * 1e6:.1f} us per update; per batch "
+            f"p50 {np.percentile(ms, 50):.2f} ms, p99 {np.percentile(ms, 99):.2f} ms, "
+            f"max {ms.max():.2f} ms"
+        )
+    return "\n".join(lines)
+
+
+def record_replay_parser(
+    doc: str, calls_of: str, batch_split: bool = False
+) -> argparse.ArgumentParser:
     """The command line of a benchmark that records ``calls_of``'s calls once and
     replays them (this one, ``bench_central.py``)."""
     parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
@@ -120,11 +156,15 @@ def record_replay_parser(doc: str, calls_of: str) -> argparse.ArgumentParser:
     rep.add_argument("calls")
     rep.add_argument("--repeats", type=int, default=3)
     rep.add_argument("--profile", help="cProfile (CPU time) of the timed passes into FILE")
+    if batch_split:
+        rep.add_argument(
+            "--split", type=float, help="per-batch CPU before and after S s (see above)"
+        )
     return parser
 
 
 def main() -> None:
-    args = record_replay_parser(__doc__, "the fuser").parse_args()
+    args = record_replay_parser(__doc__, "the fuser", batch_split=True).parse_args()
     if args.command == "record":
         calls = record(args.recording, args.seconds)
         with open(args.output, "wb") as out:
@@ -139,11 +179,14 @@ def main() -> None:
     if profiler is not None:
         profiler.enable()
     for k in range(args.repeats):
-        cpu, digest = replay(calls)
+        batches: list[Batch] = []
+        cpu, digest = replay(calls, batches)
         print(
             f"pass {k + 1}: process {cpu['process']:.3f} CPU s, references "
             f"{cpu['references']:.3f} CPU s, results sha256 {digest}"
         )
+        if args.split is not None and batches:
+            print(batch_distribution(batches, args.split))
     if profiler is not None:
         profiler.disable()
         profiler.dump_stats(args.profile)

@@ -69,7 +69,7 @@ def packed(table: Columns) -> npt.NDArray[Any]:
 
 
 def batch(state: FusionState, estimator: SystemEstimator, numbers: npt.NDArray[Any]) -> None:
-    lifecycle.end_silent(state, 0)
+    lifecycle.expire(state, 0)
     candidates = associate.open_systems(state, 0)
     free = state.local._lookup((np.int64(3) << KEY_SHIFT) | numbers)
     associate._near(state, estimator, free, candidates)

@@ -28,6 +28,7 @@ from tracker_service.fusion import (
     nearby,
 )
 from tracker_service.fusion.estimator_tracks import fuse_local_tracks
+from tracker_service.fusion.messages import COASTING, ENDED
 from tracker_service.fusion.references import References, references
 from tracker_service.fusion.state import FusionState
 from tracker_service.fusion.table import Columns, LocalTrackTable
@@ -480,3 +481,90 @@ def test_membership_helpers_are_isin(values: list[int], members: list[int]) -> N
     np.testing.assert_array_equal(
         arrays.marked_numbers(m[m >= 0])[numbers], np.isin(numbers, m[m >= 0])
     )
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=1, max_value=40), n_radars=st.integers(1, 4))
+def test_merge_candidates_are_the_reference(seed: int, k: int, n_radars: int) -> None:
+    """Merging's pre-selection in one compiled call (``kernels.merge_candidates``) against
+    ``lifecycle._merge_candidates``' numpy path: the same pairs in the same order, among
+    tracks packed close enough to pair, some orphaned or dead, identities from few
+    values, touched numbers repeating."""
+    compiled, reference, rng = _states(seed, n_radars, k)
+    sys = compiled.sys
+    n = np.arange(1, k + 1)
+    # Some 5 % of the pairs near enough (all of them at 3 km apart, as good as none at 100).
+    sys["x"][n] = np.column_stack([rng.normal(0.0, 3e4, (k, 2)), rng.uniform(-250, 250, (k, 2))])
+    sys["P"][n] = sys["mP"][n, -1]
+    sys["M"][n] = rng.normal(0.0, 0.5, (k, n_radars, 4, 2))
+    sys["address"][n], sys["mode3a"][n] = rng.integers(-1, 4, k), rng.integers(-1, 4, k)
+    sys["orphaned"][n[rng.uniform(size=k) < 0.2]] = 1.0
+    sys["alive"][n[rng.uniform(size=k) < 0.1]] = False
+    nearby.refresh(sys, n, compiled=True)
+    reference.sys[...] = sys
+    touched = rng.integers(1, k + 1, int(rng.integers(0, 6)))
+    touched = touched[sys["alive"][touched]]
+    got = lifecycle._merge_candidates(compiled, touched)
+    want = lifecycle._merge_candidates(reference, touched)
+    for a, b in zip(want, got, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=1, max_value=40), n_radars=st.integers(1, 4))
+def test_near_pairs_of_local_tracks_are_the_reference(seed: int, k: int, n_radars: int) -> None:
+    """Association's pre-selection in one compiled call (``kernels.near_local_system``)
+    against ``associate._near``'s numpy path: the same (row, number) pairs in the same
+    order, for either estimator's coarse state, the bias bound over a superset."""
+    compiled, reference, rng = _states(seed, n_radars, k)
+    sys, loc = compiled.sys, compiled.local.rows
+    n = np.arange(1, k + 1)
+    sys["x"][n] = np.column_stack([rng.normal(0.0, 3e4, (k, 2)), rng.uniform(-250, 250, (k, 2))])
+    sys["P"][n] = sys["mP"][n, -1]
+    sys["M"][n] = rng.normal(0.0, 0.5, (k, n_radars, 4, 2))
+    nearby.refresh(sys, n, compiled=True)
+    reference.sys[...] = sys
+    # Each local track 1 km about some system track: a few percent of the pairs near.
+    loc["x"][:k, :2] = sys["moments"][rng.integers(1, k + 1, k), :2] + rng.normal(0, 1e3, (k, 2))
+    free = np.sort(rng.choice(k, int(rng.integers(1, k + 1)), replace=False))
+    candidates = np.sort(rng.choice(n, int(rng.integers(1, k + 1)), replace=False))
+    for estimator in (estimator_plots.PlotFilterEstimator(), associate.STRAIGHT_LINE):
+        for bias_over in (None, n):
+            got = associate._near(compiled, estimator, free, candidates, bias_over)
+            want = associate._near(reference, estimator, free, candidates, bias_over)
+            for a, b in zip(want, got, strict=True):
+                np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=1, max_value=60))
+def test_expiry_sets_are_the_reference(seed: int, k: int) -> None:
+    """``lifecycle.expire`` with its sets by one compiled pass (``kernels.expiring``)
+    against the numpy path: the same rows (numbers and statuses) of the silent tracks'
+    ends and the orphans' coast and ends, and the same tracks released."""
+    rng = np.random.default_rng(seed)
+    models = ModelSet.from_config(FusionConfig().plot_filter)
+    states = [
+        FusionState(
+            FusionConfig(implementation=impl, orphan_coast_s=10.0, max_silence_s=5.0), 2, models
+        )
+        for impl in ("compiled", "numpy")
+    ]
+    sys = states[0].sys
+    n = np.arange(1, k + 1)
+    sys["alive"][n] = rng.uniform(size=k) < 0.8
+    sys["t"][n] = sys["t_plot"][n] = rng.uniform(0.0, 20.0, k)
+    sys["x"][n] = rng.normal(0.0, 1e4, (k, 4))
+    sys["P"][n] = np.eye(4) * 100.0
+    sys["t_row"][n] = rng.uniform(10.0, 20.0, k)
+    orphan = rng.uniform(size=k) < 0.4
+    sys["orphaned"][n[orphan]] = rng.uniform(0.0, 20.0, int(orphan.sum()))
+    states[1].sys[...] = sys
+    for state in states:
+        state.now = 20.0
+    got, want = (lifecycle.expire(state, 0) for state in states)
+    assert (got["status"] == ENDED).sum() + (got["status"] == COASTING).sum() == len(got)
+    for name in ("system_number", "status"):
+        np.testing.assert_array_equal(got[name], want[name])
+    for name in ("alive", "orphaned", "freed_at"):
+        np.testing.assert_array_equal(states[0].sys[name], states[1].sys[name])

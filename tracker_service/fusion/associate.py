@@ -399,15 +399,35 @@ def _near(
     if free.size == 0 or candidates.size == 0:
         return empty, empty
     loc, sys, cfg = state.local.rows, state.sys, state.config
+    q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
+    if state.compiled:
+        from tracker_service.fusion.kernels import near_local_system  # numba when compiled
+
+        return near_local_system(
+            loc["t"],
+            loc["x"],
+            loc["P"],
+            loc["extra"],
+            kernel_indices(free),
+            sys["x"],
+            sys["P"],
+            sys["moments"],
+            sys["sensitivity"],
+            sys["largest_bias"],
+            sys["t"],
+            kernel_indices(candidates),
+            kernel_indices(candidates if bias_over is None else bias_over),
+            estimator.coarse_from_models,
+            cfg.gate,
+            q,
+            turn,
+        )
     t_local = loc["t"][free]
     t_mid, spread = nearby.time_span(t_local)
     b = max(
-        nearby.system_largest_bias(
-            sys, candidates if bias_over is None else bias_over, state.compiled
-        ),
+        nearby.system_largest_bias(sys, candidates if bias_over is None else bias_over, False),
         nearby.largest_bias(loc["extra"][free]),
     )
-    q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
     xy_s, r_s = nearby.system_reach(
         sys,
         candidates,
@@ -418,7 +438,7 @@ def _near(
         cfg.gate,
         q,
         turn,
-        state.compiled,
+        False,
     )
     xy_l, r_l = nearby.reach(
         loc["x"][free],
@@ -431,7 +451,7 @@ def _near(
         q,
         turn,
     )
-    i, j = nearby.near_pairs(xy_l, r_l, xy_s, r_s, state.compiled)
+    i, j = nearby.near_pairs(xy_l, r_l, xy_s, r_s)
     return free[i], candidates[j]
 
 

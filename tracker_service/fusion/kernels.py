@@ -1488,6 +1488,28 @@ def refresh_moments(
 
 
 @numba.njit(cache=True)
+def _radius(
+    pos: float,
+    cross: float,
+    vel: float,
+    bias_var: float,
+    a: float,
+    speed: float,
+    spread: float,
+    gate: float,
+    q_max: float,
+    turn_max: float,
+) -> float:  # pragma: no cover - compiled
+    """``nearby.reach``'s radius of one track from its covariance's P00 + P11, P02 + P13
+    and P22 + P33, its bias term, the time a it is moved over (|dt| + spread) and its
+    speed."""
+    var = pos + 2.0 * a * abs(cross) + a * a * vel + 2.0 * q_max * a**3 / 3.0 + bias_var
+    turn = 0.5 * speed * turn_max * a * a
+    var += turn * turn
+    return RADIUS_SAFETY * math.sqrt(gate * max(var, 0.0)) + speed * spread + turn + RADIUS_MARGIN_M
+
+
+@numba.njit(cache=True)
 def system_reach(
     x: FloatArray,
     P: FloatArray,
@@ -1529,17 +1551,9 @@ def system_reach(
         dt = t_mid - t[r]
         a = abs(dt) + spread
         norm = 2.0 * (sensitivity[r, 0] + a * a * sensitivity[r, 1])
-        var = (
-            pos + 2.0 * a * abs(cross) + a * a * vel + 2.0 * q_max * a**3 / 3.0 + bias_scale * norm
-        )
         speed = math.hypot(xc[2], xc[3])
-        turn = 0.5 * speed * turn_max * a * a
-        var += turn * turn
-        radius[i] = (
-            RADIUS_SAFETY * math.sqrt(gate * max(var, 0.0))
-            + speed * spread
-            + turn
-            + RADIUS_MARGIN_M
+        radius[i] = _radius(
+            pos, cross, vel, bias_scale * norm, a, speed, spread, gate, q_max, turn_max
         )
         xy[i, 0] = xc[0] + xc[2] * dt
         xy[i, 1] = xc[1] + xc[3] * dt
@@ -1666,3 +1680,168 @@ def evidence_sweep(of_pair: Any, dropped: Any) -> None:  # pragma: no cover - co
     for pair in gone:
         del of_pair[pair]
     dropped.clear()
+
+
+@numba.njit(cache=True)
+def _largest_of(values: FloatArray, numbers: IntArray) -> float:  # pragma: no cover - compiled
+    """``values[numbers].max(initial=0.0)`` (values never NaN: traces of covariances)."""
+    largest = 0.0
+    for r in numbers:
+        if values[r] > largest:
+            largest = values[r]
+    return largest
+
+
+@numba.njit(cache=True)
+def merge_candidates(
+    alive: BoolArray,
+    orphaned: FloatArray,
+    t: FloatArray,
+    x: FloatArray,
+    P: FloatArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
+    largest_bias: FloatArray,
+    address: IntArray,
+    mode3a: IntArray,
+    touched: IntArray,
+    gate: float,
+    q_max: float,
+    turn_max: float,
+) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled
+    """``lifecycle._merge_candidates`` in one call: the live fed (not orphaned) tracks,
+    ``identity_candidates`` among them, the time span and bias bound, both sets' reach
+    from their latest output state (``system_reach``), ``near_pairs`` and the pairs'
+    identity test, by the kernels each step of the numpy path calls (a batch's merge
+    test was some 25 numpy and kernel calls for, mostly, no pair at all)."""
+    empty = np.zeros(0, dtype=np.int64)
+    live = np.empty(alive.size, dtype=np.int64)
+    n_live = 0
+    for r in range(1, alive.size):
+        if alive[r] and np.isnan(orphaned[r]):
+            live[n_live] = r
+            n_live += 1
+    others = identity_candidates(address, mode3a, touched, live[:n_live])
+    if touched.size == 0 or others.size == 0:
+        return empty, empty
+    lo = hi = t[touched[0]]
+    for r in touched:
+        lo = min(lo, t[r])
+        hi = max(hi, t[r])
+    t_mid, spread = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    bias_scale = 2.0 * max(_largest_of(largest_bias, others), _largest_of(largest_bias, touched))
+    reach = (bias_scale, t_mid, spread, gate, q_max, turn_max)
+    xy_a, r_a = system_reach(x, P, moments, sensitivity, t, touched, False, *reach)
+    xy_b, r_b = system_reach(x, P, moments, sensitivity, t, others, False, *reach)
+    i, j = near_pairs(xy_a, r_a, xy_b, r_b)
+    a = np.empty(i.size, dtype=np.int64)
+    b = np.empty(i.size, dtype=np.int64)
+    n = 0
+    for k in range(i.size):
+        p, q = touched[i[k]], others[j[k]]
+        if p == q:
+            continue
+        pa, qa, pc, qc = address[p], address[q], mode3a[p], mode3a[q]
+        if (pa < 0 or qa < 0 or pa == qa) and (pc < 0 or qc < 0 or pc == qc):
+            a[n], b[n] = p, q
+            n += 1
+    return a[:n].copy(), b[:n].copy()
+
+
+@numba.njit(cache=True)
+def near_local_system(
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    loc_extra: FloatArray,
+    free: IntArray,
+    sys_x: FloatArray,
+    sys_P: FloatArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
+    largest_bias: FloatArray,
+    sys_t: FloatArray,
+    candidates: IntArray,
+    bias_over: IntArray,
+    from_models: bool,
+    gate: float,
+    q_max: float,
+    turn_max: float,
+) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled
+    """``associate._near`` in one call: the local rows ``free``'s time span and bias
+    bound, the system tracks' reach (``system_reach``), each local track's
+    (``nearby.reach``, its bits: libm's pow and hypot as numpy calls them) and
+    ``near_pairs``; the (local row, system number) pairs in (row, number) order."""
+    empty = np.zeros(0, dtype=np.int64)
+    if free.size == 0 or candidates.size == 0:
+        return empty, empty
+    lo = hi = loc_t[free[0]]
+    own_bias = 0.0
+    for r in free:
+        lo = min(lo, loc_t[r])
+        hi = max(hi, loc_t[r])
+        own_bias = max(own_bias, loc_extra[r, 0, 0] + loc_extra[r, 1, 1])
+    t_mid, spread = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    b = max(_largest_of(largest_bias, bias_over), own_bias)
+    xy_s, r_s = system_reach(
+        sys_x,
+        sys_P,
+        moments,
+        sensitivity,
+        sys_t,
+        candidates,
+        from_models,
+        2.0 * b,
+        t_mid,
+        spread,
+        gate,
+        q_max,
+        turn_max,
+    )
+    k = free.size
+    xy_l = np.empty((k, 2))
+    r_l = np.empty(k)
+    bias_var = 4.0 * b
+    for i in range(k):
+        r = free[i]
+        p = loc_P[r]
+        dt = t_mid - loc_t[r]
+        speed = math.hypot(loc_x[r, 2], loc_x[r, 3])
+        r_l[i] = _radius(
+            p[0, 0] + p[1, 1],
+            p[0, 2] + p[1, 3],
+            p[2, 2] + p[3, 3],
+            bias_var,
+            abs(dt) + spread,
+            speed,
+            spread,
+            gate,
+            q_max,
+            turn_max,
+        )
+        xy_l[i, 0] = loc_x[r, 0] + loc_x[r, 2] * dt
+        xy_l[i, 1] = loc_x[r, 1] + loc_x[r, 3] * dt
+    i_l, j_s = near_pairs(xy_l, r_l, xy_s, r_s)
+    return free[i_l], candidates[j_s]
+
+
+@numba.njit(cache=True)
+def expiring(
+    alive: BoolArray, orphaned: FloatArray, t_plot: FloatArray, silent_before: float
+) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled
+    """``lifecycle.expire``'s two sets in one pass over the system table: the live fed
+    tracks whose latest plot is before ``silent_before``, and the live orphans."""
+    silent = np.empty(alive.size, dtype=np.int64)
+    orphans = np.empty(alive.size, dtype=np.int64)
+    n_silent = n_orphans = 0
+    for r in range(alive.size):
+        if not alive[r]:
+            continue
+        if np.isnan(orphaned[r]):
+            if t_plot[r] < silent_before:
+                silent[n_silent] = r
+                n_silent += 1
+        else:
+            orphans[n_orphans] = r
+            n_orphans += 1
+    return silent[:n_silent].copy(), orphans[:n_orphans].copy()

@@ -127,10 +127,6 @@ def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]
     ``FusionConfig.merge_after``); returns the ended rows of the merged-away ones."""
     sys = state.sys
     touched = touched[(touched > 0) & sys["alive"][touched]]
-    # An orphan is taken up through the gate only (``associate.assign``), where its
-    # identity must agree: merged, its number would pass to a track it never gated.
-    alive = np.flatnonzero(sys["alive"] & np.isnan(sys["orphaned"]))
-    alive = alive[alive > 0]
     # A pair's count lives while every check of it passes: the checks of the touched
     # tracks start from the counts of their pairs that pass again now.
     touched_set = set(touched.tolist())
@@ -139,7 +135,7 @@ def merge(state: FusionState, radar: int, touched: IntArray) -> npt.NDArray[Any]
         for p, c in state.merge_counts.items()
         if p[0] not in touched_set and p[1] not in touched_set
     }
-    pair_a, pair_b, d2 = _merge_tests(state, touched, alive)
+    pair_a, pair_b, d2 = _merge_tests(state, touched)
     passing = d2 <= state.config.gate
     if not passing.any():
         # Mostly (artas: in each of 7,000 batches): no pass over the local tracks follows.
@@ -187,35 +183,14 @@ def _radars_feeding(state: FusionState) -> npt.NDArray[np.bool_]:
     return radars_of
 
 
-def _merge_tests(
-    state: FusionState, touched: IntArray, alive: IntArray
-) -> tuple[IntArray, IntArray, FloatArray]:
+def _merge_tests(state: FusionState, touched: IntArray) -> tuple[IntArray, IntArray, FloatArray]:
     """Each touched system track a against the live ones b that no radar feeds both and
-    whose identities do not tell apart, near enough to pass (``nearby.py``): the 4-dof
-    distance at a's time, b predicted there, their errors differing by their different
-    shares of each radar's bias. Pairs in the order of (a, b)."""
+    whose identities do not tell apart, near enough to pass (``_merge_candidates``): the
+    4-dof distance at a's time, b predicted there, their errors differing by their
+    different shares of each radar's bias. Pairs in the order of (a, b)."""
     sys, cfg = state.sys, state.config
     empty = np.zeros(0, dtype=np.int64)
-    alive = _identity_candidates(state, touched, alive)
-    if touched.size == 0 or alive.size == 0:
-        return empty, empty, np.zeros(0)
-    t_mid, spread = nearby.time_span(sys["t"][touched])
-    b_max = max(
-        nearby.system_largest_bias(sys, alive, state.compiled),
-        nearby.system_largest_bias(sys, touched, state.compiled),
-    )
-    q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
-
-    def reach(numbers: IntArray) -> tuple[FloatArray, FloatArray]:
-        # The latest output state (x, P), which merging's test predicts from.
-        return nearby.system_reach(
-            sys, numbers, False, 2.0 * b_max, t_mid, spread, cfg.gate, q, turn, state.compiled
-        )
-
-    i, j = nearby.near_pairs(*reach(touched), *reach(alive), state.compiled)
-    a, b = touched[i], alive[j]
-    same = (a != b) & compatible_pairs(state, a, b)
-    a, b = a[same], b[same]
+    a, b = _merge_candidates(state, touched)
     if a.size == 0:
         return empty, empty, np.zeros(0)
     # The radars' table (a pass over the local tracks) for the few pairs left, if any.
@@ -233,6 +208,56 @@ def _merge_tests(
     s = ps + sys["P"][a] + consider.bias_share(m, bias)
     d2 = np.einsum("ka,ka->k", d, np.linalg.solve(s, d[..., None])[..., 0])
     return a, b, d2
+
+
+def _merge_candidates(state: FusionState, touched: IntArray) -> tuple[IntArray, IntArray]:
+    """The pairs (a touched system track, a live fed one) near enough for merging's test
+    to pass (``nearby.py``) whose identities do not tell them apart, in the order of
+    (a, b); compiled: in one call (``kernels.merge_candidates``), the same pairs."""
+    sys, cfg = state.sys, state.config
+    empty = np.zeros(0, dtype=np.int64)
+    q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
+    if state.compiled:
+        from tracker_service.fusion.kernels import merge_candidates  # numba when compiled
+
+        return merge_candidates(
+            sys["alive"],
+            sys["orphaned"],
+            sys["t"],
+            sys["x"],
+            sys["P"],
+            sys["moments"],
+            sys["sensitivity"],
+            sys["largest_bias"],
+            sys["address"],
+            sys["mode3a"],
+            kernel_indices(touched),
+            cfg.gate,
+            q,
+            turn,
+        )
+    # An orphan is taken up through the gate only (``associate.assign``), where its
+    # identity must agree: merged, its number would pass to a track it never gated.
+    alive = np.flatnonzero(sys["alive"] & np.isnan(sys["orphaned"]))
+    alive = _identity_candidates(state, touched, alive[alive > 0])
+    if touched.size == 0 or alive.size == 0:
+        return empty, empty
+    t_mid, spread = nearby.time_span(sys["t"][touched])
+    b_max = max(
+        nearby.system_largest_bias(sys, alive, False),
+        nearby.system_largest_bias(sys, touched, False),
+    )
+
+    def reach(numbers: IntArray) -> tuple[FloatArray, FloatArray]:
+        # The latest output state (x, P), which merging's test predicts from.
+        return nearby.system_reach(
+            sys, numbers, False, 2.0 * b_max, t_mid, spread, cfg.gate, q, turn, False
+        )
+
+    i, j = nearby.near_pairs(*reach(touched), *reach(alive))
+    a, b = touched[i], alive[j]
+    same = (a != b) & compatible_pairs(state, a, b)
+    return a[same], b[same]
 
 
 def _identity_candidates(state: FusionState, touched: IntArray, alive: IntArray) -> IntArray:
@@ -260,6 +285,8 @@ def orphan(state: FusionState, radar: int, numbers: IntArray) -> npt.NDArray[Any
     sys = state.sys
     numbers = numbers[numbers > 0]
     numbers = numbers[sys["alive"][numbers] & np.isnan(sys["orphaned"][numbers])]
+    if numbers.size == 0:
+        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)  # no pass over the table for none
     # Fed: a first slot (a live local track feeding it); compiled, one pass over the
     # table for the few numbers.
     orphans = numbers[state.local.slots(numbers, 1)[:, 0] < 0]
@@ -269,19 +296,36 @@ def orphan(state: FusionState, radar: int, numbers: IntArray) -> npt.NDArray[Any
     return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
 
 
-def coast_orphans(state: FusionState, radar: int) -> npt.NDArray[Any]:
-    """Rows of the orphans at the fuser's clock, their latest state extrapolated in a
-    straight line (an ATC display's coasting track): the last row of those whose
-    ``orphan_coast_s`` is over, which end; a coasting row of those due one (``due``).
-    The gate that takes an orphan up predicts it so too (``associate.assign``). Not the
-    "plots" IMM's prediction: its turn models, averaged, slow the mean down (a 160 m/s
-    aircraft leaving cover coasted at 60 m/s after 60 s, three_sites seed 102)."""
+def expire(state: FusionState, radar: int) -> npt.NDArray[Any]:
+    """The orphans' coasting and last rows (``coast_orphans``), and the silent system
+    tracks' ends: system tracks none of whose local tracks had a plot for ``silence_s``
+    (orphans at the end of their own coast instead). Both sets from one pass over the
+    system table, compiled (``kernels.expiring``): the orphans' coast changes neither
+    (an orphan ending leaves both sets, as it was in none of the silent)."""
+    sys = state.sys
+    silent_before = state.now - state.config.silence_s
+    if state.compiled:
+        from tracker_service.fusion.kernels import expiring  # numba only when compiled
+
+        silent, orphans = expiring(sys["alive"], sys["orphaned"], sys["t_plot"], silent_before)
+    else:
+        fed = np.isnan(sys["orphaned"])
+        silent = np.flatnonzero(sys["alive"] & fed & (sys["t_plot"] < silent_before))
+        orphans = np.flatnonzero(sys["alive"] & ~fed)
+    return joined([coast_orphans(state, radar, orphans), end(state, radar, silent)])
+
+
+def coast_orphans(state: FusionState, radar: int, orphans: IntArray) -> npt.NDArray[Any]:
+    """Rows of the ``orphans`` (every live orphaned system track) at the fuser's clock,
+    their latest state extrapolated in a straight line (an ATC display's coasting
+    track): the last row of those whose ``orphan_coast_s`` is over, which end; a coasting
+    row of those due one (``due``). The gate that takes an orphan up predicts it so too
+    (``associate.assign``). Not the "plots" IMM's prediction: its turn models, averaged,
+    slow the mean down (a 160 m/s aircraft leaving cover coasted at 60 m/s after 60 s,
+    three_sites seed 102)."""
     sys, now = state.sys, state.now
-    if state.config.orphan_coast <= 0:
-        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)  # off: no orphan, no pass over the table
-    orphans = np.flatnonzero(sys["alive"] & ~np.isnan(sys["orphaned"]))
-    if orphans.size == 0:
-        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)
+    if state.config.orphan_coast <= 0 or orphans.size == 0:
+        return np.zeros(0, dtype=SYSTEM_UPDATE_DTYPE)  # off: no orphan
     over = now >= sys["orphaned"][orphans] + state.config.orphan_coast
     ending, coasting = orphans[over], orphans[~over & due(state, orphans)]
     out = [
@@ -350,18 +394,6 @@ def _predicted_rows(
     out["flight_level"][known] = sys["fl"][n] + sys["rate"][n] * (now - sys["t_fl"][n])
     out["climb_rate_fl_per_s"][known] = sys["rate"][n]
     return out
-
-
-def end_silent(state: FusionState, radar: int) -> npt.NDArray[Any]:
-    """System tracks none of whose local tracks had a plot for ``silence_s`` end
-    (orphans at the end of their own coast instead: ``coast_orphans``)."""
-    sys = state.sys
-    quiet = (
-        sys["alive"]
-        & np.isnan(sys["orphaned"])
-        & (sys["t_plot"] < state.now - state.config.silence_s)
-    )
-    return end(state, radar, np.flatnonzero(quiet))
 
 
 def end_future(state: FusionState, radar: int, max_ahead_s: float) -> npt.NDArray[Any]:

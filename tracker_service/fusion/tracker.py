@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion import associate, lifecycle, rows
+from tracker_service.fusion.arrays import marked_numbers
 from tracker_service.fusion.config import FusionConfig
 from tracker_service.fusion.estimator import make_system_estimator
 from tracker_service.fusion.references import References, references
@@ -98,14 +99,14 @@ class SystemTracker:
         u = updates[order]
         extra = np.zeros((len(u), 2, 2)) if extra_R is None else np.asarray(extra_R)[order]
         if len(u) == 0:
-            return self._expire(radar)
+            return lifecycle.expire(state, radar)
         step = self.clock.step(u["time"])
         out = [self._resynchronised(radar)] if step.resynchronised else []
         if not step.accepted.all():
             state.stats.out_of_line_updates += int(np.count_nonzero(~step.accepted))
             u, extra = u[step.accepted], extra[step.accepted]
             if len(u) == 0:
-                return rows.joined([*out, self._expire(radar)])
+                return rows.joined([*out, lifecycle.expire(state, radar)])
         state.now = self.clock.now
         local_rows = table.find(radar, u)
         known = local_rows >= 0
@@ -130,8 +131,13 @@ class SystemTracker:
         lifecycle.published(state, fed)
         out += [merged, fed]
         table.remove(touched[table.rows["status"][touched] == LOCAL_DELETED])
-        out.append(lifecycle.orphan(state, radar, np.union1d(old_system, systems)))
-        out.append(self._expire(radar))
+        # A system track that a touched local track still feeds is no orphan: only those
+        # the batch's tracks left take the pass over the table (mostly none).
+        left = marked_numbers(old_system)
+        left[systems] = True
+        left[table.rows["system"][touched]] = False
+        out.append(lifecycle.orphan(state, radar, np.flatnonzero(left)))
+        out.append(lifecycle.expire(state, radar))
         table.compact()
         result = rows.joined(out)
         state.stats.rows += len(result)
@@ -172,15 +178,6 @@ class SystemTracker:
         lifecycle.join(state, radar, joined, target)
         rest = np.setdiff1d(free, np.union1d(joined, waiting))
         return lifecycle.create(state, self.estimator, rest[lifecycle.may_found(state, rest)])
-
-    def _expire(self, radar: int) -> npt.NDArray[Any]:
-        """The orphans' coasting and last rows, and the silent system tracks' ends."""
-        return rows.joined(
-            [
-                lifecycle.coast_orphans(self.state, radar),
-                lifecycle.end_silent(self.state, radar),
-            ]
-        )
 
     def _resynchronised(self, radar: int) -> npt.NDArray[Any]:
         self.state.stats.clock_resyncs += 1
