@@ -271,6 +271,8 @@ def per_call(config: Any, calls: list[tuple[str, tuple[Any, ...]]], speed: float
             times.origin = time.perf_counter()
             times.timed("main", method, getattr(outputs, method))(*args)
         outputs.stop()
+        sizes = ", ".join(f"{path.stat().st_size / 1e6:.0f}" for path in log.files)
+        print(f"log files (MB): {sizes}")
     return times
 
 
