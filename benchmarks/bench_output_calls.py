@@ -19,7 +19,9 @@ each Foxglove picture built (``MapScene.picture_geojson``), wall and CPU time
 (``time.thread_time``) per call, their median, p99 and maximum; and, per batch, the
 publication delay: from the start of the core's ``batch`` call to the end of the Zenoh
 output's call that puts its system tracks, what the output process adds to a plot's
-latency. ``--speed`` paces the calls at their data time (1: real time, as the daemon gets
+latency (the close's ends left out); each full collection of the cyclic collector is timed
+too, as thread "gc" (the calls are frozen out of its scans, as the service's start-up
+objects are). ``--speed`` paces the calls at their data time (1: real time, as the daemon gets
 them; 0: back to back); ``--skip`` leaves the first seconds of data time (the picture
 filling) out of the figures.
 
@@ -192,13 +194,35 @@ def replay(
 
 class _CallTimes:
     """Each timed call: (thread, method, data time, wall start, wall s, CPU s, the wall
-    start of the core's call it came from); ``origin`` is the core's call in progress."""
+    start of the core's call it came from); ``origin`` is the core's call in progress
+    (None for any but ``batch``: the publication delay is a batch's), and each collection
+    of the oldest generation is a call of thread "gc"."""
 
     def __init__(self) -> None:
-        self.rows: list[tuple[str, str, float, float, float, float, float]] = []
-        self.origin = 0.0
+        self.rows: list[tuple[str, str, float, float, float, float, float | None]] = []
+        self.origin: float | None = None
         self.data_time = 0.0
         self.lock = threading.Lock()
+        self._collection: tuple[float, float] | None = None
+
+    def collection(self, phase: str, info: dict[str, int]) -> None:
+        """A ``gc.callbacks`` entry."""
+        if info["generation"] != 2:
+            return
+        if phase == "start":
+            self._collection = (time.perf_counter(), time.thread_time())
+        elif self._collection is not None:
+            wall, cpu = self._collection
+            row = (
+                "gc",
+                "full collection",
+                self.data_time,
+                wall,
+                time.perf_counter() - wall,
+                time.thread_time() - cpu,
+                None,
+            )
+            self.rows.append(row)
 
     def timed(self, thread: str, method: str, call: Callable[..., Any]) -> Callable[..., None]:
         origin, data_time = self.origin, self.data_time
@@ -220,8 +244,14 @@ def calls_timed(times: _CallTimes) -> Iterator[None]:
     every Foxglove picture built timed on its own, as thread "picture"."""
     put, picture = QueuedSink._put, MapScene.picture_geojson
 
-    def timed_put(self: QueuedSink, at: float, call: Any, args: Any, messages: int = 1) -> None:
-        put(self, at, times.timed(self.name, call.__name__, call), args, messages)
+    def timed_put(
+        self: QueuedSink,
+        time: float,
+        call: Callable[..., None],
+        args: tuple[object, ...],
+        messages: int = 1,
+    ) -> None:
+        put(self, time, times.timed(self.name, call.__name__, call), args, messages)
 
     def timed_picture(self: MapScene) -> bytes:
         out: list[bytes] = []
@@ -230,9 +260,11 @@ def calls_timed(times: _CallTimes) -> Iterator[None]:
 
     QueuedSink._put = timed_put  # type: ignore[method-assign]
     MapScene.picture_geojson = timed_picture  # type: ignore[method-assign]
+    gc.callbacks.append(times.collection)
     try:
         yield
     finally:
+        gc.callbacks.remove(times.collection)
         QueuedSink._put = put  # type: ignore[method-assign]
         MapScene.picture_geojson = picture  # type: ignore[method-assign]
 
@@ -268,7 +300,7 @@ def per_call(config: Any, calls: list[tuple[str, tuple[Any, ...]]], speed: float
                     ahead = first[1] + (at - first[0]) / speed - time.perf_counter()
                     if ahead > 0:
                         time.sleep(ahead)
-            times.origin = time.perf_counter()
+            times.origin = time.perf_counter() if method == "batch" else None
             times.timed("main", method, getattr(outputs, method))(*args)
         outputs.stop()
         sizes = ", ".join(f"{path.stat().st_size / 1e6:.0f}" for path in log.files)
@@ -300,7 +332,7 @@ def report_calls(times: _CallTimes, skip: float) -> None:
     delays = [
         start_wall + wall - origin
         for thread, method, _, start_wall, wall, _, origin in rows
-        if thread == "zenoh" and method == "system_updates"
+        if thread == "zenoh" and method == "system_updates" and origin is not None
     ]
     if delays:
         print(
@@ -358,6 +390,9 @@ def main() -> None:
         config, recorded = pickle.load(stream)
     print(f"tracker_service: {tracker_service.__file__}", file=sys.stderr)
     calls = [pickle.loads(item) for item in recorded]
+    # Out of the collector's scans, as the service's start-up objects are
+    # (``command.freeze_start_up``): what the outputs keep is what is scanned.
+    gc.freeze()
     plots = plots_of(calls)
     # An untimed pass first: numba loads (or compiles) the kernels there.
     replay(config, calls, hashed=False)
