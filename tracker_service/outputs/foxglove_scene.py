@@ -231,16 +231,18 @@ class _MapColumns(NamedTuple):
 
 class _LiveColumns(NamedTuple):
     """What the map shows of a batch's live rows, kept by each of their tracks until its
-    next update: the picture's features are made from it, nothing gathered again."""
+    next update: the picture's features are made from it, nothing gathered again. Tuples
+    of strings and numbers only, which the cyclic collector stops tracking at its first
+    pass: thousands of batches kept cost its full collections nothing."""
 
-    number: list[int]
-    texts: list[tuple[str, list[str | None], list[str]]]
+    number: tuple[int, ...]
+    texts: tuple[tuple[str, tuple[str | None, ...], tuple[str, ...]], ...]
     """Per identity item (``_identities``): its key, its values and their JSON texts."""
-    colours: list[Rgb]
-    lon: list[float]
-    lat: list[float]
-    vx: list[float]
-    vy: list[float]
+    colours: tuple[Rgb, ...]
+    lon: tuple[float, ...]
+    lat: tuple[float, ...]
+    vx: tuple[float, ...]
+    vy: tuple[float, ...]
 
 
 def _map_columns(batch: SystemBatch, rows: npt.NDArray[np.int64]) -> _MapColumns:
@@ -475,7 +477,7 @@ def _location_fixes(batch: SystemBatch) -> tuple[list[bytes], _LiveColumns]:
     """``MapScene.location_fixes``, and the live rows' columns the picture reads."""
     live = np.flatnonzero(batch.status != _ENDED)
     if not live.size:
-        return [], _LiveColumns([], [], [], [], [], [], [])
+        return [], _LiveColumns((), (), (), (), (), (), ())
     p = batch.covariance[live]
     # The altitude the message gives, else its flight level's, else 0.
     altitude = np.where(
@@ -530,13 +532,13 @@ def _location_fixes(batch: SystemBatch) -> tuple[list[bytes], _LiveColumns]:
         )
     ]
     columns = _LiveColumns(
-        number,
-        texts,
-        colours,
-        batch.lon[live].tolist(),
-        batch.lat[live].tolist(),
-        batch.vx[live].tolist(),
-        batch.vy[live].tolist(),
+        tuple(number),
+        tuple((key, tuple(values), tuple(strings)) for key, values, strings in texts),
+        tuple(colours),
+        tuple(batch.lon[live].tolist()),
+        tuple(batch.lat[live].tolist()),
+        tuple(batch.vx[live].tolist()),
+        tuple(batch.vy[live].tolist()),
     )
     return fixes, columns
 
