@@ -11,6 +11,19 @@ identity, without the chain's minute per run and its noise (``bench_stages.py``)
 
     python benchmarks/bench_output_calls.py record scale60.mcap --seconds 20 -o calls.pkl
     python benchmarks/bench_output_calls.py replay calls.pkl [--repeats 3] [--profile FILE]
+    python benchmarks/bench_output_calls.py calls calls.pkl [--speed 1] [--skip 30]
+
+``calls`` times every call one by one instead (one pass, after the untimed one): the
+core's calls on ``Outputs`` in the main thread, each output's calls on its thread, and
+each Foxglove picture built (``MapScene.picture_geojson``), wall and CPU time
+(``time.thread_time``) per call, their median, p99 and maximum; and, per batch, the
+publication delay: from the start of the core's ``batch`` call to the end of the Zenoh
+output's call that puts its system tracks, what the output process adds to a plot's
+latency (the close's ends left out); each full collection of the cyclic collector is timed
+too, as thread "gc" (the calls are frozen out of its scans, as the service's start-up
+objects are). ``--speed`` paces the calls at their data time (1: real time, as the daemon gets
+them; 0: back to back); ``--skip`` leaves the first seconds of data time (the picture
+filling) out of the figures.
 
 The calls are pickled as the output process receives them (``(method, args)``), to be read
 back only from a file of one's own making; they are unpickled before the clock starts, and
@@ -31,12 +44,15 @@ import pickle
 import statistics
 import sys
 import tempfile
+import threading
 import time
-from collections.abc import Iterator
+from collections import defaultdict
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import tracker_service
+from tracker_service.outputs.foxglove_scene import MapScene
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.sink import QueuedSink
 from tracker_service.outputs.zenoh_out import ZenohPublisher
@@ -176,6 +192,161 @@ def replay(
     return cpu, by_thread, (count, digest), zenoh
 
 
+class _CallTimes:
+    """Each timed call: (thread, method, data time, wall start, wall s, CPU s, the wall
+    start of the core's call it came from); ``origin`` is the core's call in progress
+    (None for any but ``batch``: the publication delay is a batch's), and each collection
+    of the oldest generation is a call of thread "gc"."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple[str, str, float, float, float, float, float | None]] = []
+        self.origin: float | None = None
+        self.data_time = 0.0
+        self.lock = threading.Lock()
+        self._collection: tuple[float, float] | None = None
+
+    def collection(self, phase: str, info: dict[str, int]) -> None:
+        """A ``gc.callbacks`` entry."""
+        if info["generation"] != 2:
+            return
+        if phase == "start":
+            self._collection = (time.perf_counter(), time.thread_time())
+        elif self._collection is not None:
+            wall, cpu = self._collection
+            row = (
+                "gc",
+                "full collection",
+                self.data_time,
+                wall,
+                time.perf_counter() - wall,
+                time.thread_time() - cpu,
+                None,
+            )
+            self.rows.append(row)
+
+    def timed(self, thread: str, method: str, call: Callable[..., Any]) -> Callable[..., None]:
+        origin, data_time = self.origin, self.data_time
+
+        def run(*args: object) -> None:
+            wall, cpu = time.perf_counter(), time.thread_time()
+            call(*args)
+            cpu = time.thread_time() - cpu
+            end = time.perf_counter()
+            with self.lock:
+                self.rows.append((thread, method, data_time, wall, end - wall, cpu, origin))
+
+        return run
+
+
+@contextlib.contextmanager
+def calls_timed(times: _CallTimes) -> Iterator[None]:
+    """Every call queued to an output's thread timed on that thread (``QueuedSink``), and
+    every Foxglove picture built timed on its own, as thread "picture"."""
+    put, picture = QueuedSink._put, MapScene.picture_geojson
+
+    def timed_put(
+        self: QueuedSink,
+        time: float,
+        call: Callable[..., None],
+        args: tuple[object, ...],
+        messages: int = 1,
+    ) -> None:
+        put(self, time, times.timed(self.name, call.__name__, call), args, messages)
+
+    def timed_picture(self: MapScene) -> bytes:
+        out: list[bytes] = []
+        times.timed("picture", "picture_geojson", lambda: out.append(picture(self)))()
+        return out[0]
+
+    QueuedSink._put = timed_put  # type: ignore[method-assign]
+    MapScene.picture_geojson = timed_picture  # type: ignore[method-assign]
+    gc.callbacks.append(times.collection)
+    try:
+        yield
+    finally:
+        gc.callbacks.remove(times.collection)
+        QueuedSink._put = put  # type: ignore[method-assign]
+        MapScene.picture_geojson = picture  # type: ignore[method-assign]
+
+
+def _data_time(method: str, args: tuple[Any, ...]) -> float | None:
+    if method == "advance":
+        return float(args[0])
+    if method == "received":
+        return float(args[1].time)
+    return None
+
+
+def per_call(config: Any, calls: list[tuple[str, tuple[Any, ...]]], speed: float) -> _CallTimes:
+    """One pass with every call timed (``calls_timed``), paced at ``speed`` times the
+    calls' data time (0: back to back)."""
+    times = _CallTimes()
+    with (
+        tempfile.TemporaryDirectory(prefix="bench_output_calls") as tmp,
+        contextlib.closing(ZenohPublisher("tracker", mode="peer", scouting=False)) as publisher,
+        contextlib.closing(McapLog(Path(tmp) / "log")) as log,
+        calls_timed(times),
+    ):
+        outputs = Outputs(config, publisher, log)
+        gc.collect()
+        first: tuple[float, float] | None = None
+        for method, args in calls:
+            at = _data_time(method, args)
+            if at is not None:
+                times.data_time = at
+                if first is None:
+                    first = (at, time.perf_counter())
+                elif speed > 0:
+                    ahead = first[1] + (at - first[0]) / speed - time.perf_counter()
+                    if ahead > 0:
+                        time.sleep(ahead)
+            times.origin = time.perf_counter() if method == "batch" else None
+            times.timed("main", method, getattr(outputs, method))(*args)
+        outputs.stop()
+        sizes = ", ".join(f"{path.stat().st_size / 1e6:.0f}" for path in log.files)
+        print(f"log files (MB): {sizes}")
+    return times
+
+
+def _ms(values: list[float]) -> str:
+    ordered = sorted(values)
+    p99 = ordered[min(len(ordered) - 1, int(0.99 * len(ordered)))]
+    return f"{1e3 * statistics.median(ordered):8.2f} {1e3 * p99:8.2f} {1e3 * ordered[-1]:8.2f}"
+
+
+def report_calls(times: _CallTimes, skip: float) -> None:
+    """Per thread and method: calls, wall and CPU ms (median, p99, max); the publication
+    delay of the system tracks; the slowest calls."""
+    start = min(row[2] for row in times.rows if row[2] > 0) + skip
+    rows = [row for row in times.rows if row[2] >= start]
+    groups: dict[tuple[str, str], list[tuple[float, float]]] = defaultdict(list)
+    for thread, method, _, _, wall, cpu, _ in rows:
+        groups[thread, method].append((wall, cpu))
+    print(
+        f"{'thread':>10} {'call':<18} {'n':>6}   wall ms: p50      p99      max"
+        "    CPU ms: p50      p99      max"
+    )
+    for (thread, method), values in sorted(groups.items()):
+        walls, cpus = [v[0] for v in values], [v[1] for v in values]
+        print(f"{thread:>10} {method:<18} {len(values):6d} {_ms(walls)} {_ms(cpus)}")
+    delays = [
+        start_wall + wall - origin
+        for thread, method, _, start_wall, wall, _, origin in rows
+        if thread == "zenoh" and method == "system_updates" and origin is not None
+    ]
+    if delays:
+        print(
+            f"publication delay (core's batch call to Zenoh put done), ms: p50 p99 max "
+            f"{_ms(delays)}"
+        )
+    print("slowest calls (data time, thread, call, wall ms, CPU ms):")
+    for thread, method, at, _, wall, cpu, _ in sorted(rows, key=lambda r: -r[5])[:12]:
+        print(
+            f"  {at - start + skip:8.3f} {thread:>10} {method:<18} {1e3 * wall:8.2f} "
+            f"{1e3 * cpu:8.2f}"
+        )
+
+
 def plots_of(calls: list[tuple[str, tuple[Any, ...]]]) -> int:
     return sum(len(args[0].plots) for method, args in calls if method == "batch")
 
@@ -198,6 +369,16 @@ def main() -> None:
     rep.add_argument(
         "--no-hash", action="store_true", help="time only (the Zenoh digest costs a little)"
     )
+    timed = sub.add_parser("calls", help="time each call of recorded calls, one pass")
+    timed.add_argument("calls")
+    timed.add_argument("--speed", type=float, default=1.0, help="0: back to back")
+    timed.add_argument("--skip", type=float, default=0.0, help="data seconds left out")
+    timed.add_argument(
+        "--log-picture-period",
+        type=float,
+        help="[foxglove] log_picture_period_s instead of the recording's (60: the picture "
+        "all but off, to see what it costs)",
+    )
     args = parser.parse_args()
     if args.command == "record":
         config, recorded = record(args.recording, args.seconds)
@@ -209,9 +390,20 @@ def main() -> None:
         config, recorded = pickle.load(stream)
     print(f"tracker_service: {tracker_service.__file__}", file=sys.stderr)
     calls = [pickle.loads(item) for item in recorded]
+    # Out of the collector's scans, as the service's start-up objects are
+    # (``command.freeze_start_up``): what the outputs keep is what is scanned.
+    gc.freeze()
     plots = plots_of(calls)
     # An untimed pass first: numba loads (or compiles) the kernels there.
     replay(config, calls, hashed=False)
+    if args.command == "calls":
+        if args.log_picture_period is not None:
+            foxglove = config.foxglove.model_copy(
+                update={"log_picture_period_s": args.log_picture_period}
+            )
+            config = config.model_copy(update={"foxglove": foxglove})
+        report_calls(per_call(config, calls, args.speed), args.skip)
+        return
     profiler = cProfile.Profile(time.thread_time) if args.profile else None
     seconds = []
     for repeat in range(args.repeats):

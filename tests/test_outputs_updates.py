@@ -23,7 +23,7 @@ from tracker_service.outputs.mapping import MessageMapper, ModelMapper
 from tracker_service.outputs.mcap_log import McapLog, read_log_messages
 from tracker_service.outputs.mcap_sink import McapSink
 from tracker_service.outputs.messages import LocalTrackMessage, SystemTrackMessage
-from tracker_service.outputs.updates import LOCAL_FIELDS, SYSTEM_FIELDS, SystemValues
+from tracker_service.outputs.updates import LOCAL_FIELDS, SYSTEM_FIELDS, SystemBatch, SystemValues
 from tracker_service.tracking.plots import PUBLISHED_DAP_FIELDS
 from tracker_service.tracking.tracker import track_update_dtype
 
@@ -271,3 +271,26 @@ def test_the_map_from_batches_is_the_map_from_the_models(seed: int) -> None:
         fixes = [out.data for out in written if out.topic == TRACKS_TOPIC]
         assert fixes == [_reference_fix(m) for m in messages if m.status != "ended"]
     assert from_batches.picture_geojson() == from_models.picture_geojson()
+
+
+def test_gather_takes_the_rows_of_several_batches_in_their_order() -> None:
+    """``SystemBatch.gather`` (CAT062's pending rows: some 100 batches a second) is the
+    batch of the rows' values, in the order asked, rows repeated and skipped."""
+    rng = np.random.default_rng(3)
+    mapper = MessageMapper(PLANE)
+    batches = []
+    for step in range(4):
+        t = NOON + 5.0 * step
+        plots = _plots(rng, 20, t, 20 * step)
+        batches.append(
+            mapper.system_updates(_system_rows(rng, 25, t, plots), plots, SOURCES)[0].batch
+        )
+    rows_of = [
+        (batches[b], int(r))
+        for b, r in zip(rng.integers(0, 4, 60), rng.integers(0, 25, 60), strict=True)
+    ]
+    gathered = SystemBatch.gather(rows_of)
+    reference = SystemBatch.of_values([batch.values(row) for batch, row in rows_of])
+    assert [gathered.values(k) for k in range(len(rows_of))] == [
+        reference.values(k) for k in range(len(rows_of))
+    ]

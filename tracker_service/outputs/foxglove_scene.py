@@ -229,6 +229,22 @@ class _MapColumns(NamedTuple):
     colours: list[Rgb]
 
 
+class _LiveColumns(NamedTuple):
+    """What the map shows of a batch's live rows, kept by each of their tracks until its
+    next update: the picture's features are made from it, nothing gathered again. Tuples
+    of strings and numbers only, which the cyclic collector stops tracking at its first
+    pass: thousands of batches kept cost its full collections nothing."""
+
+    number: tuple[int, ...]
+    texts: tuple[tuple[str, tuple[str | None, ...], tuple[str, ...]], ...]
+    """Per identity item (``_identities``): its key, its values and their JSON texts."""
+    colours: tuple[Rgb, ...]
+    lon: tuple[float, ...]
+    lat: tuple[float, ...]
+    vx: tuple[float, ...]
+    vy: tuple[float, ...]
+
+
 def _map_columns(batch: SystemBatch, rows: npt.NDArray[np.int64]) -> _MapColumns:
     """What the map shows of rows ``rows`` of ``batch``: numbers, statuses, identities
     (``_identities``) and colours, column by column."""
@@ -291,19 +307,17 @@ _Point = tuple[float, float, float]
 
 @dataclass
 class _Track:
-    batch: SystemBatch
+    columns: _LiveColumns
     row: int
-    """Its latest update: a row of a batch, its values made when the picture needs them."""
+    """Its latest update: a row of a batch's live columns, its features made from them
+    when the picture needs them."""
     trail: deque[_Point] = field(default_factory=deque)
     """(time, lon, lat), oldest first."""
-    trail_json: str | None = None
-    """Its trail's points as JSON (``_point`` each, by commas); None when it changed."""
+    trail_points: deque[str] = field(default_factory=deque)
+    """Its trail's points as JSON (``_point``), in the same order."""
     features: str | None = None
-    """Its features in the picture, as JSON; None when it moved since."""
-
-    @property
-    def last(self) -> SystemValues:
-        return self.batch.values(self.row)
+    """Its features in the picture, as JSON escaped into a JSON string (the picture's
+    ``geojson``); None when it moved since."""
 
 
 class MapScene:
@@ -345,7 +359,7 @@ class MapScene:
     def updates(self, batch: SystemBatch, time: float) -> list[FoxgloveMessage]:
         """:meth:`update` of each row of ``batch`` in turn, all at data time ``time``; the
         fixes written for the whole batch at once."""
-        fixes = iter(self.location_fixes(batch))
+        fixes, columns = _location_fixes(batch)
         out: list[FoxgloveMessage] = []
         tracks = self._tracks
         rows = zip(
@@ -356,17 +370,18 @@ class MapScene:
             batch.lat.tolist(),
             strict=True,
         )
+        live = 0
         for k, (number, ended, at, lon, lat) in enumerate(rows):
             if ended:
                 tracks.pop(number, None)
             else:
                 track = tracks.get(number)
                 if track is None:
-                    track = tracks[number] = _Track(batch, k)
-                track.batch, track.row, track.features = batch, k, None
-                if self._extend_trail(track.trail, at, lon, lat):
-                    track.trail_json = None
-                out.append(FoxgloveMessage(TRACKS_TOPIC, LOCATION_FIX, next(fixes), time))
+                    track = tracks[number] = _Track(columns, live)
+                track.columns, track.row, track.features = columns, live, None
+                self._extend_trail(track, at, lon, lat)
+                out.append(FoxgloveMessage(TRACKS_TOPIC, LOCATION_FIX, fixes[live], time))
+                live += 1
             if k == 0:
                 # Due once at most at this time: after the first update, as each update
                 # at ``time`` would find it.
@@ -384,16 +399,15 @@ class MapScene:
             out.append(FoxgloveMessage(PICTURE_TOPIC, GEOJSON, self.picture_geojson(), time))
         return out
 
-    def _extend_trail(self, trail: deque[_Point], time: float, lon: float, lat: float) -> bool:
-        """Whether the trail changed."""
-        changed = False
+    def _extend_trail(self, track: _Track, time: float, lon: float, lat: float) -> None:
+        trail, points = track.trail, track.trail_points
         if not trail or time - trail[-1][0] >= self.trail_spacing_s:
-            trail.append((time, round(lon, 5), round(lat, 5)))
-            changed = True
+            here = (round(lon, 5), round(lat, 5))
+            trail.append((time, *here))
+            points.append(_point(here))
         while trail and time - trail[0][0] > self.trail_s:
             trail.popleft()
-            changed = True
-        return changed
+            points.popleft()
 
     def location_fix(self, track: SystemTrackMessage | SystemValues) -> bytes:
         """The ``foxglove.LocationFix`` of one update (``location_fixes``)."""
@@ -404,136 +418,21 @@ class MapScene:
         """The ``foxglove.LocationFix`` of each row of ``batch`` not ended, as
         ``json.dumps`` writes it (compact): ``frame_id`` the track, its colour, its
         identity and label in ``metadata``; the numbers of all of them written at once."""
-        live = np.flatnonzero(batch.status != _ENDED)
-        if not live.size:
-            return []
-        p = batch.covariance[live]
-        # The altitude the message gives, else its flight level's, else 0.
-        altitude = np.where(
-            np.isnan(batch.altitude_m[live]),
-            np.where(
-                np.isnan(batch.flight_level[live]), 0.0, batch.flight_level[live] * _METRES_PER_FL
-            ),
-            batch.altitude_m[live],
-        )
-        numbers = python_json_numbers(
-            np.column_stack(
-                (batch.lat[live], batch.lon[live], altitude, p[:, 0], p[:, 1], p[:, 4], p[:, 5])
-            )
-            .ravel()
-            .tolist()
-        )
-        time = batch.time[live]
-        sec = np.floor(time)
-        # ``_timestamp``: the fraction split off first, no 128 ns rounding.
-        nsec = np.minimum(np.rint((time - sec) * _NS_PER_S), _NS_PER_S - 1).astype(np.int64)
-        number, _, identities, colours = _map_columns(batch, live)
-        # Each item a column of its JSON objects ("" where a track has none), the first
-        # (the label, which every track has) without its leading comma.
-        items = [
-            [
-                "" if v is None else f'{"," if i else ""}{{"key":"{key}","value":{text}}}'
-                for v, text in zip(values, _json_strings(key, values), strict=True)
-            ]
-            for i, (key, values) in enumerate(identities)
-        ]
-        metadata = list(map("".join, zip(*items, strict=True)))
-        fixes = [
-            (
-                _FIX
-                % (
-                    second,
-                    nanosecond,
-                    n,
-                    *numbers[7 * k : 7 * k + 7],
-                    *_COLOUR_TEXT[colours[k]],
-                    metadata[k],
-                )
-            ).encode()
-            for k, (n, second, nanosecond) in enumerate(
-                zip(
-                    number,
-                    np.maximum(sec, 0).astype(np.int64).tolist(),
-                    nsec.tolist(),
-                    strict=True,
-                )
-            )
-        ]
-        return fixes
+        return _location_fixes(batch)[0]
 
     def picture_geojson(self) -> bytes:
         """Every live track's point, trail and vector, as one FeatureCollection; a track's
-        features are made again only when it has moved since the last picture (all such
-        tracks at once, from their updates' columns)."""
+        features are made again only when it has moved since the last picture, from the
+        columns its update's fix was made of, each already escaped as the picture's
+        string (``json.dumps`` escapes character by character: the escaped parts joined
+        are the whole escaped)."""
         numbers = sorted(self._tracks)
-        moved = [self._tracks[n] for n in numbers if self._tracks[n].features is None]
-        if moved:
-            batch = SystemBatch.gather([(track.batch, track.row) for track in moved])
-            for track, features in zip(moved, self._features(batch, moved), strict=True):
-                track.features = features
-        fragments = [self._tracks[n].features or "" for n in numbers]
-        collection = '{"type":"FeatureCollection","features":[' + ",".join(fragments) + "]}"
-        return _dumps({"geojson": collection})
-
-    @staticmethod
-    def _features(batch: SystemBatch, tracks: Sequence[_Track]) -> list[str]:
-        """Each track's point (its identity as properties), trail and one-minute vector,
-        as ``json.dumps`` writes them (compact), joined by commas; ``batch``: their latest
-        updates, in the same order."""
-        rows = np.arange(len(batch))
-        number, _, identities, colours = _map_columns(batch, rows)
-        (_, labels), *identity = identities
-        properties = list(
-            map(
-                "".join,
-                zip(
-                    *(
-                        [
-                            "" if v is None else f',"{key}":{text}'
-                            for v, text in zip(values, _json_strings(key, values), strict=True)
-                        ]
-                        for key, values in identity
-                    ),
-                    strict=True,
-                ),
-            )
-        )
-        lon, lat = batch.lon.tolist(), batch.lat.tolist()
-        # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
-        # precision (/system_tracks has the full values).
-        here = [(round(x, 5), round(y, 5)) for x, y in zip(lon, lat, strict=True)]
-        ahead = list(map(_ahead, lon, lat, batch.vx.tolist(), batch.vy.tolist()))
-        out = []
-        for k, track in enumerate(tracks):
-            colour = _COLOUR_HEX[colours[k]]
-            label, point = labels[k] or "", _point(here[k])
-            features = [
-                f'{{"type":"Feature","id":"track/{number[k]}","geometry":{{"type":"Point",'
-                f'"coordinates":{point}}},"properties":{{"name":'
-                f"{encode_basestring_ascii(label)}{properties[k]},"
-                f'"style":{{"color":"{colour}","fillColor":"{colour}","fillOpacity":1.0}}}}}}'
-            ]
-            if track.trail_json is None:
-                track.trail_json = ",".join(_point((x, y)) for _, x, y in track.trail)
-            trail, points = track.trail_json, len(track.trail)
-            if not points or track.trail[-1][1:] != here[k]:
-                trail = f"{trail},{point}" if points else point
-                points += 1
-            if points >= 2:
-                features.append(
-                    f'{{"type":"Feature","id":"trail/{number[k]}","geometry":{{"type":'
-                    f'"LineString","coordinates":[{trail}]}},"properties":{{"name":'
-                    f"{encode_basestring_ascii(label + ' trail')},"
-                    f'"style":{{"color":"{colour}","weight":2,"opacity":0.5}}}}}}'
-                )
-            features.append(
-                f'{{"type":"Feature","id":"vector/{number[k]}","geometry":{{"type":'
-                f'"LineString","coordinates":[{point},{_point(ahead[k])}]}},"properties":'
-                f'{{"name":{encode_basestring_ascii(label + " 1 min")},'
-                f'"style":{{"color":"{colour}","weight":1,"opacity":0.9}}}}}}'
-            )
-            out.append(",".join(features))
-        return out
+        tracks = [self._tracks[n] for n in numbers]
+        moved = [track for track in tracks if track.features is None]
+        for track, features in zip(moved, _features(moved), strict=True):
+            track.features = encode_basestring_ascii(features)[1:-1]
+        fragments = ",".join([track.features or "" for track in tracks])
+        return f'{{"geojson":"{_PICTURE_START}{fragments}]}}"}}'.encode()
 
     def sites_geojson(self) -> bytes:
         if self._sites_payload is None:
@@ -572,6 +471,131 @@ class MapScene:
                 )
             self._sites_payload = _geojson(features)
         return self._sites_payload
+
+
+def _location_fixes(batch: SystemBatch) -> tuple[list[bytes], _LiveColumns]:
+    """``MapScene.location_fixes``, and the live rows' columns the picture reads."""
+    live = np.flatnonzero(batch.status != _ENDED)
+    if not live.size:
+        return [], _LiveColumns((), (), (), (), (), (), ())
+    p = batch.covariance[live]
+    # The altitude the message gives, else its flight level's, else 0.
+    altitude = np.where(
+        np.isnan(batch.altitude_m[live]),
+        np.where(
+            np.isnan(batch.flight_level[live]), 0.0, batch.flight_level[live] * _METRES_PER_FL
+        ),
+        batch.altitude_m[live],
+    )
+    numbers = python_json_numbers(
+        np.column_stack(
+            (batch.lat[live], batch.lon[live], altitude, p[:, 0], p[:, 1], p[:, 4], p[:, 5])
+        )
+        .ravel()
+        .tolist()
+    )
+    time = batch.time[live]
+    sec = np.floor(time)
+    # ``_timestamp``: the fraction split off first, no 128 ns rounding.
+    nsec = np.minimum(np.rint((time - sec) * _NS_PER_S), _NS_PER_S - 1).astype(np.int64)
+    number, _, identities, colours = _map_columns(batch, live)
+    # Each item a column of its JSON objects ("" where a track has none), the first
+    # (the label, which every track has) without its leading comma.
+    texts = [(key, values, _json_strings(key, values)) for key, values in identities]
+    items = [
+        [
+            "" if v is None else f'{"," if i else ""}{{"key":"{key}","value":{text}}}'
+            for v, text in zip(values, strings, strict=True)
+        ]
+        for i, (key, values, strings) in enumerate(texts)
+    ]
+    metadata = list(map("".join, zip(*items, strict=True)))
+    fixes = [
+        (
+            _FIX
+            % (
+                second,
+                nanosecond,
+                n,
+                *numbers[7 * k : 7 * k + 7],
+                *_COLOUR_TEXT[colours[k]],
+                metadata[k],
+            )
+        ).encode()
+        for k, (n, second, nanosecond) in enumerate(
+            zip(
+                number,
+                np.maximum(sec, 0).astype(np.int64).tolist(),
+                nsec.tolist(),
+                strict=True,
+            )
+        )
+    ]
+    columns = _LiveColumns(
+        tuple(number),
+        tuple((key, tuple(values), tuple(strings)) for key, values, strings in texts),
+        tuple(colours),
+        tuple(batch.lon[live].tolist()),
+        tuple(batch.lat[live].tolist()),
+        tuple(batch.vx[live].tolist()),
+        tuple(batch.vy[live].tolist()),
+    )
+    return fixes, columns
+
+
+_PICTURE_START = encode_basestring_ascii('{"type":"FeatureCollection","features":[')[1:-1]
+
+
+def _features(tracks: Sequence[_Track]) -> list[str]:
+    """Each track's point (its identity as properties), trail and one-minute vector, as
+    ``json.dumps`` writes them (compact), joined by commas; the coordinates of all of
+    them written at once."""
+    lon_lat: list[float] = []
+    for track in tracks:
+        c, k = track.columns, track.row
+        lon, lat = c.lon[k], c.lat[k]
+        # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
+        # precision (/system_tracks has the full values).
+        lon_lat += (round(lon, 5), round(lat, 5), *_ahead(lon, lat, c.vx[k], c.vy[k]))
+    numbers = python_json_numbers(lon_lat)
+    out = []
+    for m, track in enumerate(tracks):
+        c, k = track.columns, track.row
+        number, colour = c.number[k], _COLOUR_HEX[c.colours[k]]
+        (_, labels, _), *identity = c.texts
+        label = labels[k] or ""
+        properties = "".join(
+            [f',"{key}":{strings[k]}' for key, values, strings in identity if values[k] is not None]
+        )
+        point = f"[{numbers[4 * m]},{numbers[4 * m + 1]}]"
+        features = [
+            f'{{"type":"Feature","id":"track/{number}","geometry":{{"type":"Point",'
+            f'"coordinates":{point}}},"properties":{{"name":'
+            f"{encode_basestring_ascii(label)}{properties},"
+            f'"style":{{"color":"{colour}","fillColor":"{colour}","fillOpacity":1.0}}}}}}'
+        ]
+        trail, points = track.trail_points, len(track.trail_points)
+        here = (lon_lat[4 * m], lon_lat[4 * m + 1])
+        if points and track.trail[-1][1:] == here:
+            line = ",".join(trail)
+        else:
+            line = ",".join([*trail, point])
+            points += 1
+        if points >= 2:
+            features.append(
+                f'{{"type":"Feature","id":"trail/{number}","geometry":{{"type":'
+                f'"LineString","coordinates":[{line}]}},"properties":{{"name":'
+                f"{encode_basestring_ascii(label + ' trail')},"
+                f'"style":{{"color":"{colour}","weight":2,"opacity":0.5}}}}}}'
+            )
+        features.append(
+            f'{{"type":"Feature","id":"vector/{number}","geometry":{{"type":'
+            f'"LineString","coordinates":[{point},[{numbers[4 * m + 2]},{numbers[4 * m + 3]}]]}},'
+            f'"properties":{{"name":{encode_basestring_ascii(label + " 1 min")},'
+            f'"style":{{"color":"{colour}","weight":1,"opacity":0.9}}}}}}'
+        )
+        out.append(",".join(features))
+    return out
 
 
 def _due(next_time: float | None, period: float, time: float) -> tuple[bool, float | None]:

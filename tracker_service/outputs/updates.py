@@ -360,13 +360,20 @@ class SystemBatch:
             for b, _, _ in rows.values()
         ):
             return SystemBatch.of_values([batch.values(row) for batch, row in rows_of])
-        parts = [batch.take(taken) for batch, _, taken in rows.values()]
-        order = np.argsort(np.concatenate([positions for _, positions, _ in rows.values()]))
+        # Each column of the batches whole, then one take of the rows: two numpy calls a
+        # column rather than a take of every column a batch (a second's CAT062 gathers
+        # from some 100 batches).
+        batches = [batch for batch, _, _ in rows.values()]
+        index = np.empty(len(rows_of), dtype=np.int64)
+        offset = 0
+        for batch, positions, taken in rows.values():
+            index[positions] = np.asarray(taken, dtype=np.int64) + offset
+            offset += len(batch)
         columns: dict[str, Any] = {
-            name: np.concatenate([getattr(part, name) for part in parts])[order]
+            name: np.concatenate([getattr(batch, name) for batch in batches])[index]
             for name in _BATCH_ROWS
         }
-        return replace(parts[0], **columns)
+        return replace(batches[0], **columns)
 
     @staticmethod
     def runs(updates: Sequence[SystemUpdate]) -> list[SystemBatch]:
