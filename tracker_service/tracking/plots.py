@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.small_arrays import concatenate_rows, row_bytes, take_rows
 from tracker_service.tracking.config import SHARED_MODE3A_CODES
 
 FloatArray = npt.NDArray[np.float64]
@@ -86,16 +87,6 @@ PLOT_DTYPE = np.dtype(
 )
 """Structured-array form of the input, one row per plot (see ``PlotArrays``)."""
 
-_PLOT_BYTES = np.dtype((np.void, PLOT_DTYPE.itemsize))
-"""A plot row as opaque bytes (see ``as_bytes``), made once: a dtype costs to build."""
-
-
-def as_bytes(rows: npt.NDArray[Any]) -> npt.NDArray[Any]:
-    """A structured array's rows as opaque fixed-size bytes (a view). numpy copies these
-    whole rows at once, where a structured copy goes field by field: several times
-    slower on the few rows of a sector. ``.view(dtype)`` turns the copy back."""
-    return rows.view(np.dtype((np.void, rows.dtype.itemsize)))
-
 
 class PlotArrays:
     """Plots as columns: time (POSIX s, of measurement), x, y (m, east/north), R (N, 2, 2),
@@ -172,7 +163,7 @@ class PlotArrays:
 
     def take(self, index: npt.NDArray[Any]) -> PlotArrays:
         """The rows at ``index`` (integers or a mask), always a copy."""
-        return PlotArrays(self.rows.view(_PLOT_BYTES)[index].view(PLOT_DTYPE))
+        return PlotArrays(take_rows(self.rows, index))
 
     def select(self, mask: BoolArray) -> PlotArrays:
         """The rows where ``mask`` is true; ``self`` itself when it keeps every row (the
@@ -185,8 +176,7 @@ class PlotArrays:
             return a
         if len(a) == 0:
             return b
-        joined = np.concatenate([a.rows.view(_PLOT_BYTES), b.rows.view(_PLOT_BYTES)])
-        return PlotArrays(joined.view(PLOT_DTYPE))
+        return PlotArrays(concatenate_rows([a.rows, b.rows]))
 
     @staticmethod
     def empty() -> PlotArrays:
@@ -212,7 +202,7 @@ def _empty_row() -> npt.NDArray[Any]:
     row = np.zeros(1, dtype=PLOT_DTYPE)
     for name in DAP_FIELDS:
         row[name] = np.nan
-    return row.view(_PLOT_BYTES)
+    return row_bytes(row)
 
 
 _EMPTY_ROW = _empty_row()

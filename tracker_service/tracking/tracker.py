@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.small_arrays import is_one_of
+from tracker_service.small_arrays import concatenate_rows, is_one_of
 from tracker_service.tracking import imm, kernels, vertical
 from tracker_service.tracking.association import (
     Gate,
@@ -46,7 +46,6 @@ from tracker_service.tracking.plots import (
     FloatArray,
     IntArray,
     PlotArrays,
-    as_bytes,
     as_plot_arrays,
 )
 
@@ -1082,4 +1081,4 @@ def _join(rows: list[npt.NDArray[Any]], dtype: np.dtype[Any]) -> npt.NDArray[Any
         return rows[0]
     if not rows:
         return np.zeros(0, dtype=dtype)
-    return np.concatenate([as_bytes(r) for r in rows]).view(dtype)
+    return concatenate_rows(rows)
