@@ -19,10 +19,12 @@ quantities are written here, with the items' LSBs and sizes read from the specif
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
 from functools import cache
+from itertools import accumulate
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
@@ -96,7 +98,7 @@ def encode_system_batch(
     (``updates.SystemBatch``), as the service keeps them."""
     if not len(batch):
         return b""
-    return _blocks(_fast_records(track_columns(batch, config), config), max_block_octets)
+    return _framed(*_fast_records(track_columns(batch, config), config), max_block_octets)
 
 
 def encode_system_tracks_generic(
@@ -114,26 +116,29 @@ def encode_system_tracks_generic(
 
 def _blocks(records: Sequence[bytes], max_block_octets: int) -> bytes:
     """The records framed as encode_block frames them, as many a block as fit."""
+    return _framed(b"".join(records), list(accumulate(map(len, records))), max_block_octets)
+
+
+def _framed(data: bytes, ends: list[int], max_block_octets: int) -> bytes:
+    """Records one after another in ``data``, each ending at its entry of ``ends``,
+    framed as :func:`_blocks` frames them: each block the records up to the one that
+    would take it past ``max_block_octets``, found by bisection (a block a step, not a
+    record)."""
+    room = max_block_octets - 3
+    sizes = np.diff(ends, prepend=0)
+    if len(sizes) and sizes.max() > room:
+        size = int(sizes[sizes > room][0])
+        raise ValueError(
+            f"a CAT062 record of {size} octets does not fit a block of {max_block_octets}"
+        )
     blocks: list[bytes] = []
-    group: list[bytes] = []
-    size = 3
-    for encoded in records:
-        if len(encoded) + 3 > max_block_octets:
-            raise ValueError(
-                f"a CAT062 record of {len(encoded)} octets does not fit a block of "
-                f"{max_block_octets}"
-            )
-        if size + len(encoded) > max_block_octets:
-            blocks.append(_block(group, size))
-            group, size = [], 3
-        group.append(encoded)
-        size += len(encoded)
-    blocks.append(_block(group, size))
+    start, first = 0, 0
+    while first < len(ends) or not blocks:
+        stop = bisect_right(ends, start + room, lo=first)
+        end = ends[stop - 1] if stop > first else start
+        blocks.append(bytes([CAT062]) + (end - start + 3).to_bytes(2) + data[start:end])
+        start, first = end, stop
     return b"".join(blocks)
-
-
-def _block(records: list[bytes], size: int) -> bytes:
-    return bytes([CAT062]) + size.to_bytes(2) + b"".join(records)
 
 
 @dataclass(frozen=True)
@@ -679,11 +684,13 @@ def _fspec_of(item: str, names: Sequence[str]) -> Callable[[tuple[int, ...]], by
 
 def _looked_up(index: IntArray, encoded: list[bytes]) -> _Part:
     """Row k has ``encoded[index[k]]`` (-1: nothing)."""
-    width = max(map(len, encoded), default=0)
-    rows = np.frombuffer(
-        b"".join(e.ljust(width, b"\0") for e in encoded) + bytes(width), dtype=np.uint8
-    ).reshape(len(encoded) + 1, width)
     lengths = np.array([*map(len, encoded), 0], dtype=np.int64)
+    width = int(lengths.max())
+    # Most parts have one size (a callsign's 7 octets): no padding to make then.
+    padded = encoded if (lengths[:-1] == width).all() else [e.ljust(width, b"\0") for e in encoded]
+    rows = np.frombuffer(b"".join(padded) + bytes(width), dtype=np.uint8).reshape(
+        len(encoded) + 1, width
+    )
     # -1: the zero row at the end, of length 0.
     return _Part(rows[index], np.arange(width) < lengths[index][:, None])
 
@@ -702,8 +709,9 @@ def _quantities(
     return _fixed(_bytes(raw, octets), present)
 
 
-def _fast_records(c: TrackColumns, config: SdpsIdentity) -> list[bytes]:
-    """The records of every row, byte for byte what ``encode_record`` makes of
+def _fast_records(c: TrackColumns, config: SdpsIdentity) -> tuple[bytes, list[int]]:
+    """The records of every row one after another, and where each ends: byte for byte
+    what ``encode_record`` makes of
     ``system_track_records``; a value beyond its item's range goes to the generic encoder,
     which raises ``EncodeError`` naming it, as before.
 
@@ -716,12 +724,11 @@ def _fast_records(c: TrackColumns, config: SdpsIdentity) -> list[bytes]:
     try:
         parts = _record_parts(c, config)
     except _OutOfRange:
-        return [encode_record(CAT062, _record(c, k, config)) for k in range(len(c))]
+        records = [encode_record(CAT062, _record(c, k, config)) for k in range(len(c))]
+        return b"".join(records), list(accumulate(map(len, records)))
     octets = np.hstack([part.octets for part in parts])
     present = np.hstack([np.broadcast_to(p.present, p.octets.shape) for p in parts])
-    data = octets[present].tobytes()
-    ends = np.cumsum(present.sum(axis=1)).tolist()
-    return [data[start:end] for start, end in zip([0, *ends[:-1]], ends, strict=True)]
+    return octets[present].tobytes(), np.cumsum(present.sum(axis=1)).tolist()
 
 
 def _record_parts(c: TrackColumns, config: SdpsIdentity) -> list[_Part]:
