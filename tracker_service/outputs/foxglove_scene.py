@@ -17,8 +17,9 @@ schemas (JSON encoding, JSON schemas as Foxglove publishes them):
   every ``sites_period_s`` (a client that joins late, or a log file cut by rotation, has
   them within that time).
 
-Memory is bounded: per live track its latest message and at most
-``trail_s / trail_spacing_s + 1`` trail points; an ended track is forgotten.
+Memory is bounded: per live track the text of its features in the picture (made with its
+latest update) and at most ``trail_s / trail_spacing_s + 1`` trail points; an ended track
+is forgotten.
 
 Colours, from the display conventions of ATC situation displays: a track fused from two
 or more sources green, one source blue, coasting amber, a Mode S address that another
@@ -574,8 +575,8 @@ def _live_rows(
         f'{{"type":"Feature","id":"track/{n}","geometry":{{"type":"Point",'
         f'"coordinates":{p}}},"properties":{{"name":{name or _NO_NAME}'
         f'{props},"style":{{"color":"{colour}","fillColor":"{colour}","fillOpacity":1.0}}}}}}'
-        for n, p, label, name, props, colour in zip(
-            number, point, labels, label_texts, properties, hexes, strict=True
+        for n, p, name, props, colour in zip(
+            number, point, label_texts, properties, hexes, strict=True
         )
     ]
     trail_start = [
