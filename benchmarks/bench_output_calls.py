@@ -21,9 +21,12 @@ publication delay: from the start of the core's ``batch`` call to the end of the
 output's call that puts its system tracks, what the output process adds to a plot's
 latency (the close's ends left out); each full collection of the cyclic collector is timed
 too, as thread "gc" (the calls are frozen out of its scans, as the service's start-up
-objects are). ``--speed`` paces the calls at their data time (1: real time, as the daemon gets
-them; 0: back to back); ``--skip`` leaves the first seconds of data time (the picture
-filling) out of the figures.
+objects are, and the survivors of each full collection after them, as the output process
+has them: ``command.freeze_survivors``); at the end, the objects in reference cycles are
+counted with every generation unfrozen (what frozen survivors would leak). ``--speed``
+paces the calls at their data time (1: real time, as the daemon gets them; 0: back to
+back); ``--skip`` leaves the first seconds of data time (the picture filling) out of the
+figures.
 
 The calls are pickled as the output process receives them (``(method, args)``), to be read
 back only from a file of one's own making; they are unpickled before the clock starts, and
