@@ -117,24 +117,20 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     pair_a, pair_b, closer, farther, witness, ends = _exchange_witnesses(state, li, sj, involved)
     ka, kb = loc["key"][pair_a], loc["key"][pair_b]
     low, high = np.minimum(ka, kb), np.maximum(ka, kb)
-    evidence_now = np.zeros((low.size, 3))
     if low.size:
         deltas, favoured = _votes(state, closer, farther, witness, ends)
-        # Each pair's running means, over the batch's pairs at once (the arithmetic of
-        # one pair at a time: the same bits).
-        before = evidence.table(low, high)
-        n = before[:, 0] + 1.0
-        weight = 1.0 / np.minimum(n, cfg.reassociate_window)
-        evidence_now[:, 0] = n
-        evidence_now[:, 1] = before[:, 1] + (deltas - before[:, 1]) * weight
-        # Every other radar's track must favour it (in EXCHANGE_AGREEMENT of the
-        # updates): where the system tracks are mixtures (each radar's first joins made
-        # at one moment), an exchange that one of them opposes moves the mixture around
-        # instead of undoing it (PAR10 with a shared code).
-        evidence_now[:, 2] = before[:, 2] + (favoured.astype(np.float64) - before[:, 2]) * weight
-    # A pair's evidence lives while it is tested in a row: a pair of a tested track not
-    # tested now is out of reach (a coasting update, no plot, tests nothing).
-    evidence.renew(tested, low, high, evidence_now)
+    else:
+        deltas, favoured = np.zeros(0), np.zeros(0, dtype=bool)
+    # Each pair's running means, over the batch's pairs at once. Every other radar's
+    # track must favour it (in EXCHANGE_AGREEMENT of the updates): where the system
+    # tracks are mixtures (each radar's first joins made at one moment), an exchange
+    # that one of them opposes moves the mixture around instead of undoing it (PAR10
+    # with a shared code). A pair's evidence lives while it is tested in a row: a pair
+    # of a tested track not tested now is out of reach (a coasting update, no plot,
+    # tests nothing).
+    evidence_now = evidence.update(
+        tested, low, high, deltas, favoured, cfg.reassociate_window
+    )
     n, mean, agree = evidence_now.T
     weak = (mean <= cfg.exchange_margin) | (agree < EXCHANGE_AGREEMENT)
     ready = (n >= cfg.reassociate_window) & ~weak

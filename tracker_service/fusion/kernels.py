@@ -1656,17 +1656,53 @@ def evidence_renew(
 ) -> int:  # pragma: no cover - compiled
     """``state.PairEvidence.renew``: the tested keys dropped at ``stamp`` - 1, then each
     pair's entry stamped ``stamp``; returns the number of entries and drop stamps held."""
-    evidence_drop(dropped, stamp - 1, tested)
+    _drop_keys(dropped, stamp - 1, tested)
     for i in range(low.size):
         of_pair[(low[i], high[i])] = (evidence[i, 0], evidence[i, 1], evidence[i, 2], float(stamp))
     return len(of_pair) + len(dropped)
 
 
 @numba.njit(cache=True)
-def evidence_drop(dropped: Any, stamp: int, keys: IntArray) -> None:  # pragma: no cover
-    """``state.PairEvidence.drop``: each key's stamp of its latest drop."""
+def evidence_update(
+    of_pair: Any,
+    dropped: Any,
+    stamp: int,
+    tested: IntArray,
+    low: IntArray,
+    high: IntArray,
+    deltas: FloatArray,
+    favoured: npt.NDArray[np.bool_],
+    window: float,
+) -> tuple[FloatArray, int]:  # pragma: no cover - compiled
+    """``state.PairEvidence.update``: each pair's running means from its entry
+    (``evidence_table``'s, read before any write), then ``evidence_renew``; the evidence
+    now and the number of entries and drop stamps held."""
+    now = evidence_table(of_pair, dropped, low, high)
+    for i in range(low.size):
+        n = now[i, 0] + 1.0
+        weight = 1.0 / min(n, window)
+        now[i, 0] = n
+        now[i, 1] = now[i, 1] + (deltas[i] - now[i, 1]) * weight
+        now[i, 2] = now[i, 2] + ((1.0 if favoured[i] else 0.0) - now[i, 2]) * weight
+    return now, evidence_renew(of_pair, dropped, stamp, tested, low, high, now)
+
+
+@numba.njit(cache=True)
+def _drop_keys(dropped: Any, stamp: int, keys: IntArray) -> None:  # pragma: no cover
+    """Each key's stamp of its latest drop."""
     for key in keys:
         dropped[key] = stamp
+
+
+@numba.njit(cache=True)
+def evidence_drop(
+    of_pair: Any, dropped: Any, stamp: int, keys: IntArray
+) -> int:  # pragma: no cover - compiled
+    """``state.PairEvidence.drop``: each key's stamp of its latest drop; the number of
+    entries and drop stamps held (a typed dictionary's ``len`` from Python costs
+    microseconds)."""
+    _drop_keys(dropped, stamp, keys)
+    return len(of_pair) + len(dropped)
 
 
 @numba.njit(cache=True)
