@@ -108,18 +108,32 @@ class PlotFilterEstimator:
         latest: npt.NDArray[Any],
     ) -> tuple[FloatArray, FloatArray]:
         sys = state.sys
+        if state.compiled:
+            from tracker_service.fusion.kernels import plot_filter_output  # numba on use
+
+            c = state.model_constants
+            return plot_filter_output(  # type: ignore[no-any-return]
+                sys["mx"],
+                sys["mP"],
+                sys["mM"],
+                sys["mu"],
+                sys["t"],
+                sys["solo"],
+                sys["B"],
+                kernel_indices(numbers),
+                np.ascontiguousarray(t, dtype=np.float64),
+                latest,
+                c.omega,
+                c.q,
+                c.sojourn,
+            )
         x, p, m_comb = combined_prediction(state, numbers, t - sys["t"][numbers])
         x, p = x.copy(), p.copy()
         solo = sys["solo"][numbers]  # its founder's update (``_follow_founder``)
         v = latest[solo]
         x[solo] = np.column_stack([v["x"], v["y"], v["vx"], v["vy"]])
         p[solo] = v["P"].reshape(-1, 4, 4)
-        if state.compiled:
-            from tracker_service.fusion.kernels import bias_share
-
-            p += bias_share(m_comb, sys["B"][numbers])
-        else:
-            p += consider.bias_share(m_comb, sys["B"][numbers])
+        p += consider.bias_share(m_comb, sys["B"][numbers])
         return x, p
 
 

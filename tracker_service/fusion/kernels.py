@@ -227,6 +227,96 @@ def consider_predict(
 
 
 @numba.njit(cache=True)
+def plot_filter_output(
+    mx: FloatArray,
+    mP: FloatArray,
+    mM: FloatArray,
+    mu: FloatArray,
+    sys_t: FloatArray,
+    solo: npt.NDArray[np.bool_],
+    B: FloatArray,
+    numbers: IntArray,
+    t: FloatArray,
+    latest: npt.NDArray[Any],
+    omega: FloatArray,
+    q: FloatArray,
+    sojourn: FloatArray,
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """``estimator_plots.PlotFilterEstimator.output`` in one call: the system tracks
+    predicted to t (``consider_predict``), a solo track's state and covariance its
+    founder's latest update (``latest``, one per number), plus the bias share of its
+    sensitivities (``bias_share``): the same arithmetic in the same order."""
+    k = numbers.size
+    dt = np.empty(k)
+    for r in range(k):
+        dt[r] = t[r] - sys_t[numbers[r]]
+    x, p, m_comb = consider_predict(mx, mP, mM, mu, numbers, dt, omega, q, sojourn)
+    for r in range(k):
+        if not solo[numbers[r]]:
+            continue
+        v = latest[r]
+        x[r, 0], x[r, 1], x[r, 2], x[r, 3] = v["x"], v["y"], v["vx"], v["vy"]
+        for a in range(4):
+            for b in range(4):
+                p[r, a, b] = v["P"][4 * a + b]
+    share = bias_share(m_comb, B[numbers])
+    for r in range(k):
+        for a in range(4):
+            for b in range(4):
+                p[r, a, b] = p[r, a, b] + share[r, a, b]
+    return x, p
+
+
+@numba.njit(cache=True)
+def emit_index(
+    systems: IntArray,
+    has_plot: npt.NDArray[np.bool_],
+    plot_id: IntArray,
+    time: FloatArray,
+    sys_t_plot: FloatArray,
+    confirmed: int,
+    coasting: int,
+) -> tuple[IntArray, IntArray, FloatArray, npt.NDArray[np.bool_], IntArray, npt.NDArray[np.int8]]:
+    # pragma: no cover - compiled
+    """``rows.emit``'s index of a batch's fed rows (system track ``systems``) in one
+    pass: each system track's last row (ascending by number), its number and time,
+    whether one of its rows has a plot (fresh), the plot of the last such row (-1: none)
+    and the row's status; a fresh track's ``t_plot`` moved up to the time, as
+    ``np.maximum`` moves it (NaN kept)."""
+    size = 1
+    for g in systems:
+        size = max(size, g + 1)
+    last_at = np.full(size, -1, dtype=np.int64)
+    plot_at = np.full(size, -1, dtype=np.int64)
+    for i in range(systems.size):
+        last_at[systems[i]] = i
+        if has_plot[i]:
+            plot_at[systems[i]] = i
+    k = 0
+    for g in range(size):
+        if last_at[g] >= 0:
+            k += 1
+    last = np.empty(k, dtype=np.int64)
+    numbers = np.empty(k, dtype=np.int64)
+    t = np.empty(k)
+    fresh = np.empty(k, dtype=np.bool_)
+    plot_of = np.empty(k, dtype=np.int64)
+    status = np.empty(k, dtype=np.int8)
+    r = 0
+    for g in range(size):
+        if last_at[g] < 0:
+            continue
+        last[r], numbers[r], t[r] = last_at[g], g, time[last_at[g]]
+        fresh[r] = plot_at[g] >= 0
+        plot_of[r] = plot_id[plot_at[g]] if fresh[r] else -1
+        status[r] = confirmed if fresh[r] else coasting
+        if fresh[r] and (t[r] > sys_t_plot[g] or math.isnan(t[r])):
+            sys_t_plot[g] = t[r]
+        r += 1
+    return last, numbers, t, fresh, plot_of, status
+
+
+@numba.njit(cache=True)
 def gate_distances(
     mx: FloatArray,
     mP: FloatArray,
@@ -1343,6 +1433,36 @@ def identity_candidates(
             keep[n] = alive[i]
             n += 1
     return keep[:n].copy()
+
+
+@numba.njit(cache=True)
+def identities_in_use(
+    address: IntArray,
+    code: IntArray,
+    alive: npt.NDArray[np.bool_],
+    sys_address: IntArray,
+    sys_mode3a: IntArray,
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:  # pragma: no cover - compiled
+    """``lifecycle._identities_in_use``: whether a live system track (number 1 and up)
+    carries each of ``address`` and each of ``code``; the live tracks' values looked up
+    among the few sorted ones (a table of their low bits first)."""
+    address_used = np.zeros(address.size, dtype=np.bool_)
+    code_used = np.zeros(code.size, dtype=np.bool_)
+    for values, column, used in ((address, sys_address, address_used), (code, sys_mode3a, code_used)):
+        order = np.argsort(values)
+        ordered = values[order]
+        bits = np.zeros(IDENTITY_HASH, dtype=np.bool_)
+        for v in ordered:
+            bits[v & (IDENTITY_HASH - 1)] = True
+        for g in range(1, alive.size):
+            v = column[g]
+            if not (alive[g] and bits[v & (IDENTITY_HASH - 1)]):
+                continue
+            at = np.searchsorted(ordered, v)
+            while at < ordered.size and ordered[at] == v:
+                used[order[at]] = True
+                at += 1
+    return address_used, code_used
 
 
 @numba.njit(cache=True)
