@@ -337,11 +337,12 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
     system = rng.integers(1, 9, states[0].local.n)
     for state in states:
         state.local.rows["system"][: state.local.n] = system
-    involved = np.flatnonzero(rng.random(states[0].local.n) < 0.8)
-    li = rng.choice(involved, candidates) if involved.size else np.zeros(0, dtype=np.int64)
-    # As in use, S' is fed by an involved row (of the candidate's radar or not).
-    sj = rng.choice(system[involved], li.size) if involved.size else li
-    got, want = (associate._exchange_witnesses(state, li, sj, involved) for state in states)
+    feeding = np.flatnonzero(rng.random(states[0].local.n) < 0.8)
+    li = rng.choice(feeding, candidates) if feeding.size else np.zeros(0, dtype=np.int64)
+    # As in use, S' is fed by a feeding row (of the candidate's radar or not; the
+    # candidate's own system track among them, which is no candidate).
+    sj = rng.choice(system[feeding], li.size) if feeding.size else li
+    got, want = (associate._exchange_witnesses(state, li, sj, feeding) for state in states)
     assert np.array_equal(loc["key"], states[1].local.rows["key"])
     for a, b in zip(want, got, strict=True):
         np.testing.assert_array_equal(a, b)

@@ -89,7 +89,6 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     evidence = state.exchange_evidence
     if cfg.exchange_margin <= 0 or held.size == 0:
         return
-    used = state.local.used
     confirmed = held[loc["status"][held] == LOCAL_CONFIRMED]
     tested = loc["key"][confirmed]
     # Only a system track that a track of the batch's radar feeds can hold the l' of a
@@ -104,17 +103,10 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         evidence.drop(tested)
         return
     li, sj = _near(state, estimator, confirmed, own, bias_over=fed)
-    other = sj != loc["system"][li]
-    li, sj = li[other], sj[other]
-    # The confirmed rows feeding the candidates' system tracks (S and S'), in row order.
-    wanted = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
-    wanted[sj] = True
-    wanted[loc["system"][li]] = True
-    involved = feeding[wanted[used["system"][feeding]]]
     # The pairs and their witnesses by array operations, then every distance in two
     # batched calls (one call per pair cost 60 % of the whole chain on ``scale``, the
     # pairs built in Python a third of the fuser).
-    pair_a, pair_b, closer, farther, witness, ends = _exchange_witnesses(state, li, sj, involved)
+    pair_a, pair_b, closer, farther, witness, ends = _exchange_witnesses(state, li, sj, feeding)
     ka, kb = loc["key"][pair_a], loc["key"][pair_b]
     low, high = np.minimum(ka, kb), np.maximum(ka, kb)
     if low.size:
@@ -175,11 +167,12 @@ def _feeding(state: FusionState, radar: int) -> tuple[IntArray, bool, IntArray, 
 
 
 def _exchange_witnesses(
-    state: FusionState, li: IntArray, sj: IntArray, involved: IntArray
+    state: FusionState, li: IntArray, sj: IntArray, feeding: IntArray
 ) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray, IntArray]:
     """The exchange test's pairs and votes. For each candidate (local row li[i] of radar
-    r in system track S, near system track sj[i] = S'), l' is the first row of
-    ``involved`` (the confirmed rows feeding S and S', ascending) of radar r in S'; the
+    r in system track S, near system track sj[i] = S', another), l' is the first row of
+    ``involved`` (the rows of ``feeding``, the confirmed rows feeding a system track in
+    ascending order, that feed S or S') of radar r in S'; the
     pair (l, l') is kept the first time it comes (each of its tracks' candidates names
     it) and only when other radars' rows feed both S and S'. Returns the pairs' rows l
     and l', then per vote the track its witness should be closer to, the one it should
@@ -187,7 +180,7 @@ def _exchange_witnesses(
     order), and the bounds of each pair's votes (``ends``, from 0)."""
     loc = state.local.rows
     empty = np.zeros(0, dtype=np.int64)
-    if li.size == 0 or involved.size == 0:
+    if li.size == 0 or feeding.size == 0:
         return empty, empty, empty, empty, empty, np.zeros(1, dtype=np.int64)
     if state.compiled:
         from tracker_service.fusion.kernels import exchange_witnesses  # numba when compiled
@@ -195,12 +188,20 @@ def _exchange_witnesses(
         return exchange_witnesses(
             kernel_indices(li),
             kernel_indices(sj),
-            kernel_indices(involved),
+            kernel_indices(feeding),
             loc["system"],
             loc["radar"],
             loc["key"],
             MAX_SYSTEM_NUMBER + 1,
         )
+    other = sj != loc["system"][li]
+    li, sj = li[other], sj[other]
+    wanted = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
+    wanted[sj] = True
+    wanted[loc["system"][li]] = True
+    involved = feeding[wanted[loc["system"][feeding]]]
+    if li.size == 0 or involved.size == 0:
+        return empty, empty, empty, empty, empty, np.zeros(1, dtype=np.int64)
     radars = np.int64(state.n_radars)
     system, radar = loc["system"][involved], loc["radar"][involved]
     here, own = loc["system"][li], loc["radar"][li]

@@ -1301,7 +1301,8 @@ def exchange_feeding(
             fed[system[r]] = True
             if radar[r] == own_radar:
                 own[system[r]] = True
-    return feeding[:n].copy(), several, np.flatnonzero(fed), np.flatnonzero(own)
+    # A view of the rows found: a copy of some 20,000 rows on ``artas`` cost more.
+    return feeding[:n], several, np.flatnonzero(fed), np.flatnonzero(own)
 
 
 @numba.njit(cache=True)
@@ -1321,26 +1322,37 @@ def radars_feeding(
 def exchange_witnesses(
     li: IntArray,
     sj: IntArray,
-    involved: IntArray,
+    feeding: IntArray,
     loc_system: IntArray,
     loc_radar: IntArray,
     loc_key: IntArray,
     size: int,
 ) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray, IntArray]:  # pragma: no cover
-    """``associate._exchange_witnesses`` from the local table's fields: ``involved``'s rows
-    grouped by system track (ascending within each), each candidate's l' (the first row
-    of its radar in S') and the other radars' rows of S and S', the pairs kept the first
-    time they come (a dictionary of their keys), then the votes pair by pair."""
+    """``associate._exchange_witnesses`` from the local table's fields: the rows of
+    ``feeding`` that feed a candidate's S or S' (candidates near their own system track
+    left out) grouped by system track (ascending within each), each candidate's l' (the
+    first row of its radar in S') and the other radars' rows of S and S', the pairs kept
+    the first time they come (a dictionary of their keys), then the votes pair by pair."""
+    wanted = np.zeros(size, dtype=np.bool_)
+    for i in range(li.size):
+        if sj[i] != loc_system[li[i]]:
+            wanted[sj[i]] = True
+            wanted[loc_system[li[i]]] = True
     count = np.zeros(size + 1, dtype=np.int64)
-    for q in range(involved.size):
-        count[loc_system[involved[q]] + 1] += 1
+    n_involved = 0
+    for q in range(feeding.size):
+        g = loc_system[feeding[q]]
+        if wanted[g]:
+            count[g + 1] += 1
+            n_involved += 1
     start = np.cumsum(count)
     fill = start[:-1].copy()
-    grouped = np.empty(involved.size, dtype=np.int64)
-    for q in range(involved.size):
-        g = loc_system[involved[q]]
-        grouped[fill[g]] = involved[q]
-        fill[g] += 1
+    grouped = np.empty(n_involved, dtype=np.int64)
+    for q in range(feeding.size):
+        g = loc_system[feeding[q]]
+        if wanted[g]:
+            grouped[fill[g]] = feeding[q]
+            fill[g] += 1
     k = li.size
     pair_a = np.empty(k, dtype=np.int64)
     pair_b = np.empty(k, dtype=np.int64)
@@ -1350,6 +1362,8 @@ def exchange_witnesses(
     seen = dict()
     for i in range(k):
         here, there, radar = loc_system[li[i]], sj[i], loc_radar[li[i]]
+        if here == there:
+            continue
         partner = -1
         others_there = 0
         for q in range(start[there], start[there + 1]):
