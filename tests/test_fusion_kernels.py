@@ -88,7 +88,7 @@ def _states(
     )
     local.rows["P"][rows] = _spd(rng, (k,), np.array([100.0, 100.0, 8.0, 8.0]))
     local.rows["extra"][rows] = _spd(rng, (k,), np.array([40.0, 40.0]))
-    states[1].sys[...] = sys
+    states[1].sys.put(slice(None), sys)
     states[1].local = local  # read only by the ML fusion
     return states[0], states[1], rng
 
@@ -502,7 +502,7 @@ def test_merge_candidates_are_the_reference(seed: int, k: int, n_radars: int) ->
     sys["orphaned"][n[rng.uniform(size=k) < 0.2]] = 1.0
     sys["alive"][n[rng.uniform(size=k) < 0.1]] = False
     nearby.refresh(sys, n, compiled=True)
-    reference.sys[...] = sys
+    reference.sys.put(slice(None), sys)
     touched = rng.integers(1, k + 1, int(rng.integers(0, 6)))
     touched = touched[sys["alive"][touched]]
     got = lifecycle._merge_candidates(compiled, touched)
@@ -524,7 +524,7 @@ def test_near_pairs_of_local_tracks_are_the_reference(seed: int, k: int, n_radar
     sys["P"][n] = sys["mP"][n, -1]
     sys["M"][n] = rng.normal(0.0, 0.5, (k, n_radars, 4, 2))
     nearby.refresh(sys, n, compiled=True)
-    reference.sys[...] = sys
+    reference.sys.put(slice(None), sys)
     # Each local track 1 km about some system track: a few percent of the pairs near.
     loc["x"][:k, :2] = sys["moments"][rng.integers(1, k + 1, k), :2] + rng.normal(0, 1e3, (k, 2))
     free = np.sort(rng.choice(k, int(rng.integers(1, k + 1)), replace=False))
@@ -560,7 +560,7 @@ def test_expiry_sets_are_the_reference(seed: int, k: int) -> None:
     sys["t_row"][n] = rng.uniform(10.0, 20.0, k)
     orphan = rng.uniform(size=k) < 0.4
     sys["orphaned"][n[orphan]] = rng.uniform(0.0, 20.0, int(orphan.sum()))
-    states[1].sys[...] = sys
+    states[1].sys.put(slice(None), sys)
     for state in states:
         state.now = 20.0
     got, want = (lifecycle.expire(state, 0) for state in states)

@@ -120,9 +120,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     # with a shared code). A pair's evidence lives while it is tested in a row: a pair
     # of a tested track not tested now is out of reach (a coasting update, no plot,
     # tests nothing).
-    evidence_now = evidence.update(
-        tested, low, high, deltas, favoured, cfg.reassociate_window
-    )
+    evidence_now = evidence.update(tested, low, high, deltas, favoured, cfg.reassociate_window)
     n, mean, agree = evidence_now.T
     weak = (mean <= cfg.exchange_margin) | (agree < EXCHANGE_AGREEMENT)
     ready = (n >= cfg.reassociate_window) & ~weak

@@ -112,7 +112,7 @@ class PlotFilterEstimator:
             from tracker_service.fusion.kernels import plot_filter_output  # numba on use
 
             c = state.model_constants
-            return plot_filter_output(  # type: ignore[no-any-return]
+            return plot_filter_output(
                 sys["mx"],
                 sys["mP"],
                 sys["mM"],

@@ -1484,7 +1484,10 @@ def identities_in_use(
     among the few sorted ones (a table of their low bits first)."""
     address_used = np.zeros(address.size, dtype=np.bool_)
     code_used = np.zeros(code.size, dtype=np.bool_)
-    for values, column, used in ((address, sys_address, address_used), (code, sys_mode3a, code_used)):
+    for values, column, used in (
+        (address, sys_address, address_used),
+        (code, sys_mode3a, code_used),
+    ):
         order = np.argsort(values)
         ordered = values[order]
         bits = np.zeros(IDENTITY_HASH, dtype=np.bool_)

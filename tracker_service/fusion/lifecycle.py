@@ -35,7 +35,7 @@ def may_found(state: FusionState, candidates: IntArray) -> BoolArray:
     most likely that aircraft, seen apart while the biases are still unknown, and it
     waits up to ``FusionConfig.found_delay_s`` for the gate to take it (a second
     aircraft with a duplicated address or code founds its own after that)."""
-    loc, sys = state.local.rows, state.sys
+    loc = state.local.rows
     waiting = np.isnan(loc["t_founder"][candidates])
     loc["t_founder"][candidates[waiting]] = state.now
     address, code = loc["address"][candidates], loc["mode3a"][candidates]
@@ -55,8 +55,12 @@ def _identities_in_use(
     if state.compiled:
         from tracker_service.fusion.kernels import identities_in_use  # numba when compiled
 
-        return identities_in_use(  # type: ignore[no-any-return]
-            kernel_indices(address), kernel_indices(code), sys["alive"], sys["address"], sys["mode3a"]
+        return identities_in_use(
+            kernel_indices(address),
+            kernel_indices(code),
+            sys["alive"],
+            sys["address"],
+            sys["mode3a"],
         )
     live = sys["alive"].copy()
     live[0] = False
