@@ -27,7 +27,6 @@ from tracker_service.tracking.tracker import TENTATIVE as LOCAL_TENTATIVE
 def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) -> IntArray:
     """Keep or drop the system track of each touched local track; returns the live ones
     that may feed a system track (confirmed or coasting)."""
-    cfg = state.config
     loc = state.local.rows
     live: IntArray = touched[loc["status"][touched] != LOCAL_DELETED]
     state.exchange_evidence.drop(loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]])
@@ -38,6 +37,47 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     live = live[loc["status"][live] != LOCAL_TENTATIVE]
     held = live[loc["system"][live] > 0]
     _exchange(state, estimator, held)
+    lost = _tests(state, estimator, held)
+    _leave(state, lost)
+    state.stats.reassociations += int(lost.size)
+    return live
+
+
+def _tests(state: FusionState, estimator: SystemEstimator, held: IntArray) -> IntArray:
+    """The gate's and the consistency test's updates of the local rows ``held`` in their
+    system tracks; returns those that fail either (out of the gate too often, or
+    inconsistent). Compiled with the plot filter: one call (``kernels.review_tests``)."""
+    cfg, loc = state.config, state.local.rows
+    if state.compiled and estimator.coarse_from_models:
+        from tracker_service.fusion.kernels import review_tests  # numba only when compiled
+
+        sys, c = state.sys, state.model_constants
+        return review_tests(
+            sys["mx"],
+            sys["mP"],
+            sys["mM"],
+            sys["mu"],
+            sys["t"],
+            sys["B"],
+            sys["solo"],
+            loc["t"],
+            loc["x"],
+            loc["P"],
+            loc["extra"],
+            loc["radar"],
+            loc["system"],
+            loc["fails"],
+            loc["nis_n"],
+            loc["nis_mean"],
+            kernel_indices(held),
+            c.omega,
+            c.q,
+            c.sojourn,
+            cfg.gate,
+            cfg.reassociate_after,
+            cfg.reassociate_window,
+            cfg.reassociate_kappa * 4,
+        )
     d2 = distance(state, estimator, held, loc["system"][held])
     # A solo system track is its founding local track's state: the distance compares
     # that track with its own prediction (no independent estimate), and leaving would
@@ -47,10 +87,8 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     fails = np.where((d2 <= cfg.gate) | solo, 0, loc["fails"][held] + 1)
     loc["fails"][held] = fails
     inconsistent = _consistency(state, held, d2)
-    lost = held[(fails >= cfg.reassociate_after) | inconsistent]
-    _leave(state, lost)
-    state.stats.reassociations += int(lost.size)
-    return live
+    lost: IntArray = held[(fails >= cfg.reassociate_after) | inconsistent]
+    return lost
 
 
 def _consistency(state: FusionState, held: IntArray, d2: FloatArray) -> BoolArray:

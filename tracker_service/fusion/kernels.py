@@ -420,6 +420,75 @@ def gate_distances(
     return out
 
 
+@numba.njit(cache=True)
+def review_tests(
+    mx: FloatArray,
+    mP: FloatArray,
+    mM: FloatArray,
+    mu: FloatArray,
+    sys_t: FloatArray,
+    B: FloatArray,
+    solo: npt.NDArray[np.bool_],
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    loc_extra: FloatArray,
+    loc_radar: IntArray,
+    loc_system: IntArray,
+    fails: IntArray,
+    nis_n: IntArray,
+    nis_mean: FloatArray,
+    held: IntArray,
+    omega: FloatArray,
+    q: FloatArray,
+    sojourn: FloatArray,
+    gate: float,
+    reassociate_after: int,
+    window: int,
+    kappa_dof: float,
+) -> IntArray:  # pragma: no cover - compiled
+    """``associate.review``'s tests of the local rows ``held`` in their system tracks in
+    one call: the gate's distances (``gate_distances``), the count of updates out of the
+    gate and the consistency test's running mean written in place (a solo track's founder
+    neither fails nor is inconsistent), the same arithmetic as the numpy path; returns
+    the rows that fail either (in ``held``'s order)."""
+    systems = np.empty(held.size, dtype=np.int64)
+    for i in range(held.size):
+        systems[i] = loc_system[held[i]]
+    d2 = gate_distances(
+        mx,
+        mP,
+        mM,
+        mu,
+        sys_t,
+        B,
+        loc_t,
+        loc_x,
+        loc_P,
+        loc_extra,
+        loc_radar,
+        held,
+        systems,
+        omega,
+        q,
+        sojourn,
+    )
+    lost = np.empty(held.size, dtype=np.int64)
+    n_lost = 0
+    for i in range(held.size):
+        h = held[i]
+        alone = solo[systems[i]]
+        fails[h] = 0 if (d2[i] <= gate or alone) else fails[h] + 1
+        n = nis_n[h] + 1
+        mean = nis_mean[h]
+        mean += (d2[i] - mean) / min(n, window)
+        nis_n[h], nis_mean[h] = n, mean
+        if fails[h] >= reassociate_after or (n >= window and mean > kappa_dof and not alone):
+            lost[n_lost] = h
+            n_lost += 1
+    return lost[:n_lost].copy()
+
+
 @numba.njit(cache=True, inline="always")
 def _track_distance(
     t: FloatArray,

@@ -137,6 +137,11 @@ class Columns(dict[str, npt.NDArray[Any]]):
     def __setitem__(self, key: str, value: Any) -> None:
         self[key][...] = value
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Copied and pickled as its dtype and columns (a dictionary's items would be
+        set back through ``__setitem__``, which writes into columns that exist)."""
+        return (Columns, (self.dtype, dict(self)))
+
     def take(self, rows: slice | npt.NDArray[Any]) -> Columns:
         """The rows (a slice: views of the columns; an index: copies)."""
         return Columns(self.dtype, {n: c[rows] for n, c in self.items()})
