@@ -2047,21 +2047,6 @@ def near_local_system(
         own_bias = max(own_bias, loc_extra[r, 0, 0] + loc_extra[r, 1, 1])
     t_mid, spread = 0.5 * (lo + hi), 0.5 * (hi - lo)
     b = max(_largest_of(largest_bias, bias_over), own_bias)
-    xy_s, r_s = system_reach(
-        sys_x,
-        sys_P,
-        moments,
-        sensitivity,
-        sys_t,
-        candidates,
-        from_models,
-        2.0 * b,
-        t_mid,
-        spread,
-        gate,
-        q_max,
-        turn_max,
-    )
     k = free.size
     xy_l = np.empty((k, 2))
     r_l = np.empty(k)
@@ -2085,8 +2070,100 @@ def near_local_system(
         )
         xy_l[i, 0] = loc_x[r, 0] + loc_x[r, 2] * dt
         xy_l[i, 1] = loc_x[r, 1] + loc_x[r, 3] * dt
+    # Association takes every open system track (thousands) for a batch's few free
+    # tracks: only those a cheap bound of their reach leaves near one of them have it
+    # computed as ``system_reach`` computes it; ``near_pairs`` on them gives the same
+    # pairs in the same (row, number) order.
+    if from_models and candidates.size > k:
+        candidates = _within_bound(
+            xy_l,
+            r_l,
+            moments,
+            sensitivity,
+            sys_t,
+            candidates,
+            2.0 * b,
+            t_mid,
+            spread,
+            gate,
+            q_max,
+            turn_max,
+        )
+    xy_s, r_s = system_reach(
+        sys_x,
+        sys_P,
+        moments,
+        sensitivity,
+        sys_t,
+        candidates,
+        from_models,
+        2.0 * b,
+        t_mid,
+        spread,
+        gate,
+        q_max,
+        turn_max,
+    )
     i_l, j_s = near_pairs(xy_l, r_l, xy_s, r_s)
     return free[i_l], candidates[j_s]
+
+
+BOUND_RELATIVE = 1e-9
+BOUND_MARGIN_M = 1e-6
+"""``_within_bound``'s radius exceeds ``_radius``'s by this much at least (its terms
+differ from it by a few rounding errors: 1e-15 relative)."""
+
+
+@numba.njit(cache=True)
+def _within_bound(
+    xy_l: FloatArray,
+    r_l: FloatArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
+    sys_t: FloatArray,
+    candidates: IntArray,
+    bias_scale: float,
+    t_mid: float,
+    spread: float,
+    gate: float,
+    q_max: float,
+    turn_max: float,
+) -> IntArray:  # pragma: no cover - compiled
+    """The candidates (in order) that may pass ``near_pairs`` with a track of ``xy_l``,
+    ``r_l``: within the tracks' bounding box widened by the largest ``r_l`` and their
+    own radius bounded from above (``system_reach``'s position and radius from the
+    IMM's ``moments``, with the power and ``hypot`` of ``_radius`` as products and a
+    square root, widened by ``BOUND_RELATIVE`` and ``BOUND_MARGIN_M``), without the
+    library calls."""
+    lo0, lo1 = xy_l[:, 0].min(), xy_l[:, 1].min()
+    hi0, hi1 = xy_l[:, 0].max(), xy_l[:, 1].max()
+    widest = r_l.max()
+    kept = np.empty(candidates.size, dtype=np.int64)
+    n = 0
+    for i in range(candidates.size):
+        r = candidates[i]
+        x0, x1, x2, x3 = moments[r, 0], moments[r, 1], moments[r, 2], moments[r, 3]
+        pos, cross, vel = moments[r, 4], moments[r, 5], moments[r, 6]
+        dt = t_mid - sys_t[r]
+        x = x0 + x2 * dt
+        y = x1 + x3 * dt
+        a = abs(dt) + spread
+        speed = math.sqrt(x2 * x2 + x3 * x3)
+        turn = 0.5 * speed * turn_max * a * a
+        var = (
+            pos
+            + 2.0 * a * abs(cross)
+            + a * a * vel
+            + 2.0 * q_max * (a * a * a) / 3.0
+            + bias_scale * (2.0 * (sensitivity[r, 0] + a * a * sensitivity[r, 1]))
+            + turn * turn
+        )
+        bound = RADIUS_SAFETY * math.sqrt(gate * max(var, 0.0)) + speed * spread + turn
+        reach = (bound + RADIUS_MARGIN_M) * (1.0 + BOUND_RELATIVE) + BOUND_MARGIN_M + widest
+        if lo0 - reach <= x <= hi0 + reach and lo1 - reach <= y <= hi1 + reach:
+            kept[n] = r
+            n += 1
+    return kept[:n].copy()
 
 
 @numba.njit(cache=True)
