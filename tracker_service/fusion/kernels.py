@@ -141,11 +141,27 @@ def _prediction_scratch(m: int, n_radars: int) -> tuple[FloatArray, ...]:  # pra
 
 @numba.njit(cache=True, inline="always")
 def _combine_sensitivities(
-    mp: FloatArray, w: FloatArray, r: int, out: FloatArray
+    mp: FloatArray, w: FloatArray, r: int, out: FloatArray, active: BoolArray
 ) -> None:  # pragma: no cover - compiled
-    """Row r of ``consider.combine``: sum_j w[r, j] mp[r, j] into out[r] (L, 4, 2)."""
+    """Row r of ``consider.combine``: sum_j w[r, j] mp[r, j] into out[r] (L, 4, 2), the
+    sensitivities to the radars not ``active`` (``_sensitive``) taken as +0.0 and not
+    read. Their sum is +0.0 for finite weights (each term +0.0 or -0.0, added to +0.0):
+    written without the arithmetic (a track is sensitive to a few of ``artas``' 51
+    sources), which runs only for weights that are not all finite (NaN there)."""
     m, n_radars = mp.shape[1], mp.shape[2]
+    finite = True
+    for j in range(m):
+        finite = finite and math.isfinite(w[r, j])
     for sensor in range(n_radars):
+        if not active[sensor]:
+            for a in range(4):
+                for b in range(2):
+                    acc = 0.0
+                    if not finite:
+                        for j in range(m):
+                            acc += w[r, j] * 0.0
+                    out[r, sensor, a, b] = acc
+            continue
         for a in range(4):
             for b in range(2):
                 acc = 0.0
@@ -165,23 +181,17 @@ def _sensitive(
     is sensitive to 4 of 20 radars)."""
     m, n_radars = mM.shape[1], mM.shape[2]
     for sensor in range(n_radars):
-        found = sensor == radar
-        j = 0
-        while not found and j < m:
+        active[sensor] = sensor == radar
+    # Model by model in memory order (a radar's entries are 8 of a model's 8 L): a
+    # pass of the row without branches but one per radar.
+    for j in range(m):
+        for sensor in range(n_radars):
+            nonzero = False
             for a in range(4):
-                if mM[n, j, sensor, a, 0] != 0.0 or mM[n, j, sensor, a, 1] != 0.0:
-                    found = True
-            j += 1
-        active[sensor] = found
-
-
-@numba.njit(cache=True, inline="always")
-def _zero_inactive(mp: FloatArray, active: BoolArray) -> None:  # pragma: no cover - compiled
-    """Row 0's sensitivities to the radars not ``active`` (``_sensitive``): +0.0."""
-    for j in range(mp.shape[1]):
-        for sensor in range(mp.shape[2]):
-            if not active[sensor]:
-                mp[0, j, sensor, :, :] = 0.0
+                for b in range(2):
+                    nonzero |= mM[n, j, sensor, a, b] != 0.0
+            if nonzero:
+                active[sensor] = True
 
 
 @numba.njit(cache=True)
@@ -218,8 +228,7 @@ def consider_predict(
             mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, active, scratch
         )
         _combine_row(xp, pp, c, 0, one_x, one_p, d)
-        _zero_inactive(mp, active)
-        _combine_sensitivities(mp, c, 0, one_m)
+        _combine_sensitivities(mp, c, 0, one_m, active)
         xc[r] = one_x[0]
         pc[r] = one_p[0]
         mc[r] = one_m[0]
@@ -781,7 +790,7 @@ def filter_round(
         for j in range(m):
             mu_new[0, j] /= total
         _combine_row(x_new, p_new, mu_new, 0, xc, pc, d)
-        _combine_sensitivities(m_new, mu_new, 0, mc)
+        _combine_sensitivities(m_new, mu_new, 0, mc, active)
         mx[n] = x_new[0]
         mP[n] = p_new[0]
         mM[n] = m_new[0]

@@ -205,6 +205,8 @@ class LocalTrackTable:
         """``slots`` by its compiled kernel (``fusion/kernels.py``): the same rows."""
         self.rows = Columns.zeros(64, local_dtype(n_models))
         self.n = 0
+        self.removed = 0
+        """Rows of ``rows[:n]`` removed (not alive) since the last compaction."""
         self._index_keys = np.zeros(0, dtype=np.int64)
         self._index_rows = np.zeros(0, dtype=np.int64)
 
@@ -270,8 +272,9 @@ class LocalTrackTable:
         self._index_rows = live[order]
 
     def remove(self, rows: IntArray) -> None:
-        """Deleted local tracks leave their system tracks and the index."""
+        """Deleted local tracks (distinct rows) leave their system tracks and the index."""
         if rows.size:
+            self.removed += int(np.count_nonzero(self.rows["alive"][rows]))
             self.rows["alive"][rows] = False
             self.rows["system"][rows] = 0
             kept = ~is_member(self._index_rows, rows)
@@ -279,10 +282,12 @@ class LocalTrackTable:
             self._index_rows = self._index_rows[kept]
 
     def compact(self) -> None:
-        """Drop deleted local tracks once they are half the table (rows move: reindex)."""
-        alive = self.rows["alive"][: self.n]
-        if np.count_nonzero(~alive) * 2 <= self.n:
+        """Drop deleted local tracks once they are half the table (rows move: reindex);
+        counted as they are removed (a count over the table cost a pass a batch)."""
+        if self.removed * 2 <= self.n:
             return
+        alive = self.rows["alive"][: self.n]
+        self.removed = 0
         survivors = self.rows.take(np.flatnonzero(alive))
         self.n = survivors.shape[0]
         self.rows.put(slice(0, self.n), survivors)
