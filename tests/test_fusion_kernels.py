@@ -694,3 +694,29 @@ def test_review_tests_are_the_reference(seed: int, k: int, n_radars: int) -> Non
     for name in ("fails", "nis_n"):
         np.testing.assert_array_equal(reference.local.rows[name], compiled.local.rows[name])
     close(reference.local.rows["nis_mean"], compiled.local.rows["nis_mean"])
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, k=st.integers(0, 40), n_plots=st.integers(0, 30))
+def test_plotted_updates_are_the_reference(seed: int, k: int, n_plots: int) -> None:
+    """The plot filter's choice of a batch's updates by the kernel: the same updates,
+    system tracks, plot rows (repeated plot ids: the first), rounds and count of
+    unknown plot ids, for rows feeding no system track, created ones and others."""
+    compiled, reference, rng = _states(seed, 2, 12)
+    rows_of = rng.integers(0, 12, k)
+    system = rng.integers(0, 6, 12)
+    for state in (compiled, reference):
+        state.local.rows["system"][:12] = system
+    u = _local_updates(rng, k)
+    u["plot_id"] = rng.integers(0, 25, k)
+    p = np.zeros(n_plots, dtype=PLOT_DTYPE)
+    p["plot_id"] = rng.integers(0, 25, n_plots)
+    plots = as_plot_arrays(p)
+    has_plot = rng.uniform(size=k) < 0.7
+    created = rng.choice(np.arange(1, 6), int(rng.integers(0, 3)), replace=False)
+    got, want = (
+        estimator_plots._plotted_updates(state, rows_of, u, has_plot, plots, created)
+        for state in (compiled, reference)
+    )
+    for a, b in zip(want, got, strict=True):
+        np.testing.assert_array_equal(a, b)

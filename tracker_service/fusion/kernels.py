@@ -326,6 +326,53 @@ def emit_index(
 
 
 @numba.njit(cache=True)
+def plotted_updates(
+    rows: IntArray,
+    loc_system: IntArray,
+    has_plot: npt.NDArray[np.bool_],
+    created: IntArray,
+    plot_ids: IntArray,
+    wanted: IntArray,
+) -> tuple[IntArray, IntArray, IntArray, IntArray, int]:  # pragma: no cover - compiled
+    """``estimator_plots._plotted_updates``: the updates with a plot whose local row
+    feeds a system track not ``created``, their system tracks, the row of ``plot_ids``
+    holding each one's plot id ``wanted`` (the first of equal ids, as ``positions``
+    finds it: a stable sort), each one's rank in order of appearance among its system
+    track's, and the number of plot ids not found."""
+    k = rows.size
+    order = np.argsort(plot_ids, kind="mergesort")
+    ordered = plot_ids[order]
+    use = np.empty(k, dtype=np.int64)
+    systems = np.empty(k, dtype=np.int64)
+    found = np.empty(k, dtype=np.int64)
+    size = 1
+    n = 0
+    unknown = 0
+    for i in range(k):
+        g = loc_system[rows[i]]
+        if not has_plot[i] or g <= 0:
+            continue
+        new = False
+        for c in created:
+            new = new or c == g
+        if new:
+            continue
+        at = np.searchsorted(ordered, wanted[i])
+        if at >= ordered.size or ordered[at] != wanted[i]:
+            unknown += 1
+            continue
+        use[n], systems[n], found[n] = i, g, order[at]
+        size = max(size, g + 1)
+        n += 1
+    seen = np.zeros(size, dtype=np.int64)
+    rank = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        rank[i] = seen[systems[i]]
+        seen[systems[i]] += 1
+    return use[:n].copy(), systems[:n].copy(), found[:n].copy(), rank, unknown
+
+
+@numba.njit(cache=True)
 def gate_distances(
     mx: FloatArray,
     mP: FloatArray,
