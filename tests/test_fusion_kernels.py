@@ -5,6 +5,7 @@ two fusers, one of each implementation, side by side on three radars' traffic.""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import itertools
 from typing import Any
@@ -26,11 +27,12 @@ from tracker_service.fusion import (
     estimator_plots,
     lifecycle,
     nearby,
+    rows,
 )
 from tracker_service.fusion.estimator_tracks import fuse_local_tracks
 from tracker_service.fusion.messages import COASTING, ENDED
 from tracker_service.fusion.references import References, references
-from tracker_service.fusion.state import FusionState
+from tracker_service.fusion.state import FusionState, PairEvidence
 from tracker_service.fusion.table import Columns, LocalTrackTable
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 from tracker_service.tracking.models import ModelSet
@@ -88,7 +90,7 @@ def _states(
     )
     local.rows["P"][rows] = _spd(rng, (k,), np.array([100.0, 100.0, 8.0, 8.0]))
     local.rows["extra"][rows] = _spd(rng, (k,), np.array([40.0, 40.0]))
-    states[1].sys[...] = sys
+    states[1].sys.put(slice(None), sys)
     states[1].local = local  # read only by the ML fusion
     return states[0], states[1], rng
 
@@ -337,11 +339,12 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
     system = rng.integers(1, 9, states[0].local.n)
     for state in states:
         state.local.rows["system"][: state.local.n] = system
-    involved = np.flatnonzero(rng.random(states[0].local.n) < 0.8)
-    li = rng.choice(involved, candidates) if involved.size else np.zeros(0, dtype=np.int64)
-    # As in use, S' is fed by an involved row (of the candidate's radar or not).
-    sj = rng.choice(system[involved], li.size) if involved.size else li
-    got, want = (associate._exchange_witnesses(state, li, sj, involved) for state in states)
+    feeding = np.flatnonzero(rng.random(states[0].local.n) < 0.8)
+    li = rng.choice(feeding, candidates) if feeding.size else np.zeros(0, dtype=np.int64)
+    # As in use, S' is fed by a feeding row (of the candidate's radar or not; the
+    # candidate's own system track among them, which is no candidate).
+    sj = rng.choice(system[feeding], li.size) if feeding.size else li
+    got, want = (associate._exchange_witnesses(state, li, sj, feeding) for state in states)
     assert np.array_equal(loc["key"], states[1].local.rows["key"])
     for a, b in zip(want, got, strict=True):
         np.testing.assert_array_equal(a, b)
@@ -501,7 +504,7 @@ def test_merge_candidates_are_the_reference(seed: int, k: int, n_radars: int) ->
     sys["orphaned"][n[rng.uniform(size=k) < 0.2]] = 1.0
     sys["alive"][n[rng.uniform(size=k) < 0.1]] = False
     nearby.refresh(sys, n, compiled=True)
-    reference.sys[...] = sys
+    reference.sys.put(slice(None), sys)
     touched = rng.integers(1, k + 1, int(rng.integers(0, 6)))
     touched = touched[sys["alive"][touched]]
     got = lifecycle._merge_candidates(compiled, touched)
@@ -523,7 +526,7 @@ def test_near_pairs_of_local_tracks_are_the_reference(seed: int, k: int, n_radar
     sys["P"][n] = sys["mP"][n, -1]
     sys["M"][n] = rng.normal(0.0, 0.5, (k, n_radars, 4, 2))
     nearby.refresh(sys, n, compiled=True)
-    reference.sys[...] = sys
+    reference.sys.put(slice(None), sys)
     # Each local track 1 km about some system track: a few percent of the pairs near.
     loc["x"][:k, :2] = sys["moments"][rng.integers(1, k + 1, k), :2] + rng.normal(0, 1e3, (k, 2))
     free = np.sort(rng.choice(k, int(rng.integers(1, k + 1)), replace=False))
@@ -559,7 +562,7 @@ def test_expiry_sets_are_the_reference(seed: int, k: int) -> None:
     sys["t_row"][n] = rng.uniform(10.0, 20.0, k)
     orphan = rng.uniform(size=k) < 0.4
     sys["orphaned"][n[orphan]] = rng.uniform(0.0, 20.0, int(orphan.sum()))
-    states[1].sys[...] = sys
+    states[1].sys.put(slice(None), sys)
     for state in states:
         state.now = 20.0
     got, want = (lifecycle.expire(state, 0) for state in states)
@@ -568,3 +571,152 @@ def test_expiry_sets_are_the_reference(seed: int, k: int) -> None:
         np.testing.assert_array_equal(got[name], want[name])
     for name in ("alive", "orphaned", "freed_at"):
         np.testing.assert_array_equal(states[0].sys[name], states[1].sys[name])
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, k=st.integers(1, 40), numbers=st.integers(1, 12))
+def test_emit_index_is_the_reference(seed: int, k: int, numbers: int) -> None:
+    """``rows.emit``'s index by the kernel: the same last rows, numbers, times, fresh
+    flags, plots and statuses, and the same ``t_plot`` written (NaN and infinite ones
+    among them), for rows repeating system tracks with and without plots."""
+    compiled, reference, rng = _states(seed, 2, 12)
+    systems = rng.integers(1, numbers + 1, k)
+    u = _local_updates(rng, k)
+    u["time"] = rng.uniform(0.0, 20.0, k)
+    u["time"][rng.uniform(size=k) < 0.1] = np.nan
+    u["plot_id"] = rng.integers(0, 1000, k)
+    has_plot = rng.uniform(size=k) < 0.6
+    t_plot = rng.choice([np.nan, -np.inf, 5.0, 15.0], 13)
+    for state in (compiled, reference):
+        state.sys["t_plot"][:13] = t_plot
+    got = rows.emit_index_of(compiled, systems, u, has_plot)
+    want = rows.emit_index_of(reference, systems, u, has_plot)
+    for a, b in zip(want, got, strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(reference.sys["t_plot"], compiled.sys["t_plot"])
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=SIZES, n_radars=st.integers(1, 4))
+def test_plot_filter_output_is_the_reference(seed: int, k: int, n_radars: int) -> None:
+    """The plot filter's output state and covariance by one kernel call: the IMM's
+    prediction, a solo track its founder's update, the bias share added, to 1e-9."""
+    compiled, reference, rng = _states(seed, n_radars, k)
+    numbers = np.sort(rng.choice(np.arange(1, k + 1), int(rng.integers(1, k + 1)), replace=False))
+    solo = rng.uniform(size=k + 1) < 0.3
+    for state in (compiled, reference):
+        state.sys["solo"][: k + 1] = solo
+    t = compiled.sys["t"][numbers] + rng.uniform(-2.0, 8.0, numbers.size)
+    latest = _local_updates(rng, numbers.size)
+    latest["x"], latest["y"] = rng.normal(0.0, 1e5, (2, numbers.size))
+    latest["vx"], latest["vy"] = rng.normal(0.0, 200.0, (2, numbers.size))
+    latest["P"] = _spd(rng, (numbers.size,), np.array([90.0, 90.0, 6.0, 6.0])).reshape(-1, 16)
+    estimator = estimator_plots.PlotFilterEstimator()
+    slots = np.full((numbers.size, 1), -1, dtype=np.int64)
+    got = estimator.output(compiled, numbers, t, slots, latest)
+    want = estimator.output(reference, numbers, t, slots, latest)
+    close(want[0], got[0])
+    close(want[1], got[1])
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, k=st.integers(0, 12), alive=st.integers(0, 60))
+def test_identities_in_use_are_the_reference(seed: int, k: int, alive: int) -> None:
+    """Founding's identity test by the kernel: whether a live system track carries each
+    address and code, values drawn from few (unknown, -1, among them; track 0 never
+    counts), repeated among the asked ones."""
+    rng = np.random.default_rng(seed)
+    states = [
+        FusionState(
+            FusionConfig(implementation=impl), 2, ModelSet.from_config(FusionConfig().plot_filter)
+        )
+        for impl in ("compiled", "numpy")
+    ]
+    live = rng.choice(100, alive, replace=False)
+    address, code = rng.integers(-1, 6, 100), rng.integers(-1, 6, 100)
+    for state in states:
+        state.sys["alive"][live] = True
+        state.sys["address"][:100], state.sys["mode3a"][:100] = address, code
+    asked = rng.integers(-1, 8, k), rng.integers(-1, 8, k)
+    got, want = (lifecycle._identities_in_use(state, *asked) for state in states)
+    for a, b in zip(want, got, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=SEEDS, batches=st.integers(1, 30))
+def test_pair_evidence_update_is_the_reference(seed: int, batches: int) -> None:
+    """The exchange test's running means read, averaged and written by one kernel call
+    against the numpy path: the same evidence to the bit, batch after batch of pairs
+    drawn from few keys, tested keys among them and not."""
+    rng = np.random.default_rng(seed)
+    stores = [PairEvidence(compiled) for compiled in (True, False)]
+    for _ in range(batches):
+        k = int(rng.integers(0, 8))
+        a, b = rng.integers(0, 10, k), rng.integers(0, 10, k)
+        low, high = np.minimum(a, b), np.maximum(a, b)
+        tested = rng.integers(0, 10, int(rng.integers(0, 4)))
+        deltas, favoured = rng.normal(0.0, 5.0, k), rng.uniform(size=k) < 0.7
+        got, want = (s.update(tested, low, high, deltas, favoured, 4) for s in stores)
+        assert got.tobytes() == want.tobytes()
+        if rng.uniform() < 0.3:
+            dropped = rng.integers(0, 10, 2)
+            for s in stores:
+                s.drop(dropped)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=SIZES, n_radars=st.integers(1, 4))
+def test_review_tests_are_the_reference(seed: int, k: int, n_radars: int) -> None:
+    """The review's gate and consistency tests by one kernel call: the same rows lost,
+    the same counts of updates out of the gate and running means written, for local
+    tracks near and far from their system tracks, solo ones among them, with counts
+    and means about their thresholds."""
+    compiled, reference, rng = _states(seed, n_radars, k)
+    reference.local = copy.deepcopy(compiled.local)
+    held = np.sort(rng.choice(k, int(rng.integers(1, k + 1)), replace=False))
+    systems = rng.integers(1, k + 1, held.size)
+    near = rng.uniform(size=held.size) < 0.5
+    x = compiled.sys["moments"][systems[near], :4] + rng.normal(0, 50, (int(near.sum()), 4))
+    fails, nis_n = rng.integers(0, 3, held.size), rng.integers(0, 7, held.size)
+    nis_mean = rng.uniform(0.0, 30.0, held.size)
+    solo = rng.uniform(size=k + 1) < 0.3
+    for state in (compiled, reference):
+        loc = state.local.rows
+        loc["system"][held] = systems
+        loc["x"][held[near]] = x
+        loc["fails"][held], loc["nis_n"][held], loc["nis_mean"][held] = fails, nis_n, nis_mean
+        state.sys["solo"][: k + 1] = solo
+    estimator = estimator_plots.PlotFilterEstimator()
+    got = associate._tests(compiled, estimator, held)
+    want = associate._tests(reference, estimator, held)
+    np.testing.assert_array_equal(want, got)
+    for name in ("fails", "nis_n"):
+        np.testing.assert_array_equal(reference.local.rows[name], compiled.local.rows[name])
+    close(reference.local.rows["nis_mean"], compiled.local.rows["nis_mean"])
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, k=st.integers(0, 40), n_plots=st.integers(0, 30))
+def test_plotted_updates_are_the_reference(seed: int, k: int, n_plots: int) -> None:
+    """The plot filter's choice of a batch's updates by the kernel: the same updates,
+    system tracks, plot rows (repeated plot ids: the first), rounds and count of
+    unknown plot ids, for rows feeding no system track, created ones and others."""
+    compiled, reference, rng = _states(seed, 2, 12)
+    rows_of = rng.integers(0, 12, k)
+    system = rng.integers(0, 6, 12)
+    for state in (compiled, reference):
+        state.local.rows["system"][:12] = system
+    u = _local_updates(rng, k)
+    u["plot_id"] = rng.integers(0, 25, k)
+    p = np.zeros(n_plots, dtype=PLOT_DTYPE)
+    p["plot_id"] = rng.integers(0, 25, n_plots)
+    plots = as_plot_arrays(p)
+    has_plot = rng.uniform(size=k) < 0.7
+    created = rng.choice(np.arange(1, 6), int(rng.integers(0, 3)), replace=False)
+    got, want = (
+        estimator_plots._plotted_updates(state, rows_of, u, has_plot, plots, created)
+        for state in (compiled, reference)
+    )
+    for a, b in zip(want, got, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -27,7 +27,6 @@ from tracker_service.tracking.tracker import TENTATIVE as LOCAL_TENTATIVE
 def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) -> IntArray:
     """Keep or drop the system track of each touched local track; returns the live ones
     that may feed a system track (confirmed or coasting)."""
-    cfg = state.config
     loc = state.local.rows
     live: IntArray = touched[loc["status"][touched] != LOCAL_DELETED]
     state.exchange_evidence.drop(loc["key"][touched[loc["status"][touched] == LOCAL_DELETED]])
@@ -38,6 +37,47 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     live = live[loc["status"][live] != LOCAL_TENTATIVE]
     held = live[loc["system"][live] > 0]
     _exchange(state, estimator, held)
+    lost = _tests(state, estimator, held)
+    _leave(state, lost)
+    state.stats.reassociations += int(lost.size)
+    return live
+
+
+def _tests(state: FusionState, estimator: SystemEstimator, held: IntArray) -> IntArray:
+    """The gate's and the consistency test's updates of the local rows ``held`` in their
+    system tracks; returns those that fail either (out of the gate too often, or
+    inconsistent). Compiled with the plot filter: one call (``kernels.review_tests``)."""
+    cfg, loc = state.config, state.local.rows
+    if state.compiled and estimator.coarse_from_models:
+        from tracker_service.fusion.kernels import review_tests  # numba only when compiled
+
+        sys, c = state.sys, state.model_constants
+        return review_tests(
+            sys["mx"],
+            sys["mP"],
+            sys["mM"],
+            sys["mu"],
+            sys["t"],
+            sys["B"],
+            sys["solo"],
+            loc["t"],
+            loc["x"],
+            loc["P"],
+            loc["extra"],
+            loc["radar"],
+            loc["system"],
+            loc["fails"],
+            loc["nis_n"],
+            loc["nis_mean"],
+            kernel_indices(held),
+            c.omega,
+            c.q,
+            c.sojourn,
+            cfg.gate,
+            cfg.reassociate_after,
+            cfg.reassociate_window,
+            cfg.reassociate_kappa * 4,
+        )
     d2 = distance(state, estimator, held, loc["system"][held])
     # A solo system track is its founding local track's state: the distance compares
     # that track with its own prediction (no independent estimate), and leaving would
@@ -47,10 +87,8 @@ def review(state: FusionState, estimator: SystemEstimator, touched: IntArray) ->
     fails = np.where((d2 <= cfg.gate) | solo, 0, loc["fails"][held] + 1)
     loc["fails"][held] = fails
     inconsistent = _consistency(state, held, d2)
-    lost = held[(fails >= cfg.reassociate_after) | inconsistent]
-    _leave(state, lost)
-    state.stats.reassociations += int(lost.size)
-    return live
+    lost: IntArray = held[(fails >= cfg.reassociate_after) | inconsistent]
+    return lost
 
 
 def _consistency(state: FusionState, held: IntArray, d2: FloatArray) -> BoolArray:
@@ -89,7 +127,6 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     evidence = state.exchange_evidence
     if cfg.exchange_margin <= 0 or held.size == 0:
         return
-    used = state.local.used
     confirmed = held[loc["status"][held] == LOCAL_CONFIRMED]
     tested = loc["key"][confirmed]
     # Only a system track that a track of the batch's radar feeds can hold the l' of a
@@ -104,37 +141,24 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         evidence.drop(tested)
         return
     li, sj = _near(state, estimator, confirmed, own, bias_over=fed)
-    other = sj != loc["system"][li]
-    li, sj = li[other], sj[other]
-    # The confirmed rows feeding the candidates' system tracks (S and S'), in row order.
-    wanted = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
-    wanted[sj] = True
-    wanted[loc["system"][li]] = True
-    involved = feeding[wanted[used["system"][feeding]]]
     # The pairs and their witnesses by array operations, then every distance in two
     # batched calls (one call per pair cost 60 % of the whole chain on ``scale``, the
     # pairs built in Python a third of the fuser).
-    pair_a, pair_b, closer, farther, witness, ends = _exchange_witnesses(state, li, sj, involved)
+    pair_a, pair_b, closer, farther, witness, ends = _exchange_witnesses(state, li, sj, feeding)
     ka, kb = loc["key"][pair_a], loc["key"][pair_b]
     low, high = np.minimum(ka, kb), np.maximum(ka, kb)
-    evidence_now = np.zeros((low.size, 3))
     if low.size:
         deltas, favoured = _votes(state, closer, farther, witness, ends)
-        # Each pair's running means, over the batch's pairs at once (the arithmetic of
-        # one pair at a time: the same bits).
-        before = evidence.table(low, high)
-        n = before[:, 0] + 1.0
-        weight = 1.0 / np.minimum(n, cfg.reassociate_window)
-        evidence_now[:, 0] = n
-        evidence_now[:, 1] = before[:, 1] + (deltas - before[:, 1]) * weight
-        # Every other radar's track must favour it (in EXCHANGE_AGREEMENT of the
-        # updates): where the system tracks are mixtures (each radar's first joins made
-        # at one moment), an exchange that one of them opposes moves the mixture around
-        # instead of undoing it (PAR10 with a shared code).
-        evidence_now[:, 2] = before[:, 2] + (favoured.astype(np.float64) - before[:, 2]) * weight
-    # A pair's evidence lives while it is tested in a row: a pair of a tested track not
-    # tested now is out of reach (a coasting update, no plot, tests nothing).
-    evidence.renew(tested, low, high, evidence_now)
+    else:
+        deltas, favoured = np.zeros(0), np.zeros(0, dtype=bool)
+    # Each pair's running means, over the batch's pairs at once. Every other radar's
+    # track must favour it (in EXCHANGE_AGREEMENT of the updates): where the system
+    # tracks are mixtures (each radar's first joins made at one moment), an exchange
+    # that one of them opposes moves the mixture around instead of undoing it (PAR10
+    # with a shared code). A pair's evidence lives while it is tested in a row: a pair
+    # of a tested track not tested now is out of reach (a coasting update, no plot,
+    # tests nothing).
+    evidence_now = evidence.update(tested, low, high, deltas, favoured, cfg.reassociate_window)
     n, mean, agree = evidence_now.T
     weak = (mean <= cfg.exchange_margin) | (agree < EXCHANGE_AGREEMENT)
     ready = (n >= cfg.reassociate_window) & ~weak
@@ -179,11 +203,12 @@ def _feeding(state: FusionState, radar: int) -> tuple[IntArray, bool, IntArray, 
 
 
 def _exchange_witnesses(
-    state: FusionState, li: IntArray, sj: IntArray, involved: IntArray
+    state: FusionState, li: IntArray, sj: IntArray, feeding: IntArray
 ) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray, IntArray]:
     """The exchange test's pairs and votes. For each candidate (local row li[i] of radar
-    r in system track S, near system track sj[i] = S'), l' is the first row of
-    ``involved`` (the confirmed rows feeding S and S', ascending) of radar r in S'; the
+    r in system track S, near system track sj[i] = S', another), l' is the first row of
+    ``involved`` (the rows of ``feeding``, the confirmed rows feeding a system track in
+    ascending order, that feed S or S') of radar r in S'; the
     pair (l, l') is kept the first time it comes (each of its tracks' candidates names
     it) and only when other radars' rows feed both S and S'. Returns the pairs' rows l
     and l', then per vote the track its witness should be closer to, the one it should
@@ -191,7 +216,7 @@ def _exchange_witnesses(
     order), and the bounds of each pair's votes (``ends``, from 0)."""
     loc = state.local.rows
     empty = np.zeros(0, dtype=np.int64)
-    if li.size == 0 or involved.size == 0:
+    if li.size == 0 or feeding.size == 0:
         return empty, empty, empty, empty, empty, np.zeros(1, dtype=np.int64)
     if state.compiled:
         from tracker_service.fusion.kernels import exchange_witnesses  # numba when compiled
@@ -199,12 +224,20 @@ def _exchange_witnesses(
         return exchange_witnesses(
             kernel_indices(li),
             kernel_indices(sj),
-            kernel_indices(involved),
+            kernel_indices(feeding),
             loc["system"],
             loc["radar"],
             loc["key"],
             MAX_SYSTEM_NUMBER + 1,
         )
+    other = sj != loc["system"][li]
+    li, sj = li[other], sj[other]
+    wanted = np.zeros(MAX_SYSTEM_NUMBER + 1, dtype=bool)
+    wanted[sj] = True
+    wanted[loc["system"][li]] = True
+    involved = feeding[wanted[loc["system"][feeding]]]
+    if li.size == 0 or involved.size == 0:
+        return empty, empty, empty, empty, empty, np.zeros(1, dtype=np.int64)
     radars = np.int64(state.n_radars)
     system, radar = loc["system"][involved], loc["radar"][involved]
     here, own = loc["system"][li], loc["radar"][li]

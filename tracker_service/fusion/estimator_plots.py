@@ -85,19 +85,17 @@ class PlotFilterEstimator:
         """Update each system track's IMM with the batch's plots of its local tracks, in
         time order; a system track created by this batch already holds its founder's, and
         one its founder alone has fed follows it (``_follow_founder``)."""
-        systems = state.local.rows["system"][rows]
-        use = np.flatnonzero(has_plot & (systems > 0) & ~is_member(systems, created))
+        use, systems, found, rank, unknown = _plotted_updates(
+            state, rows, u, has_plot, plots, created
+        )
+        state.stats.unknown_plot_ids += unknown
         if use.size == 0:
             return
-        found = positions(plots.plot_id, u["plot_id"][use])
-        state.stats.unknown_plot_ids += int(np.count_nonzero(found < 0))
-        use, found = use[found >= 0], found[found >= 0]
-        rank = rank_within(systems[use])
         for r in range(int(rank.max(initial=-1)) + 1):
             now = rank == r
-            _filter_round(state, radar, systems[use[now]], plots.take(found[now]), extra[use[now]])
-        solo = state.sys["solo"][systems[use]]
-        _follow_founder(state, systems[use[solo]], u[use[solo]])
+            _filter_round(state, radar, systems[now], plots.take(found[now]), extra[use[now]])
+        solo = state.sys["solo"][systems]
+        _follow_founder(state, systems[solo], u[use[solo]])
 
     def output(
         self,
@@ -108,19 +106,66 @@ class PlotFilterEstimator:
         latest: npt.NDArray[Any],
     ) -> tuple[FloatArray, FloatArray]:
         sys = state.sys
+        if state.compiled:
+            from tracker_service.fusion.kernels import plot_filter_output  # numba on use
+
+            c = state.model_constants
+            return plot_filter_output(
+                sys["mx"],
+                sys["mP"],
+                sys["mM"],
+                sys["mu"],
+                sys["t"],
+                sys["solo"],
+                sys["B"],
+                kernel_indices(numbers),
+                np.ascontiguousarray(t, dtype=np.float64),
+                latest,
+                c.omega,
+                c.q,
+                c.sojourn,
+            )
         x, p, m_comb = combined_prediction(state, numbers, t - sys["t"][numbers])
         x, p = x.copy(), p.copy()
         solo = sys["solo"][numbers]  # its founder's update (``_follow_founder``)
         v = latest[solo]
         x[solo] = np.column_stack([v["x"], v["y"], v["vx"], v["vy"]])
         p[solo] = v["P"].reshape(-1, 4, 4)
-        if state.compiled:
-            from tracker_service.fusion.kernels import bias_share
-
-            p += bias_share(m_comb, sys["B"][numbers])
-        else:
-            p += consider.bias_share(m_comb, sys["B"][numbers])
+        p += consider.bias_share(m_comb, sys["B"][numbers])
         return x, p
+
+
+def _plotted_updates(
+    state: FusionState,
+    rows: IntArray,
+    u: npt.NDArray[Any],
+    has_plot: BoolArray,
+    plots: PlotArrays,
+    created: IntArray,
+) -> tuple[IntArray, IntArray, IntArray, IntArray, int]:
+    """The updates (of local rows ``rows``) whose plot a system track takes: with a plot
+    among ``plots``, of a local track feeding a system track the batch did not create;
+    their system tracks, their plots' rows, their rank among their system track's (the
+    filter's round) and the number of plot ids not found. Compiled: one call
+    (``kernels.plotted_updates``), where the numpy path below makes some fifteen."""
+    loc_system = state.local.rows["system"]
+    if state.compiled:
+        from tracker_service.fusion.kernels import plotted_updates  # numba when compiled
+
+        return plotted_updates(
+            kernel_indices(rows),
+            loc_system,
+            has_plot,
+            kernel_indices(created),
+            kernel_indices(plots.plot_id),
+            kernel_indices(u["plot_id"]),
+        )
+    systems = loc_system[rows]
+    use = np.flatnonzero(has_plot & (systems > 0) & ~is_member(systems, created))
+    found = positions(plots.plot_id, u["plot_id"][use])
+    unknown = int(np.count_nonzero(found < 0))
+    use, found = use[found >= 0], found[found >= 0]
+    return use, systems[use], found, rank_within(systems[use]), unknown
 
 
 def _follow_founder(state: FusionState, numbers: IntArray, u: npt.NDArray[Any]) -> None:

@@ -141,11 +141,27 @@ def _prediction_scratch(m: int, n_radars: int) -> tuple[FloatArray, ...]:  # pra
 
 @numba.njit(cache=True, inline="always")
 def _combine_sensitivities(
-    mp: FloatArray, w: FloatArray, r: int, out: FloatArray
+    mp: FloatArray, w: FloatArray, r: int, out: FloatArray, active: BoolArray
 ) -> None:  # pragma: no cover - compiled
-    """Row r of ``consider.combine``: sum_j w[r, j] mp[r, j] into out[r] (L, 4, 2)."""
+    """Row r of ``consider.combine``: sum_j w[r, j] mp[r, j] into out[r] (L, 4, 2), the
+    sensitivities to the radars not ``active`` (``_sensitive``) taken as +0.0 and not
+    read. Their sum is +0.0 for finite weights (each term +0.0 or -0.0, added to +0.0):
+    written without the arithmetic (a track is sensitive to a few of ``artas``' 51
+    sources), which runs only for weights that are not all finite (NaN there)."""
     m, n_radars = mp.shape[1], mp.shape[2]
+    finite = True
+    for j in range(m):
+        finite = finite and math.isfinite(w[r, j])
     for sensor in range(n_radars):
+        if not active[sensor]:
+            for a in range(4):
+                for b in range(2):
+                    acc = 0.0
+                    if not finite:
+                        for j in range(m):
+                            acc += w[r, j] * 0.0
+                    out[r, sensor, a, b] = acc
+            continue
         for a in range(4):
             for b in range(2):
                 acc = 0.0
@@ -165,23 +181,17 @@ def _sensitive(
     is sensitive to 4 of 20 radars)."""
     m, n_radars = mM.shape[1], mM.shape[2]
     for sensor in range(n_radars):
-        found = sensor == radar
-        j = 0
-        while not found and j < m:
+        active[sensor] = sensor == radar
+    # Model by model in memory order (a radar's entries are 8 of a model's 8 L): a
+    # pass of the row without branches but one per radar.
+    for j in range(m):
+        for sensor in range(n_radars):
+            nonzero = False
             for a in range(4):
-                if mM[n, j, sensor, a, 0] != 0.0 or mM[n, j, sensor, a, 1] != 0.0:
-                    found = True
-            j += 1
-        active[sensor] = found
-
-
-@numba.njit(cache=True, inline="always")
-def _zero_inactive(mp: FloatArray, active: BoolArray) -> None:  # pragma: no cover - compiled
-    """Row 0's sensitivities to the radars not ``active`` (``_sensitive``): +0.0."""
-    for j in range(mp.shape[1]):
-        for sensor in range(mp.shape[2]):
-            if not active[sensor]:
-                mp[0, j, sensor, :, :] = 0.0
+                for b in range(2):
+                    nonzero |= mM[n, j, sensor, a, b] != 0.0
+            if nonzero:
+                active[sensor] = True
 
 
 @numba.njit(cache=True)
@@ -218,12 +228,148 @@ def consider_predict(
             mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, active, scratch
         )
         _combine_row(xp, pp, c, 0, one_x, one_p, d)
-        _zero_inactive(mp, active)
-        _combine_sensitivities(mp, c, 0, one_m)
+        _combine_sensitivities(mp, c, 0, one_m, active)
         xc[r] = one_x[0]
         pc[r] = one_p[0]
         mc[r] = one_m[0]
     return xc, pc, mc
+
+
+@numba.njit(cache=True)
+def plot_filter_output(
+    mx: FloatArray,
+    mP: FloatArray,
+    mM: FloatArray,
+    mu: FloatArray,
+    sys_t: FloatArray,
+    solo: npt.NDArray[np.bool_],
+    B: FloatArray,
+    numbers: IntArray,
+    t: FloatArray,
+    latest: npt.NDArray[Any],
+    omega: FloatArray,
+    q: FloatArray,
+    sojourn: FloatArray,
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """``estimator_plots.PlotFilterEstimator.output`` in one call: the system tracks
+    predicted to t (``consider_predict``), a solo track's state and covariance its
+    founder's latest update (``latest``, one per number), plus the bias share of its
+    sensitivities (``bias_share``): the same arithmetic in the same order."""
+    k = numbers.size
+    dt = np.empty(k)
+    for r in range(k):
+        dt[r] = t[r] - sys_t[numbers[r]]
+    x, p, m_comb = consider_predict(mx, mP, mM, mu, numbers, dt, omega, q, sojourn)
+    for r in range(k):
+        if not solo[numbers[r]]:
+            continue
+        v = latest[r]
+        x[r, 0], x[r, 1], x[r, 2], x[r, 3] = v["x"], v["y"], v["vx"], v["vy"]
+        for a in range(4):
+            for b in range(4):
+                p[r, a, b] = v["P"][4 * a + b]
+    share = bias_share(m_comb, B[numbers])
+    for r in range(k):
+        for a in range(4):
+            for b in range(4):
+                p[r, a, b] = p[r, a, b] + share[r, a, b]
+    return x, p
+
+
+@numba.njit(cache=True)
+def emit_index(
+    systems: IntArray,
+    has_plot: npt.NDArray[np.bool_],
+    plot_id: IntArray,
+    time: FloatArray,
+    sys_t_plot: FloatArray,
+    confirmed: int,
+    coasting: int,
+) -> tuple[IntArray, IntArray, FloatArray, npt.NDArray[np.bool_], IntArray, npt.NDArray[np.int8]]:
+    # pragma: no cover - compiled
+    """``rows.emit``'s index of a batch's fed rows (system track ``systems``) in one
+    pass: each system track's last row (ascending by number), its number and time,
+    whether one of its rows has a plot (fresh), the plot of the last such row (-1: none)
+    and the row's status; a fresh track's ``t_plot`` moved up to the time, as
+    ``np.maximum`` moves it (NaN kept)."""
+    size = 1
+    for g in systems:
+        size = max(size, g + 1)
+    last_at = np.full(size, -1, dtype=np.int64)
+    plot_at = np.full(size, -1, dtype=np.int64)
+    for i in range(systems.size):
+        last_at[systems[i]] = i
+        if has_plot[i]:
+            plot_at[systems[i]] = i
+    k = 0
+    for g in range(size):
+        if last_at[g] >= 0:
+            k += 1
+    last = np.empty(k, dtype=np.int64)
+    numbers = np.empty(k, dtype=np.int64)
+    t = np.empty(k)
+    fresh = np.empty(k, dtype=np.bool_)
+    plot_of = np.empty(k, dtype=np.int64)
+    status = np.empty(k, dtype=np.int8)
+    r = 0
+    for g in range(size):
+        if last_at[g] < 0:
+            continue
+        last[r], numbers[r], t[r] = last_at[g], g, time[last_at[g]]
+        fresh[r] = plot_at[g] >= 0
+        plot_of[r] = plot_id[plot_at[g]] if fresh[r] else -1
+        status[r] = confirmed if fresh[r] else coasting
+        if fresh[r] and (t[r] > sys_t_plot[g] or math.isnan(t[r])):
+            sys_t_plot[g] = t[r]
+        r += 1
+    return last, numbers, t, fresh, plot_of, status
+
+
+@numba.njit(cache=True)
+def plotted_updates(
+    rows: IntArray,
+    loc_system: IntArray,
+    has_plot: npt.NDArray[np.bool_],
+    created: IntArray,
+    plot_ids: IntArray,
+    wanted: IntArray,
+) -> tuple[IntArray, IntArray, IntArray, IntArray, int]:  # pragma: no cover - compiled
+    """``estimator_plots._plotted_updates``: the updates with a plot whose local row
+    feeds a system track not ``created``, their system tracks, the row of ``plot_ids``
+    holding each one's plot id ``wanted`` (the first of equal ids, as ``positions``
+    finds it: a stable sort), each one's rank in order of appearance among its system
+    track's, and the number of plot ids not found."""
+    k = rows.size
+    order = np.argsort(plot_ids, kind="mergesort")
+    ordered = plot_ids[order]
+    use = np.empty(k, dtype=np.int64)
+    systems = np.empty(k, dtype=np.int64)
+    found = np.empty(k, dtype=np.int64)
+    size = 1
+    n = 0
+    unknown = 0
+    for i in range(k):
+        g = loc_system[rows[i]]
+        if not has_plot[i] or g <= 0:
+            continue
+        new = False
+        for c in created:
+            new = new or c == g
+        if new:
+            continue
+        at = np.searchsorted(ordered, wanted[i])
+        if at >= ordered.size or ordered[at] != wanted[i]:
+            unknown += 1
+            continue
+        use[n], systems[n], found[n] = i, g, order[at]
+        size = max(size, g + 1)
+        n += 1
+    seen = np.zeros(size, dtype=np.int64)
+    rank = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        rank[i] = seen[systems[i]]
+        seen[systems[i]] += 1
+    return use[:n].copy(), systems[:n].copy(), found[:n].copy(), rank, unknown
 
 
 @numba.njit(cache=True)
@@ -330,6 +476,75 @@ def gate_distances(
     return out
 
 
+@numba.njit(cache=True)
+def review_tests(
+    mx: FloatArray,
+    mP: FloatArray,
+    mM: FloatArray,
+    mu: FloatArray,
+    sys_t: FloatArray,
+    B: FloatArray,
+    solo: npt.NDArray[np.bool_],
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    loc_extra: FloatArray,
+    loc_radar: IntArray,
+    loc_system: IntArray,
+    fails: IntArray,
+    nis_n: IntArray,
+    nis_mean: FloatArray,
+    held: IntArray,
+    omega: FloatArray,
+    q: FloatArray,
+    sojourn: FloatArray,
+    gate: float,
+    reassociate_after: int,
+    window: int,
+    kappa_dof: float,
+) -> IntArray:  # pragma: no cover - compiled
+    """``associate.review``'s tests of the local rows ``held`` in their system tracks in
+    one call: the gate's distances (``gate_distances``), the count of updates out of the
+    gate and the consistency test's running mean written in place (a solo track's founder
+    neither fails nor is inconsistent), the same arithmetic as the numpy path; returns
+    the rows that fail either (in ``held``'s order)."""
+    systems = np.empty(held.size, dtype=np.int64)
+    for i in range(held.size):
+        systems[i] = loc_system[held[i]]
+    d2 = gate_distances(
+        mx,
+        mP,
+        mM,
+        mu,
+        sys_t,
+        B,
+        loc_t,
+        loc_x,
+        loc_P,
+        loc_extra,
+        loc_radar,
+        held,
+        systems,
+        omega,
+        q,
+        sojourn,
+    )
+    lost = np.empty(held.size, dtype=np.int64)
+    n_lost = 0
+    for i in range(held.size):
+        h = held[i]
+        alone = solo[systems[i]]
+        fails[h] = 0 if (d2[i] <= gate or alone) else fails[h] + 1
+        n = nis_n[h] + 1
+        mean = nis_mean[h]
+        mean += (d2[i] - mean) / min(n, window)
+        nis_n[h], nis_mean[h] = n, mean
+        if fails[h] >= reassociate_after or (n >= window and mean > kappa_dof and not alone):
+            lost[n_lost] = h
+            n_lost += 1
+    return lost[:n_lost].copy()
+
+
 @numba.njit(cache=True, inline="always")
 def _track_distance(
     t: FloatArray,
@@ -389,17 +604,39 @@ def exchange_votes(
     """``associate._exchange``'s votes in one pass: each witness's distance to the track
     it should be closer to less its distance to the other (``_track_distance``), then
     each pair's sum of its votes (``segment_sums``: numpy's bits) and whether every one
-    of them favours the exchange (the pairs' vote segments are not empty)."""
+    of them favours the exchange (the pairs' vote segments are not empty). A distance
+    is a function of its two rows alone: each (track, witness) is computed once (a
+    track of several pairs meets the same witnesses again: 41 % of the distances of a
+    batch on ``artas``) and found again in a table hashed by the two rows."""
     votes = np.empty(witness.size)
     xb = np.empty(4)
     s = np.empty((4, 4))
     d = np.empty(4)
     y = np.empty(4)
     solution = np.empty(4)
+    size = 16
+    while size < 4 * witness.size:
+        size *= 2
+    known_key = np.full(size, -1, dtype=np.int64)
+    known = np.empty(size)
     for r in range(witness.size):
         w = witness[r]
-        near = _track_distance(t, x, P, extra, closer[r], w, q, xb, s, d, y, solution)
-        votes[r] = near - _track_distance(t, x, P, extra, farther[r], w, q, xb, s, d, y, solution)
+        near_far = 0.0
+        for side in range(2):
+            i = closer[r] if side == 0 else farther[r]
+            key = (np.int64(i) << KEY_SHIFT) | np.int64(w)
+            at = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(40)) & (
+                size - 1
+            )
+            while known_key[at] >= 0 and known_key[at] != key:
+                at = (at + 1) & (size - 1)
+            if known_key[at] < 0:
+                known_key[at] = key
+                known[at] = _track_distance(t, x, P, extra, i, w, q, xb, s, d, y, solution)
+            if side == 0:
+                near_far = known[at]
+            else:
+                votes[r] = near_far - known[at]
     favoured = np.empty(ends.size - 1, dtype=np.bool_)
     for k in range(ends.size - 1):
         agree = True
@@ -600,7 +837,7 @@ def filter_round(
         for j in range(m):
             mu_new[0, j] /= total
         _combine_row(x_new, p_new, mu_new, 0, xc, pc, d)
-        _combine_sensitivities(m_new, mu_new, 0, mc)
+        _combine_sensitivities(m_new, mu_new, 0, mc, active)
         mx[n] = x_new[0]
         mP[n] = p_new[0]
         mM[n] = m_new[0]
@@ -1211,7 +1448,8 @@ def exchange_feeding(
             fed[system[r]] = True
             if radar[r] == own_radar:
                 own[system[r]] = True
-    return feeding[:n].copy(), several, np.flatnonzero(fed), np.flatnonzero(own)
+    # A view of the rows found: a copy of some 20,000 rows on ``artas`` cost more.
+    return feeding[:n], several, np.flatnonzero(fed), np.flatnonzero(own)
 
 
 @numba.njit(cache=True)
@@ -1231,26 +1469,37 @@ def radars_feeding(
 def exchange_witnesses(
     li: IntArray,
     sj: IntArray,
-    involved: IntArray,
+    feeding: IntArray,
     loc_system: IntArray,
     loc_radar: IntArray,
     loc_key: IntArray,
     size: int,
 ) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray, IntArray]:  # pragma: no cover
-    """``associate._exchange_witnesses`` from the local table's fields: ``involved``'s rows
-    grouped by system track (ascending within each), each candidate's l' (the first row
-    of its radar in S') and the other radars' rows of S and S', the pairs kept the first
-    time they come (a dictionary of their keys), then the votes pair by pair."""
+    """``associate._exchange_witnesses`` from the local table's fields: the rows of
+    ``feeding`` that feed a candidate's S or S' (candidates near their own system track
+    left out) grouped by system track (ascending within each), each candidate's l' (the
+    first row of its radar in S') and the other radars' rows of S and S', the pairs kept
+    the first time they come (a dictionary of their keys), then the votes pair by pair."""
+    wanted = np.zeros(size, dtype=np.bool_)
+    for i in range(li.size):
+        if sj[i] != loc_system[li[i]]:
+            wanted[sj[i]] = True
+            wanted[loc_system[li[i]]] = True
     count = np.zeros(size + 1, dtype=np.int64)
-    for q in range(involved.size):
-        count[loc_system[involved[q]] + 1] += 1
+    n_involved = 0
+    for q in range(feeding.size):
+        g = loc_system[feeding[q]]
+        if wanted[g]:
+            count[g + 1] += 1
+            n_involved += 1
     start = np.cumsum(count)
     fill = start[:-1].copy()
-    grouped = np.empty(involved.size, dtype=np.int64)
-    for q in range(involved.size):
-        g = loc_system[involved[q]]
-        grouped[fill[g]] = involved[q]
-        fill[g] += 1
+    grouped = np.empty(n_involved, dtype=np.int64)
+    for q in range(feeding.size):
+        g = loc_system[feeding[q]]
+        if wanted[g]:
+            grouped[fill[g]] = feeding[q]
+            fill[g] += 1
     k = li.size
     pair_a = np.empty(k, dtype=np.int64)
     pair_b = np.empty(k, dtype=np.int64)
@@ -1260,6 +1509,8 @@ def exchange_witnesses(
     seen = dict()
     for i in range(k):
         here, there, radar = loc_system[li[i]], sj[i], loc_radar[li[i]]
+        if here == there:
+            continue
         partner = -1
         others_there = 0
         for q in range(start[there], start[there + 1]):
@@ -1343,6 +1594,39 @@ def identity_candidates(
             keep[n] = alive[i]
             n += 1
     return keep[:n].copy()
+
+
+@numba.njit(cache=True)
+def identities_in_use(
+    address: IntArray,
+    code: IntArray,
+    alive: npt.NDArray[np.bool_],
+    sys_address: IntArray,
+    sys_mode3a: IntArray,
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:  # pragma: no cover - compiled
+    """``lifecycle._identities_in_use``: whether a live system track (number 1 and up)
+    carries each of ``address`` and each of ``code``; the live tracks' values looked up
+    among the few sorted ones (a table of their low bits first)."""
+    address_used = np.zeros(address.size, dtype=np.bool_)
+    code_used = np.zeros(code.size, dtype=np.bool_)
+    for values, column, used in (
+        (address, sys_address, address_used),
+        (code, sys_mode3a, code_used),
+    ):
+        order = np.argsort(values)
+        ordered = values[order]
+        bits = np.zeros(IDENTITY_HASH, dtype=np.bool_)
+        for v in ordered:
+            bits[v & (IDENTITY_HASH - 1)] = True
+        for g in range(1, alive.size):
+            v = column[g]
+            if not (alive[g] and bits[v & (IDENTITY_HASH - 1)]):
+                continue
+            at = np.searchsorted(ordered, v)
+            while at < ordered.size and ordered[at] == v:
+                used[order[at]] = True
+                at += 1
+    return address_used, code_used
 
 
 @numba.njit(cache=True)
@@ -1656,17 +1940,53 @@ def evidence_renew(
 ) -> int:  # pragma: no cover - compiled
     """``state.PairEvidence.renew``: the tested keys dropped at ``stamp`` - 1, then each
     pair's entry stamped ``stamp``; returns the number of entries and drop stamps held."""
-    evidence_drop(dropped, stamp - 1, tested)
+    _drop_keys(dropped, stamp - 1, tested)
     for i in range(low.size):
         of_pair[(low[i], high[i])] = (evidence[i, 0], evidence[i, 1], evidence[i, 2], float(stamp))
     return len(of_pair) + len(dropped)
 
 
 @numba.njit(cache=True)
-def evidence_drop(dropped: Any, stamp: int, keys: IntArray) -> None:  # pragma: no cover
-    """``state.PairEvidence.drop``: each key's stamp of its latest drop."""
+def evidence_update(
+    of_pair: Any,
+    dropped: Any,
+    stamp: int,
+    tested: IntArray,
+    low: IntArray,
+    high: IntArray,
+    deltas: FloatArray,
+    favoured: npt.NDArray[np.bool_],
+    window: float,
+) -> tuple[FloatArray, int]:  # pragma: no cover - compiled
+    """``state.PairEvidence.update``: each pair's running means from its entry
+    (``evidence_table``'s, read before any write), then ``evidence_renew``; the evidence
+    now and the number of entries and drop stamps held."""
+    now = evidence_table(of_pair, dropped, low, high)
+    for i in range(low.size):
+        n = now[i, 0] + 1.0
+        weight = 1.0 / min(n, window)
+        now[i, 0] = n
+        now[i, 1] = now[i, 1] + (deltas[i] - now[i, 1]) * weight
+        now[i, 2] = now[i, 2] + ((1.0 if favoured[i] else 0.0) - now[i, 2]) * weight
+    return now, evidence_renew(of_pair, dropped, stamp, tested, low, high, now)
+
+
+@numba.njit(cache=True)
+def _drop_keys(dropped: Any, stamp: int, keys: IntArray) -> None:  # pragma: no cover
+    """Each key's stamp of its latest drop."""
     for key in keys:
         dropped[key] = stamp
+
+
+@numba.njit(cache=True)
+def evidence_drop(
+    of_pair: Any, dropped: Any, stamp: int, keys: IntArray
+) -> int:  # pragma: no cover - compiled
+    """``state.PairEvidence.drop``: each key's stamp of its latest drop; the number of
+    entries and drop stamps held (a typed dictionary's ``len`` from Python costs
+    microseconds)."""
+    _drop_keys(dropped, stamp, keys)
+    return len(of_pair) + len(dropped)
 
 
 @numba.njit(cache=True)
@@ -1783,21 +2103,6 @@ def near_local_system(
         own_bias = max(own_bias, loc_extra[r, 0, 0] + loc_extra[r, 1, 1])
     t_mid, spread = 0.5 * (lo + hi), 0.5 * (hi - lo)
     b = max(_largest_of(largest_bias, bias_over), own_bias)
-    xy_s, r_s = system_reach(
-        sys_x,
-        sys_P,
-        moments,
-        sensitivity,
-        sys_t,
-        candidates,
-        from_models,
-        2.0 * b,
-        t_mid,
-        spread,
-        gate,
-        q_max,
-        turn_max,
-    )
     k = free.size
     xy_l = np.empty((k, 2))
     r_l = np.empty(k)
@@ -1821,8 +2126,100 @@ def near_local_system(
         )
         xy_l[i, 0] = loc_x[r, 0] + loc_x[r, 2] * dt
         xy_l[i, 1] = loc_x[r, 1] + loc_x[r, 3] * dt
+    # Association takes every open system track (thousands) for a batch's few free
+    # tracks: only those a cheap bound of their reach leaves near one of them have it
+    # computed as ``system_reach`` computes it; ``near_pairs`` on them gives the same
+    # pairs in the same (row, number) order.
+    if from_models and candidates.size > k:
+        candidates = _within_bound(
+            xy_l,
+            r_l,
+            moments,
+            sensitivity,
+            sys_t,
+            candidates,
+            2.0 * b,
+            t_mid,
+            spread,
+            gate,
+            q_max,
+            turn_max,
+        )
+    xy_s, r_s = system_reach(
+        sys_x,
+        sys_P,
+        moments,
+        sensitivity,
+        sys_t,
+        candidates,
+        from_models,
+        2.0 * b,
+        t_mid,
+        spread,
+        gate,
+        q_max,
+        turn_max,
+    )
     i_l, j_s = near_pairs(xy_l, r_l, xy_s, r_s)
     return free[i_l], candidates[j_s]
+
+
+BOUND_RELATIVE = 1e-9
+BOUND_MARGIN_M = 1e-6
+"""``_within_bound``'s radius exceeds ``_radius``'s by this much at least (its terms
+differ from it by a few rounding errors: 1e-15 relative)."""
+
+
+@numba.njit(cache=True)
+def _within_bound(
+    xy_l: FloatArray,
+    r_l: FloatArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
+    sys_t: FloatArray,
+    candidates: IntArray,
+    bias_scale: float,
+    t_mid: float,
+    spread: float,
+    gate: float,
+    q_max: float,
+    turn_max: float,
+) -> IntArray:  # pragma: no cover - compiled
+    """The candidates (in order) that may pass ``near_pairs`` with a track of ``xy_l``,
+    ``r_l``: within the tracks' bounding box widened by the largest ``r_l`` and their
+    own radius bounded from above (``system_reach``'s position and radius from the
+    IMM's ``moments``, with the power and ``hypot`` of ``_radius`` as products and a
+    square root, widened by ``BOUND_RELATIVE`` and ``BOUND_MARGIN_M``), without the
+    library calls."""
+    lo0, lo1 = xy_l[:, 0].min(), xy_l[:, 1].min()
+    hi0, hi1 = xy_l[:, 0].max(), xy_l[:, 1].max()
+    widest = r_l.max()
+    kept = np.empty(candidates.size, dtype=np.int64)
+    n = 0
+    for i in range(candidates.size):
+        r = candidates[i]
+        x0, x1, x2, x3 = moments[r, 0], moments[r, 1], moments[r, 2], moments[r, 3]
+        pos, cross, vel = moments[r, 4], moments[r, 5], moments[r, 6]
+        dt = t_mid - sys_t[r]
+        x = x0 + x2 * dt
+        y = x1 + x3 * dt
+        a = abs(dt) + spread
+        speed = math.sqrt(x2 * x2 + x3 * x3)
+        turn = 0.5 * speed * turn_max * a * a
+        var = (
+            pos
+            + 2.0 * a * abs(cross)
+            + a * a * vel
+            + 2.0 * q_max * (a * a * a) / 3.0
+            + bias_scale * (2.0 * (sensitivity[r, 0] + a * a * sensitivity[r, 1]))
+            + turn * turn
+        )
+        bound = RADIUS_SAFETY * math.sqrt(gate * max(var, 0.0)) + speed * spread + turn
+        reach = (bound + RADIUS_MARGIN_M) * (1.0 + BOUND_RELATIVE) + BOUND_MARGIN_M + widest
+        if lo0 - reach <= x <= hi0 + reach and lo1 - reach <= y <= hi1 + reach:
+            kept[n] = r
+            n += 1
+    return kept[:n].copy()
 
 
 @numba.njit(cache=True)

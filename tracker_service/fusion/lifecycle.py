@@ -35,17 +35,36 @@ def may_found(state: FusionState, candidates: IntArray) -> BoolArray:
     most likely that aircraft, seen apart while the biases are still unknown, and it
     waits up to ``FusionConfig.found_delay_s`` for the gate to take it (a second
     aircraft with a duplicated address or code founds its own after that)."""
-    loc, sys = state.local.rows, state.sys
+    loc = state.local.rows
     waiting = np.isnan(loc["t_founder"][candidates])
     loc["t_founder"][candidates[waiting]] = state.now
     address, code = loc["address"][candidates], loc["mode3a"][candidates]
-    live = sys["alive"].copy()
-    live[0] = False
-    known = (among(address, sys["address"][live]) & (address >= 0)) | (
-        among(code, sys["mode3a"][live]) & (code >= 0) & ~is_shared_code(code)
-    )
+    address_used, code_used = _identities_in_use(state, address, code)
+    known = (address_used & (address >= 0)) | (code_used & (code >= 0) & ~is_shared_code(code))
     waited = state.now - loc["t_founder"][candidates]
     return np.asarray(~known | (waited >= state.config.found_delay), dtype=bool)
+
+
+def _identities_in_use(
+    state: FusionState, address: IntArray, code: IntArray
+) -> tuple[BoolArray, BoolArray]:
+    """Whether a live system track carries each Mode S address, and each Mode 3/A code;
+    compiled: one pass over the system table (``kernels.identities_in_use``) where the
+    numpy path gathers every live track's address and code."""
+    sys = state.sys
+    if state.compiled:
+        from tracker_service.fusion.kernels import identities_in_use  # numba when compiled
+
+        return identities_in_use(
+            kernel_indices(address),
+            kernel_indices(code),
+            sys["alive"],
+            sys["address"],
+            sys["mode3a"],
+        )
+    live = sys["alive"].copy()
+    live[0] = False
+    return among(address, sys["address"][live]), among(code, sys["mode3a"][live])
 
 
 def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -> IntArray:

@@ -15,7 +15,7 @@ from tracker_service.fusion.config import FusionConfig
 from tracker_service.fusion.table import Columns, LocalTrackTable, new_system_table
 from tracker_service.tracking.daps import DapUpdate
 from tracker_service.tracking.models import ModelSet
-from tracker_service.tracking.plots import FloatArray, IntArray
+from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
 if TYPE_CHECKING:
     from tracker_service.fusion.kernels import ModelConstants
@@ -127,19 +127,66 @@ class PairEvidence:
                 )
             )
             held = len(self._of_pair) + len(self._dropped)
-        if held >= self._sweep_at:
-            self._sweep()
+        self._sweep_if(held)
+
+    def update(
+        self,
+        tested: IntArray,
+        low: IntArray,
+        high: IntArray,
+        deltas: FloatArray,
+        favoured: BoolArray,
+        window: int,
+    ) -> FloatArray:
+        """One batch's exchange test: each pair's evidence (updates, mean of ``deltas``,
+        agreement: the share of ``favoured``, both running means over ``window``
+        updates) from the evidence it holds, then ``renew``'s forgetting and writes;
+        returns the evidence now (k, 3). Compiled: one kernel (``evidence_update``), the
+        arithmetic of the numpy path below element by element: the same bits."""
+        if self.compiled:
+            from tracker_service.fusion.kernels import evidence_update
+
+            self._stamp += 2
+            now, held = evidence_update(
+                self._of_pair,
+                self._dropped,
+                self._stamp,
+                tested,
+                low,
+                high,
+                deltas,
+                favoured,
+                float(window),
+            )
+            self._sweep_if(held)
+            return now
+        before = self.table(low, high)
+        now = np.zeros((low.size, 3))
+        n = before[:, 0] + 1.0
+        weight = 1.0 / np.minimum(n, window)
+        now[:, 0] = n
+        now[:, 1] = before[:, 1] + (deltas - before[:, 1]) * weight
+        now[:, 2] = before[:, 2] + (favoured.astype(np.float64) - before[:, 2]) * weight
+        self.renew(tested, low, high, now)
+        return now
 
     def drop(self, keys: IntArray) -> None:
-        """Forget every pair with one of ``keys``."""
+        """Forget every pair with one of ``keys``. Dropping none changes nothing (the
+        stamps only order the writes and drops): no call."""
+        if keys.size == 0:
+            return
         self._stamp += 1
         if self.compiled:
             from tracker_service.fusion.kernels import evidence_drop
 
-            evidence_drop(self._dropped, self._stamp, keys)
-        else:
-            self._dropped.update(zip(keys.tolist(), itertools.repeat(self._stamp)))
-        if len(self._of_pair) + len(self._dropped) >= self._sweep_at:
+            self._sweep_if(evidence_drop(self._of_pair, self._dropped, self._stamp, keys))
+            return
+        self._dropped.update(zip(keys.tolist(), itertools.repeat(self._stamp)))
+        self._sweep_if(len(self._of_pair) + len(self._dropped))
+
+    def _sweep_if(self, held: int) -> None:
+        """Sweep when the entries and drop stamps ``held`` have doubled since the last."""
+        if held >= self._sweep_at:
             self._sweep()
 
     @property
