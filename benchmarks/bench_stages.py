@@ -58,6 +58,7 @@ from typing import Any
 
 import numpy as np
 
+import tracker_service
 from asterix.containers import Datagram
 from tracker_service import radar_stage as radar_stage_module
 from tracker_service.central_stage import CentralStage
@@ -262,42 +263,39 @@ class Windows:
         row["full collections"] = len(self._full)
         row["full collection s"] = sum(self._full)
         self.rows.append(row)
-        print(
-            f"window {row['start']:.0f} s: {row['plots']:.0f} plots, {row['cpu']:.1f} CPU s, "
-            f"fusion {row['fusion']:.1f} s, "
-            + ", ".join(f"{n} {row[n]:.0f}" for n in ("system tracks", *FUSER_COUNTS) if n in row),
-            file=sys.stderr,
-            flush=True,
-        )
+        print(self._line(row), file=sys.stderr, flush=True)
         self._mark, self._slowest, self._full = now, 0.0, []
         self._end += self.seconds
 
+    HEAD = (
+        "| data s | plots | CPU ms/s | us/plot | fusion ms/s | central+bias ms/s | local ms/s "
+        "| outputs ms/s | map ms/s | other ms/s | slowest ms | full GCs (ms) | system tracks "
+        "| local rows (alive) | created / ended / merged / no number |"
+    )
+
     def table(self) -> str:
         """The rows as a Markdown table: CPU ms per second of data, and per plot."""
-        head = (
-            "| data s | plots | CPU ms/s | us/plot | fusion ms/s | central+bias ms/s | local ms/s "
-            "| outputs ms/s | other ms/s | slowest ms | full GCs (ms) | system tracks "
-            "| local rows (alive) | created / ended / merged / no number |"
+        rule = "|" + " ---: |" * (self.HEAD.count("|") - 1)
+        return "\n".join([self.HEAD, rule, *(self._line(r) for r in self.rows)])
+
+    def _line(self, r: dict[str, float]) -> str:
+        per_s = 1e3 / self.seconds
+        outputs = sum(r[n] for n in OUTPUT_STAGES)
+        central = r["central stage"] + r["bias"] + r["bias references"]
+        local = r["decode"] + r["clock + conversion"] + r["local tracking"]
+        other = r["cpu"] - sum(r[n] for n in STAGES)
+        return (
+            f"| {r['start']:.0f} | {r['plots']:.0f} | {r['cpu'] * per_s:.0f} | "
+            f"{r['cpu'] / max(r['plots'], 1) * 1e6:.0f} | {r['fusion'] * per_s:.0f} | "
+            f"{central * per_s:.0f} | {local * per_s:.0f} | {outputs * per_s:.0f} | "
+            f"{r['Foxglove map'] * per_s:.0f} | "
+            f"{other * per_s:.0f} | {r['slowest'] * 1e3:.0f} | "
+            f"{r['full collections']:.0f} ({r['full collection s'] * 1e3:.0f}) | "
+            f"{r.get('system tracks', 0):.0f} | "
+            f"{r.get('local rows', 0):.0f} ({r.get('local alive', 0):.0f}) | "
+            + " / ".join(f"{r.get(n, 0):.0f}" for n in FUSER_COUNTS)
+            + " |"
         )
-        lines = [head, "|" + " ---: |" * (head.count("|") - 1)]
-        for r in self.rows:
-            per_s = 1e3 / self.seconds
-            outputs = sum(r[n] for n in OUTPUT_STAGES)
-            central = r["central stage"] + r["bias"] + r["bias references"]
-            local = r["decode"] + r["clock + conversion"] + r["local tracking"]
-            other = r["cpu"] - sum(r[n] for n in STAGES)
-            lines.append(
-                f"| {r['start']:.0f} | {r['plots']:.0f} | {r['cpu'] * per_s:.0f} | "
-                f"{r['cpu'] / max(r['plots'], 1) * 1e6:.0f} | {r['fusion'] * per_s:.0f} | "
-                f"{central * per_s:.0f} | {local * per_s:.0f} | {outputs * per_s:.0f} | "
-                f"{other * per_s:.0f} | {r['slowest'] * 1e3:.0f} | "
-                f"{r['full collections']:.0f} ({r['full collection s'] * 1e3:.0f}) | "
-                f"{r.get('system tracks', 0):.0f} | "
-                f"{r.get('local rows', 0):.0f} ({r.get('local alive', 0):.0f}) | "
-                + " / ".join(f"{r.get(n, 0):.0f}" for n in FUSER_COUNTS)
-                + " |"
-            )
-        return "\n".join(lines)
 
 
 def slice_of(path: str, seconds: float) -> tuple[Any, list[tuple[str, Datagram]]]:
@@ -422,6 +420,7 @@ def main() -> None:
         help="cProfile the timed runs' main thread into FILE (pstats), by its CPU time",
     )
     args = parser.parse_args()
+    print(f"code: {tracker_service.__file__}", file=sys.stderr)
     options = (not args.no_mcap, not args.no_zenoh, args.fusion_implementation)
     # numba's kernels loaded (or compiled) before the clock starts: some are first called
     # only once system tracks are fed by two radars, after a few antenna periods.
