@@ -34,10 +34,11 @@ daemon and its output process. ``--timeline FILE`` writes, per ``--sample-period
 of the sending, what tells a lag's cause apart (``timeline_rows``): each process's share
 of a core (from /proc/PID/stat: the daemon's processes, their children, this process),
 the host's busy, iowait and steal time in cores (/proc/stat: steal is what the
-hypervisor gave other machines), how late this process sent its datagrams against their
-schedule, the daemon's lag and the plots' latency: a lag with its processes' CPU up for
-the same plots is the chain's work; with steal up, or every process's share down, the
-host's; with the sender late, the benchmark's.
+hypervisor gave other machines), the CPU time of a fixed piece of work (``speed_probe``:
+the host's speed), how late this process sent its datagrams against their schedule, the
+daemon's lag and the plots' latency: a lag with one process's CPU up for the same plots
+and the probe steady is the chain's work; with the probe slower (every process's CPU up
+alike) or steal up, the host's; with the sender late, the benchmark's.
 
 ``--radar-processes N`` runs the daemon as the roles of docs/deployment.md: N ``run --role
 radar`` processes (the radars dealt round robin) connected to one ``run --role fusion``
@@ -500,6 +501,25 @@ class Sample:
     and "bench" (this process: the sender and the subscriber)."""
     rss_mb: float
     """RSS of the daemon's processes and their children."""
+    probe_s: float
+    """``speed_probe``'s CPU seconds."""
+
+
+PROBE_LOOPS = 50_000
+
+
+def speed_probe() -> float:
+    """CPU seconds of this thread (``time.thread_time``: waits and steal left out) for a
+    fixed piece of Python work, a few milliseconds: the host's speed for the same work.
+    A virtual machine's neighbours (their caches, memory bandwidth, a shared core) slow
+    every process alike without any steal shown; each process's CPU then rises for the
+    same plots, which this tells apart from the chain's own work."""
+    started = time.thread_time()
+    total = 0
+    for k in range(PROBE_LOOPS):
+        total += k % 7
+    assert total >= 0
+    return time.thread_time() - started
 
 
 def take_sample(roles: dict[int, str]) -> Sample:
@@ -519,6 +539,7 @@ def take_sample(roles: dict[int, str]) -> Sample:
         host=dict(zip(HOST_FIELDS, map(int, line[1:]), strict=False)),
         cpu=cpu,
         rss_mb=sum(rss_mb(pid) for pid in roles),
+        probe_s=speed_probe(),
     )
 
 
@@ -532,7 +553,8 @@ def timeline_rows(
     """One row per pair of consecutive samples within the sending (times in s from the
     first send; ``wall0``, the schedule's start in monotonic s, is that send within a
     millisecond):
-    each process's share of a core; the host's busy, iowait and steal time in cores;
+    each process's share of a core; the host's busy, iowait and steal time in cores,
+    and ``speed_probe``'s milliseconds at the window's end;
     the datagrams sent, the latest of them against its schedule (ms) and their p99; the
     daemon's largest lag among the statuses of the window's data; the p50 and p99 of
     the latencies (ms) of the plots sent in it. ``sends``: each datagram's send (s from
@@ -556,6 +578,7 @@ def timeline_rows(
         row["host busy"] = busy * TICK_S / span
         row["host iowait"] = ticks.get("iowait", 0) * TICK_S / span
         row["host steal"] = ticks.get("steal", 0) * TICK_S / span
+        row["probe ms"] = after.probe_s * 1e3
         inside = (sent >= t0) & (sent < t1)
         row["datagrams"] = float(np.count_nonzero(inside))
         row["late max ms"] = float(late[inside].max() * 1e3) if inside.any() else math.nan
@@ -587,7 +610,7 @@ def attribute_lag(rows: list[dict[str, float]], lagging_s: float = 1.0) -> str:
     lagging = [r for r in rows if r.get("lag max s", 0.0) >= lagging_s]
     others = [r for r in rows if not r.get("lag max s", 0.0) >= lagging_s]
     names = [n for n in dict.fromkeys(n for r in rows for n in r) if n.startswith("cpu ")]
-    names += ["host busy", "host steal", "host iowait", "late max ms", "datagrams"]
+    names += ["host busy", "host steal", "host iowait", "probe ms", "late max ms", "datagrams"]
 
     def mean(part: list[dict[str, float]], name: str) -> str:
         values = [r[name] for r in part if name in r and math.isfinite(r[name])]

@@ -49,21 +49,24 @@ def test_a_sample_sees_a_real_process_burn_its_cpu() -> None:
     assert after.host["steal"] >= before.host["steal"]
     assert after.rss_mb > 1.0
     assert "bench" in after.cpu
+    assert 0.0 < after.probe_s < 0.5
 
 
 def test_timeline_rows_are_shares_of_a_core_and_the_windows_own_sends() -> None:
     ticks = dict.fromkeys(HOST_FIELDS, 0)
     wall0 = 100.0
+    # The first sample before the sending, the last after its last datagram.
     samples = [
-        Sample(at=98.0, host=ticks, cpu={"fusion": 0.0}, rss_mb=1.0),  # before sending
-        Sample(at=100.0, host=ticks, cpu={"fusion": 1.0, "bench": 5.0}, rss_mb=1.0),
+        Sample(at=98.0, host=ticks, cpu={"fusion": 0.0}, rss_mb=1.0, probe_s=0.003),
+        Sample(at=100.0, host=ticks, cpu={"fusion": 1.0, "bench": 5.0}, rss_mb=1.0, probe_s=0.003),
         Sample(
             at=102.0,
             host={**ticks, "user": 300, "system": 20, "steal": 40, "iowait": 10},
             cpu={"fusion": 2.5, "fusion+": 1.0, "bench": 5.2},
             rss_mb=1.0,
+            probe_s=0.004,
         ),
-        Sample(at=104.0, host=ticks, cpu={"fusion": 2.5}, rss_mb=1.0),  # after the last send
+        Sample(at=104.0, host=ticks, cpu={"fusion": 2.5}, rss_mb=1.0, probe_s=0.003),
     ]
     sent = np.array([0.0, 0.5, 1.9, 2.0])
     late = np.array([0.001, 0.250, 0.002, 0.0])
@@ -78,6 +81,7 @@ def test_timeline_rows_are_shares_of_a_core_and_the_windows_own_sends() -> None:
     assert row["host busy"] == pytest.approx(1.6)
     assert row["host steal"] == pytest.approx(0.2)
     assert row["host iowait"] == pytest.approx(0.05)
+    assert row["probe ms"] == pytest.approx(4.0)
     assert row["datagrams"] == 3
     assert row["late max ms"] == pytest.approx(250.0)
     assert row["lag max s"] == 1.25
