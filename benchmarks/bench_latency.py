@@ -478,10 +478,6 @@ def cpu_per_process(pid: int) -> dict[int, float]:
     return out
 
 
-if __name__ == "__main__":
-    sys.exit(main())
-
-
 HOST_FIELDS = ("user", "nice", "system", "idle", "iowait", "irq", "softirq", "steal")
 """The first fields of /proc/stat's ``cpu`` line (proc(5)), clock ticks of all cores."""
 TICK_S = 0.01
@@ -621,3 +617,7 @@ def attribute_lag(rows: list[dict[str, float]], lagging_s: float = 1.0) -> str:
         "more; mean of each, lagging / others: "
         + ", ".join(f"{n} {mean(lagging, n)} / {mean(others, n)}" for n in names)
     )
+
+
+if __name__ == "__main__":
+    sys.exit(main())
