@@ -294,7 +294,7 @@ def main() -> int:
         "tracker/status", lambda s: statuses.append(json.loads(s.payload.to_bytes()))
     )
     roles = {daemon.pid: "fusion" if radar_processes else "main"}
-    roles.update({p.pid: f"radar{k}" for k, p in enumerate(radar_processes)})
+    roles.update({p.pid: f"radar process {k}" for k, p in enumerate(radar_processes)})
     samples_taken: list[Sample] = []
     sampling = threading.Event()
 
@@ -390,8 +390,6 @@ def main() -> int:
         f"x{speed:.2f}), holding window {args.holding_window * 1000:.0f} ms, MCAP log "
         f"{'off' if mcap_dir is None else 'on'}"
     )
-    name_of = {daemon.pid: "fusion" if radar_processes else "main"}
-    name_of.update({p.pid: f"radar process {k}" for k, p in enumerate(radar_processes)})
     if args.timeline is not None:
         # The timeline's clock: seconds from the first datagram's send, as the samples'.
         rows = timeline_rows(
@@ -407,7 +405,7 @@ def main() -> int:
         "CPU, share of a core: daemon "
         + ", ".join(
             # The children: the output process, and multiprocessing's resource tracker.
-            f"{name_of.get(pid, f'child {pid}')} {s / cpu_wall:.0%}"
+            f"{roles.get(pid, f'child {pid}')} {s / cpu_wall:.0%}"
             for pid, s in cpu.items()
             if s / cpu_wall >= 0.01
         )
