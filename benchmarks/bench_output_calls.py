@@ -21,9 +21,12 @@ publication delay: from the start of the core's ``batch`` call to the end of the
 output's call that puts its system tracks, what the output process adds to a plot's
 latency (the close's ends left out); each full collection of the cyclic collector is timed
 too, as thread "gc" (the calls are frozen out of its scans, as the service's start-up
-objects are). ``--speed`` paces the calls at their data time (1: real time, as the daemon gets
-them; 0: back to back); ``--skip`` leaves the first seconds of data time (the picture
-filling) out of the figures.
+objects are, and the survivors of each full collection after them, as the output process
+has them: ``command.freeze_survivors``); at the end, the objects in reference cycles are
+counted with every generation unfrozen (what frozen survivors would leak). ``--speed``
+paces the calls at their data time (1: real time, as the daemon gets them; 0: back to
+back); ``--skip`` leaves the first seconds of data time (the picture filling) out of the
+figures.
 
 The calls are pickled as the output process receives them (``(method, args)``), to be read
 back only from a file of one's own making; they are unpickled before the clock starts, and
@@ -56,6 +59,7 @@ from tracker_service.outputs.foxglove_scene import MapScene
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.sink import QueuedSink
 from tracker_service.outputs.zenoh_out import ZenohPublisher
+from tracker_service.service import command
 from tracker_service.service.core import Outputs, TrackerService
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -391,8 +395,13 @@ def main() -> None:
     print(f"tracker_service: {tracker_service.__file__}", file=sys.stderr)
     calls = [pickle.loads(item) for item in recorded]
     # Out of the collector's scans, as the service's start-up objects are
-    # (``command.freeze_start_up``): what the outputs keep is what is scanned.
+    # (``command.freeze_start_up``): what the outputs keep is what is scanned; and the
+    # survivors of each full collection after it, as the output process has them
+    # (``command.freeze_survivors``; a base copy from before it has not).
     gc.freeze()
+    freeze_survivors = getattr(command, "freeze_survivors", None)
+    if freeze_survivors is not None:
+        freeze_survivors()
     plots = plots_of(calls)
     # An untimed pass first: numba loads (or compiles) the kernels there.
     replay(config, calls, hashed=False)
@@ -403,6 +412,11 @@ def main() -> None:
             )
             config = config.model_copy(update={"foxglove": foxglove})
         report_calls(per_call(config, calls, args.speed), args.skip)
+        gc.unfreeze()
+        print(
+            f"objects in reference cycles, all generations unfrozen at the end: {gc.collect()} "
+            "(what frozen survivors would leak, with the calls' own)"
+        )
         return
     profiler = cProfile.Profile(time.thread_time) if args.profile else None
     seconds = []

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import re
 import socket
 import struct
@@ -15,6 +16,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
 import pytest
 from mcap.reader import make_reader
 
@@ -28,6 +31,8 @@ from tracker_service.outputs.foxglove_scene import (
     FoxgloveMessage,
     MapRadar,
     MapScene,
+    _ahead,
+    _round5,
     track_colour,
     track_label,
 )
@@ -412,3 +417,46 @@ def test_scene_from_values_is_the_scene_from_models() -> None:
             from_models.update(m, m.time)
         )
     assert from_values.picture_geojson() == from_models.picture_geojson()
+
+
+def _ahead_reference(lon: float, lat: float, vx: float, vy: float) -> tuple[float, float]:
+    """The speed vector's end in Python floats, the textbook way: the picture's values."""
+    cos_lat = max(math.cos(math.radians(lat)), 1e-6)
+    lon = lon + math.degrees(vx * 60.0 / (6_371_000.0 * cos_lat))
+    lat = lat + math.degrees(vy * 60.0 / 6_371_000.0)
+    return (round((lon + 180.0) % 360.0 - 180.0, 5), round(max(min(lat, 90.0), -90.0), 5))
+
+
+def _bits(values: list[float]) -> list[int]:
+    bits: list[int] = np.array(values, dtype=np.float64).view(np.int64).tolist()
+    return bits
+
+
+def test_picture_coordinates_are_pythons_round_and_math_to_the_bit() -> None:
+    """The picture's coordinates, rounded and moved over arrays, are the floats Python's
+    ``round(v, 5)`` and ``math`` give, bit for bit: anywhere, on the halves of the fifth
+    decimal and next to them, at the wrap of longitude and the poles, non-finite."""
+    rng = np.random.default_rng(12)
+    n = 100_000
+    lon, lat = rng.uniform(-180.0, 180.0, n), rng.uniform(-89.9, 89.9, n)
+    halves = (rng.integers(-18_000_000, 18_000_000, 10_000) + 0.5) / 1e5
+    edges = np.array(
+        [0.0, -0.0, 1 / 64, -1 / 64, 179.999995, -179.999995, 90.0, 1e12, np.nan, np.inf, -np.inf]
+    )
+    samples: list[npt.NDArray[np.float64]] = [
+        lon,
+        lat,
+        halves,
+        np.nextafter(halves, np.inf),
+        np.nextafter(halves, -np.inf),
+        edges,
+    ]
+    for values in samples:
+        assert _bits(_round5(values).tolist()) == _bits([round(v, 5) for v in values.tolist()])
+    lon = np.concatenate([lon, rng.uniform(179.9, 180.0, 1000), np.full(1000, -179.99999)])
+    lat = np.concatenate([lat, rng.uniform(89.99, 90.0, 1000), rng.uniform(-90.0, -89.99, 1000)])
+    vx, vy = rng.normal(0.0, 300.0, len(lon)), rng.normal(0.0, 300.0, len(lon))
+    ahead_lon, ahead_lat = _ahead(lon, lat, vx, vy)
+    expected = list(map(_ahead_reference, lon.tolist(), lat.tolist(), vx.tolist(), vy.tolist()))
+    assert _bits(ahead_lon.tolist()) == _bits([e[0] for e in expected])
+    assert _bits(ahead_lat.tolist()) == _bits([e[1] for e in expected])

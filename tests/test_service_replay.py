@@ -9,6 +9,7 @@ import re
 import socket
 import subprocess
 import sys
+import weakref
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +20,7 @@ import pytest
 from asterix.codec import Block, decode_blocks
 from tracker_service.cli import main
 from tracker_service.outputs.mcap_log import LoggedMessage, read_log_messages
+from tracker_service.service import command
 from tracker_service.service.command import open_service
 from tracker_service.service.config import load_service_config
 from tracker_service.service.core import TrackerService
@@ -341,4 +343,39 @@ def test_start_up_objects_are_out_of_the_collectors_sight() -> None:
             assert gc.get_freeze_count() > 10_000
             assert service.chain.sources == ["25/11", "25/12", "25/13"]
     finally:
+        gc.unfreeze()
+
+
+def test_survivors_of_each_full_collection_leave_the_collectors_sight() -> None:
+    """``command.freeze_survivors`` (the output process's): what survives a full
+    collection is frozen at its end, the next scans only what came since; garbage is
+    still collected, and a frozen object still freed when its last reference goes."""
+
+    class Node:
+        pass
+
+    gc.unfreeze()
+    command.freeze_survivors()
+    command.freeze_survivors()
+    try:
+        assert gc.callbacks.count(command._freeze_after_full_collection) == 1
+        kept = [Node() for _ in range(1000)]
+        gc.collect()
+        frozen = gc.get_freeze_count()
+        assert frozen >= 1000
+        assert not {id(node) for node in kept} & {id(o) for o in gc.get_objects()}
+        # A cycle made since is the collector's as before.
+        cycle = Node()
+        cycle.self = cycle  # type: ignore[attr-defined]
+        watch = weakref.ref(cycle)
+        del cycle
+        gc.collect(0)
+        assert watch() is None
+        # A frozen object goes with its last reference, out of the permanent generation.
+        gone = weakref.ref(kept[0])
+        del kept[0]
+        assert gone() is None
+        assert gc.get_freeze_count() < frozen
+    finally:
+        gc.callbacks.remove(command._freeze_after_full_collection)
         gc.unfreeze()

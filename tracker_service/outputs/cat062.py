@@ -19,11 +19,13 @@ quantities are written here, with the items' LSBs and sizes read from the specif
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from bisect import bisect_right
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
 from functools import cache
-from typing import Any, Literal
+from itertools import accumulate
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -96,7 +98,7 @@ def encode_system_batch(
     (``updates.SystemBatch``), as the service keeps them."""
     if not len(batch):
         return b""
-    return _blocks(_fast_records(track_columns(batch, config), config), max_block_octets)
+    return _framed(*_fast_records(track_columns(batch, config), config), max_block_octets)
 
 
 def encode_system_tracks_generic(
@@ -114,26 +116,29 @@ def encode_system_tracks_generic(
 
 def _blocks(records: Sequence[bytes], max_block_octets: int) -> bytes:
     """The records framed as encode_block frames them, as many a block as fit."""
+    return _framed(b"".join(records), list(accumulate(map(len, records))), max_block_octets)
+
+
+def _framed(data: bytes, ends: list[int], max_block_octets: int) -> bytes:
+    """Records one after another in ``data``, each ending at its entry of ``ends``,
+    framed as :func:`_blocks` frames them: each block the records up to the one that
+    would take it past ``max_block_octets``, found by bisection (a block a step, not a
+    record)."""
+    room = max_block_octets - 3
+    sizes = np.diff(ends, prepend=0)
+    if len(sizes) and sizes.max() > room:
+        size = int(sizes[sizes > room][0])
+        raise ValueError(
+            f"a CAT062 record of {size} octets does not fit a block of {max_block_octets}"
+        )
     blocks: list[bytes] = []
-    group: list[bytes] = []
-    size = 3
-    for encoded in records:
-        if len(encoded) + 3 > max_block_octets:
-            raise ValueError(
-                f"a CAT062 record of {len(encoded)} octets does not fit a block of "
-                f"{max_block_octets}"
-            )
-        if size + len(encoded) > max_block_octets:
-            blocks.append(_block(group, size))
-            group, size = [], 3
-        group.append(encoded)
-        size += len(encoded)
-    blocks.append(_block(group, size))
+    start, first = 0, 0
+    while first < len(ends) or not blocks:
+        stop = bisect_right(ends, start + room, lo=first)
+        end = ends[stop - 1] if stop > first else start
+        blocks.append(bytes([CAT062]) + (end - start + 3).to_bytes(2) + data[start:end])
+        start, first = end, stop
     return b"".join(blocks)
-
-
-def _block(records: list[bytes], size: int) -> bytes:
-    return bytes([CAT062]) + size.to_bytes(2) + b"".join(records)
 
 
 @dataclass(frozen=True)
@@ -571,8 +576,6 @@ _Q380_ROT = _quantity("380", "TAR", "ROT")
 _Q295 = {age: _quantity("295", age) for _, age, _ in _DAP_SUBFIELDS.values()}
 _QNH_SET = int.from_bytes(_ITEM_ENCODERS["135"]({"QNH": 1, "CTB": 0.0}))
 _NUMBER_MAX = (1 << 16) - 1
-_LAYOUT_BITS = 13 + 10  # the last ones: which DAPs (``_DAP_SUBFIELDS``)
-"""Mode 3/A, callsign, address, DUPM, the four ages, FL, altitude, climb, sensor, position."""
 
 
 class _OutOfRange(Exception):
@@ -594,11 +597,6 @@ def _quantised(quantity: _Quantity, values: FloatArray) -> IntArray:
 
 def _constant(data: bytes, n: int) -> npt.NDArray[np.uint8]:
     return np.broadcast_to(np.frombuffer(data, dtype=np.uint8), (n, len(data)))
-
-
-def _each(data: Iterator[bytes], n: int) -> npt.NDArray[np.uint8]:
-    """Per-row encodings of one fixed size (within a layout) as an (N, size) matrix."""
-    return np.frombuffer(b"".join(data), dtype=np.uint8).reshape(n, -1)
 
 
 @cache
@@ -625,44 +623,6 @@ def _identity_subfields(address: int, callsign: str | None) -> bytes:
     return _aircraft_derived_bytes(adr, callsign)[len(_subfield_fspec("380", names)) :]
 
 
-def _aircraft_derived_parts(
-    c: TrackColumns, index: list[int], address: bool, callsign: bool, dap_names: list[str]
-) -> list[npt.NDArray[np.uint8]]:
-    """I380 of rows ``index`` (one layout: the same subfields): the FSPEC, the cached
-    identity subfields, each DAP's subfield quantised over the rows, in slot order."""
-    n = len(index)
-    subfields = {name: _DAP_SUBFIELDS[name][0] for name in dap_names}
-    names = ["ADR"] * address + ["ID"] * callsign + list(subfields.values())
-    parts = [_constant(_subfield_fspec("380", names), n)]
-    if address or callsign:
-        addresses, callsigns = c.address.tolist(), c.callsign
-        parts.append(_each((_identity_subfields(addresses[k], callsigns[k]) for k in index), n))
-    for name in sorted(dap_names, key=lambda d: _I380_SLOTS.index(subfields[d])):
-        value = _DAP_SUBFIELDS[name][2](c.dap_value[index, _DAP_INDEX[name]])
-        if name == "selected_altitude_ft":  # SAS and SRC 0, ALT in the low 13 bits
-            raw = _quantised(_Q380_SAL, value["ALT"])
-        elif name == "track_angle_rate_deg_s":  # TI (2 bits), 6 spare, ROT (7), 1 spare
-            turn = _quantised(_Q380_ROT, value["ROT"])
-            raw = value["TI"].astype(np.int64) << 14 | turn << 1
-        else:
-            raw = _quantised(_Q380[subfields[name]], value)
-        parts.append(_bytes(raw, 2))
-    return parts
-
-
-def _dap_age_parts(
-    c: TrackColumns, index: list[int], dap_names: list[str]
-) -> list[npt.NDArray[np.uint8]]:
-    """I295 of rows ``index`` (one layout): the FSPEC and each DAP's age, in slot order."""
-    ages = {_DAP_SUBFIELDS[name][1]: name for name in dap_names}
-    order = sorted(ages, key=_I295_SLOTS.index)
-    parts = [_constant(_subfield_fspec("295", order), len(index))]
-    for age in order:
-        values = c.dap_age[index, _DAP_INDEX[ages[age]]]
-        parts.append(_bytes(_quantised(_Q295[age], np.minimum(values, AGE_MAX_S)), 1))
-    return parts
-
-
 @cache
 def _status_bytes(flags: tuple[int, ...]) -> bytes:
     return _ITEM_ENCODERS["080"](_status(flags))
@@ -676,118 +636,244 @@ def _source_bytes(config: SdpsIdentity) -> tuple[bytes, bytes]:
     )
 
 
-def _layouts(c: TrackColumns) -> npt.NDArray[np.int64]:
-    """Per row, which optional parts it has, as bits: rows with the same bits have records
-    of the same items and sizes."""
-    n = len(c)
-    bits = [
-        c.mode3a >= 0,
-        np.array([v is not None for v in c.callsign], dtype=bool),
-        c.address >= 0,
-        c.status[:, -1] == 1,
-        *(~np.isnan(c.ages[:, i]) for i in range(len(_AGE_NAMES))),
-        ~np.isnan(c.flight_level),
-        ~np.isnan(c.altitude_fl),
-        ~np.isnan(c.climb_rate_fpm),
-        c.sensor[:, 0] >= 0,
-        ~np.isnan(c.rho_nm) & ~np.isnan(c.theta_deg),
-        *c.has_dap.T,
-    ]
-    assert len(bits) == _LAYOUT_BITS
-    layout = np.zeros(n, dtype=np.int64)
-    for i, present in enumerate(bits):
-        layout |= present.astype(np.int64) << i
-    return layout
+class _Part(NamedTuple):
+    """One part of every row's record: its octets, (N, width), and which of them the row
+    has, (N, width) or (N, 1) (a part of one size that a row has or has not)."""
+
+    octets: npt.NDArray[np.uint8]
+    present: BoolArray
 
 
-def _fast_records(c: TrackColumns, config: SdpsIdentity) -> list[bytes]:
-    """The records of every row, byte for byte what ``encode_record`` makes of
+def _fixed(octets: npt.NDArray[np.uint8], present: BoolArray | None = None) -> _Part:
+    n = len(octets)
+    return _Part(octets, np.ones((n, 1), dtype=bool) if present is None else present[:, None])
+
+
+def _variable(keys: Sequence[Hashable | None], encode: Callable[[Any], bytes]) -> _Part:
+    """A part whose octets follow from a key of the row (None: the row has none), encoded
+    once per distinct key: a callsign, the identity subfields of I380."""
+    table: dict[Hashable, int] = {}
+    index = [-1 if key is None else table.setdefault(key, len(table)) for key in keys]
+    return _looked_up(np.array(index, dtype=np.int64), [encode(key) for key in table])
+
+
+def _coded(codes: IntArray, encode: Callable[[int], bytes]) -> _Part:
+    """A part whose octets follow from an integer of the row, encoded once per distinct
+    integer (b"": the row has none)."""
+    unique, inverse = np.unique(codes, return_inverse=True)
+    return _looked_up(inverse.astype(np.int64), [encode(code) for code in unique.tolist()])
+
+
+def _flagged(flags: BoolArray, encode: Callable[[tuple[int, ...]], bytes]) -> _Part:
+    """A part whose octets follow from flags of the row, (N, k): an FSPEC (which items or
+    subfields the row has), I080's extents (its flags); encoded once per distinct set."""
+    k = flags.shape[1]
+    codes = flags.astype(np.int64) @ (1 << np.arange(k, dtype=np.int64))
+    return _coded(codes, lambda code: encode(tuple(code >> i & 1 for i in range(k))))
+
+
+def _fspec_of(item: str, names: Sequence[str]) -> Callable[[tuple[int, ...]], bytes]:
+    """The FSPEC of compound ``item`` (b"" for none) of flags for ``names``."""
+
+    def fspec(flags: tuple[int, ...]) -> bytes:
+        there = [name for name, flag in zip(names, flags, strict=True) if flag]
+        return _subfield_fspec(item, there) if there else b""
+
+    return fspec
+
+
+def _looked_up(index: IntArray, encoded: list[bytes]) -> _Part:
+    """Row k has ``encoded[index[k]]`` (-1: nothing)."""
+    lengths = np.array([*map(len, encoded), 0], dtype=np.int64)
+    width = int(lengths.max())
+    # Most parts have one size (a callsign's 7 octets): no padding to make then.
+    padded = encoded if (lengths[:-1] == width).all() else [e.ljust(width, b"\0") for e in encoded]
+    rows = np.frombuffer(b"".join(padded) + bytes(width), dtype=np.uint8).reshape(
+        len(encoded) + 1, width
+    )
+    # -1: the zero row at the end, of length 0.
+    return _Part(rows[index], np.arange(width) < lengths[index][:, None])
+
+
+def _quantities(
+    quantity: _Quantity, values: FloatArray, octets: int, present: BoolArray | None = None
+) -> _Part:
+    """``values`` quantised (``_quantised``) big-endian in ``octets`` octets, over the rows
+    ``present`` (None: all) only: an absent value is anything, NaN mostly."""
+    if present is None:
+        return _fixed(_bytes(_quantised(quantity, values), octets))
+    raw = np.zeros(len(values), dtype=np.int64)
+    rows = np.flatnonzero(present)
+    if rows.size:
+        raw[rows] = _quantised(quantity, values[rows])
+    return _fixed(_bytes(raw, octets), present)
+
+
+def _fast_records(c: TrackColumns, config: SdpsIdentity) -> tuple[bytes, list[int]]:
+    """The records of every row one after another, and where each ends: byte for byte
+    what ``encode_record`` makes of
     ``system_track_records``; a value beyond its item's range goes to the generic encoder,
-    which raises ``EncodeError`` naming it, as before."""
+    which raises ``EncodeError`` naming it, as before.
+
+    Every row's record is a row of one octet matrix over all the rows, each item's parts
+    in their columns in the record's order, with a mask of the octets each row has (its
+    FSPEC, its optional items and subfields): the records are the masked octets in row
+    order, cut at each row's size. Some 150 numpy calls for the whole batch, whatever
+    its mix of items (a second's ~2,000 tracks on ``artas`` came in ~25 layouts of
+    30 calls each)."""
     try:
-        layout = _layouts(c)
-        records: list[bytes] = [b""] * len(c)
-        for key in np.unique(layout).tolist():
-            rows = np.flatnonzero(layout == key)
-            matrix = _layout_records(c, rows, key, config)
-            data, size = matrix.tobytes(), matrix.shape[1]
-            for j, row in enumerate(rows.tolist()):
-                records[row] = data[j * size : (j + 1) * size]
-        return records
+        parts = _record_parts(c, config)
     except _OutOfRange:
-        return [encode_record(CAT062, _record(c, k, config)) for k in range(len(c))]
+        records = [encode_record(CAT062, _record(c, k, config)) for k in range(len(c))]
+        return b"".join(records), list(accumulate(map(len, records)))
+    octets = np.hstack([part.octets for part in parts])
+    present = np.hstack([np.broadcast_to(p.present, p.octets.shape) for p in parts])
+    return octets[present].tobytes(), np.cumsum(present.sum(axis=1)).tolist()
 
 
-def _layout_records(
-    c: TrackColumns, rows: IntArray, key: int, config: SdpsIdentity
-) -> npt.NDArray[np.uint8]:
-    """The records of ``rows``, which share the layout ``key``, one per matrix row."""
-    n = len(rows)
-    has = [bool(key >> i & 1) for i in range(_LAYOUT_BITS)]
-    has_mode3a, has_callsign, has_address, _, *has_ages = has[:8]
-    has_fl, has_alt, has_climb, has_sensor, has_pos = has[8:13]
-    has_daps = any(has[13:])
+def _record_parts(c: TrackColumns, config: SdpsIdentity) -> list[_Part]:
+    """The parts of every row's record in the record's order (``_fast_records``): the
+    FSPEC, then each item's, in the UAP's order."""
+    n = len(c)
     source, service = _source_bytes(config)
-    parts: dict[str, list[npt.NDArray[np.uint8]]] = {
-        "010": [_constant(source, n)],
-        "015": [_constant(service, n)],
-        "070": [_bytes(_quantised(_Q070, c.time_of_day[rows]), 3)],
-        "105": [
-            _bytes(_quantised(q, v[rows]), 4) for q, v in zip(_Q105, (c.lat, c.lon), strict=True)
-        ],
-        "100": [_bytes(_quantised(q, v[rows]), 3) for q, v in zip(_Q100, (c.x, c.y), strict=True)],
-        "185": [
-            _bytes(_quantised(q, v[rows]), 2) for q, v in zip(_Q185, (c.vx, c.vy), strict=True)
-        ],
+    has_mode3a = c.mode3a >= 0
+    callsigns = c.callsign
+    has_callsign = np.array([v is not None for v in callsigns], dtype=bool)
+    has_address = c.address >= 0
+    has_dap = c.has_dap
+    has_daps: BoolArray = np.asarray(has_dap.any(axis=1), dtype=bool)
+    has_age = ~np.isnan(c.ages)
+    has_sensor = c.sensor[:, 0] >= 0
+    has_pos = has_sensor & ~np.isnan(c.rho_nm) & ~np.isnan(c.theta_deg)
+    items: dict[str, tuple[BoolArray | None, list[_Part]]] = {
+        "010": (None, [_fixed(_constant(source, n))]),
+        "015": (None, [_fixed(_constant(service, n))]),
+        "070": (None, [_quantities(_Q070, c.time_of_day, 3)]),
+        "105": (None, [_quantities(q, v, 4) for q, v in zip(_Q105, (c.lat, c.lon), strict=True)]),
+        "100": (None, [_quantities(q, v, 3) for q, v in zip(_Q100, (c.x, c.y), strict=True)]),
+        "185": (None, [_quantities(q, v, 2) for q, v in zip(_Q185, (c.vx, c.vy), strict=True)]),
     }
-    index = rows.tolist()
-    if has_mode3a:
-        codes, changed = c.mode3a.tolist(), c.mode3a_changed.tolist()
-        parts["060"] = [_each((_mode3a_bytes(codes[k], changed[k]) for k in index), n)]
-    if has_callsign:
-        parts["245"] = [_each((_callsign_bytes(c.callsign[k]) for k in index), n)]
-    if has_address or has_callsign or has_daps:
-        dap_names = [name for name, there in zip(_DAP_SUBFIELDS, has[13:], strict=True) if there]
-        parts["380"] = _aircraft_derived_parts(c, index, has_address, has_callsign, dap_names)
-        if has_daps:
-            parts["295"] = _dap_age_parts(c, index, dap_names)
-    number = c.number[rows]
-    if number.min() < 0 or number.max() > _NUMBER_MAX:
+    items["060"] = (
+        has_mode3a,
+        [
+            _coded(
+                np.where(has_mode3a, c.mode3a * 2 + c.mode3a_changed, -1),
+                lambda code: b"" if code < 0 else _mode3a_bytes(code >> 1, bool(code & 1)),
+            )
+        ],
+    )
+    items["245"] = (has_callsign, [_variable(callsigns, _callsign_bytes)])
+    items["380"] = (
+        has_address | has_callsign | has_daps,
+        _aircraft_derived_parts(c, has_address, has_callsign),
+    )
+    items["295"] = (has_daps, _dap_age_parts(c))
+    number = c.number
+    if n and (number.min() < 0 or number.max() > _NUMBER_MAX):
         raise _OutOfRange
-    parts["040"] = [_bytes(number, 2)]
-    status = c.status[rows].tolist()
-    parts["080"] = [_each((_status_bytes(tuple(flags)) for flags in status), n)]
-    if any(has_ages):
-        names = [name for name, present in zip(_AGE_NAMES, has_ages, strict=True) if present]
-        parts["290"] = [_constant(_subfield_fspec("290", names), n)] + [
-            _bytes(_quantised(q, c.ages[rows, i]), 1)
-            for i, (q, present) in enumerate(zip(_Q290, has_ages, strict=True))
-            if present
-        ]
-    if has_fl:
-        parts["136"] = [_bytes(_quantised(_Q136, c.flight_level[rows]), 2)]
-    if has_alt:
-        parts["135"] = [_bytes(_quantised(_Q135, c.altitude_fl[rows]) | _QNH_SET, 2)]
-    if has_climb:
-        parts["220"] = [_bytes(_quantised(_Q220, c.climb_rate_fpm[rows]), 2)]
-    parts["500"] = [
-        _constant(_FSPEC_500, n),
-        *(_bytes(_quantised(q, c.apc[rows, i]), 2) for i, q in enumerate(_Q500_APC)),
-        _bytes(_quantised(_Q500_COV, c.cov[rows]), 2),
-        *(_bytes(_quantised(q, c.apw[rows, i]), 2) for i, q in enumerate(_Q500_APW)),
-        *(_bytes(_quantised(q, c.atv[rows, i]), 1) for i, q in enumerate(_Q500_ATV)),
-    ]
-    if has_sensor:
-        sensors = c.sensor[rows]
-        if sensors.min() < 0 or sensors.max() > 255:
-            raise _OutOfRange
-        subfields = ("SID", "POS") if has_pos else ("SID",)
-        parts["340"] = [_constant(_subfield_fspec("340", subfields), n), sensors.astype(np.uint8)]
-        if has_pos:
-            parts["340"] += [
-                _bytes(_quantised(q, v[rows]), 2)
+    items["040"] = (None, [_fixed(_bytes(number, 2))])
+    items["080"] = (None, [_flagged(c.status.astype(bool), _status_bytes)])
+    has_ages: BoolArray = np.asarray(has_age.any(axis=1), dtype=bool)
+    items["290"] = (
+        has_ages,
+        [
+            _flagged(has_age, _fspec_of("290", _AGE_NAMES)),
+            *(_quantities(q, c.ages[:, i], 1, has_age[:, i]) for i, q in enumerate(_Q290)),
+        ],
+    )
+    has_fl, has_alt = ~np.isnan(c.flight_level), ~np.isnan(c.altitude_fl)
+    has_climb = ~np.isnan(c.climb_rate_fpm)
+    items["136"] = (has_fl, [_quantities(_Q136, c.flight_level, 2, has_fl)])
+    alt = _quantities(_Q135, c.altitude_fl, 2, has_alt)
+    qnh = _bytes(np.full(n, _QNH_SET, dtype=np.int64), 2)
+    items["135"] = (has_alt, [_fixed(alt.octets | qnh, has_alt)])
+    items["220"] = (has_climb, [_quantities(_Q220, c.climb_rate_fpm, 2, has_climb)])
+    items["500"] = (
+        None,
+        [
+            _fixed(_constant(_FSPEC_500, n)),
+            *(_quantities(q, c.apc[:, i], 2) for i, q in enumerate(_Q500_APC)),
+            _quantities(_Q500_COV, c.cov, 2),
+            *(_quantities(q, c.apw[:, i], 2) for i, q in enumerate(_Q500_APW)),
+            *(_quantities(q, c.atv[:, i], 1) for i, q in enumerate(_Q500_ATV)),
+        ],
+    )
+    sensors = c.sensor[has_sensor]
+    if sensors.size and (sensors.min() < 0 or sensors.max() > 255):
+        raise _OutOfRange
+    items["340"] = (
+        has_sensor,
+        [
+            _flagged(np.column_stack((has_sensor, has_pos)), _fspec_of("340", ("SID", "POS"))),
+            _fixed(np.maximum(c.sensor, 0).astype(np.uint8), has_sensor),
+            *(
+                _quantities(q, v, 2, has_pos)
                 for q, v in zip(_Q340_POS, (c.rho_nm, c.theta_deg), strict=True)
-            ]
-    items = sorted(parts, key=_POSITIONS.__getitem__)
-    fspec = build_fspec([_POSITIONS[item] for item in items], 0)
-    return np.hstack([_constant(fspec, n), *(part for item in items for part in parts[item])])
+            ),
+        ],
+    )
+    order = sorted(items, key=_POSITIONS.__getitem__)
+    columns = []
+    for item in order:
+        there = items[item][0]
+        columns.append(np.ones(n, dtype=bool) if there is None else there)
+    present = np.column_stack(columns)
+    positions = [_POSITIONS[item] for item in order]
+    fspec = _flagged(
+        present,
+        lambda flags: build_fspec(
+            [p for p, there in zip(positions, flags, strict=True) if there], 0
+        ),
+    )
+    return [fspec, *(part for item in order for part in items[item][1])]
+
+
+def _aircraft_derived_parts(
+    c: TrackColumns, has_address: BoolArray, has_callsign: BoolArray
+) -> list[_Part]:
+    """I380 of every row: the FSPEC, the cached identity subfields, each DAP's subfield
+    quantised over the rows that have it, in slot order."""
+    dap_names = list(_DAP_SUBFIELDS)
+    subfields = {name: _DAP_SUBFIELDS[name][0] for name in dap_names}
+    has_dap = c.has_dap
+    addresses = c.address.tolist()
+    parts = [
+        _flagged(
+            np.column_stack((has_address, has_callsign, has_dap)),
+            _fspec_of("380", ("ADR", "ID", *subfields.values())),
+        ),
+        _variable(
+            [
+                (address, callsign) if address >= 0 or callsign is not None else None
+                for address, callsign in zip(addresses, c.callsign, strict=True)
+            ],
+            lambda key: _identity_subfields(*key),
+        ),
+    ]
+    for name in sorted(dap_names, key=lambda d: _I380_SLOTS.index(subfields[d])):
+        there = has_dap[:, _DAP_INDEX[name]]
+        raw = np.zeros(len(c), dtype=np.int64)
+        rows = np.flatnonzero(there)
+        if rows.size:
+            value = _DAP_SUBFIELDS[name][2](c.dap_value[rows, _DAP_INDEX[name]])
+            if name == "selected_altitude_ft":  # SAS and SRC 0, ALT in the low 13 bits
+                raw[rows] = _quantised(_Q380_SAL, value["ALT"])
+            elif name == "track_angle_rate_deg_s":  # TI (2 bits), 6 spare, ROT (7), 1 spare
+                turn = _quantised(_Q380_ROT, value["ROT"])
+                raw[rows] = value["TI"].astype(np.int64) << 14 | turn << 1
+            else:
+                raw[rows] = _quantised(_Q380[subfields[name]], value)
+        parts.append(_fixed(_bytes(raw, 2), there))
+    return parts
+
+
+def _dap_age_parts(c: TrackColumns) -> list[_Part]:
+    """I295 of every row: the FSPEC and each DAP's age, in slot order."""
+    ages = {_DAP_SUBFIELDS[name][1]: name for name in _DAP_SUBFIELDS}
+    order = sorted(ages, key=_I295_SLOTS.index)
+    has = [c.has_dap[:, _DAP_INDEX[ages[age]]] for age in order]
+    parts = [_flagged(np.column_stack(has), _fspec_of("295", order))]
+    for age, there in zip(order, has, strict=True):
+        values = np.minimum(c.dap_age[:, _DAP_INDEX[ages[age]]], AGE_MAX_S)
+        parts.append(_quantities(_Q295[age], values, 1, there))
+    return parts

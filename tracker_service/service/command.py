@@ -378,6 +378,27 @@ def freeze_start_up() -> None:
     gc.freeze()
 
 
+def freeze_survivors() -> None:
+    """From now on, what survives each full collection of the cyclic collector goes out
+    of its sight too (``gc.freeze`` at the collection's end), so that each full
+    collection scans only what became long-lived since the last one. The output
+    process holds some 70,000 objects with 400,000 references for its picture of 4,000
+    tracks (the messages' state, the map's trails, CAT062's pending updates, the log's
+    chunk index), each one replaced within minutes: a full collection of all of them
+    paused its calls 44-57 ms (docs/benchmarks.md, "Session 15"). A frozen object is
+    still freed when its last reference goes; only a reference cycle made of objects
+    that had survived a full collection would never be collected, and the outputs make
+    next to none (``benchmarks/bench_output_calls.py calls`` counts them at its end).
+    At the collection's end the younger generations are empty: no garbage is frozen."""
+    if _freeze_after_full_collection not in gc.callbacks:
+        gc.callbacks.append(_freeze_after_full_collection)
+
+
+def _freeze_after_full_collection(phase: str, info: dict[str, int]) -> None:
+    if phase == "stop" and info["generation"] == 2:
+        gc.freeze()
+
+
 @contextmanager
 def open_service(
     config: ServiceConfig,
@@ -648,6 +669,7 @@ def _serve_outputs(
             outputs = Outputs(config, publisher, mcap)
             outputs.health_file = health_file
             freeze_start_up()
+            freeze_survivors()
             replies.put(None)
             try:
                 told_to_stop = _make_calls(outputs, parent, calls, failed)
