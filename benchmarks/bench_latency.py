@@ -12,7 +12,8 @@ I140). Both clocks are this host's.
 
     python benchmarks/bench_latency.py [--scenario scale|three_sites|artas] [--rate 2000]
         [--speed 1] [--duration 180] [--holding-window 0.02] [--no-mcap] [--profile FILE]
-        [--radar-processes N] [--samples FILE] [--statuses FILE]
+        [--radar-processes N] [--samples FILE] [--statuses FILE] [--timeline FILE]
+        [--sample-period S]
 
 A long slice (``artas`` for 30 minutes: minutes of simulation) is simulated ahead, dated
 in the future, then sent by a second run, so that the wait is not spent idle::
@@ -29,7 +30,15 @@ real time with ``--speed 1`` (which replaces ``--rate``): the ARTAS-class load.
 
 Beside the latencies: the daemon's status over Zenoh (``tracker/status``: datagrams
 dropped at its inputs, by cause, and its lag behind the wall clock) and the RSS of the
-daemon and its output process, sampled every 5 s.
+daemon and its output process. ``--timeline FILE`` writes, per ``--sample-period`` (2 s)
+of the sending, what tells a lag's cause apart (``timeline_rows``): each process's share
+of a core (from /proc/PID/stat: the daemon's processes, their children, this process),
+the host's busy, iowait and steal time in cores (/proc/stat: steal is what the
+hypervisor gave other machines), the CPU time of a fixed piece of work (``speed_probe``:
+the host's speed), how late this process sent its datagrams against their schedule, the
+daemon's lag and the plots' latency: a lag with one process's CPU up for the same plots
+and the probe steady is the chain's work; with the probe slower (every process's CPU up
+alike) or steal up, the host's; with the sender late, the benchmark's.
 
 ``--radar-processes N`` runs the daemon as the roles of docs/deployment.md: N ``run --role
 radar`` processes (the radars dealt round robin) connected to one ``run --role fusion``
@@ -46,8 +55,10 @@ import argparse
 import cProfile
 import datetime as dt
 import gc
+import itertools
 import json
 import logging
+import math
 import re
 import shutil
 import socket
@@ -57,10 +68,12 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import zenoh
 
 from asterix.plots import extract_plots
@@ -186,6 +199,14 @@ def main() -> int:
         help="write each status the daemon published (JSON lines): its lag, drops by cause",
     )
     parser.add_argument(
+        "--timeline",
+        help="write, per sample period of the sending, each process's CPU, the host's steal, "
+        "the sender's lateness, the daemon's lag and the latencies (tab-separated)",
+    )
+    parser.add_argument(
+        "--sample-period", type=float, default=2.0, help="seconds between CPU samples"
+    )
+    parser.add_argument(
         "--radar-processes",
         type=int,
         default=0,
@@ -272,22 +293,28 @@ def main() -> int:
     status_subscriber = session.declare_subscriber(
         "tracker/status", lambda s: statuses.append(json.loads(s.payload.to_bytes()))
     )
-    rss: list[tuple[float, float]] = []
+    roles = {daemon.pid: "fusion" if radar_processes else "main"}
+    roles.update({p.pid: f"radar process {k}" for k, p in enumerate(radar_processes)})
+    samples_taken: list[Sample] = []
     sampling = threading.Event()
 
-    def sample_rss() -> None:
-        t0 = time.monotonic()
-        while not sampling.wait(5.0):
-            mb = sum(rss_mb(p.pid) for p in [daemon, *radar_processes])
-            rss.append((time.monotonic() - t0, mb))
+    def sample() -> None:
+        samples_taken.append(take_sample(roles))
+        while not sampling.wait(args.sample_period):
+            samples_taken.append(take_sample(roles))
 
-    threading.Thread(target=sample_rss, daemon=True).start()
+    threading.Thread(target=sample, daemon=True).start()
     time.sleep(1.0)
 
-    sent: dict[tuple[str, int], float] = {}
-    # Millions of send times and arrivals held, and no cycle among them: the collector's
-    # full passes over them paused the sender for seconds in a 30-minute run (then a
-    # burst: the radars' clocks judged 17 s behind), so it is off while sending.
+    # Each datagram's send (POSIX s) and how late it left against its schedule (s): into
+    # arrays made beforehand, so that the loop allocates nothing. A dictionary of each
+    # plot's send time filled in the loop stalled the sender whenever it grew (0.3 s at
+    # 0.7 million plots, 0.8 s at 1.4, 2.9 s at 2.8 in a 30-minute run of `artas`).
+    send_times = np.full(len(datagrams), np.nan)
+    lateness = np.full(len(datagrams), np.nan)
+    # Millions of arrivals held, and no cycle among them: the collector's full passes
+    # over them paused the sender for seconds in a 30-minute run (then a burst: the
+    # radars' clocks judged 17 s behind), so it is off while sending.
     gc.disable()
     # At the scenario's start (with --lead), else at once: the plots' times are real.
     start_in = datagrams[0].time - time.time()
@@ -299,14 +326,14 @@ def main() -> int:
     cpu_wall0 = time.monotonic()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         first = datagrams[0].time
-        for d, keys in zip(datagrams, keys_of, strict=True):
-            delay = wall0 + (d.time - first) / speed - time.monotonic()
+        for i, d in enumerate(datagrams):
+            due = wall0 + (d.time - first) / speed
+            delay = due - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             sock.sendto(d.payload, ("127.0.0.1", ports[d.source, d.lan]))
-            now = time.time()
-            for key in keys:
-                sent.setdefault(key, now)
+            send_times[i] = time.time()
+            lateness[i] = time.monotonic() - due
     wall = time.monotonic() - wall0
     time.sleep(2.0 + args.holding_window)
     cpu1 = {k: v for p in [daemon, *radar_processes] for k, v in cpu_per_process(p.pid).items()}
@@ -329,6 +356,10 @@ def main() -> int:
     session.close()  # type: ignore[no-untyped-call]
     shutil.rmtree(work, ignore_errors=True)  # the recording and the daemon's log
 
+    sent: dict[tuple[str, int], float] = {}
+    for keys, at in zip(keys_of, send_times.tolist(), strict=True):
+        for key in keys:
+            sent.setdefault(key, at)
     start = min(sent.values())
     latencies: tuple[list[float], list[float]] = ([], [])
     seen: set[tuple[str, int]] = set()
@@ -359,13 +390,22 @@ def main() -> int:
         f"x{speed:.2f}), holding window {args.holding_window * 1000:.0f} ms, MCAP log "
         f"{'off' if mcap_dir is None else 'on'}"
     )
-    name_of = {daemon.pid: "fusion" if radar_processes else "main"}
-    name_of.update({p.pid: f"radar process {k}" for k, p in enumerate(radar_processes)})
+    if args.timeline is not None:
+        # The timeline's clock: seconds from the first datagram's send, as the samples'.
+        rows = timeline_rows(
+            samples_taken,
+            wall0,
+            (send_times - start, lateness),
+            [(s["time"] - start, s["lag_s"]) for s in statuses if s.get("lag_s") is not None],
+            np.array(samples, dtype=np.float64).reshape(-1, 2),
+        )
+        write_timeline(args.timeline, rows)
+        print(attribute_lag(rows))
     print(
         "CPU, share of a core: daemon "
         + ", ".join(
             # The children: the output process, and multiprocessing's resource tracker.
-            f"{name_of.get(pid, f'child {pid}')} {s / cpu_wall:.0%}"
+            f"{roles.get(pid, f'child {pid}')} {s / cpu_wall:.0%}"
             for pid, s in cpu.items()
             if s / cpu_wall >= 0.01
         )
@@ -387,9 +427,10 @@ def main() -> int:
             f"{lags[-1] if lags else 0.0:.2f} s, health {last['health']}"
             + "".join(f"; {reason}" for reason in last.get("reasons", []))
         )
+    rss = [(s.at - wall0, s.rss_mb) for s in samples_taken]
     if rss:
         print(
-            "RSS of the daemon and its output process: "
+            "RSS of the daemon's processes, from the start of sending: "
             + ", ".join(f"{t:.0f} s {mb:.0f} MB" for t, mb in rss[:: max(1, len(rss) // 8)])
             + f", last {rss[-1][1]:.0f} MB"
         )
@@ -433,6 +474,147 @@ def cpu_per_process(pid: int) -> dict[int, float]:
         out[current] = (int(fields[11]) + int(fields[12])) / 100.0
         pending.extend(int(child) for child in children)
     return out
+
+
+HOST_FIELDS = ("user", "nice", "system", "idle", "iowait", "irq", "softirq", "steal")
+"""The first fields of /proc/stat's ``cpu`` line (proc(5)), clock ticks of all cores."""
+TICK_S = 0.01
+"""A clock tick (``SC_CLK_TCK`` 100 on Linux), as ``cpu_per_process`` counts."""
+
+
+@dataclass
+class Sample:
+    """One look at the host and the daemon's processes (``take_sample``)."""
+
+    at: float
+    """``time.monotonic()``."""
+    host: dict[str, int]
+    """/proc/stat's CPU ticks by kind, all cores."""
+    cpu: dict[str, float]
+    """CPU seconds by process: the daemon's roles by name, their children as "<name>+",
+    and "bench" (this process: the sender and the subscriber)."""
+    rss_mb: float
+    """RSS of the daemon's processes and their children."""
+    probe_s: float
+    """``speed_probe``'s CPU seconds."""
+
+
+PROBE_LOOPS = 50_000
+
+
+def speed_probe() -> float:
+    """CPU seconds of this thread (``time.thread_time``: waits and steal left out) for a
+    fixed piece of Python work, a few milliseconds: the host's speed for the same work.
+    A virtual machine's neighbours (their caches, memory bandwidth, a shared core) slow
+    every process alike without any steal shown; each process's CPU then rises for the
+    same plots, which this tells apart from the chain's own work."""
+    started = time.thread_time()
+    total = 0
+    for k in range(PROBE_LOOPS):
+        total += k % 7
+    assert total >= 0
+    return time.thread_time() - started
+
+
+def take_sample(roles: dict[int, str]) -> Sample:
+    """The host's CPU ticks and the CPU and RSS of the processes ``roles`` names (pid:
+    name) and of this one, now."""
+    line = Path("/proc/stat").read_text().split("\n", 1)[0].split()
+    assert line[0] == "cpu"
+    cpu: dict[str, float] = {}
+    for pid, name in roles.items():
+        for member, seconds in cpu_per_process(pid).items():
+            key = name if member == pid else f"{name}+"
+            cpu[key] = cpu.get(key, 0.0) + seconds
+    # Its own threads only: the daemon's processes are its children.
+    cpu["bench"] = time.process_time()
+    return Sample(
+        at=time.monotonic(),
+        host=dict(zip(HOST_FIELDS, map(int, line[1:]), strict=False)),
+        cpu=cpu,
+        rss_mb=sum(rss_mb(pid) for pid in roles),
+        probe_s=speed_probe(),
+    )
+
+
+def timeline_rows(
+    samples: list[Sample],
+    wall0: float,
+    sends: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]],
+    lags: list[tuple[float, float]],
+    latencies: npt.NDArray[np.float64],
+) -> list[dict[str, float]]:
+    """One row per pair of consecutive samples within the sending (times in s from the
+    first send; ``wall0``, the schedule's start in monotonic s, is that send within a
+    millisecond):
+    each process's share of a core; the host's busy, iowait and steal time in cores,
+    and ``speed_probe``'s milliseconds at the window's end;
+    the datagrams sent, the latest of them against its schedule (ms) and their p99; the
+    daemon's largest lag among the statuses of the window's data; the p50 and p99 of
+    the latencies (ms) of the plots sent in it. ``sends``: each datagram's send (s from
+    the first) and lateness (s); ``lags``: (data time from the first send, ``lag_s``);
+    ``latencies``: (sent, ms) rows."""
+    sent, late = sends
+    last_send = float(np.nanmax(sent)) if sent.size else 0.0
+    lag_t = np.array([t for t, _ in lags], dtype=np.float64)
+    lag_s = np.array([lag for _, lag in lags], dtype=np.float64)
+    rows = []
+    for before, after in itertools.pairwise(samples):
+        t0, t1 = before.at - wall0, after.at - wall0
+        if t1 <= 0.0 or t0 >= last_send:
+            continue
+        span = t1 - t0
+        row: dict[str, float] = {"t0": t0, "t1": t1}
+        for name in after.cpu:
+            row[f"cpu {name}"] = (after.cpu[name] - before.cpu.get(name, 0.0)) / span
+        ticks = {k: after.host[k] - before.host.get(k, 0) for k in after.host}
+        busy = sum(ticks[k] for k in ("user", "nice", "system", "irq", "softirq") if k in ticks)
+        row["host busy"] = busy * TICK_S / span
+        row["host iowait"] = ticks.get("iowait", 0) * TICK_S / span
+        row["host steal"] = ticks.get("steal", 0) * TICK_S / span
+        row["probe ms"] = after.probe_s * 1e3
+        inside = (sent >= t0) & (sent < t1)
+        row["datagrams"] = float(np.count_nonzero(inside))
+        row["late max ms"] = float(late[inside].max() * 1e3) if inside.any() else math.nan
+        row["late p99 ms"] = (
+            float(np.percentile(late[inside], 99) * 1e3) if inside.any() else math.nan
+        )
+        statuses = (lag_t >= t0) & (lag_t < t1)
+        row["lag max s"] = float(lag_s[statuses].max()) if statuses.any() else math.nan
+        plots = latencies[(latencies[:, 0] >= t0) & (latencies[:, 0] < t1), 1]
+        row["latency p50 ms"] = float(np.percentile(plots, 50)) if plots.size else math.nan
+        row["latency p99 ms"] = float(np.percentile(plots, 99)) if plots.size else math.nan
+        rows.append(row)
+    return rows
+
+
+def write_timeline(path: str, rows: list[dict[str, float]]) -> None:
+    """The rows tab-separated, a header line of their names first."""
+    names = list(dict.fromkeys(name for row in rows for name in row))
+    with open(path, "w", encoding="utf-8") as out:
+        out.write("\t".join(names) + "\n")
+        for row in rows:
+            out.write("\t".join(f"{row.get(name, math.nan):.4g}" for name in names) + "\n")
+
+
+def attribute_lag(rows: list[dict[str, float]], lagging_s: float = 1.0) -> str:
+    """The timeline's windows where the daemon lagged ``lagging_s`` or more against the
+    others: the mean of each process's share of a core, of the host's steal, and the
+    sender's worst lateness, side by side."""
+    lagging = [r for r in rows if r.get("lag max s", 0.0) >= lagging_s]
+    others = [r for r in rows if not r.get("lag max s", 0.0) >= lagging_s]
+    names = [n for n in dict.fromkeys(n for r in rows for n in r) if n.startswith("cpu ")]
+    names += ["host busy", "host steal", "host iowait", "probe ms", "late max ms", "datagrams"]
+
+    def mean(part: list[dict[str, float]], name: str) -> str:
+        values = [r[name] for r in part if name in r and math.isfinite(r[name])]
+        return f"{statistics.fmean(values):.3g}" if values else "-"
+
+    return (
+        f"timeline: {len(lagging)} of {len(rows)} windows with a lag of {lagging_s:g} s or "
+        "more; mean of each, lagging / others: "
+        + ", ".join(f"{n} {mean(lagging, n)} / {mean(others, n)}" for n in names)
+    )
 
 
 if __name__ == "__main__":

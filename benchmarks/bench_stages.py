@@ -44,6 +44,7 @@ import argparse
 import contextlib
 import cProfile
 import functools
+import gc
 import json
 import os
 import statistics
@@ -55,6 +56,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+import tracker_service
 from asterix.containers import Datagram
 from tracker_service import radar_stage as radar_stage_module
 from tracker_service.central_stage import CentralStage
@@ -176,6 +180,124 @@ def instrumented(clock: StageClock) -> Iterator[None]:
                 delattr(owner, name)
 
 
+OUTPUT_STAGES = ("messages", "CAT062", "MCAP", "Foxglove map", "Zenoh")
+FUSER_COUNTS = (
+    "system_tracks_created",
+    "system_tracks_ended",
+    "system_tracks_merged",
+    "numbers_exhausted",
+)
+
+
+class Windows:
+    """``--windows S``: the replay's work by window of ``S`` seconds of data time (the
+    datagrams' reception times from the first), each window a row: plots, CPU seconds
+    of the process and of the stages, the slowest datagram (``TrackerService.process``,
+    CPU of the main thread), the full collections of the cyclic collector (count, wall
+    time), and the fuser's state at the window's end: live system tracks, local-track
+    table rows (used, alive) and its counters' growth (tracks created, ended, merged;
+    founders refused for want of a free number). A window that costs more than its
+    neighbours for the same plots is the fuser's or the outputs' own doing, whatever the
+    host does to a live run."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+        self.rows: list[dict[str, float]] = []
+        self._full: list[float] = []
+        self._full_started = 0.0
+
+    def start(self, clock: StageClock, service: TrackerService, first: float | None) -> None:
+        assert first is not None
+        self._clock, self._service, self._first = clock, service, first
+        self._end = first + self.seconds
+        self._mark = self._snapshot()
+        self._slowest = 0.0
+        gc.callbacks.append(self._on_gc)
+
+    def process(self, service: TrackerService, name: str, datagram: Datagram) -> None:
+        assert datagram.time is not None
+        while datagram.time >= self._end:
+            self._close()
+        started = time.thread_time()
+        service.process(name, datagram)
+        self._slowest = max(self._slowest, time.thread_time() - started)
+
+    def end(self) -> None:
+        self._close()
+        gc.callbacks.remove(self._on_gc)
+
+    def _on_gc(self, phase: str, info: dict[str, int]) -> None:
+        if info["generation"] != 2:
+            return
+        if phase == "start":
+            self._full_started = time.perf_counter()
+        else:
+            self._full.append(time.perf_counter() - self._full_started)
+
+    def _snapshot(self) -> dict[str, float]:
+        service = self._service
+        stats = service.chain.stats
+        counts: dict[str, float] = {
+            "cpu": time.process_time(),
+            "plots": stats.plots,
+            "datagrams": stats.datagrams,
+            **self._clock.seconds,
+        }
+        fuser = service.chain.fuser
+        if fuser is not None:
+            local = fuser.state.local
+            counts["system tracks"] = fuser.system_tracks.size
+            counts["local rows"] = local.n
+            counts["local alive"] = int(np.count_nonzero(local.rows["alive"][: local.n]))
+            counts.update({name: getattr(fuser.stats, name) for name in FUSER_COUNTS})
+        return counts
+
+    def _close(self) -> None:
+        now = self._snapshot()
+        row = {k: now[k] - self._mark[k] for k in now}
+        for name in ("system tracks", "local rows", "local alive"):
+            if name in now:
+                row[name] = now[name]
+        row["start"] = self._end - self.seconds - self._first
+        row["slowest"] = self._slowest
+        row["full collections"] = len(self._full)
+        row["full collection s"] = sum(self._full)
+        self.rows.append(row)
+        print(self._line(row), file=sys.stderr, flush=True)
+        self._mark, self._slowest, self._full = now, 0.0, []
+        self._end += self.seconds
+
+    HEAD = (
+        "| data s | plots | CPU ms/s | us/plot | fusion ms/s | central+bias ms/s | local ms/s "
+        "| outputs ms/s | map ms/s | other ms/s | slowest ms | full GCs (ms) | system tracks "
+        "| local rows (alive) | created / ended / merged / no number |"
+    )
+
+    def table(self) -> str:
+        """The rows as a Markdown table: CPU ms per second of data, and per plot."""
+        rule = "|" + " ---: |" * (self.HEAD.count("|") - 1)
+        return "\n".join([self.HEAD, rule, *(self._line(r) for r in self.rows)])
+
+    def _line(self, r: dict[str, float]) -> str:
+        per_s = 1e3 / self.seconds
+        outputs = sum(r[n] for n in OUTPUT_STAGES)
+        central = r["central stage"] + r["bias"] + r["bias references"]
+        local = r["decode"] + r["clock + conversion"] + r["local tracking"]
+        other = r["cpu"] - sum(r[n] for n in STAGES)
+        return (
+            f"| {r['start']:.0f} | {r['plots']:.0f} | {r['cpu'] * per_s:.0f} | "
+            f"{r['cpu'] / max(r['plots'], 1) * 1e6:.0f} | {r['fusion'] * per_s:.0f} | "
+            f"{central * per_s:.0f} | {local * per_s:.0f} | {outputs * per_s:.0f} | "
+            f"{r['Foxglove map'] * per_s:.0f} | "
+            f"{other * per_s:.0f} | {r['slowest'] * 1e3:.0f} | "
+            f"{r['full collections']:.0f} ({r['full collection s'] * 1e3:.0f}) | "
+            f"{r.get('system tracks', 0):.0f} | "
+            f"{r.get('local rows', 0):.0f} ({r.get('local alive', 0):.0f}) | "
+            + " / ".join(f"{r.get(n, 0):.0f}" for n in FUSER_COUNTS)
+            + " |"
+        )
+
+
 def slice_of(path: str, seconds: float) -> tuple[Any, list[tuple[str, Datagram]]]:
     """The recording's configuration and its first ``seconds`` of datagrams, in memory."""
     replay = open_replay(path)
@@ -191,11 +313,23 @@ def slice_of(path: str, seconds: float) -> tuple[Any, list[tuple[str, Datagram]]
 
 
 def run_once(
-    path: str, seconds: float, mcap: bool, use_zenoh: bool, fusion_implementation: str
+    path: str,
+    seconds: float,
+    mcap: bool,
+    use_zenoh: bool,
+    fusion_implementation: str,
+    windows: Windows | None = None,
 ) -> tuple[dict[str, float], int, float, float]:
     """One replay of the slice: exclusive CPU seconds per stage (and "other"), plots,
-    process CPU seconds and wall seconds."""
+    process CPU seconds and wall seconds; with ``windows``, the same by window of data
+    time into it."""
     replay, datagrams = slice_of(path, seconds)
+    if windows is not None:
+        # The datagrams held for the replay out of the collector's scans (as the
+        # daemon's start-up objects are, ``command.freeze_start_up``): a full collection
+        # then walks what the chain holds, as in the service.
+        gc.collect()
+        gc.freeze()
     fusion = {**replay.config.fusion, "implementation": fusion_implementation}
     config = replay.config.model_copy(update={"fusion": fusion})
     clock = StageClock()
@@ -214,14 +348,21 @@ def run_once(
             service.set_input_counters(replay.counters)
             threads_before = thread_seconds()
             cpu0, wall0 = time.process_time(), time.perf_counter()
-            for name, datagram in datagrams:
-                service.process(name, datagram)
+            if windows is None:
+                for name, datagram in datagrams:
+                    service.process(name, datagram)
+            else:
+                windows.start(clock, service, datagrams[0][1].time)
+                for name, datagram in datagrams:
+                    windows.process(service, name, datagram)
+                windows.end()
             service.local.drain()
             threads_after = thread_seconds()  # before close: the output threads end there
             service.close()
             service.local.drain()
             cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
             plots = service.chain.stats.plots
+    gc.unfreeze()  # nothing frozen unless ``windows``
     stages = dict(clock.seconds)
     stages["other"] = cpu - sum(stages.values())
     if threads_before is not None and threads_after is not None:
@@ -268,11 +409,18 @@ def main() -> None:
     )
     parser.add_argument("--json", action="store_true", help="the figures as JSON on stdout")
     parser.add_argument(
+        "--windows",
+        type=float,
+        metavar="S",
+        help="also each run's work by window of S s of data time (a table; see Windows)",
+    )
+    parser.add_argument(
         "--profile",
         metavar="FILE",
         help="cProfile the timed runs' main thread into FILE (pstats), by its CPU time",
     )
     args = parser.parse_args()
+    print(f"code: {tracker_service.__file__}", file=sys.stderr)
     options = (not args.no_mcap, not args.no_zenoh, args.fusion_implementation)
     # numba's kernels loaded (or compiled) before the clock starts: some are first called
     # only once system tracks are fed by two radars, after a few antenna periods.
@@ -285,6 +433,7 @@ def main() -> None:
     for repeat in range(args.repeats):
         if profiler is not None:
             profiler.enable()
+        windows = None if args.windows is None else Windows(args.windows)
         runs.append(
             run_once(
                 args.recording,
@@ -292,10 +441,13 @@ def main() -> None:
                 not args.no_mcap,
                 not args.no_zenoh,
                 args.fusion_implementation,
+                windows,
             )
         )
         if profiler is not None:
             profiler.disable()
+        if windows is not None:
+            print(windows.table(), file=sys.stderr)
         _, plots, cpu, wall = runs[-1]
         print(
             f"run {repeat + 1}: {plots} plots, {cpu:.1f} CPU s, {wall:.1f} s wall,"

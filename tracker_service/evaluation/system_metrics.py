@@ -49,6 +49,7 @@ from tracker_service.evaluation.metrics import (
     local_metrics,
 )
 from tracker_service.fusion import ENDED
+from tracker_service.fusion.messages import MAX_SYSTEM_NUMBER
 from tracker_service.simulator.recording import Recording
 from tracker_service.tracking import CONFIRMED, track_update_dtype
 
@@ -89,8 +90,8 @@ _LOCAL_VIEW = np.dtype(
 def as_track_rows(system: npt.NDArray[Any]) -> npt.NDArray[Any]:
     """System-track rows in the shape the local-track metrics read: a row counts as an
     update from a plot only when it carries a fresh one. System numbers are reused once
-    a track has ended: each life gets a number of its own here (number + 4096 x the
-    lives before it), since the metrics take a number for one track."""
+    a track has ended: each life gets a number of its own here (number + (MAX_SYSTEM_NUMBER
+    + 1) x the lives before it), since the metrics take a number for one track."""
     rows = np.zeros(len(system), dtype=_LOCAL_VIEW)
     lives: dict[int, int] = {}
     numbers = np.empty(len(system), dtype=np.int64)
@@ -98,7 +99,7 @@ def as_track_rows(system: npt.NDArray[Any]) -> npt.NDArray[Any]:
         zip(system["system_number"].tolist(), system["status"].tolist(), strict=True)
     ):
         life = lives.get(number, 0)
-        numbers[k] = number + 4096 * life
+        numbers[k] = number + (MAX_SYSTEM_NUMBER + 1) * life
         if status == ENDED:
             lives[number] = life + 1
     rows["track_number"] = numbers

@@ -9,7 +9,13 @@ TENTATIVE, CONFIRMED, COASTING, ENDED = 0, 1, 2, 3
 create system tracks); COASTING: no fresh plot in the row; ENDED: the track's last row."""
 
 MAX_SOURCES = 8
-MAX_SYSTEM_NUMBER = 4095
+MAX_SYSTEM_NUMBER = 8191
+"""System track numbers are 1..MAX_SYSTEM_NUMBER (CAT062's I062/040 holds 16 bits). A
+number waits ``FusionConfig.number_reuse_delay_s`` (300 s) after its track ended, so the
+numbers must cover the live tracks and those ended within the delay: at ARTAS-class
+load (``artas``: 4,000 aircraft, some 2 tracks ending a second) about 4,600, and 4,095
+ran out 90 s into the scenario; new aircraft then went without a system track until
+numbers came free, five minutes later, in bursts (docs/benchmarks.md, "Session 15")."""
 
 SYSTEM_UPDATE_DTYPE = np.dtype(
     [

@@ -2,7 +2,7 @@
 
 The local-track table holds one row per radar and local track number, with the latest
 state and the system track it feeds, found by a sorted key index; the system-track table
-is indexed by the system track number (1..4095). Both are held column by column
+is indexed by the system track number (1..``MAX_SYSTEM_NUMBER``). Both are held column by column
 (``Columns``).
 """
 
