@@ -135,3 +135,24 @@ def test_unknown_sources_are_bounded() -> None:
     assert errors["unknown_source"] == unknown - limit
     # The peak of this process (the test runner too): a tracker per source was ~15 kB.
     assert rss_mb() - before < 100.0
+
+
+def test_system_track_numbers_running_short_degrade_the_status_for_a_minute() -> None:
+    """The fuser's count of foundings that found no number past its reuse delay
+    (``tests/test_fusion_numbers.py`` makes them happen) reaches the status as a reason
+    line while it is recent, wherever the outputs run (it travels in ``CoreState``)."""
+    core = service()
+    core.process("25_12", datagram(plot_block(25, 12, T0 % 86400), 0, T0))
+    fuser = core.chain.fuser
+    assert fuser is not None
+    assert not [r for r in core.status().reasons if r.startswith("fusion:")]
+    fuser.stats.numbers_reused_early = 3
+    fuser.stats.last_number_shortage = T0 + 1.0
+    for k, t in enumerate((T0 + 2.0, T0 + 60.0, T0 + 62.0), start=1):
+        core.process("25_12", datagram(plot_block(25, 12, t % 86400), k, t))
+        shown = [r for r in core.status().reasons if r.startswith("fusion:")]
+        if t - (T0 + 1.0) <= 60.0:
+            assert len(shown) == 1 and "ran short: 3 track(s)" in shown[0], shown
+            assert core.status().health == "degraded"
+        else:
+            assert not shown

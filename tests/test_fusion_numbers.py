@@ -11,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion import FusionConfig, SystemTracker
+from tracker_service.fusion.lifecycle import number_shortage_reasons
 from tracker_service.fusion.messages import MAX_SYSTEM_NUMBER
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker
 
@@ -53,3 +54,50 @@ def test_4000_live_tracks_and_600_ended_within_the_delay_all_have_numbers() -> N
     assert fuser.stats.numbers_exhausted == 0
     assert not ended & set(live.tolist())
     assert live.max() <= MAX_SYSTEM_NUMBER
+
+
+def test_numbers_within_their_delay_are_taken_longest_ended_first_when_none_is_free() -> None:
+    """Every number live or ended within the delay: a new aircraft still gets a system
+    track, under the number whose track ended longest ago, and the status says so; only
+    with every number live does a founding wait."""
+    fuser = SystemTracker(1, FusionConfig(method="tracks", number_reuse_delay_s=300.0))
+    empty = np.zeros(0, dtype=PLOT_DTYPE)
+    every = np.arange(1, MAX_SYSTEM_NUMBER + 1)
+    fuser.process(0, _updates(every, 0.0), empty)
+    assert len(fuser.system_tracks) == MAX_SYSTEM_NUMBER
+
+    def end(gone: npt.NDArray[np.int64], staying: npt.NDArray[np.int64], t: float) -> float:
+        """The local tracks ``gone`` deleted at t, the others updated until their system
+        tracks' coast is over; returns the time then."""
+        fuser.process(0, _updates(gone, t, DELETED), empty)
+        target = len(staying)
+        while len(fuser.system_tracks) > target:
+            t += 10.0
+            fuser.process(0, _updates(staying, t), empty)
+        return t
+
+    live = set(fuser.system_tracks.tolist())
+    t = end(every[:3], every[3:], 10.0)
+    first = sorted(live - set(fuser.system_tracks.tolist()))
+    live = set(fuser.system_tracks.tolist())
+    t = end(every[3:6], every[6:], t + 10.0)
+    second = sorted(live - set(fuser.system_tracks.tolist()))
+    assert len(first) == len(second) == 3
+    stats = fuser.stats
+    assert stats.numbers_reused_early == stats.numbers_exhausted == 0
+    assert number_shortage_reasons(stats, fuser.config, t) == []
+    assert t < 300.0  # every ended number is still within its delay
+
+    t += 10.0
+    fuser.process(0, _updates(np.array([20_001, 20_002]), t), empty)
+    assert stats.numbers_reused_early == 2 and stats.numbers_exhausted == 0
+    assert set(fuser.system_tracks.tolist()) - live == set(first[:2])
+    (reason,) = number_shortage_reasons(stats, fuser.config, t)
+    assert reason.startswith("fusion: system track numbers ran short: 2 track(s)"), reason
+    assert "number_reuse_delay_s (300 s)" in reason
+    assert number_shortage_reasons(stats, fuser.config, t + 61.0) == []
+
+    # Four numbers idle (one of the first ended, three of the second): five aircraft.
+    fuser.process(0, _updates(np.arange(20_003, 20_008), t + 1.0), empty)
+    assert len(fuser.system_tracks) == MAX_SYSTEM_NUMBER
+    assert stats.numbers_reused_early == 6 and stats.numbers_exhausted == 1

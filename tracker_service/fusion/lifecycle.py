@@ -14,6 +14,7 @@ import numpy.typing as npt
 from tracker_service.fusion import consider, nearby
 from tracker_service.fusion.arrays import among, is_member, kernel_indices, marked_numbers
 from tracker_service.fusion.associate import compatible_pairs
+from tracker_service.fusion.config import FusionConfig
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import cv_prediction
 from tracker_service.fusion.messages import (
@@ -24,7 +25,7 @@ from tracker_service.fusion.messages import (
 )
 from tracker_service.fusion.ml import predict_cv
 from tracker_service.fusion.rows import joined, system_rows
-from tracker_service.fusion.state import FusionState
+from tracker_service.fusion.state import FusionState, FusionStats
 from tracker_service.tracking.models import cv_transition
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray, is_shared_code
 
@@ -69,15 +70,26 @@ def _identities_in_use(
 
 def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -> IntArray:
     """A system track per founding local track (rows), under the lowest free numbers
-    whose reuse delay has passed; returns the numbers."""
+    whose reuse delay has passed; returns the numbers. When those run short, the numbers
+    still within their delay are taken, the longest ended first (counted as
+    ``numbers_reused_early``): a display may show a number again sooner than the delay
+    promises, but no aircraft goes without a system track while a number is idle. Only
+    with every number live does a founder wait (``numbers_exhausted``)."""
     sys, loc = state.sys, state.local.rows
     # A number freed "later" than now (the clock came back from a jump) waits its
     # delay from now, not from a time that never was.
-    freed_at = np.minimum(sys["freed_at"], state.now)
-    free = np.flatnonzero(
-        ~sys["alive"] & (freed_at + state.config.number_reuse_delay_s <= state.now)
-    )
-    free = free[free > 0]
+    ended = np.minimum(sys["freed_at"], state.now)
+    idle = ~sys["alive"]
+    idle[0] = False
+    due = ended + state.config.number_reuse_delay_s <= state.now
+    free = np.flatnonzero(idle & due)
+    if free.size < founders.size:
+        state.stats.last_number_shortage = state.now
+        waiting = np.flatnonzero(idle & ~due)
+        early = waiting[np.argsort(ended[waiting], kind="stable")]
+        early = early[: founders.size - free.size]
+        state.stats.numbers_reused_early += int(early.size)
+        free = np.concatenate([free, early])
     if free.size < founders.size:
         state.stats.numbers_exhausted += int(founders.size - free.size)
         founders = founders[: free.size]
@@ -117,6 +129,25 @@ def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -
     loc["t_founder"][founders] = np.nan
     state.stats.system_tracks_created += int(numbers.size)
     return numbers
+
+
+NUMBER_SHORTAGE_SHOWN_S = 60.0
+"""How long (data time) the status says the numbers ran short after they last did."""
+
+
+def number_shortage_reasons(stats: FusionStats, config: FusionConfig, now: float) -> list[str]:
+    """The status's reason line while system track numbers ran short in the last
+    ``NUMBER_SHORTAGE_SHOWN_S``: more tracks ended within ``number_reuse_delay_s`` than
+    the numbers beside the live tracks allow (``create``)."""
+    if now - stats.last_number_shortage > NUMBER_SHORTAGE_SHOWN_S:
+        return []
+    return [
+        f"fusion: system track numbers ran short: {stats.numbers_reused_early} track(s) "
+        "founded under a number ended less than [fusion] number_reuse_delay_s "
+        f"({config.number_reuse_delay_s:g} s) ago, {stats.numbers_exhausted} founding(s) "
+        f"put off with all {MAX_SYSTEM_NUMBER} numbers live (since start): shorten the "
+        "delay if tracks end this often"
+    ]
 
 
 def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> None:

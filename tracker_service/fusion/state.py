@@ -5,6 +5,7 @@ is a module of functions over a ``FusionState``."""
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
@@ -34,7 +35,13 @@ class FusionStats:
     """Pairs of local tracks of one radar exchanged between two system tracks."""
     late_plots_skipped: int = 0
     unknown_plot_ids: int = 0
+    numbers_reused_early: int = 0
+    """System tracks founded under a number still within ``number_reuse_delay_s`` of its
+    last track's end, the numbers past it having run out (``lifecycle.create``)."""
     numbers_exhausted: int = 0
+    """Foundings put off because every system track number was live."""
+    last_number_shortage: float = -math.inf
+    """Data time of the latest founding that found no number past its reuse delay."""
     system_tracks_merged: int = 0
     out_of_line_updates: int = 0
     """Local-track updates refused by the clock: too far ahead of the fuser's clock or

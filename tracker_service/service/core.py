@@ -47,6 +47,7 @@ from tracker_service.chain import (
 )
 from tracker_service.fixed_targets import FixedTransponder
 from tracker_service.fusion import FusionConfig
+from tracker_service.fusion.lifecycle import number_shortage_reasons
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
 from tracker_service.outputs.asterix_udp import AsterixUdpSink
@@ -1075,11 +1076,14 @@ class TrackerService:
         return replace(self.core, sources=self.chain.admission.counts, reasons=self.core_reasons())
 
     def core_reasons(self) -> tuple[str, ...]:
-        """Why health is degraded, as the checks that run with the chain see it (a
-        radar's time sanity, its test targets): each check adds its reason lines here,
-        one per radar concerned, naming it ("radar 25/11: ..."); the status shows them
-        beside its own and is "degraded" while there is any."""
-        return ()
+        """Why health is degraded, as the checks that run with the chain see it (the
+        fuser's system track numbers running short), one line each naming what it
+        concerns ("fusion: ..."); the status shows them beside its own and is "degraded"
+        while there is any."""
+        fuser = self.chain.fuser
+        if fuser is None:
+            return ()
+        return tuple(number_shortage_reasons(fuser.stats, fuser.config, self._now))
 
     def _guarded(self, what: str, call: Callable[[], None]) -> None:
         try:
