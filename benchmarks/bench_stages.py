@@ -185,6 +185,7 @@ FUSER_COUNTS = (
     "system_tracks_created",
     "system_tracks_ended",
     "system_tracks_merged",
+    "numbers_reused_early",
     "numbers_exhausted",
 )
 
@@ -249,7 +250,7 @@ class Windows:
             counts["system tracks"] = fuser.system_tracks.size
             counts["local rows"] = local.n
             counts["local alive"] = int(np.count_nonzero(local.rows["alive"][: local.n]))
-            counts.update({name: getattr(fuser.stats, name) for name in FUSER_COUNTS})
+            counts.update({name: getattr(fuser.stats, name, 0) for name in FUSER_COUNTS})
         return counts
 
     def _close(self) -> None:
@@ -270,7 +271,7 @@ class Windows:
     HEAD = (
         "| data s | plots | CPU ms/s | us/plot | fusion ms/s | central+bias ms/s | local ms/s "
         "| outputs ms/s | map ms/s | other ms/s | slowest ms | full GCs (ms) | system tracks "
-        "| local rows (alive) | created / ended / merged / no number |"
+        "| local rows (alive) | created / ended / merged / reused early / no number |"
     )
 
     def table(self) -> str:

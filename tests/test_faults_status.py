@@ -142,6 +142,7 @@ def test_system_track_numbers_running_short_degrade_the_status_for_a_minute() ->
     (``tests/test_fusion_numbers.py`` makes them happen) reaches the status as a reason
     line while it is recent, wherever the outputs run (it travels in ``CoreState``)."""
     core = service()
+    assert not core.core_state().reasons  # before any data: both times -inf
     core.process("25_12", datagram(plot_block(25, 12, T0 % 86400), 0, T0))
     fuser = core.chain.fuser
     assert fuser is not None

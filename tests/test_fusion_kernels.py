@@ -513,16 +513,27 @@ def test_merge_candidates_are_the_reference(seed: int, k: int, n_radars: int) ->
         np.testing.assert_array_equal(a, b)
 
 
-@settings(max_examples=25, deadline=None)
-@given(seed=SEEDS, k=st.integers(min_value=1, max_value=40), n_radars=st.integers(1, 4))
-def test_near_pairs_of_local_tracks_are_the_reference(seed: int, k: int, n_radars: int) -> None:
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=SEEDS,
+    k=st.integers(min_value=1, max_value=40),
+    n_radars=st.integers(1, 4),
+    nan_track=st.booleans(),
+)
+def test_near_pairs_of_local_tracks_are_the_reference(
+    seed: int, k: int, n_radars: int, nan_track: bool
+) -> None:
     """Association's pre-selection in one compiled call (``kernels.near_local_system``)
     against ``associate._near``'s numpy path: the same (row, number) pairs in the same
-    order, for either estimator's coarse state, the bias bound over a superset."""
+    order, for either estimator's coarse state, the bias bound over a superset; also with
+    one system track's covariance NaN (the compiled bound must not drop it alone where
+    the reference's NaN radius leaves no pair)."""
     compiled, reference, rng = _states(seed, n_radars, k)
     sys, loc = compiled.sys, compiled.local.rows
     n = np.arange(1, k + 1)
     sys["x"][n] = np.column_stack([rng.normal(0.0, 3e4, (k, 2)), rng.uniform(-250, 250, (k, 2))])
+    if nan_track:
+        sys["mP"][int(rng.integers(1, k + 1)), :, 0, 0] = np.nan
     sys["P"][n] = sys["mP"][n, -1]
     sys["M"][n] = rng.normal(0.0, 0.5, (k, n_radars, 4, 2))
     nearby.refresh(sys, n, compiled=True)

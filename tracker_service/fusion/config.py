@@ -102,7 +102,9 @@ class FusionConfig:
     merges into the older. Before the biases are known, the radars' local tracks of one
     aircraft can lie too far apart to associate, and each founds a system track."""
     number_reuse_delay_s: float = 300.0
-    """A system track number is given again only this long after its track ended."""
+    """A system track number is given again only this long after its track ended, unless
+    no number past it is idle: then the one ended longest ago is taken rather than leave
+    an aircraft without a system track (counted, and a status reason)."""
     max_backward_s: float = 5.0
     """"plots" method: a plot older than its system track by more than this is skipped."""
     max_sources: int = 8

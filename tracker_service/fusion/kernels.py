@@ -2216,7 +2216,9 @@ def _within_bound(
         )
         bound = RADIUS_SAFETY * math.sqrt(gate * max(var, 0.0)) + speed * spread + turn
         reach = (bound + RADIUS_MARGIN_M) * (1.0 + BOUND_RELATIVE) + BOUND_MARGIN_M + widest
-        if lo0 - reach <= x <= hi0 + reach and lo1 - reach <= y <= hi1 + reach:
+        # Kept unless surely out: a NaN (reach or position) keeps the track, whose exact
+        # reach then decides as the reference's does (a NaN radius blanks the batch).
+        if not (x < lo0 - reach or x > hi0 + reach or y < lo1 - reach or y > hi1 + reach):
             kept[n] = r
             n += 1
     return kept[:n].copy()

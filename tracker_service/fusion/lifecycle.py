@@ -139,13 +139,14 @@ def number_shortage_reasons(stats: FusionStats, config: FusionConfig, now: float
     """The status's reason line while system track numbers ran short in the last
     ``NUMBER_SHORTAGE_SHOWN_S``: more tracks ended within ``number_reuse_delay_s`` than
     the numbers beside the live tracks allow (``create``)."""
-    if now - stats.last_number_shortage > NUMBER_SHORTAGE_SHOWN_S:
+    # Not "> shown": before any data both times are -inf, and their difference NaN.
+    if not now - stats.last_number_shortage <= NUMBER_SHORTAGE_SHOWN_S:
         return []
     return [
         f"fusion: system track numbers ran short: {stats.numbers_reused_early} track(s) "
         "founded under a number ended less than [fusion] number_reuse_delay_s "
-        f"({config.number_reuse_delay_s:g} s) ago, {stats.numbers_exhausted} founding(s) "
-        f"put off with all {MAX_SYSTEM_NUMBER} numbers live (since start): shorten the "
+        f"({config.number_reuse_delay_s:g} s) ago, {stats.numbers_exhausted} founding "
+        f"attempt(s) put off with all {MAX_SYSTEM_NUMBER} numbers live (since start): shorten the "
         "delay if tracks end this often"
     ]
 

@@ -68,7 +68,10 @@ class PsrHeightConfig:
     stale_s: float = 120.0
     """A system track's height untouched for this long belongs to a track that ended
     (a live one has a plot within the fuser's silence, 3 x the longest period): a new
-    track under its reused number (after ``number_reuse_delay_s``, 300 s) starts afresh."""
+    track under its reused number (after ``number_reuse_delay_s``, 300 s) starts afresh.
+    A number reused early (no number past its delay idle: the one ended longest ago is
+    taken) would inherit its last aircraft's height if that ended less than this ago:
+    only with over 8,191 less the live tracks ending within it."""
 
 
 def _applies(entry: SystemHeight) -> bool:

@@ -639,7 +639,10 @@ def _track_features(track: _Track, shown: _LiveRows, k: int) -> bytes:
     two points) and its vector, escaped. The trail's points need no escaping (numbers,
     brackets, commas)."""
     trail, points = track.trail_points, len(track.trail_points)
-    if points and track.trail[-1][1:] == shown.here[k]:
+    # Float by float: a tuple's == takes the same object (the one the trail just stored)
+    # as equal even when it is a NaN, which the float's == does not.
+    lon, lat = shown.here[k]
+    if points and track.trail[-1][1] == lon and track.trail[-1][2] == lat:
         line = ",".join(trail)
     else:
         line = ",".join([*trail, shown.point[k]])
