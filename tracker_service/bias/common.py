@@ -124,6 +124,9 @@ class BiasFilterBase(ABC):
     times_from_traffic = True
     """Whether traffic shared with other radars updates the time offsets (once a clock is
     pinned): what ``observed_from`` reports."""
+    reads_contributors = True
+    """Whether ``_process`` reads the observations' contributors and their geometry (the
+    macro filter's F_x and F_s): ``update`` leaves them out of its sorted copy if not."""
 
     def __init__(self, config: BiasConfig, n_radars: int) -> None:
         self.config = config
@@ -258,7 +261,8 @@ class BiasFilterBase(ABC):
         self._absolute_seen[obs.radar[~traffic]] = True
         self._monitor_seen[obs.radar[obs.kind == ObservationKind.FIELD_MONITOR]] = True
         self._clock_seen[obs.radar[obs.kind == ObservationKind.ADSB]] = True
-        self._process(obs.subset(np.argsort(obs.time, kind="stable"), scale_c=self.scale))
+        order = np.argsort(obs.time, kind="stable")
+        self._process(obs.subset(order, scale_c=self.scale, contributors=self.reads_contributors))
 
     def walk_rate(self, free: BoolArray | None = None) -> FloatArray:
         """Random-walk variance per second (L,4) on the free components (the rest keep the
