@@ -32,6 +32,13 @@ FROM_ADSB = "adsb"
 FROM_CONFIGURATION = "configuration"
 """The radar is a reference: its bias is given, not estimated."""
 
+AIRCRAFT, FIELD_MONITOR, ADSB = (
+    ObservationKind.AIRCRAFT.value,
+    ObservationKind.FIELD_MONITOR.value,
+    ObservationKind.ADSB.value,
+)
+"""``ObservationKind``'s values, for array comparisons."""
+
 ObservedFrom = tuple[tuple[str, ...], ...]
 """One radar's, per component [range offset, gain, azimuth, time]: the sources that make it
 observable (empty: not observable, the prior is kept)."""
@@ -256,11 +263,12 @@ class BiasFilterBase(ABC):
             )
         if len(obs) == 0:
             return
-        traffic = obs.kind == ObservationKind.AIRCRAFT
+        # Plain values: numpy compares with an IntEnum member through a slow path.
+        traffic = obs.kind == AIRCRAFT
         self._traffic_seen[obs.radar[traffic]] = True
         self._absolute_seen[obs.radar[~traffic]] = True
-        self._monitor_seen[obs.radar[obs.kind == ObservationKind.FIELD_MONITOR]] = True
-        self._clock_seen[obs.radar[obs.kind == ObservationKind.ADSB]] = True
+        self._monitor_seen[obs.radar[obs.kind == FIELD_MONITOR]] = True
+        self._clock_seen[obs.radar[obs.kind == ADSB]] = True
         order = np.argsort(obs.time, kind="stable")
         self._process(obs.subset(order, scale_c=self.scale, contributors=self.reads_contributors))
 

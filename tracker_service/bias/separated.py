@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker_service.bias.common import BiasFilterBase, information_update
+from tracker_service.bias.common import AIRCRAFT, BiasFilterBase, information_update
 from tracker_service.bias.config import N_BIAS, TIME, BiasConfig
 from tracker_service.bias.kernels import gate_statistics
-from tracker_service.bias.observations import BiasObservations, ObservationKind
+from tracker_service.bias.observations import BiasObservations
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
 
@@ -86,6 +86,10 @@ class SeparatedBiasFilter(BiasFilterBase):
 
     def _process(self, obs: BiasObservations) -> None:
         free, walk = self._free_and_walk()
+        first = int(obs.radar[0])
+        if (obs.radar == first).all():  # one radar's batch (the central stage's)
+            self._update_radar(first, obs, free[first], walk[first])
+            return
         for radar in np.unique(obs.radar):
             r = int(radar)
             self._update_radar(r, obs.subset(obs.radar == radar), free[r], walk[r])
@@ -114,7 +118,7 @@ class SeparatedBiasFilter(BiasFilterBase):
             s, P, moving = self._s[radar], self._P[radar], free[TIME : TIME + 1]
             self.clock.predict(s, P, dt, self._offset, self._extra, moving)
         self._time[radar] = end
-        traffic = obs.kind == ObservationKind.AIRCRAFT
+        traffic = obs.kind == AIRCRAFT
         no_time = free.copy()
         no_time[TIME] = False
         no_time[N_BIAS:] = False
