@@ -348,7 +348,7 @@ class CentralStage:
         if self.bias is not None and index is not None:
             bias, bias_cov = self.bias.correction(index)
             local = corrected(local, message.local_jacobian, bias)
-            tracked_c = message.jacobian[message.plots["use"] == PlotUse.TRACKED]
+            tracked_c = message.jacobian[message.plots["use"] == PlotUse.TRACKED.value]
             batch = corrected(batch, tracked_c, bias)
         if index is not None and not message.snapshot:
             self._note_cover(index, message, batch)

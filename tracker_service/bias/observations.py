@@ -188,7 +188,8 @@ def make_observations(
         y=np.asarray(y, dtype=np.float64),
         R=np.asarray(R, dtype=np.float64),
         C=np.asarray(C, dtype=np.float64),
-        kind=np.full(n, kind, dtype=np.int8),
+        # A plain int: numpy converts an IntEnum member through a slow path.
+        kind=np.full(n, int(kind) if isinstance(kind, int) else kind, dtype=np.int8),
         group=np.full(n, group, dtype=np.int64),
         reference_xy=ref_xy,
         reference_P=ref_p,
