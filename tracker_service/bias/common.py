@@ -9,6 +9,7 @@ so they keep their prior.
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -117,12 +118,23 @@ def information_update(
     O(n) in the batch instead of inverting a 2n x 2n S; the rows not free are considered
     as in ``split_update``.
     """
-    A = np.linalg.solve((np.eye(len(x)) + info @ P).T, P).T
+    eye, D, either, both = _free_terms(free.tobytes())
+    A = np.linalg.solve((eye + info @ P).T, P).T
     M = A @ info @ P
     M = 0.5 * (M + M.T)
-    D = free.astype(float)
     x += D * (A @ score)
-    P -= M * (D[:, None] + D[None, :]) - M * D[:, None] * D[None, :]
+    P -= M * either - M * both
+
+
+@functools.lru_cache(maxsize=64)
+def _free_terms(free: bytes) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``information_update``'s terms of a ``free`` mask (its bytes): the identity, D
+    (1.0 where free), D_i + D_j and D_i D_j; the same few masks come every update."""
+    D = np.frombuffer(free, dtype=np.bool_).astype(float)
+    terms = (np.eye(len(D)), D, D[:, None] + D[None, :], D[:, None] * D[None, :])
+    for term in terms:
+        term.flags.writeable = False
+    return terms
 
 
 class BiasFilterBase(ABC):
