@@ -348,7 +348,7 @@ class CentralStage:
         if self.bias is not None and index is not None:
             bias, bias_cov = self.bias.correction(index)
             local = corrected(local, message.local_jacobian, bias)
-            tracked_c = message.jacobian[message.plots["use"] == PlotUse.TRACKED]
+            tracked_c = message.jacobian[message.plots["use"] == PlotUse.TRACKED.value]
             batch = corrected(batch, tracked_c, bias)
         if index is not None and not message.snapshot:
             self._note_cover(index, message, batch)
@@ -532,16 +532,20 @@ class CentralStage:
         if not usable.any():
             return None
         row = refs.plot_id[usable] - first_id
+        others_v = refs.others_v[usable]
         rc = c[row].copy()
-        rc[:, :, 3] = -refs.others_v[usable]
-        contributors = refs.radars_seen[usable][:, :n_radars]
-        contributor_r = contributor_c = None
+        rc[:, :, 3] = -others_v
+        # The prediction from every radar and the contributors are the macro filter's
+        # (``everyone``, with its geometry): the others' defaults otherwise.
+        prediction_xy = prediction_p = contributors = contributor_r = contributor_c = None
         if self._geometry is not None:
             contributor_r, contributor_c = self._contributor_geometry(refs.system_number[usable])
-            contributors = contributors & (contributor_r[:, :, 0, 0] > 0)
+            contributors = refs.radars_seen[usable][:, :n_radars] & (contributor_r[:, :, 0, 0] > 0)
+            prediction_xy = refs.all_xy[usable] + others_v * bias[3]
+            prediction_p = refs.all_P[usable]
         # The reference at the plot's time as labelled, where the uncorrected plot lies:
         # the batch's time had the estimated time offset taken off.
-        ref_xy = refs.others_xy[usable] + refs.others_v[usable] * bias[3]
+        ref_xy = refs.others_xy[usable] + others_v * bias[3]
         return make_observations(
             len(self.sources),
             np.full(len(row), radar),
@@ -553,9 +557,9 @@ class CentralStage:
             refs.others_P[usable],
             kind=ObservationKind.AIRCRAFT,
             group=refs.system_number[usable],
-            reference_v=refs.others_v[usable],
-            prediction_xy=refs.all_xy[usable] + refs.others_v[usable] * bias[3],
-            prediction_P=refs.all_P[usable],
+            reference_v=others_v,
+            prediction_xy=prediction_xy,
+            prediction_P=prediction_p,
             contributors=contributors,
             contributor_R=contributor_r,
             contributor_C=contributor_c,

@@ -54,6 +54,9 @@ class SourceAdmission:
             sac, sic = (int(part) for part in source.split("/"))
             self._admitted[sac * 256 + sic] = True
         self._refused = np.zeros(_KEYS, dtype=np.bool_)
+        self._refused_count = 0
+        """``_refused``'s True entries: ``counts`` is read twice per datagram, and a count
+        over the 64 Kibit table cost more than the admission."""
         self.unknown: list[str] = []
         """The unknown sources admitted, in order of arrival (at most ``max_unknown``)."""
         self._no_source = 0
@@ -62,9 +65,7 @@ class SourceAdmission:
 
     @property
     def counts(self) -> SourceCounts:
-        return SourceCounts(
-            self._no_source, self._unknown_dropped, int(np.count_nonzero(self._refused))
-        )
+        return SourceCounts(self._no_source, self._unknown_dropped, self._refused_count)
 
     def admit(self, plots: npt.NDArray[Any]) -> npt.NDArray[Any]:
         sac = np.asarray(plots["sac"], np.int64)
@@ -89,6 +90,7 @@ class SourceAdmission:
                 continue
             rows = int(np.count_nonzero(valid & (keys == key)))
             self._unknown_dropped += rows
+            self._refused_count += not self._refused[key]
             self._refused[key] = True
             self._warn.warning(
                 "unknown_dropped",

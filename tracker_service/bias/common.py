@@ -9,6 +9,7 @@ so they keep their prior.
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -31,6 +32,13 @@ FROM_ADSB = "adsb"
 """ADS-B reports of aircraft this radar sees (position and, alone, time)."""
 FROM_CONFIGURATION = "configuration"
 """The radar is a reference: its bias is given, not estimated."""
+
+AIRCRAFT, FIELD_MONITOR, ADSB = (
+    ObservationKind.AIRCRAFT.value,
+    ObservationKind.FIELD_MONITOR.value,
+    ObservationKind.ADSB.value,
+)
+"""``ObservationKind``'s values, for array comparisons."""
 
 ObservedFrom = tuple[tuple[str, ...], ...]
 """One radar's, per component [range offset, gain, azimuth, time]: the sources that make it
@@ -110,12 +118,23 @@ def information_update(
     O(n) in the batch instead of inverting a 2n x 2n S; the rows not free are considered
     as in ``split_update``.
     """
-    A = np.linalg.solve((np.eye(len(x)) + info @ P).T, P).T
+    eye, D, either, both = _free_terms(free.tobytes())
+    A = np.linalg.solve((eye + info @ P).T, P).T
     M = A @ info @ P
     M = 0.5 * (M + M.T)
-    D = free.astype(float)
     x += D * (A @ score)
-    P -= M * (D[:, None] + D[None, :]) - M * D[:, None] * D[None, :]
+    P -= M * either - M * both
+
+
+@functools.lru_cache(maxsize=64)
+def _free_terms(free: bytes) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``information_update``'s terms of a ``free`` mask (its bytes): the identity, D
+    (1.0 where free), D_i + D_j and D_i D_j; the same few masks come every update."""
+    D = np.frombuffer(free, dtype=np.bool_).astype(float)
+    terms = (np.eye(len(D)), D, D[:, None] + D[None, :], D[:, None] * D[None, :])
+    for term in terms:
+        term.flags.writeable = False
+    return terms
 
 
 class BiasFilterBase(ABC):
@@ -124,6 +143,9 @@ class BiasFilterBase(ABC):
     times_from_traffic = True
     """Whether traffic shared with other radars updates the time offsets (once a clock is
     pinned): what ``observed_from`` reports."""
+    reads_contributors = True
+    """Whether ``_process`` reads the observations' contributors and their geometry (the
+    macro filter's F_x and F_s): ``update`` leaves them out of its sorted copy if not."""
 
     def __init__(self, config: BiasConfig, n_radars: int) -> None:
         self.config = config
@@ -253,12 +275,14 @@ class BiasFilterBase(ABC):
             )
         if len(obs) == 0:
             return
-        traffic = obs.kind == ObservationKind.AIRCRAFT
+        # Plain values: numpy compares with an IntEnum member through a slow path.
+        traffic = obs.kind == AIRCRAFT
         self._traffic_seen[obs.radar[traffic]] = True
         self._absolute_seen[obs.radar[~traffic]] = True
-        self._monitor_seen[obs.radar[obs.kind == ObservationKind.FIELD_MONITOR]] = True
-        self._clock_seen[obs.radar[obs.kind == ObservationKind.ADSB]] = True
-        self._process(obs.subset(np.argsort(obs.time, kind="stable"), scale_c=self.scale))
+        self._monitor_seen[obs.radar[obs.kind == FIELD_MONITOR]] = True
+        self._clock_seen[obs.radar[obs.kind == ADSB]] = True
+        order = np.argsort(obs.time, kind="stable")
+        self._process(obs.subset(order, scale_c=self.scale, contributors=self.reads_contributors))
 
     def walk_rate(self, free: BoolArray | None = None) -> FloatArray:
         """Random-walk variance per second (L,4) on the free components (the rest keep the

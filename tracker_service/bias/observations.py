@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -79,18 +80,35 @@ class BiasObservations:
         return int(self.contributors.shape[1])
 
     def subset(
-        self, index: IntArray | BoolArray, scale_c: FloatArray | None = None
+        self,
+        index: IntArray | BoolArray,
+        scale_c: FloatArray | None = None,
+        *,
+        contributors: bool = True,
     ) -> BiasObservations:
         """The rows selected by a mask or an index array, in that order (a mask that
         keeps every row: these observations, not a copy); ``scale_c``: their C and
-        contributor_C multiplied by it (the filters' scaled biases, ``BiasFilterBase``)."""
-        if scale_c is None and index.dtype == np.bool_ and index.all():
+        contributor_C multiplied by it (the filters' scaled biases, ``BiasFilterBase``).
+        ``contributors`` False: without the contributors and their geometry (none, as
+        ``make_observations`` leaves them, as read-only zero views), for a filter that
+        does not read them (a batch's contributor_C alone is 64 numbers per row and
+        radar: most of what a copy costs)."""
+        if scale_c is None and contributors and index.dtype == np.bool_ and index.all():
             return self
-        fields = {name: getattr(self, name)[index] for name in self.__dataclass_fields__}
+        names = self.__dataclass_fields__ if contributors else _ROW_FIELDS
+        fields = {name: getattr(self, name)[index] for name in names}
         if scale_c is not None:
             fields["C"] = fields["C"] * scale_c
+        if not contributors:
+            n = len(fields["radar"])
+            for name in _CONTRIBUTOR_FIELDS:
+                fields[name] = _zeros(name, (n, *getattr(self, name).shape[1:]))
+        elif scale_c is not None:
             fields["contributor_C"] = fields["contributor_C"] * scale_c
-        return BiasObservations(**fields)
+        # Rows of these (checked) observations: the shapes and radars hold; no second check.
+        rows = object.__new__(BiasObservations)
+        rows.__dict__.update(fields)
+        return rows
 
 
 _TRAILING_SHAPES: tuple[tuple[str, tuple[int | None, ...]], ...] = (
@@ -111,6 +129,19 @@ _TRAILING_SHAPES: tuple[tuple[str, tuple[int | None, ...]], ...] = (
     ("contributor_C", (None, 2, N_BIAS)),
 )
 """Each field's shape after its leading N (None: the number of radars)."""
+
+
+_CONTRIBUTOR_FIELDS = ("contributors", "contributor_R", "contributor_C")
+_ROW_FIELDS = tuple(name for name, _ in _TRAILING_SHAPES if name not in _CONTRIBUTOR_FIELDS)
+
+
+@functools.lru_cache(maxsize=256)
+def _zeros(name: str, shape: tuple[int, ...]) -> npt.NDArray[Any]:
+    """``subset(..., contributors=False)``'s contributor field ``name`` of ``shape``: no
+    contributors, read-only and shared (the batches' sizes repeat)."""
+    zeros = np.zeros(shape, dtype=bool if name == "contributors" else np.float64)
+    zeros.flags.writeable = False
+    return zeros
 
 
 @functools.lru_cache(maxsize=64)
@@ -157,7 +188,8 @@ def make_observations(
         y=np.asarray(y, dtype=np.float64),
         R=np.asarray(R, dtype=np.float64),
         C=np.asarray(C, dtype=np.float64),
-        kind=np.full(n, kind, dtype=np.int8),
+        # A plain int: numpy converts an IntEnum member through a slow path.
+        kind=np.full(n, int(kind) if isinstance(kind, int) else kind, dtype=np.int8),
         group=np.full(n, group, dtype=np.int64),
         reference_xy=ref_xy,
         reference_P=ref_p,

@@ -15,15 +15,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker_service.bias.common import BiasFilterBase, information_update
+from tracker_service.bias.common import AIRCRAFT, BiasFilterBase, information_update
 from tracker_service.bias.config import N_BIAS, TIME, BiasConfig
-from tracker_service.bias.observations import BiasObservations, ObservationKind
+from tracker_service.bias.kernels import gate_statistics
+from tracker_service.bias.observations import BiasObservations
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
 
 class SeparatedBiasFilter(BiasFilterBase):
     times_from_traffic = False
     """See ``free``: only ADS-B moves a separated filter's clock."""
+    reads_contributors = False
 
     def __init__(self, config: BiasConfig, n_radars: int) -> None:
         super().__init__(config, n_radars)
@@ -84,6 +86,10 @@ class SeparatedBiasFilter(BiasFilterBase):
 
     def _process(self, obs: BiasObservations) -> None:
         free, walk = self._free_and_walk()
+        first = int(obs.radar[0])
+        if (obs.radar == first).all():  # one radar's batch (the central stage's)
+            self._update_radar(first, obs, free[first], walk[first])
+            return
         for radar in np.unique(obs.radar):
             r = int(radar)
             self._update_radar(r, obs.subset(obs.radar == radar), free[r], walk[r])
@@ -112,7 +118,7 @@ class SeparatedBiasFilter(BiasFilterBase):
             s, P, moving = self._s[radar], self._P[radar], free[TIME : TIME + 1]
             self.clock.predict(s, P, dt, self._offset, self._extra, moving)
         self._time[radar] = end
-        traffic = obs.kind == ObservationKind.AIRCRAFT
+        traffic = obs.kind == AIRCRAFT
         no_time = free.copy()
         no_time[TIME] = False
         no_time[N_BIAS:] = False
@@ -124,16 +130,30 @@ class SeparatedBiasFilter(BiasFilterBase):
         """One update with the observations ``rows`` (the fields it reads gathered, not a
         ``subset`` of all fifteen)."""
         s, P = self._s[radar], self._P[radar]
+        plot_c = obs.C[rows]
         # The extra clock states enter no plot: zero columns.
-        C = np.concatenate([obs.C[rows], np.zeros((rows.size, 2, self.clock.n_extra))], axis=2)
+        C = np.concatenate([plot_c, np.zeros((rows.size, 2, self.clock.n_extra))], axis=2)
         nu = obs.y[rows] - obs.reference_xy[rows] - C @ s
         noise = obs.R[rows] + obs.reference_P[rows]
-        S = noise + C @ P @ C.mT
-        nis = np.einsum("ni,ni->n", nu, np.linalg.solve(S, nu[..., None])[..., 0])
-        accepted = nis <= self.config.outlier_gate
-        self.count(obs.radar[rows], accepted)
-        C = C[accepted]
-        weight = np.linalg.inv(noise[accepted])
+        accepted = gate_statistics(plot_c, P, noise, nu) <= self.config.outlier_gate
+        # Every row is this radar's: its counts without a bincount.
+        taken = int(np.count_nonzero(accepted))
+        self.n_used[radar] += taken
+        self.n_rejected[radar] += rows.size - taken
+        if taken < rows.size:  # usually none is out: no copies
+            C, noise, nu = C[accepted], noise[accepted], nu[accepted]
+        weight = np.linalg.inv(noise)
         info = np.einsum("nki,nkl,nlj->ij", C, weight, C)
-        score = np.einsum("nki,nkl,nl->i", C, weight, nu[accepted])
+        score = np.einsum("nki,nkl,nl->i", C, weight, nu)
         information_update(s, P, info, score, free)
+
+
+def gate_statistics_reference(
+    C: FloatArray, P: FloatArray, noise: FloatArray, nu: FloatArray
+) -> FloatArray:
+    """``kernels.gate_statistics`` in numpy (what ``_batch`` computed before): nu^T S^-1 nu
+    with S = noise + C P C^T, C (n, 2, k) against P's leading k x k block."""
+    k = C.shape[2]
+    S = noise + C @ P[:k, :k] @ C.mT
+    statistics: FloatArray = np.einsum("ni,ni->n", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+    return statistics
