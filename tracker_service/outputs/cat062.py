@@ -32,17 +32,18 @@ import numpy.typing as npt
 
 from asterix import spec
 from asterix.codec import codec, encode_block, encode_record
-from asterix.engine import build_fspec
+from asterix.engine import EncodeError, build_fspec
 from tracker_service.geodesy.ellipsoid import meridian_radius_m, prime_vertical_radius_m
 from tracker_service.geodesy.plane import SystemPlane
 from tracker_service.outputs.messages import SystemTrackMessage
 from tracker_service.outputs.sdps import SdpsIdentity
-from tracker_service.outputs.updates import STATUSES, SystemBatch, SystemValues
+from tracker_service.outputs.updates import STATUSES, SystemBatch, SystemUpdate, SystemValues
 
 __all__ = [
     "CAT062",
     "CAT065",
     "MAX_BLOCK_OCTETS",
+    "PeriodRecords",
     "TrackColumns",
     "encode_cat065",
     "encode_system_batch",
@@ -68,6 +69,11 @@ COV_MAX_M = 32767 / 2
 APW_MAX_DEG = 65535 * 180.0 / 2**25
 ATV_MAX_MPS = 255 / 4
 RHO_MAX_NM = 65535 / 256
+CHUNK_TRACKS = 256
+"""``PeriodRecords`` encodes the tracks waiting whenever this many wait: some 2-3 ms of
+CPU each on ``artas`` (a fixed ~1 ms of numpy calls and ~6 us a track), about eight
+times a second, where the whole second's ~1,900 tracks at once took 18 ms
+(docs/benchmarks.md, "Session 16")."""
 
 Cat065Kind = Literal["sdps_status", "end_of_batch", "service_status"]
 _MESSAGE_TYPE: dict[Cat065Kind, int] = {"sdps_status": 1, "end_of_batch": 2, "service_status": 3}
@@ -99,6 +105,70 @@ def encode_system_batch(
     if not len(batch):
         return b""
     return _framed(*_fast_records(track_columns(batch, config), config), max_block_octets)
+
+
+class PeriodRecords:
+    """CAT062's periodic block (``core.Outputs.publish_cat062``): the system tracks updated
+    since the last block, each by its latest update, in track-number order, with their
+    records encoded ahead. Whenever ``chunk`` tracks wait, their latest updates are
+    encoded at once (``encode_system_batch``'s records, cut per track), so that the block
+    at the period's end encodes fewer than ``chunk`` and joins the rest: the period's work
+    spread over its batches rather than one pause of the caller at its end, which grew
+    with the picture. A record depends on its own row alone, so the blocks are those of
+    the period's latest updates encoded at its end; a track updated again after its
+    record was made is encoded again. A chunk that does not encode (a value beyond its
+    item's range) is left to the block, which raises it as the encoding
+    at the end did, and the period's tracks go with it."""
+
+    def __init__(
+        self,
+        config: SdpsIdentity,
+        chunk: int = CHUNK_TRACKS,
+        max_block_octets: int = MAX_BLOCK_OCTETS,
+    ) -> None:
+        self.config = config
+        self.chunk = chunk
+        self.max_block_octets = max_block_octets
+        self._waiting: dict[int, SystemUpdate] = {}
+        """Each track's latest update not yet encoded."""
+        self._records: dict[int, bytes] = {}
+        self._ahead = True
+        """False once a chunk failed: the rest of the period waits for the block."""
+
+    def update(self, updates: Sequence[SystemUpdate]) -> None:
+        waiting = self._waiting
+        for update in updates:
+            waiting[update.number] = update
+        if self._ahead and len(waiting) >= self.chunk:
+            try:
+                self._records.update(self._encoded(waiting))
+            except EncodeError:  # the block encodes them again and raises it
+                self._ahead = False
+            else:
+                waiting.clear()
+
+    def block(self) -> bytes:
+        """The period's records framed in blocks (b"" when no track was updated); the next
+        period starts empty, whatever this raises."""
+        records, waiting = self._records, self._waiting
+        self._records, self._waiting, self._ahead = {}, {}, True
+        if waiting:
+            records.update(self._encoded(waiting))
+        ordered = [records[number] for number in sorted(records)]
+        if not ordered:
+            return b""
+        return _framed(
+            b"".join(ordered), list(accumulate(map(len, ordered))), self.max_block_octets
+        )
+
+    def _encoded(self, waiting: Mapping[int, SystemUpdate]) -> dict[int, bytes]:
+        updates = list(waiting.values())
+        batch = SystemBatch.gather([(u.batch, u.index) for u in updates])
+        data, ends = _fast_records(track_columns(batch, self.config), self.config)
+        return {
+            update.number: data[start:end]
+            for update, start, end in zip(updates, [0, *ends[:-1]], ends, strict=True)
+        }
 
 
 def encode_system_tracks_generic(
