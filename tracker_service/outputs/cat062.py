@@ -739,17 +739,42 @@ def _flagged(flags: BoolArray, encode: Callable[[tuple[int, ...]], bytes]) -> _P
     subfields the row has), I080's extents (its flags); encoded once per distinct set."""
     k = flags.shape[1]
     codes = flags.astype(np.int64) @ (1 << np.arange(k, dtype=np.int64))
-    return _coded(codes, lambda code: encode(tuple(code >> i & 1 for i in range(k))))
+    return _coded(codes, lambda code: _flags_encoded(encode, k, code))
 
 
-def _fspec_of(item: str, names: Sequence[str]) -> Callable[[tuple[int, ...]], bytes]:
-    """The FSPEC of compound ``item`` (b"" for none) of flags for ``names``."""
+@cache
+def _flags_encoded(encode: Callable[[tuple[int, ...]], bytes], k: int, code: int) -> bytes:
+    """``encode`` of the ``k`` flags that are the bits of ``code``: kept across batches (a
+    few dozen sets a part), where each batch's distinct sets were encoded again."""
+    return encode(tuple(code >> i & 1 for i in range(k)))
+
+
+@cache
+def _fspec_of(item: str, names: tuple[str, ...]) -> Callable[[tuple[int, ...]], bytes]:
+    """The FSPEC of compound ``item`` (b"" for none) of flags for ``names``: one function
+    a compound, so that ``_flags_encoded`` knows it again."""
 
     def fspec(flags: tuple[int, ...]) -> bytes:
         there = [name for name, flag in zip(names, flags, strict=True) if flag]
         return _subfield_fspec(item, there) if there else b""
 
     return fspec
+
+
+@cache
+def _record_fspec(positions: tuple[int, ...]) -> Callable[[tuple[int, ...]], bytes]:
+    """The record's FSPEC of flags for the items at UAP ``positions``."""
+
+    def fspec(flags: tuple[int, ...]) -> bytes:
+        return build_fspec([p for p, there in zip(positions, flags, strict=True) if there], 0)
+
+    return fspec
+
+
+@cache
+def _mode3a_code_bytes(code: int) -> bytes:
+    """I060 of ``code``: the Mode 3/A code times 2 plus its change bit; -1: none (b"")."""
+    return b"" if code < 0 else _mode3a_bytes(code >> 1, bool(code & 1))
 
 
 def _looked_up(index: IntArray, encoded: list[bytes]) -> _Part:
@@ -825,12 +850,7 @@ def _record_parts(c: TrackColumns, config: SdpsIdentity) -> list[_Part]:
     }
     items["060"] = (
         has_mode3a,
-        [
-            _coded(
-                np.where(has_mode3a, c.mode3a * 2 + c.mode3a_changed, -1),
-                lambda code: b"" if code < 0 else _mode3a_bytes(code >> 1, bool(code & 1)),
-            )
-        ],
+        [_coded(np.where(has_mode3a, c.mode3a * 2 + c.mode3a_changed, -1), _mode3a_code_bytes)],
     )
     items["245"] = (has_callsign, [_variable(callsigns, _callsign_bytes)])
     items["380"] = (
@@ -889,12 +909,7 @@ def _record_parts(c: TrackColumns, config: SdpsIdentity) -> list[_Part]:
         columns.append(np.ones(n, dtype=bool) if there is None else there)
     present = np.column_stack(columns)
     positions = [_POSITIONS[item] for item in order]
-    fspec = _flagged(
-        present,
-        lambda flags: build_fspec(
-            [p for p, there in zip(positions, flags, strict=True) if there], 0
-        ),
-    )
+    fspec = _flagged(present, _record_fspec(tuple(positions)))
     return [fspec, *(part for item in order for part in items[item][1])]
 
 
@@ -942,7 +957,7 @@ def _dap_age_parts(c: TrackColumns) -> list[_Part]:
     ages = {_DAP_SUBFIELDS[name][1]: name for name in _DAP_SUBFIELDS}
     order = sorted(ages, key=_I295_SLOTS.index)
     has = [c.has_dap[:, _DAP_INDEX[ages[age]]] for age in order]
-    parts = [_flagged(np.column_stack(has), _fspec_of("295", order))]
+    parts = [_flagged(np.column_stack(has), _fspec_of("295", tuple(order)))]
     for age, there in zip(order, has, strict=True):
         values = np.minimum(c.dap_age[:, _DAP_INDEX[ages[age]]], AGE_MAX_S)
         parts.append(_quantities(_Q295[age], values, 1, there))
