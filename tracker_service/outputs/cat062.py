@@ -70,10 +70,11 @@ APW_MAX_DEG = 65535 * 180.0 / 2**25
 ATV_MAX_MPS = 255 / 4
 RHO_MAX_NM = 65535 / 256
 CHUNK_TRACKS = 256
-"""``PeriodRecords`` encodes the tracks waiting whenever this many wait: some 2-3 ms of
-CPU each on ``artas`` (a fixed ~1 ms of numpy calls and ~6 us a track), about eight
-times a second, where the whole second's ~1,900 tracks at once took 18 ms
-(docs/benchmarks.md, "Session 16")."""
+"""``PeriodRecords`` encodes the tracks waiting whenever this many wait: ~4 ms of CPU
+each on ``artas`` at 4,000 tracks (~2.3 ms of numpy calls whatever the rows, ~7 us a
+track), nine times a second, where the whole second's ~1,800 tracks at once took 16-19
+ms (docs/benchmarks.md, "Session 16"). Smaller chunks would cost more in all: the fixed
+part is paid per chunk."""
 
 Cat065Kind = Literal["sdps_status", "end_of_batch", "service_status"]
 _MESSAGE_TYPE: dict[Cat065Kind, int] = {"sdps_status": 1, "end_of_batch": 2, "service_status": 3}
