@@ -391,7 +391,7 @@ def freeze_survivors() -> None:
     next to none (``benchmarks/bench_output_calls.py calls`` counts them at its end).
     At the collection's end the younger generations are empty: no garbage is frozen.
     The core's process (the daemon, the fusion role) has it too: its full collections
-    scanned the fusion state's ~54,000 objects at ~1,500 tracks, 11-20 ms, more as the
+    scanned the fusion state's ~54,000 objects 12 s into ``artas``, 11-20 ms, more as the
     picture grows, and the central stage makes as few cycles (20 objects in 40 s of
     ``artas``: docs/benchmarks.md, "Session 16")."""
     if _freeze_after_full_collection not in gc.callbacks:
