@@ -13,10 +13,12 @@ from asterix import EncodeError
 from asterix.codec import Block, decode_blocks
 from tracker_service.outputs.cat062 import (
     MAX_BLOCK_OCTETS,
+    PeriodRecords,
     encode_system_tracks,
     encode_system_tracks_generic,
 )
 from tracker_service.outputs.messages import SystemTrackMessage, TrackSource
+from tracker_service.outputs.updates import SystemBatch, SystemUpdate, SystemValues
 from tracker_service.service import SystemConfig
 
 SYSTEM = SystemConfig(centre_lat=48.5, centre_lon=11.0, sac=25, sic=100, service_id=3)
@@ -192,3 +194,42 @@ def test_a_value_beyond_its_item_is_refused_alike(field: str, value: float) -> N
     with pytest.raises(EncodeError) as fast:
         encode_system_tracks(tracks, SYSTEM)
     assert str(fast.value) == str(generic.value)
+
+
+def _updates(tracks: list[SystemTrackMessage]) -> list[SystemUpdate]:
+    """The tracks as one batch's updates, as the mapper hands them to the outputs."""
+    batch = SystemBatch.of_values([SystemValues.of_message(t) for t in tracks])
+    return [SystemUpdate(batch, k, t.number, b"") for k, t in enumerate(tracks)]
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    st.lists(st.lists(_track(), min_size=1, max_size=8), min_size=1, max_size=6),
+    st.integers(0, 12),
+    st.integers(1, 10),
+)
+def test_records_encoded_ahead_give_the_blocks_of_the_period_end(
+    batches: list[list[SystemTrackMessage]], numbers: int, chunk: int
+) -> None:
+    # Few numbers: tracks updated again after their record was encoded ahead.
+    batches = [
+        [t.model_copy(update={"number": t.number % (numbers + 1)}) for t in b] for b in batches
+    ]
+    period = PeriodRecords(SYSTEM, chunk)
+    latest: dict[int, SystemTrackMessage] = {}
+    for tracks in batches:
+        period.update(_updates(tracks))
+        latest.update((t.number, t) for t in tracks)
+    expected = encode_system_tracks([latest[n] for n in sorted(latest)], SYSTEM)
+    assert period.block() == expected
+    assert period.block() == b""  # the next period starts empty
+
+
+def test_a_chunk_beyond_its_items_is_refused_by_the_block_and_the_next_period_goes_on() -> None:
+    period = PeriodRecords(SYSTEM, chunk=2)
+    period.update(_updates([_plain(number=1), _plain(number=2, x_m=5e6, validate=False)]))
+    period.update(_updates([_plain(number=3)]))
+    with pytest.raises(EncodeError):
+        period.block()
+    period.update(_updates([_plain(number=4), _plain(number=5)]))
+    assert period.block() == encode_system_tracks([_plain(number=4), _plain(number=5)], SYSTEM)

@@ -346,6 +346,19 @@ def test_start_up_objects_are_out_of_the_collectors_sight() -> None:
         gc.unfreeze()
 
 
+def test_the_core_freezes_survivors_while_it_runs() -> None:
+    """The core's process (``open_service``) has ``freeze_survivors`` as the output
+    process has, for the service's life only."""
+    config = load_service_config(REPO / "config" / "example.toml")
+    gc.unfreeze()
+    try:
+        with open_service(config, None, zenoh=False):
+            assert command._freeze_after_full_collection in gc.callbacks
+        assert command._freeze_after_full_collection not in gc.callbacks
+    finally:
+        gc.unfreeze()
+
+
 def test_survivors_of_each_full_collection_leave_the_collectors_sight() -> None:
     """``command.freeze_survivors`` (the output process's): what survives a full
     collection is frozen at its end, the next scans only what came since; garbage is

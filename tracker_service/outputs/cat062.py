@@ -32,17 +32,18 @@ import numpy.typing as npt
 
 from asterix import spec
 from asterix.codec import codec, encode_block, encode_record
-from asterix.engine import build_fspec
+from asterix.engine import EncodeError, build_fspec
 from tracker_service.geodesy.ellipsoid import meridian_radius_m, prime_vertical_radius_m
 from tracker_service.geodesy.plane import SystemPlane
 from tracker_service.outputs.messages import SystemTrackMessage
 from tracker_service.outputs.sdps import SdpsIdentity
-from tracker_service.outputs.updates import STATUSES, SystemBatch, SystemValues
+from tracker_service.outputs.updates import STATUSES, SystemBatch, SystemUpdate, SystemValues
 
 __all__ = [
     "CAT062",
     "CAT065",
     "MAX_BLOCK_OCTETS",
+    "PeriodRecords",
     "TrackColumns",
     "encode_cat065",
     "encode_system_batch",
@@ -68,6 +69,12 @@ COV_MAX_M = 32767 / 2
 APW_MAX_DEG = 65535 * 180.0 / 2**25
 ATV_MAX_MPS = 255 / 4
 RHO_MAX_NM = 65535 / 256
+CHUNK_TRACKS = 256
+"""``PeriodRecords`` encodes the tracks waiting whenever this many wait: ~4 ms of CPU
+each on ``artas`` at 4,000 tracks (~2.3 ms of numpy calls whatever the rows, ~7 us a
+track), nine times a second, where the whole second's ~1,800 tracks at once took 16-19
+ms (docs/benchmarks.md, "Session 16"). Smaller chunks would cost more in all: the fixed
+part is paid per chunk."""
 
 Cat065Kind = Literal["sdps_status", "end_of_batch", "service_status"]
 _MESSAGE_TYPE: dict[Cat065Kind, int] = {"sdps_status": 1, "end_of_batch": 2, "service_status": 3}
@@ -99,6 +106,70 @@ def encode_system_batch(
     if not len(batch):
         return b""
     return _framed(*_fast_records(track_columns(batch, config), config), max_block_octets)
+
+
+class PeriodRecords:
+    """CAT062's periodic block (``core.Outputs.publish_cat062``): the system tracks updated
+    since the last block, each by its latest update, in track-number order, with their
+    records encoded ahead. Whenever ``chunk`` tracks wait, their latest updates are
+    encoded at once (``encode_system_batch``'s records, cut per track), so that the block
+    at the period's end encodes fewer than ``chunk`` and joins the rest: the period's work
+    spread over its batches rather than one pause of the caller at its end, which grew
+    with the picture. A record depends on its own row alone, so the blocks are those of
+    the period's latest updates encoded at its end; a track updated again after its
+    record was made is encoded again. A chunk that does not encode (a value beyond its
+    item's range) is left to the block, which raises it as the encoding
+    at the end did, and the period's tracks go with it."""
+
+    def __init__(
+        self,
+        config: SdpsIdentity,
+        chunk: int = CHUNK_TRACKS,
+        max_block_octets: int = MAX_BLOCK_OCTETS,
+    ) -> None:
+        self.config = config
+        self.chunk = chunk
+        self.max_block_octets = max_block_octets
+        self._waiting: dict[int, SystemUpdate] = {}
+        """Each track's latest update not yet encoded."""
+        self._records: dict[int, bytes] = {}
+        self._ahead = True
+        """False once a chunk failed: the rest of the period waits for the block."""
+
+    def update(self, updates: Sequence[SystemUpdate]) -> None:
+        waiting = self._waiting
+        for update in updates:
+            waiting[update.number] = update
+        if self._ahead and len(waiting) >= self.chunk:
+            try:
+                self._records.update(self._encoded(waiting))
+            except EncodeError:  # the block encodes them again and raises it
+                self._ahead = False
+            else:
+                waiting.clear()
+
+    def block(self) -> bytes:
+        """The period's records framed in blocks (b"" when no track was updated); the next
+        period starts empty, whatever this raises."""
+        records, waiting = self._records, self._waiting
+        self._records, self._waiting, self._ahead = {}, {}, True
+        if waiting:
+            records.update(self._encoded(waiting))
+        ordered = [records[number] for number in sorted(records)]
+        if not ordered:
+            return b""
+        return _framed(
+            b"".join(ordered), list(accumulate(map(len, ordered))), self.max_block_octets
+        )
+
+    def _encoded(self, waiting: Mapping[int, SystemUpdate]) -> dict[int, bytes]:
+        updates = list(waiting.values())
+        batch = SystemBatch.gather([(u.batch, u.index) for u in updates])
+        data, ends = _fast_records(track_columns(batch, self.config), self.config)
+        return {
+            update.number: data[start:end]
+            for update, start, end in zip(updates, [0, *ends[:-1]], ends, strict=True)
+        }
 
 
 def encode_system_tracks_generic(
@@ -669,17 +740,42 @@ def _flagged(flags: BoolArray, encode: Callable[[tuple[int, ...]], bytes]) -> _P
     subfields the row has), I080's extents (its flags); encoded once per distinct set."""
     k = flags.shape[1]
     codes = flags.astype(np.int64) @ (1 << np.arange(k, dtype=np.int64))
-    return _coded(codes, lambda code: encode(tuple(code >> i & 1 for i in range(k))))
+    return _coded(codes, lambda code: _flags_encoded(encode, k, code))
 
 
-def _fspec_of(item: str, names: Sequence[str]) -> Callable[[tuple[int, ...]], bytes]:
-    """The FSPEC of compound ``item`` (b"" for none) of flags for ``names``."""
+@cache
+def _flags_encoded(encode: Callable[[tuple[int, ...]], bytes], k: int, code: int) -> bytes:
+    """``encode`` of the ``k`` flags that are the bits of ``code``: kept across batches (a
+    few dozen sets a part), where each batch's distinct sets were encoded again."""
+    return encode(tuple(code >> i & 1 for i in range(k)))
+
+
+@cache
+def _fspec_of(item: str, names: tuple[str, ...]) -> Callable[[tuple[int, ...]], bytes]:
+    """The FSPEC of compound ``item`` (b"" for none) of flags for ``names``: one function
+    a compound, so that ``_flags_encoded`` knows it again."""
 
     def fspec(flags: tuple[int, ...]) -> bytes:
         there = [name for name, flag in zip(names, flags, strict=True) if flag]
         return _subfield_fspec(item, there) if there else b""
 
     return fspec
+
+
+@cache
+def _record_fspec(positions: tuple[int, ...]) -> Callable[[tuple[int, ...]], bytes]:
+    """The record's FSPEC of flags for the items at UAP ``positions``."""
+
+    def fspec(flags: tuple[int, ...]) -> bytes:
+        return build_fspec([p for p, there in zip(positions, flags, strict=True) if there], 0)
+
+    return fspec
+
+
+@cache
+def _mode3a_code_bytes(code: int) -> bytes:
+    """I060 of ``code``: the Mode 3/A code times 2 plus its change bit; -1: none (b"")."""
+    return b"" if code < 0 else _mode3a_bytes(code >> 1, bool(code & 1))
 
 
 def _looked_up(index: IntArray, encoded: list[bytes]) -> _Part:
@@ -755,12 +851,7 @@ def _record_parts(c: TrackColumns, config: SdpsIdentity) -> list[_Part]:
     }
     items["060"] = (
         has_mode3a,
-        [
-            _coded(
-                np.where(has_mode3a, c.mode3a * 2 + c.mode3a_changed, -1),
-                lambda code: b"" if code < 0 else _mode3a_bytes(code >> 1, bool(code & 1)),
-            )
-        ],
+        [_coded(np.where(has_mode3a, c.mode3a * 2 + c.mode3a_changed, -1), _mode3a_code_bytes)],
     )
     items["245"] = (has_callsign, [_variable(callsigns, _callsign_bytes)])
     items["380"] = (
@@ -819,12 +910,7 @@ def _record_parts(c: TrackColumns, config: SdpsIdentity) -> list[_Part]:
         columns.append(np.ones(n, dtype=bool) if there is None else there)
     present = np.column_stack(columns)
     positions = [_POSITIONS[item] for item in order]
-    fspec = _flagged(
-        present,
-        lambda flags: build_fspec(
-            [p for p, there in zip(positions, flags, strict=True) if there], 0
-        ),
-    )
+    fspec = _flagged(present, _record_fspec(tuple(positions)))
     return [fspec, *(part for item in order for part in items[item][1])]
 
 
@@ -872,7 +958,7 @@ def _dap_age_parts(c: TrackColumns) -> list[_Part]:
     ages = {_DAP_SUBFIELDS[name][1]: name for name in _DAP_SUBFIELDS}
     order = sorted(ages, key=_I295_SLOTS.index)
     has = [c.has_dap[:, _DAP_INDEX[ages[age]]] for age in order]
-    parts = [_flagged(np.column_stack(has), _fspec_of("295", order))]
+    parts = [_flagged(np.column_stack(has), _fspec_of("295", tuple(order)))]
     for age, there in zip(order, has, strict=True):
         values = np.minimum(c.dap_age[:, _DAP_INDEX[ages[age]]], AGE_MAX_S)
         parts.append(_quantities(_Q295[age], values, 1, there))

@@ -51,7 +51,7 @@ from tracker_service.fusion.lifecycle import number_shortage_reasons
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
 from tracker_service.outputs.asterix_udp import AsterixUdpSink
-from tracker_service.outputs.cat062 import encode_cat065, encode_system_batch
+from tracker_service.outputs.cat062 import PeriodRecords, encode_cat065
 from tracker_service.outputs.foxglove_scene import MapRadar
 from tracker_service.outputs.foxglove_sink import live_sink, with_map_channels
 from tracker_service.outputs.mapping import MessageMapper
@@ -64,7 +64,7 @@ from tracker_service.outputs.messages import (
     SystemTrackMessage,
 )
 from tracker_service.outputs.sink import Backoff, IsolatedSink, OutputState, QueuedSink, Sink
-from tracker_service.outputs.updates import SystemBatch, SystemUpdate
+from tracker_service.outputs.updates import SystemUpdate
 from tracker_service.outputs.zenoh_out import ZenohPublisher
 from tracker_service.outputs.zenoh_picture import ZenohPictureSink
 from tracker_service.outputs.zenoh_sink import ZenohSink
@@ -396,7 +396,7 @@ class Outputs:
         self._feeds = [r.key for r in config.radars] + [a.key for a in config.adsb]
         self._adsb_feeds = frozenset(a.key for a in config.adsb)
         self._radars: dict[str, _RadarCounters] = defaultdict(_RadarCounters)
-        self._pending_cat062: dict[int, SystemUpdate] = {}
+        self._cat062 = PeriodRecords(config.system)
         self._cat062_batches = 0
         self._start: float | None = None
         self._now = -math.inf
@@ -552,21 +552,19 @@ class Outputs:
         if not updates:
             return
         self.counts.system_updates += len(updates)
-        for update in updates:
-            self.counts.system_tracks.add(update.number)
-            self._pending_cat062[update.number] = update
+        self.counts.system_tracks.update(update.number for update in updates)
         for sink in self.sinks:
             sink.system_updates(updates, self._now)
+        # After the sinks have the batch: a chunk of CAT062's records may be encoded here.
+        self._cat062.update(updates)
 
     # --- periodic outputs (the core says when) -----------------------------------------
 
     def publish_cat062(self) -> None:
-        pending = [self._pending_cat062[n] for n in sorted(self._pending_cat062)]
-        self._pending_cat062.clear()
-        system = self.config.system
-        batch = SystemBatch.gather([(u.batch, u.index) for u in pending]) if pending else None
-        data = (b"" if batch is None else encode_system_batch(batch, system)) + encode_cat065(
-            "end_of_batch", self._now, self._cat062_batches, system
+        """The tracks updated since the last call (``cat062.PeriodRecords``: most records
+        already encoded as their updates came), then a CAT065 end of batch."""
+        data = self._cat062.block() + encode_cat065(
+            "end_of_batch", self._now, self._cat062_batches, self.config.system
         )
         self._cat062_batches += 1
         for sink in self.sinks:
