@@ -119,10 +119,10 @@ _COLOUR_TEXT = {
 """Each colour's components as ``json.dumps`` writes them."""
 
 
-@dataclass(frozen=True)
-class FoxgloveMessage:
+class FoxgloveMessage(NamedTuple):
     """One message for a Foxglove channel: its topic, schema name (a key of
-    ``SCHEMAS``), JSON payload and data time (POSIX s)."""
+    ``SCHEMAS``), JSON payload and data time (POSIX s). A tuple: one a track update,
+    made at a third of a frozen dataclass's cost."""
 
     topic: str
     schema: str
