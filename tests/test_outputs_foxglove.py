@@ -228,6 +228,45 @@ def test_the_picture_holds_labels_trails_and_vectors_and_forgets_ended_tracks() 
     assert scene.live_tracks == [8]
 
 
+def _canonical(text: bytes | str) -> str:
+    """``text`` read and written back by ``json.dumps`` (compact): what the scene must
+    write, every string escaped as ``json.dumps`` escapes it, every number its repr."""
+    return json.dumps(json.loads(text), separators=(",", ":"))
+
+
+def test_fixes_and_features_are_what_json_dumps_writes_of_awkward_identities() -> None:
+    """Quotes, backslashes and non-ASCII characters in a callsign, a blank callsign, no
+    identity at all, several radars: the fixes and the picture's features
+    (written a row at a time, escaped in pieces) are ``json.dumps``'s own text."""
+    scene = MapScene([SITE])
+    odd = ("25/11", "7/3", "25/12")
+    # The models hold callsigns to [A-Z0-9 ]; the map takes any text (``SystemValues``).
+    messages = [
+        SystemValues.of_message(track(3, radars=odd, mode3a="0017", flight_level=12.345))._replace(
+            callsign='A"B\\C é\x01'
+        ),
+        SystemValues.of_message(
+            track(4, radars=odd[1:], address="ABCDEF", status="coasting")
+        )._replace(callsign="    "),
+        SystemValues.of_message(track(5, radars=odd[:1], flight_level=-3.0)),
+        SystemValues.of_message(track(6, duplicate_address=True, address="3C660C")),
+    ]
+    for k, message in enumerate(messages):
+        for out in scene.update(message, T0 + k):
+            assert out.data.decode() == _canonical(out.data)
+            if out.topic == PICTURE_TOPIC:
+                inner = json.loads(out.data)["geojson"]
+                assert inner == _canonical(inner)
+    features = picture(scene)
+    assert features["track/3"]["properties"]["callsign"] == 'A"B\\C é\x01'
+    assert features["track/3"]["properties"]["sources"] == ",".join(sorted(odd))
+    assert features["vector/4"]["properties"]["name"] == "#4 FL--- 389kt 1 min"
+    assert features["track/4"]["properties"]["callsign"] == ""
+    assert "callsign" not in features["track/5"]["properties"]
+    inner = json.loads(scene.picture_geojson())["geojson"]
+    assert inner == _canonical(inner)
+
+
 def test_sites_are_points_and_range_rings_of_their_range() -> None:
     sites = json.loads(json.loads(MapScene([SITE]).sites_geojson())["geojson"])
     check_geojson(sites)

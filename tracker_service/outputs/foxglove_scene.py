@@ -119,10 +119,10 @@ _COLOUR_TEXT = {
 """Each colour's components as ``json.dumps`` writes them."""
 
 
-@dataclass(frozen=True)
-class FoxgloveMessage:
+class FoxgloveMessage(NamedTuple):
     """One message for a Foxglove channel: its topic, schema name (a key of
-    ``SCHEMAS``), JSON payload and data time (POSIX s)."""
+    ``SCHEMAS``), JSON payload and data time (POSIX s). A tuple: one a track update,
+    made at a third of a frozen dataclass's cost."""
 
     topic: str
     schema: str
@@ -181,54 +181,60 @@ def _label(
     return f"{identity} {level} {round(ground_speed_mps * _KT_PER_MPS)}kt"
 
 
-def _identities(
-    number: Sequence[int],
-    status: Sequence[str],
-    callsign: Sequence[str | None],
-    mode3a: Sequence[str | None],
-    address: Sequence[str | None],
-    flight_level: Sequence[float | None],
-    ground_speed_mps: Sequence[float],
-    track_angle_deg: Sequence[float],
-    sources: Sequence[str],
-) -> list[tuple[str, list[str | None]]]:
-    """What the map's tooltip lists of each of several tracks (``metadata``), label
-    first: per item its key and its value for each track (None: the track has none), so
-    that a batch's fixes are written column by column."""
-    return [
-        (
-            "label",
-            list(map(_label, number, callsign, mode3a, flight_level, ground_speed_mps)),
-        ),
-        ("track", [str(n) for n in number]),
-        ("status", list(status)),
-        ("callsign", [c.strip() if c else None for c in callsign]),
-        ("mode3a", [m or None for m in mode3a]),
-        ("address", [a or None for a in address]),
-        ("flight_level", [None if f is None else f"{f:.2f}" for f in flight_level]),
-        ("ground_speed_kt", [f"{v * _KT_PER_MPS:.0f}" for v in ground_speed_mps]),
-        ("track_angle_deg", [f"{a:.0f}" for a in track_angle_deg]),
-        ("sources", list(sources)),
-    ]
-
-
-_FREE_TEXT = frozenset(("label", "callsign", "sources"))
-"""The identity items whose values may hold any character (a callsign, radar names); the
-others are digits, hex, a status word, a formatted number: no escaping."""
-
-
-def _json_strings(key: str, values: Sequence[str | None]) -> list[str]:
-    """The values of an identity item as ``json.dumps`` writes strings ("" for None)."""
-    if key in _FREE_TEXT:
-        return ["" if v is None else encode_basestring_ascii(v) for v in values]
-    return ["" if v is None else f'"{v}"' for v in values]
+def _identity_texts(
+    number: int,
+    status: str,
+    callsign: str | None,
+    mode3a: str | None,
+    address: str | None,
+    flight_level: float | None,
+    ground_speed_mps: float,
+    track_angle_deg: float,
+    sources: str,
+) -> tuple[str, str, str]:
+    """What the map's tooltip lists of a track, as ``json.dumps`` writes it (compact):
+    its fix's ``metadata`` items (label first; an item the track has no value for left
+    out), its label's JSON string and the same items but the label as its point's
+    properties (",key:value" each). One call a row, each text written once for both:
+    ``sources`` is the JSON string of its radars' names."""
+    label = encode_basestring_ascii(
+        _label(number, callsign, mode3a, flight_level, ground_speed_mps)
+    )
+    items = f'{{"key":"label","value":{label}}},{{"key":"track","value":"{number}"}},'
+    items += f'{{"key":"status","value":"{status}"}}'
+    properties = f',"track":"{number}","status":"{status}"'
+    if callsign:
+        text = encode_basestring_ascii(callsign.strip())
+        items += f',{{"key":"callsign","value":{text}}}'
+        properties += f',"callsign":{text}'
+    if mode3a:
+        items += f',{{"key":"mode3a","value":"{mode3a}"}}'
+        properties += f',"mode3a":"{mode3a}"'
+    if address:
+        items += f',{{"key":"address","value":"{address}"}}'
+        properties += f',"address":"{address}"'
+    if flight_level is not None:
+        items += f',{{"key":"flight_level","value":"{flight_level:.2f}"}}'
+        properties += f',"flight_level":"{flight_level:.2f}"'
+    speed = f"{ground_speed_mps * _KT_PER_MPS:.0f}"
+    angle = f"{track_angle_deg:.0f}"
+    items += (
+        f',{{"key":"ground_speed_kt","value":"{speed}"}},'
+        f'{{"key":"track_angle_deg","value":"{angle}"}},{{"key":"sources","value":{sources}}}'
+    )
+    properties += f',"ground_speed_kt":"{speed}","track_angle_deg":"{angle}","sources":{sources}'
+    return items, label, properties
 
 
 class _MapColumns(NamedTuple):
     number: list[int]
-    status: list[str]
-    identities: list[tuple[str, list[str | None]]]
     colours: list[Rgb]
+    metadata: list[str]
+    """Each row's fix's ``metadata`` items (``_identity_texts``)."""
+    labels: list[str]
+    """Each row's label as a JSON string."""
+    properties: list[str]
+    """Each row's point's properties but its name."""
 
 
 class _LiveRows(NamedTuple):
@@ -239,19 +245,19 @@ class _LiveRows(NamedTuple):
 
     here: list[tuple[float, float]]
     point: list[str]
-    marker: list[str]
+    marker: Sequence[str]
     """The point feature, escaped."""
-    trail_start: list[str]
+    trail_start: Sequence[str]
     """The trail feature up to its coordinates, escaped."""
-    trail_end: list[str]
+    trail_end: Sequence[str]
     """The trail feature after its coordinates, escaped."""
-    vector: list[str]
+    vector: Sequence[str]
     """The speed vector feature, escaped."""
 
 
 def _map_columns(batch: SystemBatch, rows: npt.NDArray[np.int64]) -> _MapColumns:
-    """What the map shows of rows ``rows`` of ``batch``: numbers, statuses, identities
-    (``_identities``) and colours, column by column."""
+    """What the map shows of rows ``rows`` of ``batch``: numbers, colours and the
+    identity texts (``_identity_texts``), a row at a time from its columns' values."""
     names, radar_names = batch.names, batch.radar_names
     number = batch.number[rows].tolist()
     status = [STATUSES[code] for code in batch.status[rows].tolist()]
@@ -263,16 +269,20 @@ def _map_columns(batch: SystemBatch, rows: npt.NDArray[np.int64]) -> _MapColumns
         )
     ]
     radars = {key: sorted({radar_names[r] for r in key}) for key in set(keys)}
-    identities = _identities(
-        number,
-        status,
-        [None if i < 0 else names[i] for i in batch.callsign[rows].tolist()],
-        [None if c < 0 else f"{c:04o}" for c in batch.mode3a[rows].tolist()],
-        [None if a < 0 else f"{a:06X}" for a in batch.address[rows].tolist()],
-        [None if f != f else f for f in batch.flight_level[rows].tolist()],
-        batch.ground_speed[rows].tolist(),
-        batch.track_angle[rows].tolist(),
-        [",".join(radars[key]) for key in keys],
+    sources = {key: encode_basestring_ascii(",".join(radar)) for key, radar in radars.items()}
+    texts = list(
+        map(
+            _identity_texts,
+            number,
+            status,
+            [None if i < 0 else names[i] for i in batch.callsign[rows].tolist()],
+            [None if c < 0 else f"{c:04o}" for c in batch.mode3a[rows].tolist()],
+            [None if a < 0 else f"{a:06X}" for a in batch.address[rows].tolist()],
+            [None if f != f else f for f in batch.flight_level[rows].tolist()],
+            batch.ground_speed[rows].tolist(),
+            batch.track_angle[rows].tolist(),
+            [sources[key] for key in keys],
+        )
     )
     colours = [
         _colour(state, duplicate, len(radars[key]))
@@ -280,7 +290,8 @@ def _map_columns(batch: SystemBatch, rows: npt.NDArray[np.int64]) -> _MapColumns
             status, batch.duplicate_address[rows].tolist(), keys, strict=True
         )
     ]
-    return _MapColumns(number, status, identities, colours)
+    metadata, labels, properties = (list(column) for column in zip(*texts, strict=True))
+    return _MapColumns(number, colours, metadata, labels, properties)
 
 
 def _hex(rgb: Rgb) -> str:
@@ -478,37 +489,23 @@ def _location_fixes(batch: SystemBatch) -> tuple[list[bytes], _LiveRows]:
     if not live.size:
         return [], _LiveRows([], [], [], [], [], [])
     p = batch.covariance[live]
+    level, altitude_m = batch.flight_level[live], batch.altitude_m[live]
+    lat, lon = batch.lat[live], batch.lon[live]
+    values = np.empty((live.size, 7))
+    values[:, 0], values[:, 1] = lat, lon
     # The altitude the message gives, else its flight level's, else 0.
-    altitude = np.where(
-        np.isnan(batch.altitude_m[live]),
-        np.where(
-            np.isnan(batch.flight_level[live]), 0.0, batch.flight_level[live] * _METRES_PER_FL
-        ),
-        batch.altitude_m[live],
+    values[:, 2] = np.where(
+        np.isnan(altitude_m),
+        np.where(np.isnan(level), 0.0, level * _METRES_PER_FL),
+        altitude_m,
     )
-    numbers = python_json_numbers(
-        np.column_stack(
-            (batch.lat[live], batch.lon[live], altitude, p[:, 0], p[:, 1], p[:, 4], p[:, 5])
-        )
-        .ravel()
-        .tolist()
-    )
+    values[:, 3:5], values[:, 5:7] = p[:, 0:2], p[:, 4:6]
+    numbers = python_json_numbers(values.ravel().tolist())
     time = batch.time[live]
     sec = np.floor(time)
     # ``_timestamp``: the fraction split off first, no 128 ns rounding.
     nsec = np.minimum(np.rint((time - sec) * _NS_PER_S), _NS_PER_S - 1).astype(np.int64)
-    number, _, identities, colours = _map_columns(batch, live)
-    # Each item a column of its JSON objects ("" where a track has none), the first
-    # (the label, which every track has) without its leading comma.
-    texts = [(key, values, _json_strings(key, values)) for key, values in identities]
-    items = [
-        [
-            "" if v is None else f'{"," if i else ""}{{"key":"{key}","value":{text}}}'
-            for v, text in zip(values, strings, strict=True)
-        ]
-        for i, (key, values, strings) in enumerate(texts)
-    ]
-    metadata = list(map("".join, zip(*items, strict=True)))
+    shown = _map_columns(batch, live)
     fixes = [
         (
             _FIX
@@ -517,23 +514,22 @@ def _location_fixes(batch: SystemBatch) -> tuple[list[bytes], _LiveRows]:
                 nanosecond,
                 n,
                 *numbers[7 * k : 7 * k + 7],
-                *_COLOUR_TEXT[colours[k]],
-                metadata[k],
+                *_COLOUR_TEXT[colour],
+                metadata,
             )
         ).encode()
-        for k, (n, second, nanosecond) in enumerate(
+        for k, (n, second, nanosecond, colour, metadata) in enumerate(
             zip(
-                number,
+                shown.number,
                 np.maximum(sec, 0).astype(np.int64).tolist(),
                 nsec.tolist(),
+                shown.colours,
+                shown.metadata,
                 strict=True,
             )
         )
     ]
-    shown = _live_rows(
-        batch.lon[live], batch.lat[live], batch.vx[live], batch.vy[live], number, colours, texts
-    )
-    return fixes, shown
+    return fixes, _live_rows(lon, lat, batch.vx[live], batch.vy[live], shown)
 
 
 _PICTURE_START = (
@@ -543,13 +539,7 @@ _PICTURE_END = b']}"}'
 
 
 def _live_rows(
-    lon: FloatArray,
-    lat: FloatArray,
-    vx: FloatArray,
-    vy: FloatArray,
-    number: list[int],
-    colours: list[Rgb],
-    texts: list[tuple[str, list[str | None], list[str]]],
+    lon: FloatArray, lat: FloatArray, vx: FloatArray, vy: FloatArray, shown: _MapColumns
 ) -> _LiveRows:
     """Each row's point (its identity as properties), the start and end of its trail and
     its one-minute vector, as ``json.dumps`` writes them (compact), escaped into the
@@ -558,79 +548,69 @@ def _live_rows(
     # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
     # precision (/system_tracks has the full values).
     ahead_lon, ahead_lat = _ahead(lon, lat, vx, vy)
-    numbers = python_json_numbers(
-        np.column_stack((here_lon, here_lat, ahead_lon, ahead_lat)).ravel().tolist()
+    values = np.empty((len(lon), 4))
+    values[:, 0], values[:, 1], values[:, 2], values[:, 3] = (
+        here_lon,
+        here_lat,
+        ahead_lon,
+        ahead_lat,
     )
+    numbers = python_json_numbers(values.ravel().tolist())
     point = [f"[{x},{y}]" for x, y in zip(numbers[0::4], numbers[1::4], strict=True)]
-    ahead = [f"[{x},{y}]" for x, y in zip(numbers[2::4], numbers[3::4], strict=True)]
-    (_, labels, label_texts), *identity = texts
-    properties = list(
+    features = list(
         map(
-            "".join,
-            zip(
-                *(_properties(key, values, strings) for key, values, strings in identity),
-                strict=True,
-            ),
+            _features,
+            shown.number,
+            point,
+            numbers[2::4],
+            numbers[3::4],
+            shown.labels,
+            shown.properties,
+            [_COLOUR_HEX[c] for c in shown.colours],
         )
     )
-    hexes = [_COLOUR_HEX[c] for c in colours]
-    # A label's JSON text is ``encode_basestring_ascii`` of it: with " trail" or " 1 min"
-    # added before its closing quote, the JSON text of the longer name.
-    marker = [
-        f'{{"type":"Feature","id":"track/{n}","geometry":{{"type":"Point",'
-        f'"coordinates":{p}}},"properties":{{"name":{name or _NO_NAME}'
-        f'{props},"style":{{"color":"{colour}","fillColor":"{colour}","fillOpacity":1.0}}}}}}'
-        for n, p, name, props, colour in zip(
-            number, point, label_texts, properties, hexes, strict=True
-        )
-    ]
-    trail_start = [
-        f'{{"type":"Feature","id":"trail/{n}","geometry":{{"type":"LineString","coordinates":['
-        for n in number
-    ]
-    trail_end = [
-        f']}},"properties":{{"name":{_renamed(label, name, " trail")},'
-        f'"style":{{"color":"{colour}","weight":2,"opacity":0.5}}}}}}'
-        for label, name, colour in zip(labels, label_texts, hexes, strict=True)
-    ]
-    vector = [
-        f'{{"type":"Feature","id":"vector/{n}","geometry":{{"type":"LineString",'
-        f'"coordinates":[{p},{a}]}},"properties":{{"name":{_renamed(label, name, " 1 min")},'
-        f'"style":{{"color":"{colour}","weight":1,"opacity":0.9}}}}}}'
-        for n, p, a, label, name, colour in zip(
-            number, point, ahead, labels, label_texts, hexes, strict=True
-        )
-    ]
+    marker, trail_start, trail_end, vector = zip(*features, strict=True)
     return _LiveRows(
         list(zip(here_lon.tolist(), here_lat.tolist(), strict=True)),
         point,
-        [_escaped(text) for text in marker],
-        [_escaped(text) for text in trail_start],
-        [_escaped(text) for text in trail_end],
-        [_escaped(text) for text in vector],
+        marker,
+        trail_start,
+        trail_end,
+        vector,
     )
 
 
-def _properties(key: str, values: list[str | None], strings: list[str]) -> list[str]:
-    """An identity item of each row as a property of its point (",key:value"), "" where
-    the row has none."""
-    return [
-        "" if v is None else f',"{key}":{text}' for v, text in zip(values, strings, strict=True)
-    ]
-
-
-_NO_NAME = encode_basestring_ascii("")
-
-
-def _renamed(label: str | None, name: str, suffix: str) -> str:
-    """The JSON string of ``label + suffix`` ("" for no label), from ``name``, the
-    label's own JSON string."""
-    return encode_basestring_ascii(suffix) if label is None else f'{name[:-1]}{suffix}"'
-
-
-def _escaped(text: str) -> str:
-    """``text`` as it stands inside a JSON string, without the quotes."""
-    return encode_basestring_ascii(text)[1:-1]
+def _features(
+    number: int, point: str, ahead_lon: str, ahead_lat: str, name: str, properties: str, colour: str
+) -> tuple[str, str, str, str]:
+    """A row's point (``name``: its label's JSON string), the start and end of its trail
+    and its vector, each escaped into the picture's string (``json.dumps`` escapes
+    character by character: the escaped parts joined are the whole escaped). With " trail"
+    or " 1 min" added before its closing quote, a label's JSON string is the longer
+    name's."""
+    marker = (
+        f'{{"type":"Feature","id":"track/{number}","geometry":{{"type":"Point",'
+        f'"coordinates":{point}}},"properties":{{"name":{name}{properties},'
+        f'"style":{{"color":"{colour}","fillColor":"{colour}","fillOpacity":1.0}}}}}}'
+    )
+    trail_start = (
+        f'{{"type":"Feature","id":"trail/{number}","geometry":{{"type":"LineString","coordinates":['
+    )
+    trail_end = (
+        f']}},"properties":{{"name":{name[:-1]} trail",'
+        f'"style":{{"color":"{colour}","weight":2,"opacity":0.5}}}}}}'
+    )
+    vector = (
+        f'{{"type":"Feature","id":"vector/{number}","geometry":{{"type":"LineString",'
+        f'"coordinates":[{point},[{ahead_lon},{ahead_lat}]]}},"properties":{{"name":'
+        f'{name[:-1]} 1 min","style":{{"color":"{colour}","weight":1,"opacity":0.9}}}}}}'
+    )
+    return (
+        encode_basestring_ascii(marker)[1:-1],
+        encode_basestring_ascii(trail_start)[1:-1],
+        encode_basestring_ascii(trail_end)[1:-1],
+        encode_basestring_ascii(vector)[1:-1],
+    )
 
 
 def _track_features(track: _Track, shown: _LiveRows, k: int) -> bytes:

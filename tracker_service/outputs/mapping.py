@@ -229,7 +229,8 @@ class MessageMapper:
         self._state = SystemState()
         self._last: dict[int, SystemUpdate] = {}
         """The latest update of every live system track."""
-        self._local_times: dict[tuple[str, int], float] = {}
+        self._local_times: dict[int, float] = {}
+        """Each local track's latest update by ``_local_key`` (its radar's id, its number)."""
         self._names: list[str | None] = []
         """Callsigns by the literal id of their JSON string (None: another literal)."""
         self._callsigns: dict[str, int] = {"": -1}
@@ -255,8 +256,9 @@ class MessageMapper:
             return []
         numbers = rows["track_number"]
         status = rows["status"].astype(np.int64)
+        radar = self._radar_id(source)
         payloads = self._writer.local(
-            self._radar_literals[self._radar_id(source)],
+            self._radar_literals[radar],
             numbers,
             np.column_stack(
                 (
@@ -279,14 +281,15 @@ class MessageMapper:
         number_list = numbers.tolist()
         deleted = (status == _DELETED).tolist()
         times = self._local_times
+        keys = _local_key(radar, numbers.astype(np.int64)).tolist()
         if any(deleted):
-            for number, time, gone in zip(number_list, rows["time"].tolist(), deleted, strict=True):
+            for key, time, gone in zip(keys, rows["time"].tolist(), deleted, strict=True):
                 if gone:
-                    times.pop((source, number), None)
+                    times.pop(key, None)
                 else:
-                    times[(source, number)] = time
+                    times[key] = time
         else:
-            times.update(zip(zip(repeat(source), number_list), rows["time"].tolist(), strict=True))
+            times.update(zip(keys, rows["time"].tolist(), strict=True))
         return list(map(LocalUpdate, number_list, deleted, payloads))
 
     def system_updates(
@@ -321,7 +324,10 @@ class MessageMapper:
         address = rows["address"].astype(np.int64)
         mode3a = rows["mode3a"].astype(np.int64)
         rho = plots["rho_m"]
-        theta = np.array([wrap_degrees(t) for t in plots["theta_deg"].tolist()], dtype=np.float64)
+        # ``wrap_degrees`` over the column: numpy's remainder is Python's float %, to the bit.
+        with np.errstate(invalid="ignore"):
+            theta = np.remainder(plots["theta_deg"].astype(np.float64), 360.0)
+        theta = np.where(theta >= 360.0, 0.0, theta)
         if "has_daps" in (plots.dtype.names or ()):
             daps = np.column_stack([plots[name] for name in DAP_NAMES])
             daps[~plots["has_daps"]] = np.nan
@@ -338,7 +344,7 @@ class MessageMapper:
                 fresh=rows["fresh"].astype(np.bool_),
                 radar=radar_ids[rows["radar"].astype(np.int64)],
                 n_sources=n_sources,
-                local_time=self._local_times_of(rows, sources, n_sources, local_radars),
+                local_time=self._local_times_of(rows, radar_ids, n_sources, local_radars),
                 plot_ids=plots["plot_id"].astype(np.int64),
                 plot_time=plots["time"].astype(np.float64),
                 plot_callsign=self._callsign_ids(plots["callsign"].tolist()),
@@ -414,22 +420,18 @@ class MessageMapper:
     def _local_times_of(
         self,
         rows: npt.NDArray[Any],
-        sources: Sequence[str],
+        radar_ids: npt.NDArray[np.int64],
         n_sources: npt.NDArray[np.int64],
         local_radars: npt.NDArray[np.int64],
     ) -> npt.NDArray[np.float64]:
-        """Each source's local track's latest update (NaN: unknown), by the names the
-        local path keeps them under."""
+        """Each source's local track's latest update (NaN: unknown); ``radar_ids``: the
+        mapper's ids of the chain's radars."""
         used = np.arange(local_radars.shape[1]) < n_sources[:, None]
-        names = np.array(sources, dtype=object)[local_radars[used]].tolist()
-        local_time = np.full(local_radars.shape, np.nan)
-        local_time[used] = list(
-            map(
-                self._local_times.get,
-                zip(names, rows["local_numbers"][used].tolist(), strict=True),
-                repeat(math.nan),
-            )
+        keys = _local_key(
+            radar_ids[local_radars[used]], rows["local_numbers"][used].astype(np.int64)
         )
+        local_time = np.full(local_radars.shape, np.nan)
+        local_time[used] = list(map(self._local_times.get, keys.tolist(), repeat(math.nan)))
         return local_time
 
     def end_all_updates(self) -> list[SystemUpdate]:
@@ -495,6 +497,12 @@ class MessageMapper:
             names.extend([None] * (text_id + 1 - len(names)))
         names[text_id] = callsign
         return text_id
+
+
+def _local_key(radar: int | npt.NDArray[np.int64], number: npt.NDArray[np.int64]) -> Any:
+    """A local track's key in ``MessageMapper``'s times: its radar's id and its number
+    (within +-2**31) as one integer, computed over a column."""
+    return (np.int64(radar) << 32) + number
 
 
 class ModelMapper:
