@@ -2244,3 +2244,108 @@ def expiring(
             orphans[n_orphans] = r
             n_orphans += 1
     return silent[:n_silent].copy(), orphans[:n_orphans].copy()
+
+
+@numba.njit(cache=True)
+def due_numbers(
+    alive: BoolArray, freed_at: FloatArray, now: float, reuse_delay: float, k: int
+) -> IntArray:  # pragma: no cover - compiled
+    """``lifecycle.create``'s lowest k free numbers (above 0, not alive) whose reuse
+    delay has passed, a number freed "later" than now taken as freed now; fewer when
+    fewer are due. The pass stops at the k-th (the numpy path tests all 4,096)."""
+    out = np.empty(k, dtype=np.int64)
+    n = 0
+    for r in range(1, alive.size):
+        if n == k:
+            break
+        if alive[r]:
+            continue
+        # np.minimum's: NaN stays NaN (never due).
+        ended = now if freed_at[r] > now else freed_at[r]
+        if ended + reuse_delay <= now:
+            out[n] = r
+            n += 1
+    return out[:n].copy()
+
+
+@numba.njit(cache=True)
+def found_system_tracks(
+    numbers: IntArray,
+    founders: IntArray,
+    now: float,
+    founder_bias: FloatArray,
+    initial_mu: FloatArray,
+    sys_alive: BoolArray,
+    sys_born: FloatArray,
+    sys_solo: BoolArray,
+    sys_orphaned: FloatArray,
+    sys_t_row: FloatArray,
+    sys_row_interval: FloatArray,
+    sys_fl: FloatArray,
+    sys_t: FloatArray,
+    sys_x: FloatArray,
+    sys_P: FloatArray,
+    sys_founder_radar: IntArray,
+    sys_B: FloatArray,
+    sys_M: FloatArray,
+    sys_mM: FloatArray,
+    sys_t_plot: FloatArray,
+    sys_address: IntArray,
+    sys_mode3a: IntArray,
+    sys_mx: FloatArray,
+    sys_mP: FloatArray,
+    sys_mu: FloatArray,
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    loc_radar: IntArray,
+    loc_extra: FloatArray,
+    loc_t_plot: FloatArray,
+    loc_address: IntArray,
+    loc_mode3a: IntArray,
+    loc_mu: FloatArray,
+    loc_system: IntArray,
+    loc_fails: IntArray,
+    loc_nis_n: IntArray,
+    loc_t_founder: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """``lifecycle.create``'s writes, row by row: system track numbers[i] from local row
+    founders[i] (its state in every model, its radar's residual bias, ``founder_bias``
+    (4, 2) its sensitivity to that radar's bias, zero when the founder carries none),
+    its model probabilities the founder's when known (any above 0) else
+    ``initial_mu``; the founder joined to it, its tests restarted."""
+    m, n_radars = sys_mx.shape[1], sys_M.shape[1]
+    for i in range(numbers.size):
+        n, f = numbers[i], founders[i]
+        radar = loc_radar[f]
+        sys_alive[n] = True
+        sys_born[n] = now
+        sys_solo[n] = True
+        sys_orphaned[n] = np.nan
+        sys_t_row[n] = -np.inf
+        sys_row_interval[n] = np.nan
+        sys_fl[n] = np.nan
+        sys_t[n] = loc_t[f]
+        sys_x[n] = loc_x[f]
+        sys_P[n] = loc_P[f]
+        sys_founder_radar[n] = radar
+        sys_B[n] = 0.0
+        sys_B[n, radar] = loc_extra[f]
+        sys_M[n] = 0.0
+        sys_M[n, radar] = founder_bias
+        for j in range(m):
+            for sensor in range(n_radars):
+                sys_mM[n, j, sensor] = sys_M[n, sensor]
+            sys_mx[n, j] = loc_x[f]
+            sys_mP[n, j] = loc_P[f]
+        sys_t_plot[n] = loc_t_plot[f]
+        sys_address[n] = loc_address[f]
+        sys_mode3a[n] = loc_mode3a[f]
+        total = 0.0
+        for j in range(m):
+            total += loc_mu[f, j]
+        sys_mu[n] = loc_mu[f] if total > 0.0 else initial_mu
+        loc_system[f] = n
+        loc_fails[f] = 0
+        loc_nis_n[f] = 0
+        loc_t_founder[f] = np.nan
