@@ -279,15 +279,28 @@ def test_slots_are_the_references(seed: int, k: int, max_sources: int) -> None:
     times drawn from few values), dead rows and other system tracks left out."""
     rng = np.random.default_rng(seed)
     tables = [LocalTrackTable(5, compiled=flag) for flag in (False, True)]
-    rows = tables[0].find(0, _local_updates(rng, k), create=True)
-    loc = tables[0].rows
-    loc["system"][rows] = rng.integers(0, 12, k)
-    loc["alive"][rows] = rng.random(k) < 0.8
-    loc["t_plot"][rows] = rng.choice([-np.inf, 1.0, 2.0, 3.0], k)
-    tables[1].rows, tables[1].n = loc, tables[0].n
-    numbers = rng.integers(1, 14, int(rng.integers(0, 20)))
-    want, got = (table.slots(numbers, max_sources) for table in tables)
-    np.testing.assert_array_equal(want, got)
+    u = _local_updates(rng, k)
+    rows = tables[1].find(0, u, create=True)
+    assert (tables[0].find(0, u, create=True) == rows).all()
+    # The compiled table's lists of feeders kept through moves (rows given twice among
+    # them: the last number holds), the reference's column written at once.
+    compiled = tables[1]
+    for _ in range(3):
+        moved = rng.choice(rows, rows.size) if rows.size else rows
+        compiled.feed(moved, rng.integers(0, 12, moved.size))
+    tables[0].rows["system"][:] = compiled.rows["system"]
+    alive, t_plot = rng.random(k) < 0.8, rng.choice([-np.inf, 1.0, 2.0, 3.0], k)
+    for table in tables:
+        table.rows["alive"][rows] = alive
+        table.rows["t_plot"][rows] = t_plot
+    drawn = rng.integers(0, 14, int(rng.integers(0, 20)))
+    # With a 0 (the unfed rows: by the pass over the table) and without.
+    for numbers in (drawn, drawn[drawn > 0]):
+        want, got = (table.slots(numbers, max_sources) for table in tables)
+        np.testing.assert_array_equal(want, got)
+        relinked = copy.deepcopy(compiled)
+        relinked.relink()
+        np.testing.assert_array_equal(want, relinked.slots(numbers, max_sources))
 
 
 @settings(max_examples=50, deadline=None)
@@ -349,6 +362,7 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
     system = rng.integers(1, 9, states[0].local.n)
     for state in states:
         state.local.rows["system"][: state.local.n] = system
+        state.local.relink()
     feeding = np.flatnonzero(rng.random(states[0].local.n) < 0.8)
     li = rng.choice(feeding, candidates) if feeding.size else np.zeros(0, dtype=np.int64)
     # As in use, S' is fed by a feeding row (of the candidate's radar or not; the
@@ -705,6 +719,7 @@ def test_review_tests_are_the_reference(seed: int, k: int, n_radars: int) -> Non
     for state in (compiled, reference):
         loc = state.local.rows
         loc["system"][held] = systems
+        compiled.local.relink()
         loc["x"][held[near]] = x
         loc["fails"][held], loc["nis_n"][held], loc["nis_mean"][held] = fails, nis_n, nis_mean
         state.sys["solo"][: k + 1] = solo
@@ -728,6 +743,7 @@ def test_plotted_updates_are_the_reference(seed: int, k: int, n_plots: int) -> N
     system = rng.integers(0, 6, 12)
     for state in (compiled, reference):
         state.local.rows["system"][:12] = system
+        state.local.relink()
     u = _local_updates(rng, k)
     u["plot_id"] = rng.integers(0, 25, k)
     p = np.zeros(n_plots, dtype=PLOT_DTYPE)

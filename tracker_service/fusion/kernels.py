@@ -2315,7 +2315,6 @@ def found_system_tracks(
     loc_address: IntArray,
     loc_mode3a: IntArray,
     loc_mu: FloatArray,
-    loc_system: IntArray,
     loc_fails: IntArray,
     loc_nis_n: IntArray,
     loc_t_founder: FloatArray,
@@ -2324,7 +2323,7 @@ def found_system_tracks(
     founders[i] (its state in every model, its radar's residual bias, ``founder_bias``
     (4, 2) its sensitivity to that radar's bias, zero when the founder carries none),
     its model probabilities the founder's when known (any above 0) else
-    ``initial_mu``; the founder joined to it, its tests restarted."""
+    ``initial_mu``; the founder's tests restarted (it joins by ``assign_feeders``)."""
     m, n_radars = sys_mx.shape[1], sys_M.shape[1]
     for i in range(numbers.size):
         n, f = numbers[i], founders[i]
@@ -2356,7 +2355,97 @@ def found_system_tracks(
         for j in range(m):
             total += loc_mu[f, j]
         sys_mu[n] = loc_mu[f] if total > 0.0 else initial_mu
-        loc_system[f] = n
         loc_fails[f] = 0
         loc_nis_n[f] = 0
         loc_t_founder[f] = np.nan
+
+
+@numba.njit(cache=True)
+def assign_feeders(
+    rows: IntArray, numbers: IntArray, system: IntArray, head: IntArray, next_row: IntArray
+) -> None:  # pragma: no cover - compiled
+    """``table.LocalTrackTable.feed``: system[rows[i]] = numbers[i] in order (0: none),
+    each row moved from its old system track's list of feeders (``head``, ``next_row``:
+    singly linked, a few rows each) to its new one's."""
+    for i in range(rows.size):
+        r, g = rows[i], numbers[i]
+        old = system[r]
+        if old == g:
+            continue
+        if old > 0:
+            if head[old] == r:
+                head[old] = next_row[r]
+            else:
+                q = head[old]
+                while next_row[q] != r:
+                    q = next_row[q]
+                next_row[q] = next_row[r]
+            next_row[r] = -1
+        system[r] = g
+        if g > 0:
+            next_row[r] = head[g]
+            head[g] = r
+
+
+@numba.njit(cache=True)
+def link_feeders(system: IntArray, head: IntArray, next_row: IntArray) -> None:  # pragma: no cover
+    """The lists of ``assign_feeders`` built afresh from the column ``system`` (its rows
+    in use)."""
+    head[:] = -1
+    next_row[:] = -1
+    for r in range(system.size - 1, -1, -1):
+        g = system[r]
+        if g > 0:
+            next_row[r] = head[g]
+            head[g] = r
+
+
+@numba.njit(cache=True)
+def feeder_slots(
+    numbers: IntArray,
+    head: IntArray,
+    next_row: IntArray,
+    system: IntArray,
+    alive: npt.NDArray[np.bool_],
+    t_plot: FloatArray,
+    max_sources: int,
+    width: int,
+) -> IntArray:  # pragma: no cover - compiled
+    """``slots_of`` from the lists of each system track's feeders (``assign_feeders``)
+    instead of a pass over the table: a track's alive rows in row order, then placed as
+    ``slots_of`` places them (by descending t_plot, after the equal ones). Numbers below
+    1 (those of no system track: every unfed row) by ``slots_of``'s pass."""
+    for n in numbers:
+        if n <= 0:
+            return slots_of(numbers, system, alive, t_plot, max_sources, width)
+    out = np.full((numbers.size, width), -1, dtype=np.int64)
+    found = np.empty(16, dtype=np.int64)
+    placed = np.empty(16, dtype=np.int64)
+    for i in range(numbers.size):
+        n_found = 0
+        r = head[numbers[i]]
+        while r >= 0:
+            if alive[r]:
+                if n_found == found.size:
+                    grown = np.empty(2 * found.size, dtype=np.int64)
+                    grown[:n_found] = found[:n_found]
+                    found = grown
+                    placed = np.empty(found.size, dtype=np.int64)
+                # Insertion in ascending row order: the order of ``slots_of``'s pass.
+                at = n_found
+                while at > 0 and found[at - 1] > r:
+                    found[at] = found[at - 1]
+                    at -= 1
+                found[at] = r
+                n_found += 1
+            r = next_row[r]
+        for q in range(n_found):
+            row = found[q]
+            at = q
+            while at > 0 and t_plot[placed[at - 1]] < t_plot[row]:
+                placed[at] = placed[at - 1]
+                at -= 1
+            placed[at] = row
+        for j in range(min(max_sources, n_found)):
+            out[i, j] = placed[j]
+    return out

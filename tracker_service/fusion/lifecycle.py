@@ -85,6 +85,7 @@ def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -
     else:
         _found(state, estimator, numbers, founders)
     nearby.refresh(sys, numbers, state.compiled)
+    state.local.feed(founders, numbers)
     state.stats.system_tracks_created += int(numbers.size)
     return numbers
 
@@ -123,8 +124,8 @@ def _free_numbers(state: FusionState, k: int) -> IntArray:
 def _found(
     state: FusionState, estimator: SystemEstimator, numbers: IntArray, founders: IntArray
 ) -> None:
-    """``create``'s writes: each system track from its founding local track, which
-    joins it."""
+    """``create``'s writes: each system track from its founding local track, whose
+    tests start again (it joins the track by ``LocalTrackTable.feed``)."""
     sys, loc = state.sys, state.local.rows
     sys["alive"][numbers] = True
     sys["born"][numbers] = state.now
@@ -152,7 +153,6 @@ def _found(
     mu = loc["mu"][founders]
     known = mu.sum(axis=1) > 0.0
     sys["mu"][numbers] = np.where(known[:, None], mu, state.models.initial_probabilities)
-    loc["system"][founders] = numbers
     loc["fails"][founders] = 0
     loc["nis_n"][founders] = 0
     loc["t_founder"][founders] = np.nan
@@ -212,7 +212,6 @@ FOUNDING_LOCAL_FIELDS = (
     "address",
     "mode3a",
     "mu",
-    "system",
     "fails",
     "nis_n",
     "t_founder",
@@ -250,8 +249,8 @@ def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> 
     same = np.flatnonzero(
         loc["alive"][:n] & (loc["radar"][:n] == radar) & marked_numbers(target)[loc["system"][:n]]
     )
-    loc["system"][same] = 0
-    loc["system"][joined] = target
+    state.local.feed(same, 0)
+    state.local.feed(joined, target)
     orphaned = ~np.isnan(sys["orphaned"][target])
     sys["solo"][target] &= orphaned & (sys["founder_radar"][target] == radar)
     sys["orphaned"][target] = np.nan
@@ -576,10 +575,10 @@ def _release(state: FusionState, numbers: IntArray, moved_to: IntArray | None = 
     sys = state.sys
     loc = state.local.used
     if moved_to is None:
-        loc["system"][marked_numbers(numbers)[loc["system"]]] = 0
+        state.local.feed(np.flatnonzero(marked_numbers(numbers)[loc["system"]]), 0)
     else:
         for number, target in zip(numbers.tolist(), moved_to.tolist(), strict=True):
-            loc["system"][loc["system"] == number] = target
+            state.local.feed(np.flatnonzero(loc["system"] == number), target)
         sys["solo"][moved_to] = False
     sys["alive"][numbers] = False
     sys["freed_at"][numbers] = state.now
