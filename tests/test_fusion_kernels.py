@@ -83,7 +83,6 @@ def _states(
     mm[np.broadcast_to(insensitive[:, None, :], (k, m, n_radars))] = 0.0
     sys["mM"][n] = mm
     sys["B"][n] = _spd(rng, (k, n_radars), np.array([60.0, 60.0]))
-    nearby.refresh(sys, n, compiled=True)  # the radars the compiled predictions compute
     local = states[0].local
     rows = local.find(0, _local_updates(rng, k), create=True)
     local.rows["t"][rows] = rng.uniform(-5.0, 15.0, k)
@@ -258,18 +257,10 @@ def test_compiled_and_numpy_fusers_give_the_same_rows(method: str) -> None:
     # The pre-selection's terms kept by every writer are those the live tracks hold now.
     sys = fusers["compiled"].state.sys
     alive = np.flatnonzero(sys["alive"])
-    kept = {
-        name: sys[name][alive].copy()
-        for name in ("moments", "sensitivity", "largest_bias", "sensitive")
-    }
+    kept = {name: sys[name][alive].copy() for name in ("moments", "sensitivity", "largest_bias")}
     nearby.refresh(sys, alive, compiled=True)
     for name, value in kept.items():
         np.testing.assert_array_equal(value, sys[name][alive], err_msg=name)
-    # The radars the predictions compute: those some model holds a sensitivity to.
-    held = (sys["mM"][alive] != 0.0).any(axis=(1, 3, 4))
-    np.testing.assert_array_equal(kept["sensitive"], held)
-    if method == "plots":
-        assert held.any()
 
 
 @settings(max_examples=25, deadline=None)
@@ -818,7 +809,7 @@ def test_founding_is_the_reference(
     )
     np.testing.assert_array_equal(got, want)
     # The pre-selection's terms (``nearby.refresh``) only the compiled path keeps.
-    for name in set(sys) - {"moments", "sensitivity", "largest_bias", "sensitive"}:
+    for name in set(sys) - {"moments", "sensitivity", "largest_bias"}:
         np.testing.assert_array_equal(compiled.sys[name], reference.sys[name], err_msg=name)
     for name in local.rows:
         np.testing.assert_array_equal(

@@ -200,7 +200,6 @@ def consider_predict(
     mP: FloatArray,
     mM: FloatArray,
     mu: FloatArray,
-    sensitive: BoolArray,
     numbers: IntArray,
     dt: FloatArray,
     omega: FloatArray,
@@ -208,8 +207,7 @@ def consider_predict(
     sojourn: FloatArray,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
     """System tracks ``numbers`` predicted over dt (``consider.predict``), combined:
-    states (k, 4), noise covariances (k, 4, 4), sensitivities (k, L, 4, 2); ``sensitive``
-    the table's radars each track is sensitive to (``refresh_moments``)."""
+    states (k, 4), noise covariances (k, 4, 4), sensitivities (k, L, 4, 2)."""
     k, m, n_radars = numbers.size, mx.shape[1], mM.shape[2]
     xp = np.empty((1, m, 4))
     pp = np.empty((1, m, 4, 4))
@@ -225,7 +223,7 @@ def consider_predict(
     active = np.empty(n_radars, dtype=np.bool_)
     scratch = _prediction_scratch(m, n_radars)
     for r in range(k):
-        active[:] = sensitive[numbers[r]]
+        _sensitive(mM, numbers[r], -1, active)
         _predict_track(
             mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, active, scratch
         )
@@ -243,7 +241,6 @@ def plot_filter_output(
     mP: FloatArray,
     mM: FloatArray,
     mu: FloatArray,
-    sensitive: BoolArray,
     sys_t: FloatArray,
     solo: npt.NDArray[np.bool_],
     B: FloatArray,
@@ -262,7 +259,7 @@ def plot_filter_output(
     dt = np.empty(k)
     for r in range(k):
         dt[r] = t[r] - sys_t[numbers[r]]
-    x, p, m_comb = consider_predict(mx, mP, mM, mu, sensitive, numbers, dt, omega, q, sojourn)
+    x, p, m_comb = consider_predict(mx, mP, mM, mu, numbers, dt, omega, q, sojourn)
     for r in range(k):
         if not solo[numbers[r]]:
             continue
@@ -707,7 +704,6 @@ def filter_round(
     mP: FloatArray,
     mM: FloatArray,
     mu: FloatArray,
-    sensitive: BoolArray,
     x: FloatArray,
     P: FloatArray,
     M: FloatArray,
@@ -725,8 +721,7 @@ def filter_round(
     """One round of ``estimator_plots._filter_round`` in place on the system table's
     fields: each system track of ``numbers`` (distinct) predicted to its plot's time,
     every model updated with the plot z (k, 2), R (k, 2, 2) of ``radar``, the radars'
-    residual biases B considered (``consider.update``), then combined; ``sensitive``
-    read as ``consider_predict`` reads it (the caller refreshes it after the round)."""
+    residual biases B considered (``consider.update``), then combined."""
     k, m, n_radars = numbers.size, mx.shape[1], mM.shape[2]
     xp = np.empty((1, m, 4))
     pp = np.empty((1, m, 4, 4))
@@ -752,8 +747,7 @@ def filter_round(
     scratch = _prediction_scratch(m, n_radars)
     for r in range(k):
         n = numbers[r]
-        active[:] = sensitive[n]
-        active[radar] = True
+        _sensitive(mM, n, radar, active)
         _predict_track(
             mx, mP, mM, mu, n, time[r] - t[n], omega, q, sojourn, xp, pp, mp, c, 0, active, scratch
         )
@@ -1728,12 +1722,10 @@ def refresh_moments(
     mu: FloatArray,
     M: FloatArray,
     B: FloatArray,
-    mM: FloatArray,
     numbers: IntArray,
     moments: FloatArray,
     sensitivity: FloatArray,
     largest_bias: FloatArray,
-    sensitive: BoolArray,
 ) -> None:  # pragma: no cover - compiled
     """The pre-selection's per-track terms of system tracks ``numbers`` into the table's
     fields ``moments`` (the IMM's combined state and the entries of its covariance that
@@ -1741,13 +1733,10 @@ def refresh_moments(
     squared norms of M's position and velocity rows, over every radar) and
     ``largest_bias`` (the largest trace of the radars' B, from 0): what
     ``system_reach`` read from each candidate's models and sensitivities per call (a
-    kilobyte or more a track, every open system track each batch), and ``sensitive``
-    (``_sensitive``: the radars it holds a sensitivity to, which each prediction scanned
-    its 10 kB of sensitivities for, some three predictions a track and batch)."""
+    kilobyte or more a track, every open system track each batch)."""
     m = mu.shape[1]
     for i in range(numbers.size):
         r = numbers[i]
-        _sensitive(mM, r, -1, sensitive[r])
         for a in range(4):
             acc = 0.0
             for j in range(m):

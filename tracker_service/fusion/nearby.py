@@ -141,10 +141,8 @@ def system_largest_bias(sys: Columns, numbers: IntArray, compiled: bool) -> floa
 def refresh(sys: Columns, numbers: IntArray, compiled: bool) -> None:
     """After the models, sensitivities or residual biases of system tracks ``numbers``
     changed: their terms of the compiled pre-selection (the fields ``moments``,
-    ``sensitivity`` and ``largest_bias``, ``kernels.refresh_moments``) and the radars
-    they are sensitive to (``sensitive``, which the compiled predictions read), which
-    every writer of mx, mP, mu, M, mM or B calls; the numpy path reads the fields
-    themselves."""
+    ``sensitivity`` and ``largest_bias``, ``kernels.refresh_moments``), which every
+    writer of mx, mP, mu, M or B calls; the numpy path reads the fields themselves."""
     if not compiled or numbers.size == 0:
         return
     from tracker_service.fusion.kernels import refresh_moments
@@ -155,12 +153,10 @@ def refresh(sys: Columns, numbers: IntArray, compiled: bool) -> None:
         sys["mu"],
         sys["M"],
         sys["B"],
-        sys["mM"],
         kernel_indices(numbers),
         sys["moments"],
         sys["sensitivity"],
         sys["largest_bias"],
-        sys["sensitive"],
     )
 
 

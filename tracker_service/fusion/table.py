@@ -98,12 +98,10 @@ def system_dtype(n_models: int, n_radars: int) -> np.dtype[Any]:
             ("mu", np.float64, (n_models,)),
             ("mM", np.float64, (n_models, n_radars, 4, 2)),
             # The compiled pre-selection's terms of the above (``nearby.refresh``): the
-            # models' combined state and covariance entries, M's norms, B's largest trace;
-            # and the radars whose sensitivities the compiled predictions compute.
+            # models' combined state and covariance entries, M's norms, B's largest trace.
             ("moments", np.float64, (7,)),
             ("sensitivity", np.float64, (2,)),
             ("largest_bias", np.float64),
-            ("sensitive", np.bool_, (n_radars,)),  # some model's mM of the radar not 0
         ]
     )
 
