@@ -29,7 +29,8 @@ from tracker_service.fusion import (
     nearby,
     rows,
 )
-from tracker_service.fusion.estimator_tracks import fuse_local_tracks
+from tracker_service.fusion.estimator import SystemEstimator
+from tracker_service.fusion.estimator_tracks import TrackFusionEstimator, fuse_local_tracks
 from tracker_service.fusion.messages import COASTING, ENDED
 from tracker_service.fusion.references import References, references
 from tracker_service.fusion.state import FusionState, PairEvidence
@@ -269,15 +270,28 @@ def test_slots_are_the_references(seed: int, k: int, max_sources: int) -> None:
     times drawn from few values), dead rows and other system tracks left out."""
     rng = np.random.default_rng(seed)
     tables = [LocalTrackTable(5, compiled=flag) for flag in (False, True)]
-    rows = tables[0].find(0, _local_updates(rng, k), create=True)
-    loc = tables[0].rows
-    loc["system"][rows] = rng.integers(0, 12, k)
-    loc["alive"][rows] = rng.random(k) < 0.8
-    loc["t_plot"][rows] = rng.choice([-np.inf, 1.0, 2.0, 3.0], k)
-    tables[1].rows, tables[1].n = loc, tables[0].n
-    numbers = rng.integers(1, 14, int(rng.integers(0, 20)))
-    want, got = (table.slots(numbers, max_sources) for table in tables)
-    np.testing.assert_array_equal(want, got)
+    u = _local_updates(rng, k)
+    rows = tables[1].find(0, u, create=True)
+    assert (tables[0].find(0, u, create=True) == rows).all()
+    # The compiled table's lists of feeders kept through moves (rows given twice among
+    # them: the last number holds), the reference's column written at once.
+    compiled = tables[1]
+    for _ in range(3):
+        moved = rng.choice(rows, rows.size) if rows.size else rows
+        compiled.feed(moved, rng.integers(0, 12, moved.size))
+    tables[0].rows["system"][:] = compiled.rows["system"]
+    alive, t_plot = rng.random(k) < 0.8, rng.choice([-np.inf, 1.0, 2.0, 3.0], k)
+    for table in tables:
+        table.rows["alive"][rows] = alive
+        table.rows["t_plot"][rows] = t_plot
+    drawn = rng.integers(0, 14, int(rng.integers(0, 20)))
+    # With a 0 (the unfed rows: by the pass over the table) and without.
+    for numbers in (drawn, drawn[drawn > 0]):
+        want, got = (table.slots(numbers, max_sources) for table in tables)
+        np.testing.assert_array_equal(want, got)
+        relinked = copy.deepcopy(compiled)
+        relinked.relink()
+        np.testing.assert_array_equal(want, relinked.slots(numbers, max_sources))
 
 
 @settings(max_examples=50, deadline=None)
@@ -339,6 +353,7 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
     system = rng.integers(1, 9, states[0].local.n)
     for state in states:
         state.local.rows["system"][: state.local.n] = system
+        state.local.relink()
     feeding = np.flatnonzero(rng.random(states[0].local.n) < 0.8)
     li = rng.choice(feeding, candidates) if feeding.size else np.zeros(0, dtype=np.int64)
     # As in use, S' is fed by a feeding row (of the candidate's radar or not; the
@@ -695,6 +710,7 @@ def test_review_tests_are_the_reference(seed: int, k: int, n_radars: int) -> Non
     for state in (compiled, reference):
         loc = state.local.rows
         loc["system"][held] = systems
+        compiled.local.relink()
         loc["x"][held[near]] = x
         loc["fails"][held], loc["nis_n"][held], loc["nis_mean"][held] = fails, nis_n, nis_mean
         state.sys["solo"][: k + 1] = solo
@@ -718,6 +734,7 @@ def test_plotted_updates_are_the_reference(seed: int, k: int, n_plots: int) -> N
     system = rng.integers(0, 6, 12)
     for state in (compiled, reference):
         state.local.rows["system"][:12] = system
+        state.local.relink()
     u = _local_updates(rng, k)
     u["plot_id"] = rng.integers(0, 25, k)
     p = np.zeros(n_plots, dtype=PLOT_DTYPE)
@@ -731,3 +748,71 @@ def test_plotted_updates_are_the_reference(seed: int, k: int, n_plots: int) -> N
     )
     for a, b in zip(want, got, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=SEEDS,
+    founders=st.integers(0, 12),
+    live=st.integers(0, 40),
+    size=st.sampled_from([8, 20, 64]),
+    carries_bias=st.booleans(),
+)
+def test_founding_is_the_reference(
+    seed: int, founders: int, live: int, size: int, carries_bias: bool
+) -> None:
+    """``lifecycle.create`` by its kernels (``due_numbers``, ``found_system_tracks``)
+    against the numpy path: the same numbers (free and due, then, when they run short,
+    within their delay, or none left), every field of both tables the same bits, the
+    same counts; founders with model probabilities and without, freed times in the
+    future and NaN among them, on small tables so that numbers run short."""
+    rng = np.random.default_rng(seed)
+    models = ModelSet.from_config(FusionConfig().plot_filter)
+    n_radars = 3
+    states = [
+        FusionState(FusionConfig(implementation=impl, number_reuse_delay_s=30.0), n_radars, models)
+        for impl in ("compiled", "numpy")
+    ]
+    compiled = states[0]
+    full = compiled.sys
+    sys = compiled.sys = Columns(full.dtype, {name: full[name][:size].copy() for name in full})
+    sys["alive"][1:] = rng.uniform(size=size - 1) < live / 40
+    sys["freed_at"][1:] = rng.choice([-np.inf, 10.0, 80.0, 120.0, np.nan], size - 1)
+    local = compiled.local
+    k = max(founders, 1)
+    rows_ = local.find(int(rng.integers(0, n_radars)), _local_updates(rng, k), create=True)
+    loc = local.rows
+    loc["radar"][rows_] = rng.integers(0, n_radars, k)
+    loc["t"][rows_] = rng.uniform(0.0, 100.0, k)
+    loc["x"][rows_] = rng.normal(0.0, 1e4, (k, 4))
+    loc["P"][rows_] = _spd(rng, (k,), np.array([100.0, 100.0, 8.0, 8.0]))
+    loc["extra"][rows_] = _spd(rng, (k,), np.array([40.0, 40.0]))
+    loc["t_plot"][rows_] = rng.uniform(0.0, 100.0, k)
+    loc["address"][rows_] = rng.integers(-1, 5, k)
+    loc["mode3a"][rows_] = rng.integers(-1, 5, k)
+    loc["mu"][rows_] = np.where(
+        rng.uniform(size=(k, 1)) < 0.5, rng.dirichlet(np.ones(models.n_models), k), 0.0
+    )
+    loc["fails"][rows_] = 3
+    loc["nis_n"][rows_] = 4
+    loc["t_founder"][rows_] = 1.0
+    reference = states[1]
+    reference.sys = Columns(sys.dtype, {name: sys[name].copy() for name in sys})
+    reference.local = copy.deepcopy(local)
+    estimator: SystemEstimator = (
+        estimator_plots.PlotFilterEstimator() if carries_bias else TrackFusionEstimator()
+    )
+    for state in states:
+        state.now = 100.0
+    got, want = (
+        lifecycle.create(state, estimator, rows_[:founders]) for state in (compiled, reference)
+    )
+    np.testing.assert_array_equal(got, want)
+    # The pre-selection's terms (``nearby.refresh``) only the compiled path keeps.
+    for name in set(sys) - {"moments", "sensitivity", "largest_bias"}:
+        np.testing.assert_array_equal(compiled.sys[name], reference.sys[name], err_msg=name)
+    for name in local.rows:
+        np.testing.assert_array_equal(
+            compiled.local.rows[name], reference.local.rows[name], err_msg=name
+        )
+    assert dataclasses.asdict(compiled.stats) == dataclasses.asdict(reference.stats)

@@ -168,7 +168,7 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         if pair[0] in done or pair[1] in done:
             continue
         a, b = int(pair_a[k]), int(pair_b[k])
-        loc["system"][a], loc["system"][b] = loc["system"][b], loc["system"][a]
+        state.local.feed(np.array([a, b]), loc["system"][[b, a]])
         _restart_tests(state, np.array([a, b]))
         done.update(pair)
         state.stats.exchanges += 1
@@ -345,7 +345,7 @@ def _leave(state: FusionState, rows: IntArray) -> None:
     """The local tracks ``rows`` leave their system tracks, their tests restarted."""
     if rows.size == 0:
         return  # the usual batch: four writes of nothing saved
-    state.local.rows["system"][rows] = 0
+    state.local.feed(rows, 0)
     _restart_tests(state, rows)
 
 

@@ -2244,3 +2244,197 @@ def expiring(
             orphans[n_orphans] = r
             n_orphans += 1
     return silent[:n_silent].copy(), orphans[:n_orphans].copy()
+
+
+@numba.njit(cache=True)
+def due_numbers(
+    alive: BoolArray, freed_at: FloatArray, now: float, reuse_delay: float, k: int
+) -> IntArray:  # pragma: no cover - compiled
+    """``lifecycle.create``'s lowest k free numbers (above 0, not alive) whose reuse
+    delay has passed, a number freed "later" than now taken as freed now; fewer when
+    fewer are due. The pass stops at the k-th (the numpy path tests all 4,096)."""
+    out = np.empty(k, dtype=np.int64)
+    n = 0
+    for r in range(1, alive.size):
+        if n == k:
+            break
+        if alive[r]:
+            continue
+        # np.minimum's: NaN stays NaN (never due).
+        ended = now if freed_at[r] > now else freed_at[r]
+        if ended + reuse_delay <= now:
+            out[n] = r
+            n += 1
+    return out[:n].copy()
+
+
+@numba.njit(cache=True)
+def found_system_tracks(
+    numbers: IntArray,
+    founders: IntArray,
+    now: float,
+    founder_bias: FloatArray,
+    initial_mu: FloatArray,
+    sys_alive: BoolArray,
+    sys_born: FloatArray,
+    sys_solo: BoolArray,
+    sys_orphaned: FloatArray,
+    sys_t_row: FloatArray,
+    sys_row_interval: FloatArray,
+    sys_fl: FloatArray,
+    sys_t: FloatArray,
+    sys_x: FloatArray,
+    sys_P: FloatArray,
+    sys_founder_radar: IntArray,
+    sys_B: FloatArray,
+    sys_M: FloatArray,
+    sys_mM: FloatArray,
+    sys_t_plot: FloatArray,
+    sys_address: IntArray,
+    sys_mode3a: IntArray,
+    sys_mx: FloatArray,
+    sys_mP: FloatArray,
+    sys_mu: FloatArray,
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    loc_radar: IntArray,
+    loc_extra: FloatArray,
+    loc_t_plot: FloatArray,
+    loc_address: IntArray,
+    loc_mode3a: IntArray,
+    loc_mu: FloatArray,
+    loc_fails: IntArray,
+    loc_nis_n: IntArray,
+    loc_t_founder: FloatArray,
+) -> None:  # pragma: no cover - compiled
+    """``lifecycle.create``'s writes, row by row: system track numbers[i] from local row
+    founders[i] (its state in every model, its radar's residual bias, ``founder_bias``
+    (4, 2) its sensitivity to that radar's bias, zero when the founder carries none),
+    its model probabilities the founder's when known (any above 0) else
+    ``initial_mu``; the founder's tests restarted (it joins by ``assign_feeders``)."""
+    m, n_radars = sys_mx.shape[1], sys_M.shape[1]
+    for i in range(numbers.size):
+        n, f = numbers[i], founders[i]
+        radar = loc_radar[f]
+        sys_alive[n] = True
+        sys_born[n] = now
+        sys_solo[n] = True
+        sys_orphaned[n] = np.nan
+        sys_t_row[n] = -np.inf
+        sys_row_interval[n] = np.nan
+        sys_fl[n] = np.nan
+        sys_t[n] = loc_t[f]
+        sys_x[n] = loc_x[f]
+        sys_P[n] = loc_P[f]
+        sys_founder_radar[n] = radar
+        sys_B[n] = 0.0
+        sys_B[n, radar] = loc_extra[f]
+        sys_M[n] = 0.0
+        sys_M[n, radar] = founder_bias
+        for j in range(m):
+            for sensor in range(n_radars):
+                sys_mM[n, j, sensor] = sys_M[n, sensor]
+            sys_mx[n, j] = loc_x[f]
+            sys_mP[n, j] = loc_P[f]
+        sys_t_plot[n] = loc_t_plot[f]
+        sys_address[n] = loc_address[f]
+        sys_mode3a[n] = loc_mode3a[f]
+        total = 0.0
+        for j in range(m):
+            total += loc_mu[f, j]
+        sys_mu[n] = loc_mu[f] if total > 0.0 else initial_mu
+        loc_fails[f] = 0
+        loc_nis_n[f] = 0
+        loc_t_founder[f] = np.nan
+
+
+@numba.njit(cache=True)
+def assign_feeders(
+    rows: IntArray, numbers: IntArray, system: IntArray, head: IntArray, next_row: IntArray
+) -> None:  # pragma: no cover - compiled
+    """``table.LocalTrackTable.feed``: system[rows[i]] = numbers[i] in order (0: none),
+    each row moved from its old system track's list of feeders (``head``, ``next_row``:
+    singly linked, a few rows each) to its new one's."""
+    for i in range(rows.size):
+        r, g = rows[i], numbers[i]
+        old = system[r]
+        if old == g:
+            continue
+        if old > 0:
+            if head[old] == r:
+                head[old] = next_row[r]
+            else:
+                q = head[old]
+                while next_row[q] != r:
+                    q = next_row[q]
+                next_row[q] = next_row[r]
+            next_row[r] = -1
+        system[r] = g
+        if g > 0:
+            next_row[r] = head[g]
+            head[g] = r
+
+
+@numba.njit(cache=True)
+def link_feeders(system: IntArray, head: IntArray, next_row: IntArray) -> None:  # pragma: no cover
+    """The lists of ``assign_feeders`` built afresh from the column ``system`` (its rows
+    in use)."""
+    head[:] = -1
+    next_row[:] = -1
+    for r in range(system.size - 1, -1, -1):
+        g = system[r]
+        if g > 0:
+            next_row[r] = head[g]
+            head[g] = r
+
+
+@numba.njit(cache=True)
+def feeder_slots(
+    numbers: IntArray,
+    head: IntArray,
+    next_row: IntArray,
+    system: IntArray,
+    alive: npt.NDArray[np.bool_],
+    t_plot: FloatArray,
+    max_sources: int,
+    width: int,
+) -> IntArray:  # pragma: no cover - compiled
+    """``slots_of`` from the lists of each system track's feeders (``assign_feeders``)
+    instead of a pass over the table: a track's alive rows in row order, then placed as
+    ``slots_of`` places them (by descending t_plot, after the equal ones). Numbers below
+    1 (those of no system track: every unfed row) by ``slots_of``'s pass."""
+    for n in numbers:
+        if n <= 0:
+            return slots_of(numbers, system, alive, t_plot, max_sources, width)
+    out = np.full((numbers.size, width), -1, dtype=np.int64)
+    found = np.empty(16, dtype=np.int64)
+    placed = np.empty(16, dtype=np.int64)
+    for i in range(numbers.size):
+        n_found = 0
+        r = head[numbers[i]]
+        while r >= 0:
+            if alive[r]:
+                if n_found == found.size:
+                    grown = np.empty(2 * found.size, dtype=np.int64)
+                    grown[:n_found] = found[:n_found]
+                    found = grown
+                    placed = np.empty(found.size, dtype=np.int64)
+                # Insertion in ascending row order: the order of ``slots_of``'s pass.
+                at = n_found
+                while at > 0 and found[at - 1] > r:
+                    found[at] = found[at - 1]
+                    at -= 1
+                found[at] = r
+                n_found += 1
+            r = next_row[r]
+        for q in range(n_found):
+            row = found[q]
+            at = q
+            while at > 0 and t_plot[placed[at - 1]] < t_plot[row]:
+                placed[at] = placed[at - 1]
+                at -= 1
+            placed[at] = row
+        for j in range(min(max_sources, n_found)):
+            out[i, j] = placed[j]
+    return out

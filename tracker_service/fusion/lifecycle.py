@@ -75,27 +75,58 @@ def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -
     ``numbers_reused_early``): a display may show a number again sooner than the delay
     promises, but no aircraft goes without a system track while a number is idle. Only
     with every number live does a founder wait (``numbers_exhausted``)."""
-    sys, loc = state.sys, state.local.rows
+    sys = state.sys
+    numbers = _free_numbers(state, founders.size)
+    founders = founders[: numbers.size]
+    if numbers.size == 0:
+        return numbers
+    if state.compiled:
+        _found_compiled(state, estimator, numbers, founders)
+    else:
+        _found(state, estimator, numbers, founders)
+    nearby.refresh(sys, numbers, state.compiled)
+    state.local.feed(founders, numbers)
+    state.stats.system_tracks_created += int(numbers.size)
+    return numbers
+
+
+def _free_numbers(state: FusionState, k: int) -> IntArray:
+    """``create``'s numbers for k founders (fewer only with every number live): the
+    lowest free ones whose reuse delay has passed, then those still within it, the
+    longest ended first; compiled, the pass over the table stops at the k-th due one."""
+    sys = state.sys
+    delay = state.config.number_reuse_delay_s
+    if state.compiled:
+        from tracker_service.fusion.kernels import due_numbers  # numba when compiled
+
+        free = due_numbers(sys["alive"], sys["freed_at"], state.now, delay, k)
+        if free.size == k:
+            return free
     # A number freed "later" than now (the clock came back from a jump) waits its
     # delay from now, not from a time that never was.
     ended = np.minimum(sys["freed_at"], state.now)
     idle = ~sys["alive"]
     idle[0] = False
-    due = ended + state.config.number_reuse_delay_s <= state.now
+    due = ended + delay <= state.now
     free = np.flatnonzero(idle & due)
-    if free.size < founders.size:
+    if free.size < k:
         state.stats.last_number_shortage = state.now
         waiting = np.flatnonzero(idle & ~due)
         early = waiting[np.argsort(ended[waiting], kind="stable")]
-        early = early[: founders.size - free.size]
+        early = early[: k - free.size]
         state.stats.numbers_reused_early += int(early.size)
         free = np.concatenate([free, early])
-    if free.size < founders.size:
-        state.stats.numbers_exhausted += int(founders.size - free.size)
-        founders = founders[: free.size]
-    numbers = free[: founders.size]
-    if numbers.size == 0:
-        return numbers
+    if free.size < k:
+        state.stats.numbers_exhausted += int(k - free.size)
+    return free[:k]
+
+
+def _found(
+    state: FusionState, estimator: SystemEstimator, numbers: IntArray, founders: IntArray
+) -> None:
+    """``create``'s writes: each system track from its founding local track, whose
+    tests start again (it joins the track by ``LocalTrackTable.feed``)."""
+    sys, loc = state.sys, state.local.rows
     sys["alive"][numbers] = True
     sys["born"][numbers] = state.now
     sys["solo"][numbers] = True
@@ -122,14 +153,70 @@ def create(state: FusionState, estimator: SystemEstimator, founders: IntArray) -
     mu = loc["mu"][founders]
     known = mu.sum(axis=1) > 0.0
     sys["mu"][numbers] = np.where(known[:, None], mu, state.models.initial_probabilities)
-    nearby.refresh(sys, numbers, state.compiled)
-    loc["system"][founders] = numbers
     loc["fails"][founders] = 0
     loc["nis_n"][founders] = 0
     loc["t_founder"][founders] = np.nan
-    state.stats.system_tracks_created += int(numbers.size)
-    return numbers
 
+
+def _found_compiled(
+    state: FusionState, estimator: SystemEstimator, numbers: IntArray, founders: IntArray
+) -> None:
+    """``_found`` in one kernel call (``kernels.found_system_tracks``; some forty numpy
+    writes a founding batch cost more than the founding's arithmetic)."""
+    from tracker_service.fusion.kernels import found_system_tracks  # numba when compiled
+
+    sys, loc = state.sys, state.local.rows
+    founder_bias = consider.POSITION if estimator.founder_carries_bias else np.zeros((4, 2))
+    found_system_tracks(
+        kernel_indices(numbers),
+        kernel_indices(founders),
+        state.now,
+        np.ascontiguousarray(founder_bias, dtype=np.float64),
+        np.ascontiguousarray(state.models.initial_probabilities, dtype=np.float64),
+        *(sys[name] for name in FOUNDED_SYSTEM_FIELDS),
+        *(loc[name] for name in FOUNDING_LOCAL_FIELDS),
+    )
+
+
+FOUNDED_SYSTEM_FIELDS = (
+    "alive",
+    "born",
+    "solo",
+    "orphaned",
+    "t_row",
+    "row_interval",
+    "fl",
+    "t",
+    "x",
+    "P",
+    "founder_radar",
+    "B",
+    "M",
+    "mM",
+    "t_plot",
+    "address",
+    "mode3a",
+    "mx",
+    "mP",
+    "mu",
+)
+"""The system table's fields ``kernels.found_system_tracks`` writes, in its order."""
+
+FOUNDING_LOCAL_FIELDS = (
+    "t",
+    "x",
+    "P",
+    "radar",
+    "extra",
+    "t_plot",
+    "address",
+    "mode3a",
+    "mu",
+    "fails",
+    "nis_n",
+    "t_founder",
+)
+"""The local table's fields it reads and writes, in its order."""
 
 NUMBER_SHORTAGE_SHOWN_S = 60.0
 """How long (data time) the status says the numbers ran short after they last did."""
@@ -162,8 +249,8 @@ def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> 
     same = np.flatnonzero(
         loc["alive"][:n] & (loc["radar"][:n] == radar) & marked_numbers(target)[loc["system"][:n]]
     )
-    loc["system"][same] = 0
-    loc["system"][joined] = target
+    state.local.feed(same, 0)
+    state.local.feed(joined, target)
     orphaned = ~np.isnan(sys["orphaned"][target])
     sys["solo"][target] &= orphaned & (sys["founder_radar"][target] == radar)
     sys["orphaned"][target] = np.nan
@@ -488,10 +575,10 @@ def _release(state: FusionState, numbers: IntArray, moved_to: IntArray | None = 
     sys = state.sys
     loc = state.local.used
     if moved_to is None:
-        loc["system"][marked_numbers(numbers)[loc["system"]]] = 0
+        state.local.feed(np.flatnonzero(marked_numbers(numbers)[loc["system"]]), 0)
     else:
         for number, target in zip(numbers.tolist(), moved_to.tolist(), strict=True):
-            loc["system"][loc["system"] == number] = target
+            state.local.feed(np.flatnonzero(loc["system"] == number), target)
         sys["solo"][moved_to] = False
     sys["alive"][numbers] = False
     sys["freed_at"][numbers] = state.now

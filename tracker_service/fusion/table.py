@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.fusion.arrays import is_member, last_of_each, rank_within
+from tracker_service.fusion.arrays import is_member, kernel_indices, last_of_each, rank_within
 from tracker_service.fusion.messages import MAX_SOURCES, MAX_SYSTEM_NUMBER
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
@@ -209,6 +209,11 @@ class LocalTrackTable:
         """Rows of ``rows[:n]`` removed (not alive) since the last compaction."""
         self._index_keys = np.zeros(0, dtype=np.int64)
         self._index_rows = np.zeros(0, dtype=np.int64)
+        # Compiled: the rows feeding each system track, a singly linked list per track
+        # (``kernels.assign_feeders``), kept by ``feed``, which every writer of the
+        # column ``system`` calls, so that ``slots`` needs no pass over the table.
+        self._feeder_head = np.full(MAX_SYSTEM_NUMBER + 1, -1, dtype=np.int64)
+        self._feeder_next = np.full(self.rows.shape[0], -1, dtype=np.int64)
 
     @property
     def used(self) -> Head:
@@ -261,6 +266,9 @@ class LocalTrackTable:
             grown = Columns.zeros(max(2 * self.rows.shape[0], start + k), self.rows.dtype)
             grown.put(slice(0, start), self.rows.take(slice(0, start)))
             self.rows = grown
+            next_row = np.full(grown.shape[0], -1, dtype=np.int64)
+            next_row[:start] = self._feeder_next[:start]
+            self._feeder_next = next_row
         self.n = start + k
         return start
 
@@ -271,12 +279,39 @@ class LocalTrackTable:
         self._index_keys = loc["key"][live][order]
         self._index_rows = live[order]
 
+    def feed(self, rows: IntArray, numbers: IntArray | int) -> None:
+        """Local rows ``rows`` feed system tracks ``numbers`` (0: none), written in order
+        (a row given twice ends with its last): the one writer of the column ``system``
+        (compiled, the lists of each track's feeders kept with it)."""
+        if rows.size == 0:
+            return
+        if not self.compiled:
+            self.rows["system"][rows] = numbers
+            return
+        from tracker_service.fusion.kernels import assign_feeders
+
+        assign_feeders(
+            kernel_indices(rows),
+            kernel_indices(np.broadcast_to(np.asarray(numbers, dtype=np.int64), rows.shape)),
+            self.rows["system"],
+            self._feeder_head,
+            self._feeder_next,
+        )
+
+    def relink(self) -> None:
+        """The lists of feeders built afresh from the column ``system`` (after rows
+        moved, or a test wrote the column)."""
+        if self.compiled:
+            from tracker_service.fusion.kernels import link_feeders
+
+            link_feeders(self.rows["system"][: self.n], self._feeder_head, self._feeder_next)
+
     def remove(self, rows: IntArray) -> None:
         """Deleted local tracks (distinct rows) leave their system tracks and the index."""
         if rows.size:
             self.removed += int(np.count_nonzero(self.rows["alive"][rows]))
             self.rows["alive"][rows] = False
-            self.rows["system"][rows] = 0
+            self.feed(rows, 0)
             kept = ~is_member(self._index_rows, rows)
             self._index_keys = self._index_keys[kept]
             self._index_rows = self._index_rows[kept]
@@ -292,6 +327,7 @@ class LocalTrackTable:
         self.n = survivors.shape[0]
         self.rows.put(slice(0, self.n), survivors)
         self.reindex()
+        self.relink()
 
     def store(
         self, rows: IntArray, u: npt.NDArray[Any], extra: FloatArray, has_plot: BoolArray
@@ -342,10 +378,17 @@ class LocalTrackTable:
         loc = self.used
         k = numbers.size
         if self.compiled:
-            from tracker_service.fusion.kernels import slots_of
+            from tracker_service.fusion.kernels import feeder_slots
 
-            return slots_of(
-                numbers, loc["system"], loc["alive"], loc["t_plot"], max_sources, MAX_SOURCES
+            return feeder_slots(
+                numbers,
+                self._feeder_head,
+                self._feeder_next,
+                loc["system"],
+                loc["alive"],
+                loc["t_plot"],
+                max_sources,
+                MAX_SOURCES,
             )
         slots = np.full((k, MAX_SOURCES), -1, dtype=np.int64)
         unique, inverse = np.unique(numbers, return_inverse=True)
