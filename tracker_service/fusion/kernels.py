@@ -1630,6 +1630,19 @@ def identities_in_use(
 
 
 @numba.njit(cache=True)
+def _insert_most_recent_first(
+    rows: IntArray, lo: int, hi: int, row: int, t_plot: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """``row`` inserted into ``rows[lo:hi]`` (ordered by descending t_plot), after the
+    rows of equal t_plot: one step of a stable insertion sort (``rows[hi]`` is free)."""
+    at = hi
+    while at > lo and t_plot[rows[at - 1]] < t_plot[row]:
+        rows[at] = rows[at - 1]
+        at -= 1
+    rows[at] = row
+
+
+@numba.njit(cache=True)
 def slots_of(
     numbers: IntArray,
     system: IntArray,
@@ -1664,12 +1677,7 @@ def slots_of(
     for q in range(n_found):
         r = found[q]
         g = system[r]
-        # Insertion by descending t_plot, after the equal ones: a stable sort.
-        at = fill[g]
-        while at > start[g] and t_plot[rows[at - 1]] < t_plot[r]:
-            rows[at] = rows[at - 1]
-            at -= 1
-        rows[at] = r
+        _insert_most_recent_first(rows, start[g], fill[g], r, t_plot)
         fill[g] += 1
     out = np.full((numbers.size, width), -1, dtype=np.int64)
     for i in range(numbers.size):
@@ -2429,12 +2437,7 @@ def feeder_slots(
                 n_found += 1
             r = next_row[r]
         for q in range(n_found):
-            row = found[q]
-            at = q
-            while at > 0 and t_plot[placed[at - 1]] < t_plot[row]:
-                placed[at] = placed[at - 1]
-                at -= 1
-            placed[at] = row
+            _insert_most_recent_first(placed, 0, q, found[q], t_plot)
         for j in range(min(max_sources, n_found)):
             out[i, j] = placed[j]
     return out
