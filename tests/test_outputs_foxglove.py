@@ -433,7 +433,7 @@ def test_layout_opens_on_the_map_of_the_example_configuration() -> None:
     assert first.startswith("map!") and first in panels
     assert panels[first]["layer"] == "map"
     assert panels[first]["center"] == {"lat": 48.6, "lon": 18.6}
-    # The old uncoloured topic is off; the scene's topics are on.
+    # The uncoloured topic of earlier versions' logs is off; the scene's topics are on.
     assert "/map/system_tracks" in panels[first]["disabledTopics"]
     assert not {TRACKS_TOPIC, PICTURE_TOPIC, RADARS_TOPIC} & set(panels[first]["disabledTopics"])
     rest = [layout["layout"]["second"]["first"], layout["layout"]["second"]["second"]]

@@ -40,7 +40,7 @@ import numpy as np
 import numpy.typing as npt
 from pyproj import Geod
 
-from tracker_service.outputs.mcap_log import LOCATION_FIX_SCHEMA
+from tracker_service.mcap_format import JSON_SCHEMA_DIALECT
 from tracker_service.outputs.messages import SystemTrackMessage
 from tracker_service.outputs.updates import (
     STATUSES,
@@ -81,12 +81,71 @@ _EARTH_RADIUS_M = 6_371_000.0
 _RING_POINTS = 72
 _WGS84 = Geod(ellps="WGS84")
 
+# foxglove.LocationFix as Foxglove's own JSON schema states it.
+_LOCATION_FIX_SCHEMA: dict[str, Any] = {
+    "$schema": JSON_SCHEMA_DIALECT,
+    "title": LOCATION_FIX,
+    "description": "A navigation satellite fix for any Global Navigation Satellite System",
+    "type": "object",
+    "properties": {
+        "timestamp": {
+            "type": "object",
+            "title": "time",
+            "properties": {
+                "sec": {"type": "integer", "minimum": 0},
+                "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
+            },
+            "description": "Timestamp of the message",
+        },
+        "frame_id": {"type": "string", "description": "Frame for the sensor."},
+        "latitude": {"type": "number", "description": "Latitude in degrees"},
+        "longitude": {"type": "number", "description": "Longitude in degrees"},
+        "altitude": {"type": "number", "description": "Altitude in meters"},
+        "position_covariance": {
+            "type": "array",
+            "items": {"type": "number"},
+            "minItems": 9,
+            "maxItems": 9,
+            "description": "Position covariance (m^2) defined relative to a tangential "
+            "plane through the reported position. The components are East, North, and Up "
+            "(ENU), in row-major order.",
+        },
+        "position_covariance_type": {
+            "title": "foxglove.PositionCovarianceType",
+            "description": "If `position_covariance` is available, "
+            "`position_covariance_type` must be set to indicate the type of covariance.",
+            "oneOf": [
+                {"title": "UNKNOWN", "const": 0},
+                {"title": "APPROXIMATED", "const": 1},
+                {"title": "DIAGONAL_KNOWN", "const": 2},
+                {"title": "KNOWN", "const": 3},
+            ],
+        },
+        "color": {
+            "title": "foxglove.Color",
+            "description": "Color used to visualize the location",
+            "type": "object",
+            "properties": {c: {"type": "number"} for c in ("r", "g", "b", "a")},
+            "required": ["r", "g", "b", "a"],
+        },
+        "metadata": {
+            "type": "array",
+            "items": {
+                "title": "foxglove.KeyValuePair",
+                "type": "object",
+                "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
+                "required": ["key", "value"],
+            },
+            "description": "Additional metadata of the fix (identity, label). Keys are unique.",
+        },
+    },
+}
+
 # The two schemas the map panel reads, with the fields Foxglove's schema of that name
 # defines (the panel recognises the schema by its name, the fields by theirs); the tests
-# check them against the Foxglove SDK's own message classes. LocationFix is the log's own
-# (``/map/system_tracks`` shares it: one schema of that name in a file).
+# check them against the Foxglove SDK's own message classes.
 SCHEMAS: dict[str, dict[str, Any]] = {
-    LOCATION_FIX: LOCATION_FIX_SCHEMA,
+    LOCATION_FIX: _LOCATION_FIX_SCHEMA,
     GEOJSON: {
         "title": GEOJSON,
         "description": "GeoJSON data for annotating maps",
