@@ -45,9 +45,9 @@ from typing import Any
 from tracker_service.chain import BatchOutput
 from tracker_service.geodesy import SystemPlane
 from tracker_service.outputs.cat062 import encode_system_batch, encode_system_tracks_generic
-from tracker_service.outputs.mapping import MessageMapper, ModelMapper, location_fix
+from tracker_service.outputs.mapping import MessageMapper, ModelMapper
 from tracker_service.outputs.mcap_log import McapLog
-from tracker_service.outputs.mcap_sink import LOCATION_TOPIC, SYSTEM_TRACKS_TOPIC, McapSink
+from tracker_service.outputs.mcap_sink import SYSTEM_TRACKS_TOPIC, McapSink
 from tracker_service.outputs.messages import LocalTrackMessage, SystemTrackMessage
 from tracker_service.outputs.updates import SystemBatch
 from tracker_service.outputs.zenoh_out import ZenohPublisher
@@ -224,7 +224,6 @@ def run(c: Captured, repeats: int) -> dict[str, Any]:
                     log.log_json(
                         SYSTEM_TRACKS_TOPIC, SystemTrackMessage, s.model_dump_json().encode(), now
                     )
-                    log.log_locations(LOCATION_TOPIC, location_fix(s))
 
     def mcap_new() -> None:
         with McapLog(tmp / f"new{time.monotonic_ns()}", name="new") as log:

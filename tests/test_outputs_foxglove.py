@@ -433,7 +433,7 @@ def test_layout_opens_on_the_map_of_the_example_configuration() -> None:
     assert first.startswith("map!") and first in panels
     assert panels[first]["layer"] == "map"
     assert panels[first]["center"] == {"lat": 48.6, "lon": 18.6}
-    # The old uncoloured topic is off; the scene's topics are on.
+    # The uncoloured topic of earlier versions' logs is off; the scene's topics are on.
     assert "/map/system_tracks" in panels[first]["disabledTopics"]
     assert not {TRACKS_TOPIC, PICTURE_TOPIC, RADARS_TOPIC} & set(panels[first]["disabledTopics"])
     rest = [layout["layout"]["second"]["first"], layout["layout"]["second"]["second"]]
@@ -492,10 +492,16 @@ def test_picture_coordinates_are_pythons_round_and_math_to_the_bit() -> None:
     ]
     for values in samples:
         assert _bits(_round5(values).tolist()) == _bits([round(v, 5) for v in values.tolist()])
+    # Columns at once, as the picture rounds them: the same, Python's rounds in place.
+    columns = np.column_stack((halves, np.nextafter(halves, np.inf), lon[: len(halves)]))
+    columns[::7, 2] = np.nan
+    rounded = _round5(columns)
+    assert rounded.shape == columns.shape
+    assert _bits(rounded.ravel().tolist()) == _bits([round(v, 5) for v in columns.ravel().tolist()])
     lon = np.concatenate([lon, rng.uniform(179.9, 180.0, 1000), np.full(1000, -179.99999)])
     lat = np.concatenate([lat, rng.uniform(89.99, 90.0, 1000), rng.uniform(-90.0, -89.99, 1000)])
     vx, vy = rng.normal(0.0, 300.0, len(lon)), rng.normal(0.0, 300.0, len(lon))
-    ahead_lon, ahead_lat = _ahead(lon, lat, vx, vy)
+    ahead_lon, ahead_lat = _round5(np.column_stack(_ahead(lon, lat, vx, vy))).T
     expected = list(map(_ahead_reference, lon.tolist(), lat.tolist(), vx.tolist(), vy.tolist()))
     assert _bits(ahead_lon.tolist()) == _bits([e[0] for e in expected])
     assert _bits(ahead_lat.tolist()) == _bits([e[1] for e in expected])

@@ -15,9 +15,22 @@ from mcap.reader import make_reader
 from pydantic import BaseModel
 
 from asterix.containers import Datagram
+from tracker_service.outputs.foxglove_scene import LOCATION_FIX, SCHEMAS
 from tracker_service.outputs.mcap_log import LoggedDatagram, McapLog, read_log_messages
 
 T0 = 1_700_000_000.25
+
+
+_FIX = {
+    "timestamp": {"sec": 1_700_000_001, "nsec": 250_000_000},
+    "frame_id": "track/4",
+    "latitude": 48.5,
+    "longitude": 2.25,
+    "altitude": 3000.0,
+}
+"""A ``foxglove.LocationFix``, as the map's channel carries it (a well-known schema's
+message already encoded: ``log_encoded``)."""
+_FIX_JSON = json.dumps(_FIX, separators=(",", ":")).encode()
 
 
 class Track(BaseModel):
@@ -30,8 +43,9 @@ def test_read_back_with_make_reader(tmp_path: Path) -> None:
     with McapLog(tmp_path) as log:
         log.log_datagram(datagram, "r1")
         log.log("/system_tracks", Track(number=4, lat=48.5), T0 + 1)
-        log.log_location("/map/system_tracks", T0 + 1, 48.5, 2.25, 3000.0, [1.0] * 9)
-        log.log_location("/map/system_tracks", T0 + 2, 48.6, 2.25, 3000.0)
+        log.log_encoded(
+            "/foxglove/tracks", LOCATION_FIX, lambda: SCHEMAS[LOCATION_FIX], _FIX_JSON, T0 + 1
+        )
     assert len(log.files) == 1
     with log.files[0].open("rb") as stream:
         reader = make_reader(stream)
@@ -49,7 +63,7 @@ def test_read_back_with_make_reader(tmp_path: Path) -> None:
     assert {c.topic for c in summary.channels.values()} == {
         "/datagrams/r1",
         "/system_tracks",
-        "/map/system_tracks",
+        "/foxglove/tracks",
     }
     assert all(c.message_encoding == "json" for c in summary.channels.values())
     track_schema = next(s for s in summary.schemas.values() if s.name.endswith("Track"))
@@ -67,11 +81,11 @@ def test_read_back_with_make_reader(tmp_path: Path) -> None:
         },
     )
     assert got[1][3] == {"number": 4, "lat": 48.5}
-    fix = got[2][3]
-    assert fix["timestamp"] == {"sec": 1_700_000_001, "nsec": 250_000_000}
-    assert (fix["latitude"], fix["longitude"], fix["altitude"]) == (48.5, 2.25, 3000.0)
-    assert fix["position_covariance_type"] == 3
-    assert got[3][3]["position_covariance_type"] == 0
+    assert got[2][1:] == ("foxglove.LocationFix", 1_700_000_001_250_000_000, _FIX)
+    assert (
+        json.loads(next(s for s in summary.schemas.values() if s.name == LOCATION_FIX).data)
+        == (SCHEMAS[LOCATION_FIX])
+    )
     # The robust reader agrees with the indexed one on a closed file.
     assert [(m.topic, m.data) for m in read_log_messages(log.files[0])] == [
         (topic, data) for topic, _, _, data in got
@@ -179,37 +193,6 @@ def test_a_datagram_with_an_impossible_time_is_refused_as_before(
 ) -> None:
     with McapLog(tmp_path) as log, pytest.raises(ValueError, match="time"):
         log.log_datagram(Datagram(b"\x30\x00\x03", 0, time, None, None), "25_11")
-
-
-def test_location_fixes_are_what_json_dumps_writes(tmp_path: Path) -> None:
-    """Tiny covariances (written 1e-05 by repr, 0.00001 by pydantic-core) and ordinary
-    ones: each fix as json.dumps writes it."""
-    covariance = [1e-05, -2.5e-07, 0.0, 3.0, 1e-300, 0.0, 0.0, 0.0, 1e6]
-    with McapLog(tmp_path) as log:
-        log.log_location("/map/system_tracks", T0, 48.123456789, -0.0001, 10.5, covariance)
-        log.log_location("/map/system_tracks", T0 + 0.5, 48.0, 2.0, 0.0)
-    data = [m.data for m in _raw(log.files[0])]
-    expected = [
-        {
-            "timestamp": {"sec": 1_700_000_000, "nsec": 250_000_000},
-            "frame_id": "",
-            "latitude": 48.123456789,
-            "longitude": -0.0001,
-            "altitude": 10.5,
-            "position_covariance": covariance,
-            "position_covariance_type": 3,
-        },
-        {
-            "timestamp": {"sec": 1_700_000_000, "nsec": 750_000_000},
-            "frame_id": "",
-            "latitude": 48.0,
-            "longitude": 2.0,
-            "altitude": 0.0,
-            "position_covariance": [0.0] * 9,
-            "position_covariance_type": 0,
-        },
-    ]
-    assert data == [json.dumps(d, separators=(",", ":")).encode() for d in expected]
 
 
 class _Raw(NamedTuple):

@@ -32,7 +32,9 @@ def _write(directory: Path, seed: int) -> list[Path]:
             model = SystemTrackMessage if topic == "/system_tracks" else LocalTrackMessage
             log.log_json_many(topic, model, payloads, now)
             if rng.random() < 0.3:
-                log.log_location("/map/system_tracks", now - 0.5, 48.0, 2.0, 1000.0)
+                # A second schema, with a log time before the batch's.
+                fix = b'{"latitude":48.0}'
+                log.log_encoded("/foxglove/tracks", "foxglove.LocationFix", dict, fix, now - 0.5)
     return log.files
 
 

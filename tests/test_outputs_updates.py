@@ -213,7 +213,6 @@ def test_batches_logged_read_back_by_mcap_and_the_streaming_reader(tmp_path: Pat
     topics = [t for t, _, _ in batch]
     assert topics.count("/local_tracks/40_2") == len(local)
     assert topics.count("/system_tracks") == len(system)
-    assert topics.count("/map/system_tracks") == sum(not s.ended for s in system)
 
 
 def _reference_fix(m: SystemTrackMessage) -> bytes:

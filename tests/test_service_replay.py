@@ -203,12 +203,12 @@ def test_log_holds_datagrams_tracks_status_and_map(published: Published, recordi
     messages = logged(published.log_dir)
     topics = {m.topic for m in messages}
     assert {"/datagrams/25_11", "/datagrams/25_12", "/datagrams/25_13"} <= topics
-    assert {"/system_tracks", "/status", "/cat062", "/map/system_tracks"} <= topics
+    assert {"/system_tracks", "/status", "/cat062", "/foxglove/tracks"} <= topics
     datagrams = [m for m in messages if m.topic.startswith("/datagrams/")]
     source = open_replay(recording)
     expected = [(name, d.payload.hex()) for name, d in source.datagrams]
     assert [(m.data["input"], m.data["payload"]) for m in datagrams] == expected
-    fixes = [m for m in messages if m.topic == "/map/system_tracks"]
+    fixes = [m for m in messages if m.topic == "/foxglove/tracks"]
     assert fixes[0].schema == "foxglove.LocationFix"
     assert 45.0 < fixes[0].data["latitude"] < 52.0
 

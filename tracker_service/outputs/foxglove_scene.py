@@ -40,7 +40,7 @@ import numpy as np
 import numpy.typing as npt
 from pyproj import Geod
 
-from tracker_service.outputs.mcap_log import LOCATION_FIX_SCHEMA
+from tracker_service.mcap_format import JSON_SCHEMA_DIALECT
 from tracker_service.outputs.messages import SystemTrackMessage
 from tracker_service.outputs.updates import (
     STATUSES,
@@ -81,12 +81,71 @@ _EARTH_RADIUS_M = 6_371_000.0
 _RING_POINTS = 72
 _WGS84 = Geod(ellps="WGS84")
 
+# foxglove.LocationFix as Foxglove's own JSON schema states it.
+_LOCATION_FIX_SCHEMA: dict[str, Any] = {
+    "$schema": JSON_SCHEMA_DIALECT,
+    "title": LOCATION_FIX,
+    "description": "A navigation satellite fix for any Global Navigation Satellite System",
+    "type": "object",
+    "properties": {
+        "timestamp": {
+            "type": "object",
+            "title": "time",
+            "properties": {
+                "sec": {"type": "integer", "minimum": 0},
+                "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
+            },
+            "description": "Timestamp of the message",
+        },
+        "frame_id": {"type": "string", "description": "Frame for the sensor."},
+        "latitude": {"type": "number", "description": "Latitude in degrees"},
+        "longitude": {"type": "number", "description": "Longitude in degrees"},
+        "altitude": {"type": "number", "description": "Altitude in meters"},
+        "position_covariance": {
+            "type": "array",
+            "items": {"type": "number"},
+            "minItems": 9,
+            "maxItems": 9,
+            "description": "Position covariance (m^2) defined relative to a tangential "
+            "plane through the reported position. The components are East, North, and Up "
+            "(ENU), in row-major order.",
+        },
+        "position_covariance_type": {
+            "title": "foxglove.PositionCovarianceType",
+            "description": "If `position_covariance` is available, "
+            "`position_covariance_type` must be set to indicate the type of covariance.",
+            "oneOf": [
+                {"title": "UNKNOWN", "const": 0},
+                {"title": "APPROXIMATED", "const": 1},
+                {"title": "DIAGONAL_KNOWN", "const": 2},
+                {"title": "KNOWN", "const": 3},
+            ],
+        },
+        "color": {
+            "title": "foxglove.Color",
+            "description": "Color used to visualize the location",
+            "type": "object",
+            "properties": {c: {"type": "number"} for c in ("r", "g", "b", "a")},
+            "required": ["r", "g", "b", "a"],
+        },
+        "metadata": {
+            "type": "array",
+            "items": {
+                "title": "foxglove.KeyValuePair",
+                "type": "object",
+                "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
+                "required": ["key", "value"],
+            },
+            "description": "Additional metadata of the fix (identity, label). Keys are unique.",
+        },
+    },
+}
+
 # The two schemas the map panel reads, with the fields Foxglove's schema of that name
 # defines (the panel recognises the schema by its name, the fields by theirs); the tests
-# check them against the Foxglove SDK's own message classes. LocationFix is the log's own
-# (``/map/system_tracks`` shares it: one schema of that name in a file).
+# check them against the Foxglove SDK's own message classes.
 SCHEMAS: dict[str, dict[str, Any]] = {
-    LOCATION_FIX: LOCATION_FIX_SCHEMA,
+    LOCATION_FIX: _LOCATION_FIX_SCHEMA,
     GEOJSON: {
         "title": GEOJSON,
         "description": "GeoJSON data for annotating maps",
@@ -544,17 +603,13 @@ def _live_rows(
     """Each row's point (its identity as properties), the start and end of its trail and
     its one-minute vector, as ``json.dumps`` writes them (compact), escaped into the
     picture's string; the coordinates of all of them written at once."""
-    here_lon, here_lat = _round5(lon), _round5(lat)
-    # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
-    # precision (/system_tracks has the full values).
-    ahead_lon, ahead_lat = _ahead(lon, lat, vx, vy)
     values = np.empty((len(lon), 4))
-    values[:, 0], values[:, 1], values[:, 2], values[:, 3] = (
-        here_lon,
-        here_lat,
-        ahead_lon,
-        ahead_lat,
-    )
+    values[:, 0], values[:, 1] = lon, lat
+    values[:, 2], values[:, 3] = _ahead(lon, lat, vx, vy)
+    # Coordinates to 1e-5 degrees (about 1 m): the picture's size, not the log's
+    # precision (/system_tracks has the full values). One call for the four columns.
+    values = _round5(values)
+    here_lon, here_lat = values[:, 0], values[:, 1]
     numbers = python_json_numbers(values.ravel().tolist())
     point = [f"[{x},{y}]" for x, y in zip(numbers[0::4], numbers[1::4], strict=True)]
     features = list(
@@ -580,36 +635,47 @@ def _live_rows(
     )
 
 
+def _escaped(text: str) -> str:
+    """``text`` escaped into a JSON string, without the quotes."""
+    return encode_basestring_ascii(text)[1:-1]
+
+
+# A row's features, escaped into the picture's string once at import (``%s``: what each
+# row gives, escaped itself where it is text).
+_MARKER = _escaped(
+    '{"type":"Feature","id":"track/%s","geometry":{"type":"Point","coordinates":%s},'
+    '"properties":{"name":%s%s,"style":{"color":"%s","fillColor":"%s","fillOpacity":1.0}}}'
+)
+_TRAIL_START = _escaped(
+    '{"type":"Feature","id":"trail/%s","geometry":{"type":"LineString","coordinates":['
+)
+_TRAIL_END = _escaped(
+    ']},"properties":{"name":%s trail","style":{"color":"%s","weight":2,"opacity":0.5}}}'
+)
+_VECTOR = _escaped(
+    '{"type":"Feature","id":"vector/%s","geometry":{"type":"LineString",'
+    '"coordinates":[%s,[%s,%s]]},"properties":{"name":%s 1 min",'
+    '"style":{"color":"%s","weight":1,"opacity":0.9}}}'
+)
+
+
 def _features(
     number: int, point: str, ahead_lon: str, ahead_lat: str, name: str, properties: str, colour: str
 ) -> tuple[str, str, str, str]:
     """A row's point (``name``: its label's JSON string), the start and end of its trail
     and its vector, each escaped into the picture's string (``json.dumps`` escapes
-    character by character: the escaped parts joined are the whole escaped). With " trail"
-    or " 1 min" added before its closing quote, a label's JSON string is the longer
-    name's."""
-    marker = (
-        f'{{"type":"Feature","id":"track/{number}","geometry":{{"type":"Point",'
-        f'"coordinates":{point}}},"properties":{{"name":{name}{properties},'
-        f'"style":{{"color":"{colour}","fillColor":"{colour}","fillOpacity":1.0}}}}}}'
-    )
-    trail_start = (
-        f'{{"type":"Feature","id":"trail/{number}","geometry":{{"type":"LineString","coordinates":['
-    )
-    trail_end = (
-        f']}},"properties":{{"name":{name[:-1]} trail",'
-        f'"style":{{"color":"{colour}","weight":2,"opacity":0.5}}}}}}'
-    )
-    vector = (
-        f'{{"type":"Feature","id":"vector/{number}","geometry":{{"type":"LineString",'
-        f'"coordinates":[{point},[{ahead_lon},{ahead_lat}]]}},"properties":{{"name":'
-        f'{name[:-1]} 1 min","style":{{"color":"{colour}","weight":1,"opacity":0.9}}}}}}'
-    )
+    character by character: the escaped parts joined are the whole escaped, so the
+    templates are escaped once and each row's texts, name and properties, alone; numbers,
+    brackets and colours need none). With " trail" or " 1 min" added before its closing
+    quote, a label's JSON string is the longer name's: the escaped name without its
+    escaped closing quote (two characters)."""
+    label = _escaped(name)
+    opened = label[:-2]
     return (
-        encode_basestring_ascii(marker)[1:-1],
-        encode_basestring_ascii(trail_start)[1:-1],
-        encode_basestring_ascii(trail_end)[1:-1],
-        encode_basestring_ascii(vector)[1:-1],
+        _MARKER % (number, point, label, _escaped(properties), colour, colour),
+        _TRAIL_START % number,
+        _TRAIL_END % (opened, colour),
+        _VECTOR % (number, point, ahead_lon, ahead_lat, opened, colour),
     )
 
 
@@ -654,7 +720,7 @@ def _ahead(
     lon: FloatArray, lat: FloatArray, vx_mps: FloatArray, vy_mps: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """Where each track is in one minute at its velocity (the plane's axes taken as east
-    and north: a display's speed vector, not a prediction), rounded to 1e-5 degrees: the
+    and north: a display's speed vector, not a prediction), unrounded: the
     values of the scalar formula in Python floats (``math``), operation for operation
     (numpy's arithmetic is IEEE's, as Python's; the cosine is ``math.cos``, numpy's may
     differ in its last bit)."""
@@ -668,7 +734,7 @@ def _ahead(
     ahead_lat = lat + d_north / _EARTH_RADIUS_M * _DEGREES_PER_RADIAN
     with np.errstate(invalid="ignore"):
         wrapped = np.remainder(ahead_lon + 180.0, 360.0) - 180.0
-    return _round5(wrapped), _round5(np.maximum(np.minimum(ahead_lat, 90.0), -90.0))
+    return wrapped, np.maximum(np.minimum(ahead_lat, 90.0), -90.0)
 
 
 _TIE_MARGIN = 1e-6
@@ -687,8 +753,10 @@ def _round5(values: FloatArray) -> FloatArray:
     with np.errstate(invalid="ignore"):
         safe = (np.abs(scaled) < 2.0**30) & (np.abs(scaled - np.floor(scaled) - 0.5) > _TIE_MARGIN)
     if not safe.all():
+        # Flat views: any shape of array.
+        flat, originals = rounded.reshape(-1), values.reshape(-1)
         for i in np.flatnonzero(~safe).tolist():
-            rounded[i] = round(float(values[i]), 5)
+            flat[i] = round(float(originals[i]), 5)
     return rounded
 
 

@@ -49,14 +49,12 @@ from tracker_service.outputs.system_state import StepInput, SystemState
 from tracker_service.outputs.updates import (
     STATUSES,
     LocalUpdate,
-    LocationFixes,
     SystemBatch,
     SystemUpdate,
-    SystemValues,
     system_json,
 )
 
-__all__ = ["LOCAL_STATUS", "MessageMapper", "ModelMapper", "location_fix"]
+__all__ = ["LOCAL_STATUS", "MessageMapper", "ModelMapper"]
 
 LocalStatus = Literal["tentative", "confirmed", "coasting", "deleted"]
 LOCAL_STATUS: tuple[LocalStatus, ...] = ("tentative", "confirmed", "coasting", "deleted")
@@ -111,11 +109,6 @@ def _track_callsign(
     if previous is not None and previous.address == address:
         return previous.callsign
     return None
-
-
-def location_fix(message: SystemTrackMessage) -> LocationFixes:
-    """The map's fix of a message (none for a track's end)."""
-    return LocationFixes.of(SystemBatch.of_values([SystemValues.of_message(message)]))
 
 
 def _remember_daps(

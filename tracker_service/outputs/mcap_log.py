@@ -1,9 +1,9 @@
-"""The service's MCAP log: raw datagrams, every message, and map-ready positions.
+"""The service's MCAP log: raw datagrams and every message.
 
 JSON messages with JSON schemas, as the simulator's recordings (``docs/recording-format.md``):
 a channel per topic, a schema per pydantic model (``tracker_service.<Model>``), log and
-publish times in POSIX nanoseconds. Positions also go out as ``foxglove.LocationFix``,
-which Foxglove's map panel shows without configuration.
+publish times in POSIX nanoseconds. The Foxglove map's channels are logged into it too
+(``foxglove_sink.py``).
 
 Files rotate by size or by the span of their log times, named
 ``<name>_<first log time, UTC>_<sequence>.mcap``. Chunks are small and each one reaches
@@ -64,19 +64,8 @@ from pydantic_core import to_json
 from asterix.containers import Datagram
 from tracker_service.closing import Closing
 from tracker_service.mcap_format import json_schema, schema_name, start_mcap, time_ns, times_ns
-from tracker_service.outputs.json_rows import (
-    INTEGER,
-    NUMBER,
-    NUMBERS,
-    Literals,
-    Numbers,
-    Template,
-    render,
-)
-from tracker_service.outputs.updates import LocationFixes, python_json_numbers
 
 __all__ = [
-    "LOCATION_FIX_SCHEMA",
     "LoggedDatagram",
     "LoggedMessage",
     "McapLog",
@@ -88,73 +77,8 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 MCAP_LIBRARY = "tracker-service log 1"
-_JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 _NS_PER_S = 1_000_000_000
 _MAX_SEQUENCE = 2**32
-_LOCATION_FIX = "foxglove.LocationFix"
-
-# foxglove.LocationFix as Foxglove's own JSON schema states it; the map panel recognises
-# the schema by its name, the fields by theirs.
-LOCATION_FIX_SCHEMA: dict[str, Any] = {
-    "$schema": _JSON_SCHEMA_DIALECT,
-    "title": _LOCATION_FIX,
-    "description": "A navigation satellite fix for any Global Navigation Satellite System",
-    "type": "object",
-    "properties": {
-        "timestamp": {
-            "type": "object",
-            "title": "time",
-            "properties": {
-                "sec": {"type": "integer", "minimum": 0},
-                "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
-            },
-            "description": "Timestamp of the message",
-        },
-        "frame_id": {"type": "string", "description": "Frame for the sensor."},
-        "latitude": {"type": "number", "description": "Latitude in degrees"},
-        "longitude": {"type": "number", "description": "Longitude in degrees"},
-        "altitude": {"type": "number", "description": "Altitude in meters"},
-        "position_covariance": {
-            "type": "array",
-            "items": {"type": "number"},
-            "minItems": 9,
-            "maxItems": 9,
-            "description": "Position covariance (m^2) defined relative to a tangential "
-            "plane through the reported position. The components are East, North, and Up "
-            "(ENU), in row-major order.",
-        },
-        "position_covariance_type": {
-            "title": "foxglove.PositionCovarianceType",
-            "description": "If `position_covariance` is available, "
-            "`position_covariance_type` must be set to indicate the type of covariance.",
-            "oneOf": [
-                {"title": "UNKNOWN", "const": 0},
-                {"title": "APPROXIMATED", "const": 1},
-                {"title": "DIAGONAL_KNOWN", "const": 2},
-                {"title": "KNOWN", "const": 3},
-            ],
-        },
-        "color": {
-            "title": "foxglove.Color",
-            "description": "Color used to visualize the location",
-            "type": "object",
-            "properties": {c: {"type": "number"} for c in ("r", "g", "b", "a")},
-            "required": ["r", "g", "b", "a"],
-        },
-        "metadata": {
-            "type": "array",
-            "items": {
-                "title": "foxglove.KeyValuePair",
-                "type": "object",
-                "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
-                "required": ["key", "value"],
-            },
-            "description": "Additional metadata of the fix (identity, label). Keys are unique.",
-        },
-    },
-}
-_COVARIANCE_UNKNOWN = 0
-_COVARIANCE_KNOWN = 3
 
 
 class LoggedDatagram(BaseModel):
@@ -398,38 +322,6 @@ class McapLog(Closing):
         datas = [data for data, _ in messages]
         times = times_ns(np.array([time for _, time in messages], dtype=np.float64))
         self._write(topic, schema, schema_of, list(zip(datas, times, strict=True)))
-
-    def log_location(
-        self,
-        topic: str,
-        time: float,
-        lat: float,
-        lon: float,
-        alt: float,
-        covariance: Sequence[float] | None = None,
-    ) -> None:
-        """A ``foxglove.LocationFix``; ``covariance`` is the 3x3 ENU position covariance
-        (m², row-major), or None when unknown."""
-        known = covariance is not None
-        if covariance is not None and len(covariance) != 9:
-            raise ValueError(f"covariance must hold 9 values (3x3), not {len(covariance)}")
-        self.log_locations(
-            topic,
-            LocationFixes(
-                np.array([time]),
-                np.array([lat]),
-                np.array([lon]),
-                np.array([alt]),
-                np.array([covariance if known else [0.0] * 9], dtype=np.float64),
-            ),
-            known,
-        )
-
-    def log_locations(self, topic: str, fixes: LocationFixes, known: bool = True) -> None:
-        """A ``foxglove.LocationFix`` for each fix, each logged at its own time;
-        ``known``: their covariance is (else it is unknown, zeros)."""
-        if len(fixes.time):
-            self._write(topic, _LOCATION_FIX, lambda: LOCATION_FIX_SCHEMA, _locations(fixes, known))
 
     def _write(
         self,
@@ -751,36 +643,6 @@ class _ChunkAccess:
                 if stream.flush():
                     file.unwritten = 0
         return sequence
-
-
-_FIXES = Literals()
-_FIX = Template.of(
-    '{"timestamp":{"sec":%s,"nsec":%s},"frame_id":"","latitude":%s,"longitude":%s,'
-    '"altitude":%s,"position_covariance":[%s],"position_covariance_type":%s}',
-    (INTEGER, INTEGER, NUMBER, NUMBER, NUMBER, NUMBERS, INTEGER),
-    _FIXES,
-)
-"""A ``foxglove.LocationFix`` as ``json.dumps`` writes it (compact); its texts are fixed
-at import, so that logs in several threads share it unchanged."""
-
-
-def _locations(fixes: LocationFixes, known: bool) -> list[tuple[bytes, int]]:
-    """Each fix as JSON (what ``json.dumps`` writes of it, compact), with its log time:
-    the fix's own; the numbers of all of them written at once."""
-    numbers = np.column_stack((fixes.lat, fixes.lon, fixes.altitude, fixes.covariance))
-    if not np.isfinite(numbers).all():
-        raise ValueError("a location must be finite")
-    n = len(numbers)
-    ns = times_ns(fixes.time)
-    values = np.empty((n, _FIX.slots), dtype=np.int64)
-    values[:, 0], values[:, 1] = np.divmod(np.array(ns, dtype=np.int64), _NS_PER_S)
-    values[:, 2:5] = 12 * np.arange(n)[:, None] + np.arange(3)
-    values[:, 5] = 12 * np.arange(n) + 3
-    values[:, 6] = _COVARIANCE_KNOWN if known else _COVARIANCE_UNKNOWN
-    counts = np.zeros_like(values)
-    counts[:, 5] = 9
-    texts = Numbers.of_texts(python_json_numbers(numbers.ravel().tolist()))
-    return list(zip(render(_FIX, values, _FIXES, texts, counts).rows(), ns, strict=True))
 
 
 class LoggedMessage(NamedTuple):

@@ -5,7 +5,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from asterix.containers import Datagram
-from tracker_service.outputs.mapping import location_fix
 from tracker_service.outputs.mcap_log import LoggedDatagram, McapLog
 from tracker_service.outputs.messages import (
     BiasMessage,
@@ -13,11 +12,10 @@ from tracker_service.outputs.messages import (
     StatusMessage,
     SystemTrackMessage,
 )
-from tracker_service.outputs.updates import LocalUpdate, LocationFixes, SystemBatch, SystemUpdate
+from tracker_service.outputs.updates import LocalUpdate, SystemUpdate
 
 __all__ = [
     "CAT062_TOPIC",
-    "LOCATION_TOPIC",
     "STATUS_TOPIC",
     "SYSTEM_TRACKS_TOPIC",
     "McapSink",
@@ -25,7 +23,6 @@ __all__ = [
 ]
 
 SYSTEM_TRACKS_TOPIC = "/system_tracks"
-LOCATION_TOPIC = "/map/system_tracks"
 CAT062_TOPIC = "/cat062"
 STATUS_TOPIC = "/status"
 
@@ -50,7 +47,6 @@ class McapSink:
 
     def system(self, message: SystemTrackMessage, payload: bytes, time: float) -> None:
         self.log.log_json(SYSTEM_TRACKS_TOPIC, SystemTrackMessage, payload, time)
-        self.log.log_locations(LOCATION_TOPIC, location_fix(message))
 
     def local(self, message: LocalTrackMessage, payload: bytes, time: float) -> None:
         topic = f"/local_tracks/{topic_name(message.radar)}"
@@ -60,8 +56,6 @@ class McapSink:
         self.log.log_json_many(
             SYSTEM_TRACKS_TOPIC, SystemTrackMessage, [u.payload for u in updates], time
         )
-        for batch in SystemBatch.runs(updates):
-            self.log.log_locations(LOCATION_TOPIC, LocationFixes.of(batch))
 
     def local_updates(self, radar: str, updates: Sequence[LocalUpdate], time: float) -> None:
         topic = f"/local_tracks/{topic_name(radar)}"

@@ -38,7 +38,6 @@ __all__ = [
     "STATUSES",
     "SYSTEM_FIELDS",
     "LocalUpdate",
-    "LocationFixes",
     "SystemBatch",
     "SystemUpdate",
     "SystemValues",
@@ -47,7 +46,6 @@ __all__ = [
     "system_model",
 ]
 
-_METRES_PER_FL = 30.48
 
 LOCAL_FIELDS = (
     "radar",
@@ -547,34 +545,3 @@ _ENDED = STATUSES.index("ended")
 def _id(ids: dict[str, int], name: str | None) -> int:
     """``name``'s id in ``ids`` (a new one when new), -1 for None."""
     return -1 if name is None else ids.setdefault(name, len(ids))
-
-
-class LocationFixes(NamedTuple):
-    """System tracks' positions as a map shows them (``foxglove.LocationFix``), one entry
-    per fix: POSIX time, WGS84 degrees, altitude (m) and the 3x3 ENU position covariance
-    (m², (N, 9), row-major)."""
-
-    time: FloatArray
-    lat: FloatArray
-    lon: FloatArray
-    altitude: FloatArray
-    covariance: FloatArray
-
-    @classmethod
-    def of(cls, batch: SystemBatch) -> LocationFixes:
-        """The fixes of a batch's updates that are not a track's end: the altitude of the
-        flight level (0 without one); the plane's axes taken as east and north (they are
-        near the centre), the vertical unknown, so left large rather than zero."""
-        live = batch.status != _ENDED
-        p = batch.covariance[live]
-        level = batch.flight_level[live]
-        zero = np.zeros(len(p))
-        return cls(
-            batch.time[live],
-            batch.lat[live],
-            batch.lon[live],
-            np.where(np.isnan(level), 0.0, level * _METRES_PER_FL),
-            np.column_stack(
-                (p[:, 0], p[:, 1], zero, p[:, 4], p[:, 5], zero, zero, zero, zero + 1e6)
-            ),
-        )
