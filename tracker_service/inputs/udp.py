@@ -34,6 +34,7 @@ __all__ = [
     "UdpEndpoint",
     "UdpInput",
     "block_chain_error",
+    "kernel_drop_table",
 ]
 
 _log = logging.getLogger(__name__)
@@ -190,10 +191,12 @@ def _open_socket(endpoint: UdpEndpoint) -> socket.socket:
 PROC_NET_UDP = "/proc/net/udp"
 
 
-def _proc_drops(inodes: list[int]) -> list[int] | None:
-    """Each socket's kernel drop count (the same counter SO_RXQ_OVFL reports) from
+def kernel_drop_table() -> dict[int, int] | None:
+    """Every UDP socket's kernel drop count (the same counter SO_RXQ_OVFL reports) from
     /proc/net/udp, by inode; None where that file is not (not Linux). Unlike the
-    ancillary data, it is known without waiting for the next datagram."""
+    ancillary data, it is known without waiting for the next datagram. Read once for
+    all of a process's inputs (``UdpInput.counters_with``): the table lists every
+    socket of the host, and a radar process has dozens of inputs."""
     try:
         with open(PROC_NET_UDP, encoding="ascii") as table:
             lines = table.readlines()[1:]
@@ -204,7 +207,7 @@ def _proc_drops(inodes: list[int]) -> list[int] | None:
         fields = line.split()
         if len(fields) >= 13:
             by_inode[int(fields[9])] = int(fields[-1])
-    return [by_inode.get(inode, 0) for inode in inodes]
+    return by_inode
 
 
 def _kernel_drops(ancillary: list[tuple[int, int, bytes]]) -> int | None:
@@ -297,7 +300,12 @@ class UdpInput(Closing):
     @property
     def counters(self) -> InputCounters:
         """A consistent snapshot of the counters."""
-        drops = _proc_drops(self._inodes)
+        return self.counters_with(kernel_drop_table())
+
+    def counters_with(self, drop_table: dict[int, int] | None) -> InputCounters:
+        """``counters``, the kernel's drop counts read from ``drop_table``
+        (``kernel_drop_table``, None: not known)."""
+        drops = None if drop_table is None else [drop_table.get(i, 0) for i in self._inodes]
         with self._lock:
             if drops is not None:
                 self._socket_drops = [
