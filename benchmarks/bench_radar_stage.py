@@ -1,5 +1,6 @@
 """CPU time per plot of the radar side alone (``RadarStage.feed``: decode, plot clock and
-conversion, local tracking), as ``bench_stages.py`` times those stages inside the whole
+conversion, local tracking; and the stage message of each datagram with plots, as a radar
+process publishes it), as ``bench_stages.py`` times those stages inside the whole
 service, without the central stage and the outputs around them (issue 12).
 
 The recording's datagrams (after the replay's duplicate filter) are read into memory, then
@@ -7,6 +8,10 @@ fed to a radar stage built as the service builds it (``build_radar_stage``). Eac
 entry point is wrapped by ``bench_stages.instrumented`` (thread CPU time, nested stages
 exclusive); "radar stage" is the CPU time of the whole feed loop, glue included. A first,
 untimed run over ``--warmup-seconds`` loads (or compiles) the tracker's numba kernels.
+"encoding" is ``stage_messages.encode_message`` of each datagram's result, outside the
+radar stage's figure; "digest" the sha256 of every message (its bytes, in order): two
+trees that agree publish the same radar batches. ``bench_radar_role.py`` measures the
+radar process live (its UDP readers and Zenoh puts too).
 
     tracker-service simulate config/scenarios/scale.toml -o scale60.mcap --duration 60
     python benchmarks/bench_radar_stage.py scale60.mcap [--seconds 20] [--repeats 3]
@@ -20,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import hashlib
 import json
 import statistics
 import sys
@@ -33,29 +39,45 @@ sys.path.insert(0, str(HERE))
 from bench_stages import StageClock, instrumented, slice_of  # noqa: E402
 
 from tracker_service.service.core import build_radar_stage  # noqa: E402
+from tracker_service.stage_messages import DatagramResult, encode_message  # noqa: E402
 
 RADAR_STAGES = ("decode", "clock + conversion", "local tracking")
 
 
 def run_once(
     replay: Any, datagrams: list[Any], profiler: cProfile.Profile | None = None
-) -> tuple[dict[str, float], int, float]:
+) -> tuple[dict[str, float], int, float, str]:
     """One pass of a fresh radar stage over the datagrams: exclusive CPU seconds of the
-    three stages and of the rest of the feed ("glue"), plots, and the loop's CPU seconds."""
+    three stages, of the rest of the feed ("glue") and of the messages' encoding, plots,
+    the feed loop's CPU seconds, and the messages' digest."""
     stage = build_radar_stage(replay.config)
     clock = StageClock()
+    digest = hashlib.sha256()
+    encoding = 0.0
     with instrumented(clock):
         if profiler is not None:
             profiler.enable()
         started = time.process_time()
         for order, (_name, datagram) in enumerate(datagrams):
-            stage.feed(datagram.payload, datagram.time, order)
-        cpu = time.process_time() - started
+            batches = stage.feed(datagram.payload, datagram.time, order)
+            if batches:
+                encoded = time.process_time()
+                result = DatagramResult(
+                    order,
+                    datagram.time,
+                    batches,
+                    stage.stats.decode_errors,
+                    stage.admission.counts,
+                )
+                digest.update(encode_message(result))
+                encoding += time.process_time() - encoded
+        cpu = time.process_time() - started - encoding
         if profiler is not None:
             profiler.disable()
     seconds = {name: clock.seconds[name] for name in RADAR_STAGES}
     seconds["glue"] = cpu - sum(seconds.values())
-    return seconds, stage.stats.plots, cpu
+    seconds["encoding"] = encoding
+    return seconds, stage.stats.plots, cpu, digest.hexdigest()
 
 
 def main() -> None:
@@ -79,7 +101,8 @@ def main() -> None:
     if profiler is not None:
         profiler.dump_stats(args.profile)
     plots = runs[0][1]
-    names = [*RADAR_STAGES, "glue"]
+    names = [*RADAR_STAGES, "glue", "encoding"]
+    digests = {r[3] for r in runs}
     median = {n: statistics.median(r[0][n] for r in runs) for n in names}
     cpu = statistics.median(r[2] for r in runs)
     three = statistics.median(sum(r[0][n] for n in RADAR_STAGES) for r in runs)
@@ -93,6 +116,7 @@ def main() -> None:
             "stage_us_per_plot": {n: median[n] / plots * 1e6 for n in names},
             "three_stages_us_per_plot": three / plots * 1e6,
             "radar_stage_us_per_plot": cpu / plots * 1e6,
+            "digest": sorted(digests),
         }
         json.dump(report, sys.stdout, indent=1)
         print()
@@ -105,6 +129,7 @@ def main() -> None:
     print(f"{'three stages':<20} {three:>8.3f} {three / plots * 1e6:>9.1f}")
     print(f"{'radar stage':<20} {cpu:>8.3f} {cpu / plots * 1e6:>9.1f}")
     print(f"plots per CPU-second (radar stage): {plots / cpu:,.0f}")
+    print(f"messages' digest: {', '.join(sorted(digests))}")
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ from tracker_service.evaluation.pipeline import EvaluationConfig
 from tracker_service.fusion.psr_height import PsrHeights, RadarGeometry
 from tracker_service.fusion.references import References
 from tracker_service.geodesy import RadarSite, SystemPlane, convert_plots
+from tracker_service.geodesy.convert import plane_positions
 from tracker_service.geodesy.unknown_height import (
     HeightBand,
     feasible_band,
@@ -68,6 +69,18 @@ def test_height_jacobian_is_the_positions_slope() -> None:
     np.testing.assert_allclose(j[0] * 100.0, [b.x[0] - a.x[0], b.y[0] - a.y[0]], atol=0.05)
     # Up moves a plot of a fixed slant range towards its radar (here south-south-west).
     assert j[0] @ [np.sin(np.radians(200.0)), np.cos(np.radians(200.0))] < -0.1
+
+
+def test_plane_positions_are_convert_plots_positions_to_the_bit() -> None:
+    rng = np.random.default_rng(3)
+    rho, theta = rng.uniform(5e3, 300e3, 40), rng.uniform(0.0, 360.0, 40)
+    height = rng.uniform(150.0, 12_500.0, 40)
+    full = convert_plots(WEST, PLANE, rho, theta, height, 0.0, 0.0, 0.0)
+    x, y = plane_positions(WEST, PLANE, rho, theta, height)
+    assert x.tobytes() == full.x.tobytes() and y.tobytes() == full.y.tobytes()
+    scalar = convert_plots(WEST, PLANE, rho, 30.0, 5000.0, 0.0, 0.0, 0.0)  # broadcast
+    x, y = plane_positions(WEST, PLANE, rho, 30.0, 5000.0)
+    assert x.tobytes() == scalar.x.tobytes() and y.tobytes() == scalar.y.tobytes()
 
 
 def _plot_rows(site: RadarSite, xy_true: np.ndarray, height: float, time: float) -> Any:

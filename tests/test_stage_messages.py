@@ -21,6 +21,7 @@ from tracker_service.stage_messages import (
     DatagramResult,
     MessageKind,
     StageMessageError,
+    _npy,
     decode_message,
     encode_message,
     read_npy,
@@ -219,6 +220,26 @@ def test_a_section_read_with_its_layout_remembered_is_numpys_array(array: np.nda
             assert mine.flags.f_contiguous == theirs.flags.f_contiguous
             assert mine.flags.writeable
             assert mine.tobytes(order="A") == theirs.tobytes(order="A")
+
+
+@pytest.mark.parametrize(
+    "array",
+    [
+        np.arange(24.0).reshape(2, 3, 4),
+        np.asfortranarray(np.arange(12).reshape(3, 4)),
+        np.zeros(0, dtype=[("a", "<f8"), ("b", "U16")]),
+        np.array(3.5),
+        np.array([(1, "25/11")] * 1000, dtype=[("n", "<i8"), ("s", "U16")]),
+        np.zeros(3, dtype=[("a", "<f8"), ("R", "<f8", (2, 2)), ("b", "U8")])[["a", "b"]],
+    ],
+    ids=["3-d", "fortran", "empty structured", "0-d", "long shape", "fields with gaps"],
+)
+def test_a_section_written_with_its_header_remembered_is_numpys_bytes(array: np.ndarray) -> None:
+    for rows in (array, array[..., :1] if array.ndim else array):
+        # Twice: the first write is numpy's (its header kept), the second uses the header.
+        for _ in range(2):
+            theirs = _npy_bytes(np.ascontiguousarray(rows)).tobytes()
+            assert b"".join(_npy(rows)) == theirs
 
 
 def test_a_section_cut_short_or_of_objects_is_refused() -> None:

@@ -11,6 +11,7 @@ from tracker_service.geodesy.ellipsoid import FloatArray, as_float, ecef_to_geod
 from tracker_service.geodesy.plane import SystemPlane
 from tracker_service.geodesy.plots import (
     CrossRange,
+    SlantGeometry,
     covariance_from_gains,
     local_from_azimuth,
     local_to_ecef,
@@ -79,14 +80,9 @@ def convert_plots(
     if not all(values.ndim == 1 and values.shape == shape for values in columns):
         columns = [np.ravel(values) for values in np.broadcast_arrays(*columns)]
     rho, theta, height, height_sigma, sigma_rho, sigma_theta = columns
-    geometry = slant_geometry(site, rho, height, earth_radius_m=earth_radius_m)
-    # The true azimuth's sine and cosine, once for the position, the covariance and the
-    # Jacobians (a batch is a few dozen plots: the calls cost more than the arithmetic).
-    azimuth = np.radians(theta + site.north_offset_deg)
-    sin_az, cos_az = np.sin(azimuth), np.cos(azimuth)
-    x, y, z = local_to_ecef(site, *local_from_azimuth(geometry, sin_az, cos_az))
-    lat, lon, h = ecef_to_geodetic(x, y, z)
-    e, n = plane.plane_xy(x, y, z, lat, lon)
+    geometry, sin_az, cos_az, lat, lon, h, e, n = _placed(
+        site, plane, rho, theta, height, earth_radius_m
+    )
     range_gain, height_gain = geometry.gains("target")
     horizontal = covariance_from_gains(
         rho,
@@ -132,3 +128,50 @@ def convert_plots(
         elevation_rad=geometry.elevation_rad,
         polar_jacobian=polar_jacobian,
     )
+
+
+def plane_positions(
+    site: RadarSite,
+    plane: SystemPlane,
+    rho_m: npt.ArrayLike,
+    theta_deg: npt.ArrayLike,
+    height_msl_m: npt.ArrayLike,
+) -> tuple[FloatArray, FloatArray]:
+    """``convert_plots(...).x, .y`` alone (the same arithmetic, so the same bits), without
+    the covariance and the Jacobians."""
+    columns = [as_float(values) for values in (rho_m, theta_deg, height_msl_m)]
+    if not all(values.ndim == 1 and values.shape == columns[0].shape for values in columns):
+        columns = [np.ravel(values) for values in np.broadcast_arrays(*columns)]
+    rho, theta, height = columns
+    _, _, _, _, _, _, e, n = _placed(site, plane, rho, theta, height, None)
+    return e, n
+
+
+def _placed(
+    site: RadarSite,
+    plane: SystemPlane,
+    rho: FloatArray,
+    theta: FloatArray,
+    height: FloatArray,
+    earth_radius_m: npt.ArrayLike | None,
+) -> tuple[
+    SlantGeometry,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    FloatArray,
+]:
+    """The plots' geometry, the true azimuth's sine and cosine, their geodetic position
+    (lat, lon, h) and plane position (x, y)."""
+    geometry = slant_geometry(site, rho, height, earth_radius_m=earth_radius_m)
+    # The true azimuth's sine and cosine, once for the position, the covariance and the
+    # Jacobians (a batch is a few dozen plots: the calls cost more than the arithmetic).
+    azimuth = np.radians(theta + site.north_offset_deg)
+    sin_az, cos_az = np.sin(azimuth), np.cos(azimuth)
+    x, y, z = local_to_ecef(site, *local_from_azimuth(geometry, sin_az, cos_az))
+    lat, lon, h = ecef_to_geodetic(x, y, z)
+    e, n = plane.plane_xy(x, y, z, lat, lon)
+    return geometry, sin_az, cos_az, lat, lon, h, e, n

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.geodesy.convert import convert_plots
+from tracker_service.geodesy.convert import plane_positions
 from tracker_service.geodesy.ellipsoid import FloatArray, as_float
 from tracker_service.geodesy.plane import SystemPlane
 from tracker_service.geodesy.plots import slant_geometry
@@ -132,13 +132,13 @@ def height_jacobian(
     at: tuple[FloatArray, FloatArray] | None = None,
 ) -> FloatArray:
     """(N, 2) d(x, y)/dH of plane positions (m per m of height), by differences of
-    ``convert_plots`` (the same conversion, so the same geometry and plane): forward
+    ``convert_plots``' positions (``plane_positions``: the same geometry and plane): forward
     from ``at``, the plane positions at ``height_msl_m`` when the caller has them (one
     conversion; the curvature over the step is below a millimetre), else central."""
     step = JACOBIAN_STEP_M
     height = as_float(height_msl_m)
-    up = convert_plots(site, plane, rho_m, theta_deg, height + step, 0.0, 0.0, 0.0)
+    up_x, up_y = plane_positions(site, plane, rho_m, theta_deg, height + step)
     if at is not None:
-        return np.column_stack([up.x - at[0], up.y - at[1]]) / step
-    down = convert_plots(site, plane, rho_m, theta_deg, height - step, 0.0, 0.0, 0.0)
-    return np.column_stack([up.x - down.x, up.y - down.y]) / (2.0 * step)
+        return np.column_stack([up_x - at[0], up_y - at[1]]) / step
+    down_x, down_y = plane_positions(site, plane, rho_m, theta_deg, height - step)
+    return np.column_stack([up_x - down_x, up_y - down_y]) / (2.0 * step)

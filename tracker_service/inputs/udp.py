@@ -5,12 +5,14 @@ kernel hands the datagram over, whatever the consumer is busy with (a tracker st
 hold an event loop for milliseconds, which would both skew the reception times the plot
 clock relies on and leave the socket undrained, where the kernel drops without telling).
 Here the thread always drains the socket, and what the consumer cannot take in time is
-dropped at the queue, and counted. ``recvfrom`` releases the GIL, so the threads cost
-nothing while the feed is quiet.
+dropped at the queue, and counted. ``recvmsg`` waits with the GIL released and without a
+timeout, so the threads cost nothing while the feed is quiet; ``close`` shuts the sockets
+down to end the wait.
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import ipaddress
 import logging
@@ -34,14 +36,14 @@ __all__ = [
     "UdpEndpoint",
     "UdpInput",
     "block_chain_error",
+    "kernel_drop_table",
 ]
 
 _log = logging.getLogger(__name__)
 
 _MAX_DATAGRAM = 65535
-# Long enough to add nothing measurable to idle CPU, short enough that close() returns
-# promptly without having to shut the socket down from another thread.
-_POLL_S = 0.2
+_CLOSE_WAIT_S = 1.0
+"""How long ``close`` waits for a reader thread once its socket is shut down."""
 _RECEIVE_BUFFER = 4 * 1024 * 1024
 QUEUE_BYTES = 16 * 1024 * 1024
 """Default bound of an input's queue in bytes (beside its bound in datagrams): 1,024
@@ -180,7 +182,6 @@ def _open_socket(endpoint: UdpEndpoint) -> socket.socket:
                 sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, membership)
             except OSError as exc:
                 raise EndpointError(endpoint, exc) from None
-        sock.settimeout(_POLL_S)
     except BaseException:
         sock.close()
         raise
@@ -190,10 +191,12 @@ def _open_socket(endpoint: UdpEndpoint) -> socket.socket:
 PROC_NET_UDP = "/proc/net/udp"
 
 
-def _proc_drops(inodes: list[int]) -> list[int] | None:
-    """Each socket's kernel drop count (the same counter SO_RXQ_OVFL reports) from
+def kernel_drop_table() -> dict[int, int] | None:
+    """Every UDP socket's kernel drop count (the same counter SO_RXQ_OVFL reports) from
     /proc/net/udp, by inode; None where that file is not (not Linux). Unlike the
-    ancillary data, it is known without waiting for the next datagram."""
+    ancillary data, it is known without waiting for the next datagram. Read once for
+    all of a process's inputs (``UdpInput.counters_with``): the table lists every
+    socket of the host, and a radar process has dozens of inputs."""
     try:
         with open(PROC_NET_UDP, encoding="ascii") as table:
             lines = table.readlines()[1:]
@@ -204,7 +207,7 @@ def _proc_drops(inodes: list[int]) -> list[int] | None:
         fields = line.split()
         if len(fields) >= 13:
             by_inode[int(fields[9])] = int(fields[-1])
-    return [by_inode.get(inode, 0) for inode in inodes]
+    return by_inode
 
 
 def _kernel_drops(ancillary: list[tuple[int, int, bytes]]) -> int | None:
@@ -297,7 +300,12 @@ class UdpInput(Closing):
     @property
     def counters(self) -> InputCounters:
         """A consistent snapshot of the counters."""
-        drops = _proc_drops(self._inodes)
+        return self.counters_with(kernel_drop_table())
+
+    def counters_with(self, drop_table: dict[int, int] | None) -> InputCounters:
+        """``counters``, the kernel's drop counts read from ``drop_table``
+        (``kernel_drop_table``, None: not known)."""
+        drops = None if drop_table is None else [drop_table.get(i, 0) for i in self._inodes]
         with self._lock:
             if drops is not None:
                 self._socket_drops = [
@@ -326,9 +334,10 @@ class UdpInput(Closing):
     def _receive(self, sock: socket.socket, destination: tuple[str, int], lan: int) -> None:
         while not self._stop.is_set():
             try:
+                # Blocking, no timeout: one system call per datagram, none while the feed
+                # is quiet (a timeout polls first, and woke every idle thread five times
+                # a second); ``close`` shuts the socket down to end the wait.
                 payload, ancillary, _, sender = sock.recvmsg(_MAX_DATAGRAM, _ANCILLARY)
-            except TimeoutError:
-                continue
             except OSError:
                 if self._stop.is_set():
                     return
@@ -338,6 +347,8 @@ class UdpInput(Closing):
                 )
                 continue
             received_at = time.time()
+            if self._stop.is_set():
+                return  # woken by close's shutdown (or a last datagram: dropped)
             drops = _kernel_drops(ancillary)
             queued = self._accept(
                 payload, received_at, (sender[0], sender[1]), destination, lan, drops
@@ -418,8 +429,15 @@ class UdpInput(Closing):
     def close(self) -> None:
         """Stops the threads and closes the sockets; what is queued stays readable."""
         self._stop.set()
+        for sock in self._sockets:
+            # Wakes a thread waiting in recvmsg (Linux: even on an unconnected UDP
+            # socket, which says ENOTCONN all the same).
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RD)
         for thread in self._threads:
-            thread.join()
+            thread.join(_CLOSE_WAIT_S)
+            if thread.is_alive():
+                _log.warning("%s: %s still waiting on its socket at close", self.name, thread.name)
         self._close_sockets()
 
     def _close_sockets(self) -> None:

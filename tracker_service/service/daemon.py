@@ -33,7 +33,13 @@ from pathlib import Path
 from asterix.containers import Datagram
 from tracker_service.ingest import DuplicateWindow
 from tracker_service.inputs.arrivals import Arrivals
-from tracker_service.inputs.udp import EndpointError, InputCounters, UdpEndpoint, UdpInput
+from tracker_service.inputs.udp import (
+    EndpointError,
+    InputCounters,
+    UdpEndpoint,
+    UdpInput,
+    kernel_drop_table,
+)
 from tracker_service.ratelimit import RateLimitedLog
 from tracker_service.service.command import OutputProcessFailed, open_service
 from tracker_service.service.config import AdsbFeed, Lan, Radar, ServiceConfig
@@ -208,9 +214,10 @@ def input_counters(
 ) -> dict[str, InputCounters]:
     """Each input's counters by name, with what the holding window and the shedding
     dropped of its datagrams later (the daemon's status; a radar process's watermark)."""
+    drop_table = kernel_drop_table()
     return {
         udp.name: replace(
-            udp.counters,
+            udp.counters_with(drop_table),
             held_dropped=merger.dropped[udp.name],
             behind_dropped=lateness.dropped[udp.name],
         )

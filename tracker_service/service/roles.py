@@ -47,7 +47,7 @@ import zenoh
 from asterix.containers import Datagram
 from tracker_service.chain import source_order
 from tracker_service.inputs.arrivals import Arrivals
-from tracker_service.inputs.udp import InputCounters, UdpInput
+from tracker_service.inputs.udp import InputCounters, UdpInput, kernel_drop_table
 from tracker_service.outputs.zenoh_session import zenoh_config
 from tracker_service.radar_stage import RadarState, StageStats
 from tracker_service.service.command import open_service
@@ -491,8 +491,9 @@ class FusionRole:
         counters: dict[str, InputCounters] = {}
         for remote in self.remote_inputs.values():
             counters.update({name: replace(c) for name, c in remote.items()})
+        drop_table = kernel_drop_table()
         for udp in inputs:
-            counters[udp.name] = udp.counters
+            counters[udp.name] = udp.counters_with(drop_table)
         for name, n in self.lateness.dropped.items():
             entry = counters.setdefault(name, InputCounters())
             entry.behind_dropped += n
