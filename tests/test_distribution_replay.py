@@ -97,7 +97,7 @@ def test_the_processes_publish_exactly_the_messages_of_one_process(
     assert logged(apart, "/system_tracks") == tracks
     topics = {topic for topic, _ in logged(one, "/")}
     kinds = {topic.split("/")[1] for topic in topics}
-    assert {"status", "bias", "cat062", "map", "datagrams"} <= kinds, kinds
+    assert {"status", "bias", "cat062", "foxglove", "datagrams"} <= kinds, kinds
     for topic in topics:
         assert logged(apart, topic) == logged(one, topic), topic
 
