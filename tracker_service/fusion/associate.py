@@ -221,10 +221,15 @@ def _exchange_witnesses(
     if state.compiled:
         from tracker_service.fusion.kernels import exchange_witnesses  # numba when compiled
 
+        # The involved rows from the lists of the candidates' tracks' feeders, where
+        # two passes over ``feeding`` (some 20,000 rows on ``artas``) grouped them.
         return exchange_witnesses(
             kernel_indices(li),
             kernel_indices(sj),
-            kernel_indices(feeding),
+            *state.local.feeder_lists(),
+            loc["alive"],
+            loc["status"],
+            LOCAL_CONFIRMED,
             loc["system"],
             loc["radar"],
             loc["key"],
