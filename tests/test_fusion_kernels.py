@@ -37,8 +37,6 @@ from tracker_service.fusion.state import FusionState, PairEvidence
 from tracker_service.fusion.table import Columns, LocalTrackTable
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 from tracker_service.tracking.models import ModelSet
-from tracker_service.tracking.tracker import CONFIRMED as LOCAL_CONFIRMED
-from tracker_service.tracking.tracker import TENTATIVE as LOCAL_TENTATIVE
 from tracker_service.tracking.plots import (
     DAP_FIELDS,
     DAP_TURN_RATE,
@@ -46,6 +44,8 @@ from tracker_service.tracking.plots import (
     PlotArrays,
     as_plot_arrays,
 )
+from tracker_service.tracking.tracker import CONFIRMED as LOCAL_CONFIRMED
+from tracker_service.tracking.tracker import TENTATIVE as LOCAL_TENTATIVE
 
 FloatArray = npt.NDArray[np.float64]
 
