@@ -382,7 +382,8 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
     loc = states[0].local.rows
     system = rng.integers(1, 9, states[0].local.n)
     # Feeding: confirmed and live (the kernel reads the lists of feeders, the numpy path
-    # ``_feeding``'s rows); tentative rows and removed ones in the lists' way.
+    # ``confirmed_feeding``'s rows); tentative rows and removed ones in the lists' way;
+    # ``_feeding``'s sets by the kernel and the numpy path alike.
     status = np.where(rng.random(states[0].local.n) < 0.8, LOCAL_CONFIRMED, LOCAL_TENTATIVE)
     removed = np.flatnonzero(rng.random(states[0].local.n) < 0.1)
     for state in states:
@@ -390,13 +391,17 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
         state.local.rows["status"][: state.local.n] = status
         state.local.relink()
         state.local.remove(removed)
-    feeding = associate._feeding(states[1], 0)[0]
-    assert np.array_equal(feeding, associate._feeding(states[0], 0)[0])
+    feeding = associate.confirmed_feeding(states[1])
+    for radar in range(4):
+        compiled_sets, numpy_sets = (associate._feeding(state, radar) for state in states)
+        assert compiled_sets[0] == numpy_sets[0]
+        for a, b in zip(compiled_sets[1:], numpy_sets[1:], strict=True):
+            np.testing.assert_array_equal(a, b)
     li = rng.choice(feeding, candidates) if feeding.size else np.zeros(0, dtype=np.int64)
     # As in use, S' is fed by a feeding row (of the candidate's radar or not; the
     # candidate's own system track among them, which is no candidate).
     sj = rng.choice(system[feeding], li.size) if feeding.size else li
-    got, want = (associate._exchange_witnesses(state, li, sj, feeding) for state in states)
+    got, want = (associate._exchange_witnesses(state, li, sj) for state in states)
     assert np.array_equal(loc["key"], states[1].local.rows["key"])
     for a, b in zip(want, got, strict=True):
         np.testing.assert_array_equal(a, b)

@@ -1429,27 +1429,26 @@ def exchange_feeding(
     confirmed: int,
     own_radar: int,
     size: int,
-) -> tuple[IntArray, bool, IntArray, IntArray]:  # pragma: no cover - compiled
-    """``associate._exchange``'s sets in one pass over the local table: the confirmed
-    live rows feeding a system track (ascending), whether they come from more than one
-    radar, the system tracks they feed and those fed by ``own_radar``'s (ascending,
-    numbers below ``size``)."""
-    feeding = np.empty(system.size, dtype=np.int64)
+) -> tuple[bool, IntArray, IntArray]:  # pragma: no cover - compiled
+    """``associate._feeding`` in one pass over the local table: whether the confirmed
+    live rows feeding a system track come from more than one radar, the system tracks
+    they feed and those fed by ``own_radar``'s (ascending, numbers below ``size``). The
+    rows themselves are not kept: the witnesses come from the lists of feeders."""
     fed = np.zeros(size, dtype=np.bool_)
     own = np.zeros(size, dtype=np.bool_)
-    n = 0
+    first = -1
     several = False
     for r in range(system.size):
-        if alive[r] and system[r] > 0 and status[r] == confirmed:
-            feeding[n] = r
-            if n and radar[r] != radar[feeding[0]]:
+        g = system[r]
+        if g > 0 and alive[r] and status[r] == confirmed:
+            if first < 0:
+                first = radar[r]
+            elif radar[r] != first:
                 several = True
-            n += 1
-            fed[system[r]] = True
+            fed[g] = True
             if radar[r] == own_radar:
-                own[system[r]] = True
-    # A view of the rows found: a copy of some 20,000 rows on ``artas`` cost more.
-    return feeding[:n], several, np.flatnonzero(fed), np.flatnonzero(own)
+                own[g] = True
+    return several, np.flatnonzero(fed), np.flatnonzero(own)
 
 
 @numba.njit(cache=True)
