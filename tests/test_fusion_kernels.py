@@ -44,6 +44,8 @@ from tracker_service.tracking.plots import (
     PlotArrays,
     as_plot_arrays,
 )
+from tracker_service.tracking.tracker import CONFIRMED as LOCAL_CONFIRMED
+from tracker_service.tracking.tracker import TENTATIVE as LOCAL_TENTATIVE
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -295,6 +297,34 @@ def test_slots_are_the_references(seed: int, k: int, max_sources: int) -> None:
 
 
 @settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=0, max_value=30))
+def test_radar_feeders_are_the_reference(seed: int, k: int) -> None:
+    """``LocalTrackTable.radar_feeders`` from the lists against the pass over the table:
+    the same rows, ascending; rows of three radars moved between tracks three times, dead
+    rows, numbers repeated and 0 among them."""
+    rng = np.random.default_rng(seed)
+    tables = [LocalTrackTable(5, compiled=flag) for flag in (False, True)]
+    radar = rng.integers(0, 3, k)
+    u = _local_updates(rng, k)
+    for r in range(3):
+        rows = tables[1].find(r, u[radar == r], create=True)
+        assert (tables[0].find(r, u[radar == r], create=True) == rows).all()
+    rows = np.arange(tables[1].n)
+    compiled = tables[1]
+    for _ in range(3):
+        moved = rng.choice(rows, rows.size) if rows.size else rows
+        compiled.feed(moved, rng.integers(0, 8, moved.size))
+    tables[0].rows["system"][:] = compiled.rows["system"]
+    alive = rng.random(rows.size) < 0.8
+    for table in tables:
+        table.rows["alive"][rows] = alive
+    numbers = rng.integers(0, 10, int(rng.integers(0, 12)))
+    for r in range(3):
+        want, got = (table.radar_feeders(numbers, r) for table in tables)
+        np.testing.assert_array_equal(want, got)
+
+
+@settings(max_examples=50, deadline=None)
 @given(seed=SEEDS, k=st.integers(min_value=0, max_value=30), n=st.integers(0, 60))
 def test_store_is_the_reference(seed: int, k: int, n: int) -> None:
     """``LocalTrackTable.store`` by its kernel against the numpy path, every field equal:
@@ -351,15 +381,27 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
             state.local.find(r, u[radar == r], create=True)
     loc = states[0].local.rows
     system = rng.integers(1, 9, states[0].local.n)
+    # Feeding: confirmed and live (the kernel reads the lists of feeders, the numpy path
+    # ``confirmed_feeding``'s rows); tentative rows and removed ones in the lists' way;
+    # ``_feeding``'s sets by the kernel and the numpy path alike.
+    status = np.where(rng.random(states[0].local.n) < 0.8, LOCAL_CONFIRMED, LOCAL_TENTATIVE)
+    removed = np.flatnonzero(rng.random(states[0].local.n) < 0.1)
     for state in states:
         state.local.rows["system"][: state.local.n] = system
+        state.local.rows["status"][: state.local.n] = status
         state.local.relink()
-    feeding = np.flatnonzero(rng.random(states[0].local.n) < 0.8)
+        state.local.remove(removed)
+    feeding = associate.confirmed_feeding(states[1])
+    for radar in range(4):
+        compiled_sets, numpy_sets = (associate._feeding(state, radar) for state in states)
+        assert compiled_sets[0] == numpy_sets[0]
+        for a, b in zip(compiled_sets[1:], numpy_sets[1:], strict=True):
+            np.testing.assert_array_equal(a, b)
     li = rng.choice(feeding, candidates) if feeding.size else np.zeros(0, dtype=np.int64)
     # As in use, S' is fed by a feeding row (of the candidate's radar or not; the
     # candidate's own system track among them, which is no candidate).
     sj = rng.choice(system[feeding], li.size) if feeding.size else li
-    got, want = (associate._exchange_witnesses(state, li, sj, feeding) for state in states)
+    got, want = (associate._exchange_witnesses(state, li, sj) for state in states)
     assert np.array_equal(loc["key"], states[1].local.rows["key"])
     for a, b in zip(want, got, strict=True):
         np.testing.assert_array_equal(a, b)

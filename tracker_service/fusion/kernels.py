@@ -1429,27 +1429,26 @@ def exchange_feeding(
     confirmed: int,
     own_radar: int,
     size: int,
-) -> tuple[IntArray, bool, IntArray, IntArray]:  # pragma: no cover - compiled
-    """``associate._exchange``'s sets in one pass over the local table: the confirmed
-    live rows feeding a system track (ascending), whether they come from more than one
-    radar, the system tracks they feed and those fed by ``own_radar``'s (ascending,
-    numbers below ``size``)."""
-    feeding = np.empty(system.size, dtype=np.int64)
+) -> tuple[bool, IntArray, IntArray]:  # pragma: no cover - compiled
+    """``associate._feeding`` in one pass over the local table: whether the confirmed
+    live rows feeding a system track come from more than one radar, the system tracks
+    they feed and those fed by ``own_radar``'s (ascending, numbers below ``size``). The
+    rows themselves are not kept: the witnesses come from the lists of feeders."""
     fed = np.zeros(size, dtype=np.bool_)
     own = np.zeros(size, dtype=np.bool_)
-    n = 0
+    first = -1
     several = False
     for r in range(system.size):
-        if alive[r] and system[r] > 0 and status[r] == confirmed:
-            feeding[n] = r
-            if n and radar[r] != radar[feeding[0]]:
+        g = system[r]
+        if g > 0 and alive[r] and status[r] == confirmed:
+            if first < 0:
+                first = radar[r]
+            elif radar[r] != first:
                 several = True
-            n += 1
-            fed[system[r]] = True
+            fed[g] = True
             if radar[r] == own_radar:
-                own[system[r]] = True
-    # A view of the rows found: a copy of some 20,000 rows on ``artas`` cost more.
-    return feeding[:n], several, np.flatnonzero(fed), np.flatnonzero(own)
+                own[g] = True
+    return several, np.flatnonzero(fed), np.flatnonzero(own)
 
 
 @numba.njit(cache=True)
@@ -1469,37 +1468,60 @@ def radars_feeding(
 def exchange_witnesses(
     li: IntArray,
     sj: IntArray,
-    feeding: IntArray,
+    head: IntArray,
+    next_row: IntArray,
+    loc_alive: npt.NDArray[np.bool_],
+    loc_status: npt.NDArray[np.int8],
+    confirmed: int,
     loc_system: IntArray,
     loc_radar: IntArray,
     loc_key: IntArray,
     size: int,
 ) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray, IntArray]:  # pragma: no cover
-    """``associate._exchange_witnesses`` from the local table's fields: the rows of
-    ``feeding`` that feed a candidate's S or S' (candidates near their own system track
-    left out) grouped by system track (ascending within each), each candidate's l' (the
-    first row of its radar in S') and the other radars' rows of S and S', the pairs kept
-    the first time they come (a dictionary of their keys), then the votes pair by pair."""
+    """``associate._exchange_witnesses`` from the local table's fields: the confirmed
+    live rows that feed a candidate's S or S' (candidates near their own system track
+    left out), each track's from its list of feeders (``assign_feeders``: ``head``,
+    ``next_row``) in ascending row order, as a pass over the table would give them;
+    each candidate's l' (the first row of its radar in S') and the other radars' rows of
+    S and S', the pairs kept the first time they come (a dictionary of their keys), then
+    the votes pair by pair."""
     wanted = np.zeros(size, dtype=np.bool_)
+    numbers = np.empty(2 * li.size, dtype=np.int64)
+    n_numbers = 0
     for i in range(li.size):
         if sj[i] != loc_system[li[i]]:
-            wanted[sj[i]] = True
-            wanted[loc_system[li[i]]] = True
-    count = np.zeros(size + 1, dtype=np.int64)
+            for g in (sj[i], loc_system[li[i]]):
+                if not wanted[g]:
+                    wanted[g] = True
+                    numbers[n_numbers] = g
+                    n_numbers += 1
     n_involved = 0
-    for q in range(feeding.size):
-        g = loc_system[feeding[q]]
-        if wanted[g]:
-            count[g + 1] += 1
-            n_involved += 1
-    start = np.cumsum(count)
-    fill = start[:-1].copy()
+    for k in range(n_numbers):
+        r = head[numbers[k]]
+        while r >= 0:
+            if loc_alive[r] and loc_status[r] == confirmed:
+                n_involved += 1
+            r = next_row[r]
+    # Each wanted track's rows at grouped[start[g]:end[g]] (read for wanted tracks only).
+    start = np.empty(size, dtype=np.int64)
+    end = np.empty(size, dtype=np.int64)
     grouped = np.empty(n_involved, dtype=np.int64)
-    for q in range(feeding.size):
-        g = loc_system[feeding[q]]
-        if wanted[g]:
-            grouped[fill[g]] = feeding[q]
-            fill[g] += 1
+    filled = 0
+    for k in range(n_numbers):
+        g = numbers[k]
+        start[g] = filled
+        r = head[g]
+        while r >= 0:
+            if loc_alive[r] and loc_status[r] == confirmed:
+                # Insertion in ascending row order (a list holds a few rows).
+                at = filled
+                while at > start[g] and grouped[at - 1] > r:
+                    grouped[at] = grouped[at - 1]
+                    at -= 1
+                grouped[at] = r
+                filled += 1
+            r = next_row[r]
+        end[g] = filled
     k = li.size
     pair_a = np.empty(k, dtype=np.int64)
     pair_b = np.empty(k, dtype=np.int64)
@@ -1513,13 +1535,13 @@ def exchange_witnesses(
             continue
         partner = -1
         others_there = 0
-        for q in range(start[there], start[there + 1]):
+        for q in range(start[there], end[there]):
             if loc_radar[grouped[q]] != radar:
                 others_there += 1
             elif partner < 0:
                 partner = grouped[q]
         others_here = 0
-        for q in range(start[here], start[here + 1]):
+        for q in range(start[here], end[here]):
             if loc_radar[grouped[q]] != radar:
                 others_here += 1
         if partner < 0 or others_there == 0 or others_here == 0:
@@ -1542,7 +1564,7 @@ def exchange_witnesses(
         radar = loc_radar[a]
         # S's feeders vote for a, then S''s for b.
         for number, near, far in ((loc_system[a], a, b), (pair_s[p], b, a)):
-            for q in range(start[number], start[number + 1]):
+            for q in range(start[number], end[number]):
                 row = grouped[q]
                 if loc_radar[row] != radar:
                     closer[at], farther[at], witness[at] = near, far, row
@@ -2382,6 +2404,39 @@ def assign_feeders(
         if g > 0:
             next_row[r] = head[g]
             head[g] = r
+
+
+@numba.njit(cache=True)
+def radar_feeders(
+    numbers: IntArray,
+    head: IntArray,
+    next_row: IntArray,
+    alive: npt.NDArray[np.bool_],
+    loc_radar: IntArray,
+    radar: int,
+) -> IntArray:  # pragma: no cover - compiled
+    """``table.LocalTrackTable.radar_feeders`` from the lists of ``assign_feeders``: the
+    live rows of ``radar`` in the lists of ``numbers`` (each list once), ascending."""
+    found = np.empty(16, dtype=np.int64)
+    n_found = 0
+    for i in range(numbers.size):
+        g = numbers[i]
+        repeated = False
+        for j in range(i):
+            repeated = repeated or numbers[j] == g
+        if repeated or g <= 0:
+            continue
+        r = head[g]
+        while r >= 0:
+            if alive[r] and loc_radar[r] == radar:
+                if n_found == found.size:
+                    grown = np.empty(2 * found.size, dtype=np.int64)
+                    grown[:n_found] = found[:n_found]
+                    found = grown
+                found[n_found] = r
+                n_found += 1
+            r = next_row[r]
+    return np.sort(found[:n_found])
 
 
 @numba.njit(cache=True)

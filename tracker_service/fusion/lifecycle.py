@@ -243,13 +243,10 @@ def join(state: FusionState, radar: int, joined: IntArray, target: IntArray) -> 
     that system track (coasting: the local tracker restarted the aircraft) leaves. An
     orphan taken up by a new track of the radar that alone fed it stays solo: it follows
     its one local track again, as a system track that track founded would."""
-    loc, n, sys = state.local.rows, state.local.n, state.sys
+    loc, sys = state.local.rows, state.sys
     if joined.size == 0:
         return
-    same = np.flatnonzero(
-        loc["alive"][:n] & (loc["radar"][:n] == radar) & marked_numbers(target)[loc["system"][:n]]
-    )
-    state.local.feed(same, 0)
+    state.local.feed(state.local.radar_feeders(target, radar), 0)
     state.local.feed(joined, target)
     orphaned = ~np.isnan(sys["orphaned"][target])
     sys["solo"][target] &= orphaned & (sys["founder_radar"][target] == radar)

@@ -13,7 +13,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tracker_service.fusion.arrays import is_member, kernel_indices, last_of_each, rank_within
+from tracker_service.fusion.arrays import (
+    is_member,
+    kernel_indices,
+    last_of_each,
+    marked_numbers,
+    rank_within,
+)
 from tracker_service.fusion.messages import MAX_SOURCES, MAX_SYSTEM_NUMBER
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
@@ -297,6 +303,31 @@ class LocalTrackTable:
             self._feeder_head,
             self._feeder_next,
         )
+
+    def radar_feeders(self, numbers: IntArray, radar: int) -> IntArray:
+        """The live rows of ``radar`` feeding one of the system tracks ``numbers`` (which
+        may repeat; 0, no track, names none), ascending; compiled: from the lists of the
+        tracks' feeders, where the numpy path passes over the table."""
+        loc = self.used
+        if self.compiled:
+            from tracker_service.fusion.kernels import radar_feeders
+
+            return radar_feeders(
+                kernel_indices(numbers),
+                self._feeder_head,
+                self._feeder_next,
+                loc["alive"],
+                loc["radar"],
+                radar,
+            )
+        marked = marked_numbers(numbers)
+        marked[0] = False
+        return np.flatnonzero(loc["alive"] & (loc["radar"] == radar) & marked[loc["system"]])
+
+    def feeder_lists(self) -> tuple[IntArray, IntArray]:
+        """Compiled: the lists of each system track's feeders (``kernels.assign_feeders``),
+        the first row of each track's list and each row's next, -1 ending a list."""
+        return self._feeder_head, self._feeder_next
 
     def relink(self) -> None:
         """The lists of feeders built afresh from the column ``system`` (after rows
