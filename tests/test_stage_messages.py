@@ -199,17 +199,17 @@ def _npy_bytes(array: np.ndarray, allow_pickle: bool = False) -> memoryview:
     return memoryview(out.getvalue())
 
 
-@pytest.mark.parametrize(
-    "array",
-    [
-        np.arange(24.0).reshape(2, 3, 4),
-        np.asfortranarray(np.arange(12).reshape(3, 4)),
-        np.zeros(0, dtype=[("a", "<f8"), ("b", "U16")]),
-        np.array(3.5),
-        np.array([(1, "25/11")] * 1000, dtype=[("n", "<i8"), ("s", "U16")]),
-    ],
-    ids=["3-d", "fortran", "empty structured", "0-d", "long shape"],
-)
+# Arrays of every layout a section meets: (id, array).
+_SECTIONS = [
+    ("3-d", np.arange(24.0).reshape(2, 3, 4)),
+    ("fortran", np.asfortranarray(np.arange(12).reshape(3, 4))),
+    ("empty structured", np.zeros(0, dtype=[("a", "<f8"), ("b", "U16")])),
+    ("0-d", np.array(3.5)),
+    ("long shape", np.array([(1, "25/11")] * 1000, dtype=[("n", "<i8"), ("s", "U16")])),
+]
+
+
+@pytest.mark.parametrize("array", [a for _, a in _SECTIONS], ids=[name for name, _ in _SECTIONS])
 def test_a_section_read_with_its_layout_remembered_is_numpys_array(array: np.ndarray) -> None:
     for rows in (array, array[..., :1] if array.ndim else array):
         # Twice: the first read parses the layout (numpy's reader), the second uses it.
@@ -222,17 +222,14 @@ def test_a_section_read_with_its_layout_remembered_is_numpys_array(array: np.nda
             assert mine.tobytes(order="A") == theirs.tobytes(order="A")
 
 
+# A view of some fields of a wider row: a dtype with gaps between its fields.
+_GAPPED = np.zeros(3, dtype=[("a", "<f8"), ("R", "<f8", (2, 2)), ("b", "U8")])[["a", "b"]]
+
+
 @pytest.mark.parametrize(
     "array",
-    [
-        np.arange(24.0).reshape(2, 3, 4),
-        np.asfortranarray(np.arange(12).reshape(3, 4)),
-        np.zeros(0, dtype=[("a", "<f8"), ("b", "U16")]),
-        np.array(3.5),
-        np.array([(1, "25/11")] * 1000, dtype=[("n", "<i8"), ("s", "U16")]),
-        np.zeros(3, dtype=[("a", "<f8"), ("R", "<f8", (2, 2)), ("b", "U8")])[["a", "b"]],
-    ],
-    ids=["3-d", "fortran", "empty structured", "0-d", "long shape", "fields with gaps"],
+    [a for _, a in _SECTIONS] + [_GAPPED],
+    ids=[name for name, _ in _SECTIONS] + ["fields with gaps"],
 )
 def test_a_section_written_with_its_header_remembered_is_numpys_bytes(array: np.ndarray) -> None:
     for rows in (array, array[..., :1] if array.ndim else array):
