@@ -19,7 +19,7 @@ Stages (each timed alone, over every batch of the slice):
 - local messages: local-track rows to JSON payloads;
 - system messages: system-track rows (with their plots) to JSON payloads;
 - CAT062: each second's latest update per track to CAT062 blocks;
-- MCAP: the payloads (and a LocationFix per live system update) into a real MCAP log in
+- MCAP: the payloads into a real MCAP log in
   a temporary directory, closed at the end;
 - Zenoh: the payloads put on a real Zenoh session (peer, no endpoint, scouting off: the
   cost of the call, with no network behind it);

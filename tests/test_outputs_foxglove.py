@@ -498,6 +498,9 @@ def test_picture_coordinates_are_pythons_round_and_math_to_the_bit() -> None:
     rounded = _round5(columns)
     assert rounded.shape == columns.shape
     assert _bits(rounded.ravel().tolist()) == _bits([round(v, 5) for v in columns.ravel().tolist()])
+    # In any layout: a Fortran-ordered copy rounds to the same values.
+    fortran = _round5(np.asfortranarray(columns))
+    assert _bits(fortran.ravel().tolist()) == _bits(rounded.ravel().tolist())
     lon = np.concatenate([lon, rng.uniform(179.9, 180.0, 1000), np.full(1000, -179.99999)])
     lat = np.concatenate([lat, rng.uniform(89.99, 90.0, 1000), rng.uniform(-90.0, -89.99, 1000)])
     vx, vy = rng.normal(0.0, 300.0, len(lon)), rng.normal(0.0, 300.0, len(lon))

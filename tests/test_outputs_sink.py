@@ -14,6 +14,8 @@ from pathlib import Path
 import pytest
 
 from asterix.containers import Datagram
+from tracker_service.outputs.foxglove_scene import TRACKS_TOPIC
+from tracker_service.outputs.foxglove_sink import with_map_channels
 from tracker_service.outputs.mcap_log import McapLog, read_log_messages
 from tracker_service.outputs.mcap_sink import McapSink
 from tracker_service.outputs.messages import (
@@ -179,6 +181,23 @@ def test_a_message_the_output_refuses_is_not_an_outage(tmp_path: Path) -> None:
         m.data["number"] for m in read_log_messages(log.files[0]) if m.topic == "/system_tracks"
     ]
     assert logged == [2]
+
+
+def test_a_position_that_is_not_finite_is_refused_by_the_map_alone(tmp_path: Path) -> None:
+    # The log with its map channels: the JSON of /system_tracks goes in, the map refuses a
+    # fix it cannot write as JSON (NaN), counted once, not an outage; the next is whole.
+    with McapLog(tmp_path) as log:
+        sink = IsolatedSink(with_map_channels(McapSink(log), log, []))
+        bad = track(1, 10.0).model_copy(update={"lat": math.nan})
+        sink.system(bad, bad.model_dump_json().encode(), 10.0)
+        good = track(2, 11.0)
+        sink.system(good, good.model_dump_json().encode(), 11.0)
+    state = sink.state
+    assert state.ok and state.refused == 1 and state.dropped == 1 and state.outages == 0
+    messages = list(read_log_messages(log.files[0]))
+    assert [m.data["number"] for m in messages if m.topic == "/system_tracks"] == [1, 2]
+    fixes = [m.data for m in messages if m.topic == TRACKS_TOPIC]
+    assert len(fixes) == 1 and math.isfinite(fixes[0]["latitude"])
 
 
 class Hung(Destination):

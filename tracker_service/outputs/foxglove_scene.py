@@ -559,6 +559,9 @@ def _location_fixes(batch: SystemBatch) -> tuple[list[bytes], _LiveRows]:
         altitude_m,
     )
     values[:, 3:5], values[:, 5:7] = p[:, 0:2], p[:, 4:6]
+    if not np.isfinite(values).all():
+        # Refused whole (``IsolatedSink`` counts it): a fix that is not JSON for the map.
+        raise ValueError("a location must be finite")
     numbers = python_json_numbers(values.ravel().tolist())
     time = batch.time[live]
     sec = np.floor(time)
@@ -753,10 +756,9 @@ def _round5(values: FloatArray) -> FloatArray:
     with np.errstate(invalid="ignore"):
         safe = (np.abs(scaled) < 2.0**30) & (np.abs(scaled - np.floor(scaled) - 0.5) > _TIE_MARGIN)
     if not safe.all():
-        # Flat views: any shape of array.
-        flat, originals = rounded.reshape(-1), values.reshape(-1)
+        # Flat indices: any shape and layout of array (``flat`` writes through).
         for i in np.flatnonzero(~safe).tolist():
-            flat[i] = round(float(originals[i]), 5)
+            rounded.flat[i] = round(float(values.flat[i]), 5)
     return rounded
 
 

@@ -4,8 +4,8 @@ outputs, without a pydantic model (nor a dict) per update.
 ``MessageMapper.local_updates`` and ``MessageMapper.system_updates`` (``mapping.py``) turn
 the chain's rows into these, their JSON written for the whole batch at once
 (``message_json``), and the sinks carry a whole batch in one call (``sink.BatchSink``).
-A system update is a row of its batch's columns (``SystemBatch``: what CAT062, the map
-and the location fixes read) with its JSON; its plain values (``SystemValues``), its
+A system update is a row of its batch's columns (``SystemBatch``: what CAT062 and the
+Foxglove map read) with its JSON; its plain values (``SystemValues``), its
 values as a dict and its model are made only where a consumer asks for them (the picture,
 a sink without batch support, a track's end). ``LOCAL_FIELDS``/``SYSTEM_FIELDS``: the
 models' field order, which the JSON keeps (a test holds the JSON to the models' own
@@ -153,8 +153,8 @@ STATUSES = ("confirmed", "coasting", "ended")
 
 
 class SystemValues(NamedTuple):
-    """What CAT062, the Foxglove map and the log's location fixes read of a system-track
-    update: its message's fields of these names (None where the message has null; the
+    """What CAT062 and the Foxglove map read of a system-track update: its message's
+    fields of these names (None where the message has null; the
     covariance flat, row-major), ``sources`` the radars of its local tracks in their
     order, ``ages`` the sensor ages (PSR, SSR, Mode S, ADS-B), ``plot_*`` the radar,
     slant range and azimuth of its last plot, ``daps`` (name, value, age) in the
@@ -283,8 +283,8 @@ _BATCH_ROWS = (
 
 @dataclass(frozen=True, eq=False)
 class SystemBatch:
-    """System-track updates column by column: what CAT062, the map and the log's
-    location fixes read, without an object per update. Each array has one entry (row)
+    """System-track updates column by column: what CAT062 and the Foxglove map read,
+    without an object per update. Each array has one entry (row)
     per update; NaN where the message has null, -1 where it has no code or address;
     ``status`` a code of ``STATUSES``; ``callsign`` an id of ``names`` (-1 none),
     ``source_radar`` (with ``n_sources`` of each row used) and ``plot_radar`` ids of
