@@ -43,7 +43,7 @@ _log = logging.getLogger(__name__)
 
 _MAX_DATAGRAM = 65535
 _CLOSE_WAIT_S = 1.0
-"""How long ``close`` waits for a reader thread once its socket is shut down."""
+"""How long ``close`` waits for its reader threads once their sockets are shut down."""
 _RECEIVE_BUFFER = 4 * 1024 * 1024
 QUEUE_BYTES = 16 * 1024 * 1024
 """Default bound of an input's queue in bytes (beside its bound in datagrams): 1,024
@@ -182,6 +182,9 @@ def _open_socket(endpoint: UdpEndpoint) -> socket.socket:
                 sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, membership)
             except OSError as exc:
                 raise EndpointError(endpoint, exc) from None
+        # Blocking without a timeout whatever ``socket.setdefaulttimeout`` says: the
+        # readers wait in recvmsg until a datagram or close's shutdown.
+        sock.setblocking(True)
     except BaseException:
         sock.close()
         raise
@@ -434,8 +437,9 @@ class UdpInput(Closing):
             # socket, which says ENOTCONN all the same).
             with contextlib.suppress(OSError):
                 sock.shutdown(socket.SHUT_RD)
+        deadline = time.monotonic() + _CLOSE_WAIT_S  # one wait for all the threads
         for thread in self._threads:
-            thread.join(_CLOSE_WAIT_S)
+            thread.join(max(deadline - time.monotonic(), 0.0))
             if thread.is_alive():
                 _log.warning("%s: %s still waiting on its socket at close", self.name, thread.name)
         self._close_sockets()
