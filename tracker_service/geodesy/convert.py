@@ -65,21 +65,9 @@ def convert_plots(
     """Convert one radar's plots: slant range (m), azimuth as reported (deg, the site's
     north offset is added here), height above MSL (m, from ``HeightModel.heights``) and the
     sigmas (scalars or per plot) into plane positions and covariances."""
-    columns = [
-        as_float(values)
-        for values in (
-            rho_m,
-            theta_deg,
-            height_msl_m,
-            height_sigma_m,
-            sigma_rho_m,
-            sigma_theta_deg,
-        )
-    ]
-    shape = columns[0].shape
-    if not all(values.ndim == 1 and values.shape == shape for values in columns):
-        columns = [np.ravel(values) for values in np.broadcast_arrays(*columns)]
-    rho, theta, height, height_sigma, sigma_rho, sigma_theta = columns
+    rho, theta, height, height_sigma, sigma_rho, sigma_theta = _plot_columns(
+        rho_m, theta_deg, height_msl_m, height_sigma_m, sigma_rho_m, sigma_theta_deg
+    )
     geometry, sin_az, cos_az, lat, lon, h, e, n = _placed(
         site, plane, rho, theta, height, earth_radius_m
     )
@@ -139,12 +127,19 @@ def plane_positions(
 ) -> tuple[FloatArray, FloatArray]:
     """``convert_plots(...).x, .y`` alone (the same arithmetic, so the same bits), without
     the covariance and the Jacobians."""
-    columns = [as_float(values) for values in (rho_m, theta_deg, height_msl_m)]
-    if not all(values.ndim == 1 and values.shape == columns[0].shape for values in columns):
-        columns = [np.ravel(values) for values in np.broadcast_arrays(*columns)]
-    rho, theta, height = columns
+    rho, theta, height = _plot_columns(rho_m, theta_deg, height_msl_m)
     _, _, _, _, _, _, e, n = _placed(site, plane, rho, theta, height, None)
     return e, n
+
+
+def _plot_columns(*values: npt.ArrayLike) -> list[FloatArray]:
+    """Each argument as a float column, scalars and shapes broadcast to one 1-d length
+    (the usual case, columns of one length already, passes untouched)."""
+    columns = [as_float(v) for v in values]
+    shape = columns[0].shape
+    if not all(c.ndim == 1 and c.shape == shape for c in columns):
+        columns = [np.ravel(c) for c in np.broadcast_arrays(*columns)]
+    return columns
 
 
 def _placed(
