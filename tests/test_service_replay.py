@@ -15,16 +15,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from asterix.codec import Block, decode_blocks
+from tracker_service.central_stage import BIAS_HISTORY_S
 from tracker_service.cli import main
+from tracker_service.evaluation.pipeline import run_pipeline
 from tracker_service.outputs.mcap_log import LoggedMessage, read_log_messages
 from tracker_service.service import command
 from tracker_service.service.command import open_service
 from tracker_service.service.config import load_service_config
-from tracker_service.service.core import TrackerService
+from tracker_service.service.core import TrackerService, build_chain, config_from_recording
 from tracker_service.service.replay import open_replay
+from tracker_service.simulator.recording import read_recording
 
 REPO = Path(__file__).resolve().parents[1]
 SCENARIO = REPO / "config" / "scenarios" / "three_sites.toml"
@@ -392,3 +396,23 @@ def test_survivors_of_each_full_collection_leave_the_collectors_sight() -> None:
     finally:
         gc.callbacks.remove(command._freeze_after_full_collection)
         gc.unfreeze()
+
+
+def test_only_an_evaluation_keeps_the_history_of_the_biases(recording: Path) -> None:
+    """An evaluation's report plots each radar's bias over the run (an entry per radar
+    every ``BIAS_HISTORY_S`` of data); the service runs for months, where that history
+    would only grow: its chain keeps none."""
+    data = read_recording(recording)
+    service = build_chain(config_from_recording(data.metadata))
+    for datagram in data.datagrams():
+        service.feed(datagram.payload, datagram.time)
+    assert service.bias is not None and service.bias_history == service.clock_history == []
+    evaluated = run_pipeline(recording)
+    by_radar = defaultdict(list)
+    for time, source, _bias, _covariance in evaluated.bias_history:
+        by_radar[source].append(time)
+    assert sorted(by_radar) == sorted(evaluated.radars) != []
+    for times in by_radar.values():
+        assert len(times) >= 50.0 / BIAS_HISTORY_S
+        assert min(np.diff(times)) >= BIAS_HISTORY_S
+    assert len(evaluated.clock_history) == len(evaluated.bias_history)

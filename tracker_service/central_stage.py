@@ -124,7 +124,9 @@ class BatchOutput:
 class CentralStage:
     """See the module docstring. ``radars``: the configured radars (fusion numbers them
     in SAC/SIC order, so that the same configuration numbers them the same way in every
-    run); ``fusion`` None: local tracks only; ``bias`` None: no bias estimation."""
+    run); ``fusion`` None: local tracks only; ``bias`` None: no bias estimation;
+    ``bias_history``: keep ``bias_history`` and ``clock_history`` (an evaluation's: they
+    grow with the run, which a service's must not)."""
 
     def __init__(
         self,
@@ -133,6 +135,7 @@ class CentralStage:
         fusion: FusionConfig | None = None,
         bias: BiasConfig | None = None,
         time_sanity: TimeSanityConfig | None = None,
+        bias_history: bool = False,
     ) -> None:
         self.infos = dict(radars)
         self.plane = plane
@@ -159,8 +162,10 @@ class CentralStage:
                 radar_periods={k: self.infos[s].period_s for k, s in enumerate(self.sources)},
             )
         self._next_adsb_plot_id = ADSB_PLOT_ID_BASE
+        self.keeps_bias_history = bias_history
         self.bias_history: list[tuple[float, str, FloatArray, FloatArray]] = []
-        """(time, source, bias, covariance) of each radar every ``BIAS_HISTORY_S`` of data."""
+        """(time, source, bias, covariance) of each radar every ``BIAS_HISTORY_S`` of data,
+        when kept (``bias_history``)."""
         self.clock_history: list[tuple[float, str, FloatArray, FloatArray]] = []
         """(time, source, extra clock states, covariance) beside ``bias_history``."""
         uses_reference = self.bias is not None and (fusion is None or fusion.adsb != "off")
@@ -489,7 +494,7 @@ class CentralStage:
             self.bias.update(
                 observations[0] if len(observations) == 1 else concatenate(observations)
             )
-        if observations or self.adsb is not None:
+        if self.keeps_bias_history and (observations or self.adsb is not None):
             self._record_bias(radar, message.source, float(table["time"].max()))
         # Each local update's share of the residual bias, at its plot.
         extra = np.zeros((len(local), 2, 2))

@@ -123,7 +123,8 @@ class Chain:
     builds each radar's tracker (a benchmark passes one that times it);
     ``max_unknown_sources``: radars not in ``radars`` tracked at most (``sources``);
     ``radar_stage``: the radar side when it is not a ``RadarStage`` of this process;
-    ``atmosphere``: QNH and ISA deviation of the Mode C conversion (ISA when None)."""
+    ``atmosphere``: QNH and ISA deviation of the Mode C conversion (ISA when None);
+    ``bias_history``: keep the biases' history (``CentralStage``), as an evaluation does."""
 
     def __init__(
         self,
@@ -138,6 +139,7 @@ class Chain:
         max_unknown_sources: int = DEFAULT_MAX_UNKNOWN,
         radar_stage: RadarStages | None = None,
         atmosphere: Atmosphere | None = None,
+        bias_history: bool = False,
     ) -> None:
         self.infos = dict(radars)
         self.plane = plane
@@ -152,7 +154,7 @@ class Chain:
             max_unknown_sources,
             atmosphere=atmosphere,
         )
-        self.central = CentralStage(radars, plane, fusion, bias, time_sanity)
+        self.central = CentralStage(radars, plane, fusion, bias, time_sanity, bias_history)
         self.sources = self.central.fusion_sources
         """The fuser's sources by index: the radars in SAC/SIC order, then ADS-B when fused."""
         self._order = 0

@@ -192,6 +192,7 @@ def run_pipeline(
         config.fusion,
         config.bias,
         atmosphere=atmosphere,
+        bias_history=True,
     )
     system: list[npt.NDArray[Any]] = []
     sequences: dict[str, int] = defaultdict(int)
