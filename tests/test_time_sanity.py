@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import re
 import signal
 import threading
 import time
@@ -32,7 +33,7 @@ from tracker_service.chain import BatchOutput, PlotUse
 from tracker_service.cli import main
 from tracker_service.evaluation.real_data import NOMINAL_SITE_068, track_capture
 from tracker_service.fusion import FusionConfig, SystemTracker
-from tracker_service.ingest import DAY_S
+from tracker_service.ingest import DAY_S, TimeSource
 from tracker_service.outputs.messages import StatusMessage
 from tracker_service.service.config import (
     ConfigError,
@@ -42,7 +43,7 @@ from tracker_service.service.config import (
 )
 from tracker_service.service.core import Outputs, TrackerService
 from tracker_service.service.replay import open_replay
-from tracker_service.time_sanity import TimeSanity
+from tracker_service.time_sanity import TimeSanity, TimeSanityConfig
 from tracker_service.tracking import PLOT_DTYPE, LocalTracker, TrackerConfig
 from tracker_service.tracking.clock import DataClock
 
@@ -531,6 +532,44 @@ def test_north_markers_alone_give_the_offset() -> None:
     day = np.floor(1_780_000_000.0 / DAY_S) * DAY_S
     assert report.offset_s == pytest.approx(day + 36000.0 - 1_780_000_000.0)
     assert report.offset_reported
+
+
+def test_the_log_says_whether_a_time_or_an_azimuth_is_implausible(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A plot far from the radar's time is logged with its distance in seconds; one on
+    time whose azimuth the antenna did not point at then (the simulator's reflections)
+    with the azimuth the antenna had, not as "+0.0 s from the expected time"."""
+    received0 = 1_780_000_000.0
+    day = np.floor(received0 / DAY_S) * DAY_S
+    north_tod = received0 - day - 0.5
+    sanity = TimeSanity(TimeSanityConfig(log_interval_s=1.0), periods={"1/2": 4.0})
+    i140 = np.full(3, TimeSource.I140.value, dtype=np.int8)
+    for turn in range(4):
+        received = received0 + 4.0 * turn
+        north = north_tod + 4.0 * turn
+        items = {"010": {"SAC": 1, "SIC": 2}, "000": 1, "030": north, "041": 4.0}
+        sanity.service_message(items, received)
+        # Three plots a quarter turn on: at 90 degrees, the third on time at 180 (in the
+        # last turn) or a minute late (in the third).
+        times = np.full(3, day + north + 1.0)
+        theta = np.array([90.0, 90.5, 90.0])
+        if turn == 2:
+            times[2] += 60.0
+        if turn == 3:
+            theta[2] = 180.0
+        with caplog.at_level("WARNING", logger="tracker_service.time_sanity"):
+            caplog.clear()
+            _, implausible = sanity.check("1/2", times, i140, theta, received + 1.1)
+        assert implausible.tolist() == [False, False, turn >= 2]
+        warned = [r.getMessage() for r in caplog.records if "implausible" in r.getMessage()]
+        if turn == 2:
+            assert len(warned) == 1
+            late = r"e\.g\. \+(59\.[5-9]|60\.[0-4]) s from the radar's expected time"
+            assert re.search(late, warned[0])
+        if turn == 3:
+            assert len(warned) == 1
+            assert "THETA 180.0 deg where the antenna pointed -90 deg from it" in warned[0]
 
 
 def test_a_real_capture_loses_its_odd_plot_only() -> None:

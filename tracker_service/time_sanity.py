@@ -299,7 +299,7 @@ class TimeSanity:
             plausible = stamped & ~implausible
             evidence = plausible if plausible.any() else stamped
             timeline.offsets.append(_median((times[evidence] - received).tolist()))
-        self._note(timeline, times, implausible, expected, received)
+        self._note(timeline, times, theta_deg, implausible, expected, received)
         if timeline.time_base == "reception":
             times -= self._rebase(timeline, offset)
         return times, implausible
@@ -339,7 +339,7 @@ class TimeSanity:
             phases.append(new_phase)
         if not math.isnan(new_offset):
             timeline.offsets.append(new_offset)
-        self._note(timeline, checked, implausible, received + offset, received)
+        self._note(timeline, checked, theta_deg, implausible, received + offset, received)
         if timeline.time_base == "reception":
             checked -= self._rebase(timeline, offset)
         return checked, implausible
@@ -382,6 +382,7 @@ class TimeSanity:
         self,
         timeline: _Timeline,
         times: FloatArray,
+        theta_deg: FloatArray,
         implausible: BoolArray,
         expected: float,
         received: float,
@@ -394,13 +395,11 @@ class TimeSanity:
             timeline.implausible += count
             timeline.unlogged += count
             if received - timeline.logged_at >= cfg.log_interval_s:
-                worst = float(times[implausible][np.argmax(np.abs(times[implausible] - expected))])
                 log.warning(
-                    "radar %s: %d plot(s) with an implausible time kept out of tracking "
-                    "(e.g. %+.1f s from the radar's expected time)",
+                    "radar %s: %d plot(s) with an implausible time kept out of tracking (%s)",
                     timeline.source,
                     timeline.unlogged,
-                    worst - expected,
+                    self._example(timeline, times, theta_deg, implausible, expected),
                 )
                 timeline.logged_at = received
                 timeline.unlogged = 0
@@ -426,6 +425,32 @@ class TimeSanity:
         elif offset is None and reported is not None:
             log.warning("radar %s: data time back in step with its reception", timeline.source)
             timeline.reported_offset = None
+
+    def _example(
+        self,
+        timeline: _Timeline,
+        times: FloatArray,
+        theta_deg: FloatArray,
+        implausible: BoolArray,
+        expected: float,
+    ) -> str:
+        """The worst of a datagram's implausible plots, in words: a time far from the
+        radar's, or else an azimuth the antenna did not point at then (a reflection
+        timed as its true plot, a wrong THETA or time)."""
+        cfg = self.config
+        error = times[implausible] - expected
+        worst = int(np.argmax(np.abs(error)))
+        if abs(error[worst]) > cfg.latency_s + cfg.plausible_periods * timeline.period_s:
+            return f"e.g. {error[worst]:+.1f} s from the radar's expected time"
+        phases = timeline.phases
+        usual = median(phases) if phases else 0.0
+        phase = (times[implausible] - timeline.north_posix) / timeline.period_s
+        off = _wrap(phase - theta_deg[implausible] / 360.0 - usual)
+        k = int(np.nanargmax(np.abs(off))) if np.isfinite(off).any() else 0
+        return (
+            f"e.g. THETA {theta_deg[implausible][k]:.1f} deg where the antenna pointed "
+            f"{360.0 * off[k]:+.0f} deg from it at the plot's time"
+        )
 
     def _reportable(self, timeline: _Timeline) -> float | None:
         """The feed's offset when it has enough evidence and exceeds ``max_offset_s``."""
