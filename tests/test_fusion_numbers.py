@@ -5,6 +5,7 @@ system track until numbers came free)."""
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import numpy as np
@@ -101,3 +102,23 @@ def test_numbers_within_their_delay_are_taken_longest_ended_first_when_none_is_f
     fuser.process(0, _updates(np.arange(20_003, 20_008), t + 1.0), empty)
     assert len(fuser.system_tracks) == MAX_SYSTEM_NUMBER
     assert stats.numbers_reused_early == 6 and stats.numbers_exhausted == 1
+
+
+def resident_share(array: npt.NDArray[Any]) -> float:
+    """The share of an array's pages in memory (/proc/self/pagemap's "present" bit)."""
+    page = os.sysconf("SC_PAGE_SIZE")
+    first, last = array.ctypes.data // page, (array.ctypes.data + array.nbytes - 1) // page
+    with open("/proc/self/pagemap", "rb") as pagemap:
+        pagemap.seek(8 * first)
+        entries = np.frombuffer(pagemap.read(8 * (last - first + 1)), dtype="<u8")
+    return float(np.mean(entries >> np.uint64(63)))
+
+
+def test_the_table_of_every_number_is_resident_from_the_start() -> None:
+    """Sized for every number (about 20 kB a number with 48 radars), the system table
+    once grew the fusion process's memory for the whole of a half-hour run as numbers
+    were first used (lazily mapped zeros): written at start, it shows at once."""
+    fuser = SystemTracker(48, FusionConfig())
+    columns = fuser.state.sys.values()
+    assert sum(column.nbytes for column in columns) > 100 * 2**20
+    assert min(resident_share(column) for column in columns) == 1.0

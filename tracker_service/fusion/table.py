@@ -21,6 +21,7 @@ from tracker_service.fusion.arrays import (
     rank_within,
 )
 from tracker_service.fusion.messages import MAX_SOURCES, MAX_SYSTEM_NUMBER
+from tracker_service.resident_arrays import resident_zeros
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
 
@@ -129,7 +130,7 @@ class Columns(dict[str, npt.NDArray[Any]]):
         names = dtype.names or ()
         return cls(
             dtype,
-            {n: np.zeros((size, *dtype[n].shape), dtype=dtype[n].base) for n in names},
+            {n: resident_zeros((size, *dtype[n].shape), dtype[n].base) for n in names},
         )
 
     @property

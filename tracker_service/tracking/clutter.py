@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tracker_service.resident_arrays import resident_zeros
 from tracker_service.tracking import clutter_kernels
 from tracker_service.tracking.config import TrackerConfig
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
@@ -62,9 +63,9 @@ class ClutterMap:
         self.config = config
         self._n_range = max(1, math.ceil(config.max_range_m / config.range_cell_m))
         self._n_azimuth = max(1, round(360.0 / config.azimuth_cell_deg))
-        self.counts = np.zeros(self._n_range * self._n_azimuth)
+        self.counts = resident_zeros(self._n_range * self._n_azimuth)
         """Decayed number of plots per cell (flat: range-major), as of ``time``."""
-        self._active = np.empty(self.counts.size, dtype=np.int64)
+        self._active = resident_zeros(self.counts.size, np.int64)
         self._n_active = 0
         """``_active[:_n_active]``: the cells whose count is not zero (``learn_cells``
         decays only those)."""

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.resident_arrays import resident_zeros
 from tracker_service.small_arrays import concatenate_rows, is_one_of
 from tracker_service.tracking import imm, kernels, vertical
 from tracker_service.tracking.association import (
@@ -238,7 +239,7 @@ class LocalTracker:
         """(Re)allocate every field for ``capacity`` rows, keeping the live ones."""
         for name in self._table_dtype.names or ():
             field = self._table_dtype[name]
-            grown = np.zeros((capacity, *field.shape), dtype=field.base)
+            grown = resident_zeros((capacity, *field.shape), field.base)
             if name in self._cols:
                 grown[: self._n] = self._cols[name][: self._n]
             self._cols[name] = grown
