@@ -399,7 +399,7 @@ class TimeSanity:
                     "radar %s: %d plot(s) with an implausible time kept out of tracking (%s)",
                     timeline.source,
                     timeline.unlogged,
-                    self._example(timeline, times, theta_deg, implausible, expected),
+                    self._example(timeline, times[implausible], theta_deg[implausible], expected),
                 )
                 timeline.logged_at = received
                 timeline.unlogged = 0
@@ -427,28 +427,23 @@ class TimeSanity:
             timeline.reported_offset = None
 
     def _example(
-        self,
-        timeline: _Timeline,
-        times: FloatArray,
-        theta_deg: FloatArray,
-        implausible: BoolArray,
-        expected: float,
+        self, timeline: _Timeline, times: FloatArray, theta_deg: FloatArray, expected: float
     ) -> str:
-        """The worst of a datagram's implausible plots, in words: a time far from the
-        radar's, or else an azimuth the antenna did not point at then (a reflection
-        timed as its true plot, a wrong THETA or time)."""
+        """The worst of a datagram's implausible plots (their ``times`` and THETA), in
+        words: a time far from the radar's, or else an azimuth the antenna did not point
+        at then (a reflection timed as its true plot, a wrong THETA or time)."""
         cfg = self.config
-        error = times[implausible] - expected
+        error = times - expected
         worst = int(np.argmax(np.abs(error)))
         if abs(error[worst]) > cfg.latency_s + cfg.plausible_periods * timeline.period_s:
             return f"e.g. {error[worst]:+.1f} s from the radar's expected time"
         phases = timeline.phases
         usual = median(phases) if phases else 0.0
-        phase = (times[implausible] - timeline.north_posix) / timeline.period_s
-        off = _wrap(phase - theta_deg[implausible] / 360.0 - usual)
+        phase = (times - timeline.north_posix) / timeline.period_s
+        off = _wrap(phase - theta_deg / 360.0 - usual)
         k = int(np.nanargmax(np.abs(off))) if np.isfinite(off).any() else 0
         return (
-            f"e.g. THETA {theta_deg[implausible][k]:.1f} deg where the antenna pointed "
+            f"e.g. THETA {theta_deg[k]:.1f} deg where the antenna pointed "
             f"{360.0 * off[k]:+.0f} deg from it at the plot's time"
         )
 
