@@ -24,6 +24,7 @@ from tests.fault_tools import plot_block as block
 from tracker_service.chain import Chain
 from tracker_service.service.config import load_service_config
 from tracker_service.service.core import CoreState, ServiceTimings, TrackerService
+from tracker_service.service.memory import resident_mb
 from tracker_service.tracking import LocalTracker, TrackerConfig
 
 T0 = 1780300800.0
@@ -164,8 +165,14 @@ def test_health_exit_codes_and_a_supervised_output_process(tmp_path: Path) -> No
         assert code == 2, text
         assert "radar 25/11: nothing received in" in text
 
-        # The output process killed: the core restarts it and says so.
+        # Its processes' memory, as the host sees it.
         first = daemon.output_process()
+        memory = daemon.status()["memory_mb"]
+        assert set(memory) == {"core", "outputs"}
+        assert memory["core"] == pytest.approx(resident_mb(daemon.process.pid), rel=0.2)
+        assert memory["outputs"] == pytest.approx(resident_mb(first), rel=0.2)
+
+        # The output process killed: the core restarts it and says so.
         subprocess.run(["kill", "-KILL", str(first)], check=True)
         status = daemon.wait_status(
             lambda s: any(o["name"] == "output_process" for o in s["outputs"])

@@ -411,6 +411,12 @@ class StatusMessage(_Message):
     """Counts that belong to no radar of the list: errors of inputs the configuration does
     not name (a replayed capture), unknown_sources_dropped (distinct SAC/SICs whose plots
     were dropped beyond [system] max_unknown_sources)."""
+    memory_mb: dict[str, Annotated[float, Field(ge=0.0)]] = Field(default_factory=dict)
+    """Resident memory (RSS, MB) of a live service's processes: "core" (the chain: the
+    radar stages and fusion, or fusion alone in a `--role fusion` process), "outputs"
+    (the output process, when the outputs run in one); empty in a replay (whose status is
+    a function of its recording) and where the platform does not tell (Linux /proc
+    does)."""
 
 
 MODELS: tuple[type[BaseModel], ...] = (

@@ -71,6 +71,7 @@ from tracker_service.outputs.zenoh_sink import ZenohSink
 from tracker_service.radar_stage import RadarStage
 from tracker_service.ratelimit import RateLimitedLog
 from tracker_service.service.config import ServiceConfig, parse_service_config
+from tracker_service.service.memory import resident_mb
 from tracker_service.sources import SourceCounts
 from tracker_service.stage_messages import RadarBatch
 from tracker_service.test_targets import SeenTestTargets
@@ -327,6 +328,10 @@ class CoreState:
     """Why the output process was last restarted (its exit code)."""
     reasons: tuple[str, ...] = ()
     """Reason lines of the checks that run with the chain (``TrackerService.core_reasons``)."""
+    pid: int | None = None
+    """The core's process (a live service's)."""
+    resident_mb: float | None = None
+    """Its resident memory, lately (``service.memory``; a live service's)."""
 
 
 @dataclass
@@ -750,6 +755,9 @@ class Outputs:
                 f"the chain is overloaded: {shed} datagram(s) dropped unprocessed since the "
                 "last status, their turn more than [system] max_behind_s behind the wall clock"
             )
+        memory = {"core": self._core.resident_mb}
+        if self._core.pid is not None and self._core.pid != os.getpid():
+            memory["outputs"] = resident_mb()
         unattributed = dict(self._unattributed)
         if self._core.sources.unknown_sources_dropped:
             unattributed["unknown_sources_dropped"] = self._core.sources.unknown_sources_dropped
@@ -763,6 +771,7 @@ class Outputs:
             outputs=outputs,
             lag_s=lag,
             unattributed=dict(sorted(unattributed.items())),
+            memory_mb={role: mb for role, mb in memory.items() if mb is not None},
         )
 
     def _behind_dropped(self) -> int:
@@ -1070,8 +1079,14 @@ class TrackerService:
         self.outputs.set_core_state(self.core_state())
 
     def core_state(self) -> CoreState:
-        """What the status needs of the core; the daemon adds the lag and the restarts."""
+        """What the status needs of the core; the daemon adds the lag, the memory
+        (``note_live``) and the restarts."""
         return replace(self.core, sources=self.chain.admission.counts, reasons=self.core_reasons())
+
+    def note_live(self, lag_s: float | None) -> None:
+        """What only a live service's status tells (a replay's is a function of its
+        recording): its lag behind the wall clock, and this process's memory."""
+        self.core = replace(self.core, lag_s=lag_s, pid=os.getpid(), resident_mb=resident_mb())
 
     def core_reasons(self) -> tuple[str, ...]:
         """Why health is degraded, as the checks that run with the chain see it (the

@@ -310,7 +310,7 @@ class Daemon:
         self, service: TrackerService, inputs: list[UdpInput], merger: Merger
     ) -> None:
         service.set_input_counters(input_counters(inputs, merger, self.lateness))
-        service.core = replace(service.core, lag_s=self.lateness.take_lag())
+        service.note_live(self.lateness.take_lag())
 
     @staticmethod
     def _collect(inputs: list[UdpInput], ready: set[str], merger: Merger) -> bool:

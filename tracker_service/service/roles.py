@@ -502,4 +502,4 @@ class FusionRole:
         if lost > self._inbox_counted:
             service.outputs.count("stage", "stage_inbox_full", lost - self._inbox_counted)
             self._inbox_counted = lost
-        service.core = replace(service.core, lag_s=self.lateness.take_lag())
+        service.note_live(self.lateness.take_lag())
