@@ -193,3 +193,10 @@ def test_a_radar_process_killed_and_a_fusion_process_restarted(
     soon = fusion_back_at + 2 * PERIOD_S
     after = {t["number"] for t in tracks if fusion_back_at - PERIOD_S <= t["time"] < soon}
     assert len(after) >= 0.8 * len(before), (len(before), len(after))
+    # The fusion process's status says the memory of each process of the layout: its
+    # own, its output process's and each radar process's, as its heartbeat last said.
+    statuses = [m.data for m in logged(feeds.log_dir) if m.topic == "/status"]
+    roles_mb = [s["memory_mb"] for s in statuses if s["time"] < killed_at]
+    everyone = {"core", "outputs", "radar 25_11-25_12", "radar 25_13"}
+    assert any(set(m) == everyone for m in roles_mb), roles_mb
+    assert all(mb > 20.0 for m in roles_mb for mb in m.values()), roles_mb

@@ -248,14 +248,15 @@ def test_a_section_cut_short_or_of_objects_is_refused() -> None:
         read_npy(_npy_bytes(np.array([1, None], dtype=object), allow_pickle=True))
 
 
-def test_a_radar_process_input_counters_cross_on_its_watermark() -> None:
+def test_a_radar_process_input_counters_and_memory_cross_on_its_watermark() -> None:
     inputs = {
         "25_11": InputCounters(received=12, delivered=9, duplicates=3, behind_dropped=2),
         "25_12": InputCounters(kernel_drops=4, last_reception=1.78e9 + 0.25),
     }
-    beat = decode_message(encode_message(DatagramResult(7, 7e-6, inputs=inputs)))
-    assert beat.inputs == inputs and beat.batches == []
-    assert decode_message(encode_message(DatagramResult(7, 7e-6))).inputs == {}
+    beat = decode_message(encode_message(DatagramResult(7, 7e-6, inputs=inputs, resident_mb=412.5)))
+    assert beat.inputs == inputs and beat.batches == [] and beat.resident_mb == 412.5
+    bare = decode_message(encode_message(DatagramResult(7, 7e-6)))
+    assert bare.inputs == {} and bare.resident_mb is None
     # A section of another shape is refused, not half read.
     payload = encode_message(DatagramResult(7, 7e-6, inputs=inputs))
     wrong = payload.replace(b"'behind_dropped'", b"'behind_droppes'")

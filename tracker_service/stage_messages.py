@@ -128,6 +128,9 @@ class DatagramResult:
     inputs: dict[str, InputCounters] = field(default_factory=dict)
     """A radar process's input counters by input name ("25_11"), cumulative, on some
     of its watermarks: the fusion process's status shows them as the daemon's own."""
+    resident_mb: float | None = None
+    """A radar process's resident memory (MB), on the watermarks that carry its
+    counters: the fusion process's status shows it (``memory_mb``)."""
 
 
 _META = np.dtype(
@@ -331,6 +334,8 @@ def encode_message(result: DatagramResult) -> bytes:
         sections.append(_section(f"{k}/clock_evidence", batch.clock_evidence))
     if result.inputs:
         sections.append(_section("inputs", _inputs_array(result.inputs)))
+    if result.resident_mb is not None:
+        sections.append(_section("memory", np.array([result.resident_mb])))
     head = _HEAD.pack(MAGIC, int(result.kind), len(sections))
     return b"".join([head, *itertools.chain.from_iterable(sections)])
 
@@ -406,6 +411,7 @@ def decode_message(payload: bytes) -> DatagramResult:
                 )
             )
         inputs = _inputs_dict(arrays["inputs"]) if "inputs" in arrays else {}
+        memory = float(arrays["memory"][0]) if "memory" in arrays else None
     except (KeyError, IndexError, ValueError) as exc:
         raise StageMessageError(f"incomplete message: {exc!r}") from None
     return DatagramResult(
@@ -420,4 +426,5 @@ def decode_message(payload: bytes) -> DatagramResult:
         ),
         kind=kind,
         inputs=inputs,
+        resident_mb=memory,
     )

@@ -414,7 +414,8 @@ class StatusMessage(_Message):
     memory_mb: dict[str, Annotated[float, Field(ge=0.0)]] = Field(default_factory=dict)
     """Resident memory (RSS, MB) of a live service's processes: "core" (the chain: the
     radar stages and fusion, or fusion alone in a `--role fusion` process), "outputs"
-    (the output process, when the outputs run in one); empty in a replay (whose status is
+    (the output process, when the outputs run in one), "radar <name>" (each radar process
+    of a fusion process, as it last said); empty in a replay (whose status is
     a function of its recording) and where the platform does not tell (Linux /proc
     does)."""
 

@@ -332,6 +332,9 @@ class CoreState:
     """The core's process (a live service's)."""
     resident_mb: float | None = None
     """Its resident memory, lately (``service.memory``; a live service's)."""
+    others_mb: tuple[tuple[str, float], ...] = ()
+    """The resident memory of the processes that feed it (a fusion process's radar
+    processes, "radar <name>"), as they last said."""
 
 
 @dataclass
@@ -758,6 +761,7 @@ class Outputs:
         memory = {"core": self._core.resident_mb}
         if self._core.pid is not None and self._core.pid != os.getpid():
             memory["outputs"] = resident_mb()
+        memory.update(self._core.others_mb)
         unattributed = dict(self._unattributed)
         if self._core.sources.unknown_sources_dropped:
             unattributed["unknown_sources_dropped"] = self._core.sources.unknown_sources_dropped
@@ -1083,10 +1087,17 @@ class TrackerService:
         (``note_live``) and the restarts."""
         return replace(self.core, sources=self.chain.admission.counts, reasons=self.core_reasons())
 
-    def note_live(self, lag_s: float | None) -> None:
+    def note_live(self, lag_s: float | None, others_mb: Mapping[str, float] | None = None) -> None:
         """What only a live service's status tells (a replay's is a function of its
-        recording): its lag behind the wall clock, and this process's memory."""
-        self.core = replace(self.core, lag_s=lag_s, pid=os.getpid(), resident_mb=resident_mb())
+        recording): its lag behind the wall clock, this process's memory and that of the
+        processes that feed it (``others_mb``, by role)."""
+        self.core = replace(
+            self.core,
+            lag_s=lag_s,
+            pid=os.getpid(),
+            resident_mb=resident_mb(),
+            others_mb=tuple((others_mb or {}).items()),
+        )
 
     def core_reasons(self) -> tuple[str, ...]:
         """Why health is degraded, as the checks that run with the chain see it (the

@@ -63,6 +63,7 @@ from tracker_service.service.daemon import (
     open_inputs,
     take_ready,
 )
+from tracker_service.service.memory import resident_mb
 from tracker_service.service.signals import Stop
 from tracker_service.sources import SourceCounts
 from tracker_service.stage_messages import (
@@ -197,6 +198,7 @@ class RadarRole:
                     beat = DatagramResult(watermark, watermark / 1e6)
                     if now >= next_counters:
                         beat.inputs = input_counters(inputs, merger, lateness)
+                        beat.resident_mb = resident_mb()
                         next_counters = now + COUNTERS_S
                     publisher.put(encode_message(beat))
                     next_beat = now + HEARTBEAT_S
@@ -359,6 +361,8 @@ class FusionRole:
         self.inbox = StageInbox(int(system.holding_window_max_mb * 1024 * 1024), self.arrivals)
         self.remote_inputs: dict[str, dict[str, InputCounters]] = {}
         """Per radar process, its inputs' counters (from its watermarks)."""
+        self.remote_memory: dict[str, float] = {}
+        """Per live radar process, its resident memory, MB (from its watermarks)."""
         self._inbox_counted = 0
 
     def run(self, stop: Stop) -> int:
@@ -433,9 +437,12 @@ class FusionRole:
                     merge.push_batch(batch)
                 if result.inputs:
                     self.remote_inputs[producer] = result.inputs
+                if result.resident_mb is not None:
+                    self.remote_memory[producer] = result.resident_mb
             elif kind.endswith("DELETE"):
                 log.warning("radar stage %s gone: its radars coast", producer)
                 merge.gone(producer)
+                self.remote_memory.pop(producer, None)
             else:
                 merge.note(producer, -1, now)
 
@@ -502,4 +509,7 @@ class FusionRole:
         if lost > self._inbox_counted:
             service.outputs.count("stage", "stage_inbox_full", lost - self._inbox_counted)
             self._inbox_counted = lost
-        service.note_live(self.lateness.take_lag())
+        service.note_live(
+            self.lateness.take_lag(),
+            {f"radar {name}": mb for name, mb in sorted(self.remote_memory.items())},
+        )
