@@ -4,6 +4,7 @@ stage's correction of them (tracker_service.stage_messages, radar_stage, central
 from __future__ import annotations
 
 import io
+import math
 import struct
 from pathlib import Path
 
@@ -257,6 +258,9 @@ def test_a_radar_process_input_counters_and_memory_cross_on_its_watermark() -> N
     assert beat.inputs == inputs and beat.batches == [] and beat.resident_mb == 412.5
     bare = decode_message(encode_message(DatagramResult(7, 7e-6)))
     assert bare.inputs == {} and bare.resident_mb is None
+    for impossible in (-1.0, math.nan, math.inf):
+        forged = decode_message(encode_message(DatagramResult(7, 7e-6, resident_mb=impossible)))
+        assert forged.resident_mb is None
     # A section of another shape is refused, not half read.
     payload = encode_message(DatagramResult(7, 7e-6, inputs=inputs))
     wrong = payload.replace(b"'behind_dropped'", b"'behind_droppes'")

@@ -412,6 +412,10 @@ def decode_message(payload: bytes) -> DatagramResult:
             )
         inputs = _inputs_dict(arrays["inputs"]) if "inputs" in arrays else {}
         memory = float(arrays["memory"][0]) if "memory" in arrays else None
+        if memory is not None and not 0.0 <= memory < math.inf:
+            # A figure no process has is dropped, not the batches beside it (the status,
+            # whose model refuses it, would fail on every beat after).
+            memory = None
     except (KeyError, IndexError, ValueError) as exc:
         raise StageMessageError(f"incomplete message: {exc!r}") from None
     return DatagramResult(
