@@ -293,7 +293,7 @@ class TimeSanity:
             # The plot clock counted the turns up to the reception; the radar's own time
             # is elsewhere by whole turns.
             times[by_azimuth] = _nearest(times[by_azimuth], expected, period)
-        implausible = np.abs(times - expected) > cfg.latency_s + cfg.plausible_periods * period
+        implausible = np.abs(times - expected) > self._tolerance_s(timeline)
         implausible |= self._off_azimuth(timeline, times, stamped & ~implausible, theta_deg)
         if plot_offsets:
             plausible = stamped & ~implausible
@@ -354,7 +354,7 @@ class TimeSanity:
         recent &= np.isfinite(theta_deg)
         if not recent.any():
             return off
-        phase = _wrap((times[recent] - timeline.north_posix) / period - theta_deg[recent] / 360.0)
+        phase = _azimuth_phase(timeline, times[recent], theta_deg[recent])
         # The radar's usual phase (its stamping convention), from the datagrams' medians:
         # a lone stray plot is no datagram's median.
         timeline.phases.append(median(phase))
@@ -367,8 +367,7 @@ class TimeSanity:
         """The shift taken off a re-based radar's times: the offset, held steady (the
         jitter of reception must not jitter the plots) until it moves by more than the
         plausible tolerance."""
-        cfg = self.config
-        tolerance = cfg.latency_s + cfg.plausible_periods * timeline.period_s
+        tolerance = self._tolerance_s(timeline)
         if timeline.rebase_s is None or abs(offset - timeline.rebase_s) > tolerance:
             timeline.rebase_s = offset
             log.info(
@@ -405,7 +404,7 @@ class TimeSanity:
                 timeline.unlogged = 0
         offset = self._reportable(timeline)
         reported = timeline.reported_offset
-        tolerance = cfg.latency_s + cfg.plausible_periods * timeline.period_s
+        tolerance = self._tolerance_s(timeline)
         if offset is not None and (reported is None or abs(offset - reported) > tolerance):
             timeline.reported_offset = offset
             way = "ahead of" if offset > 0 else "behind"
@@ -426,21 +425,23 @@ class TimeSanity:
             log.warning("radar %s: data time back in step with its reception", timeline.source)
             timeline.reported_offset = None
 
+    def _tolerance_s(self, timeline: _Timeline) -> float:
+        """How far from the radar's expected time a plot's time may lie."""
+        return self.config.latency_s + self.config.plausible_periods * timeline.period_s
+
     def _example(
         self, timeline: _Timeline, times: FloatArray, theta_deg: FloatArray, expected: float
     ) -> str:
         """The worst of a datagram's implausible plots (their ``times`` and THETA), in
         words: a time far from the radar's, or else an azimuth the antenna did not point
         at then (a reflection timed as its true plot, a wrong THETA or time)."""
-        cfg = self.config
         error = times - expected
         worst = int(np.argmax(np.abs(error)))
-        if abs(error[worst]) > cfg.latency_s + cfg.plausible_periods * timeline.period_s:
+        if abs(error[worst]) > self._tolerance_s(timeline):
             return f"e.g. {error[worst]:+.1f} s from the radar's expected time"
         phases = timeline.phases
         usual = median(phases) if phases else 0.0
-        phase = (times - timeline.north_posix) / timeline.period_s
-        off = _wrap(phase - theta_deg / 360.0 - usual)
+        off = _wrap(_azimuth_phase(timeline, times, theta_deg) - usual)
         k = int(np.nanargmax(np.abs(off))) if np.isfinite(off).any() else 0
         return (
             f"e.g. THETA {theta_deg[k]:.1f} deg where the antenna pointed "
@@ -586,6 +587,12 @@ def _median(values: Sequence[float], toward: float | None = None) -> float:
 def _nearest(times: FloatArray, reference: float, step: float) -> FloatArray:
     """Each time moved by whole ``step`` (days, turns) to lie nearest ``reference``."""
     return np.asarray(times + step * np.round((reference - times) / step))
+
+
+def _azimuth_phase(timeline: _Timeline, times: FloatArray, theta_deg: FloatArray) -> FloatArray:
+    """Each plot's time against its azimuth: the turns from the radar's last north marker
+    less THETA's, within half a turn (the radar's usual phase where all is well)."""
+    return _wrap((times - timeline.north_posix) / timeline.period_s - theta_deg / 360.0)
 
 
 def _wrap(turns: FloatArray) -> FloatArray:

@@ -328,13 +328,9 @@ class CoreState:
     """Why the output process was last restarted (its exit code)."""
     reasons: tuple[str, ...] = ()
     """Reason lines of the checks that run with the chain (``TrackerService.core_reasons``)."""
-    pid: int | None = None
-    """The core's process (a live service's)."""
-    resident_mb: float | None = None
-    """Its resident memory, lately (``service.memory``; a live service's)."""
-    others_mb: tuple[tuple[str, float], ...] = ()
-    """The resident memory of the processes that feed it (a fusion process's radar
-    processes, "radar <name>"), as they last said."""
+    memory_mb: tuple[tuple[str, float], ...] = ()
+    """A live service's processes by role and their resident memory, lately
+    (``TrackerService.note_live``; the status's ``memory_mb``)."""
 
 
 @dataclass
@@ -758,10 +754,6 @@ class Outputs:
                 f"the chain is overloaded: {shed} datagram(s) dropped unprocessed since the "
                 "last status, their turn more than [system] max_behind_s behind the wall clock"
             )
-        memory = {"core": self._core.resident_mb}
-        if self._core.pid is not None and self._core.pid != os.getpid():
-            memory["outputs"] = resident_mb()
-        memory.update(self._core.others_mb)
         unattributed = dict(self._unattributed)
         if self._core.sources.unknown_sources_dropped:
             unattributed["unknown_sources_dropped"] = self._core.sources.unknown_sources_dropped
@@ -775,7 +767,7 @@ class Outputs:
             outputs=outputs,
             lag_s=lag,
             unattributed=dict(sorted(unattributed.items())),
-            memory_mb={role: mb for role, mb in memory.items() if mb is not None},
+            memory_mb=dict(self._core.memory_mb),
         )
 
     def _behind_dropped(self) -> int:
@@ -798,6 +790,11 @@ class Outputs:
                 self._warn.error("health_file", "cannot write %s: %s", self.health_file, exc)
         for sink in self.sinks:
             sink.status(message, self._now)
+
+    @property
+    def pid(self) -> int | None:
+        """None: this process (``OutputSink``)."""
+        return None
 
     def close(self) -> None:
         """Ends every live track (an "ended" message each, and its key deleted), sends the
@@ -900,6 +897,9 @@ class OutputSink(Protocol):
     ) -> None: ...
     def publish_status(self) -> None: ...
     def close(self) -> None: ...
+    @property
+    def pid(self) -> int | None:
+        """The process the outputs run in when it is not this one."""
 
 
 class TrackerService:
@@ -1089,15 +1089,14 @@ class TrackerService:
 
     def note_live(self, lag_s: float | None, others_mb: Mapping[str, float] | None = None) -> None:
         """What only a live service's status tells (a replay's is a function of its
-        recording): its lag behind the wall clock, this process's memory and that of the
-        processes that feed it (``others_mb``, by role)."""
-        self.core = replace(
-            self.core,
-            lag_s=lag_s,
-            pid=os.getpid(),
-            resident_mb=resident_mb(),
-            others_mb=tuple((others_mb or {}).items()),
-        )
+        recording): its lag behind the wall clock, and the memory of this process, of its
+        output process and of the processes that feed it (``others_mb``, by role)."""
+        memory = {"core": resident_mb()}
+        if self.outputs.pid is not None:
+            memory["outputs"] = resident_mb(self.outputs.pid)
+        memory.update(others_mb or {})
+        known = tuple((role, mb) for role, mb in memory.items() if mb is not None)
+        self.core = replace(self.core, lag_s=lag_s, memory_mb=known)
 
     def core_reasons(self) -> tuple[str, ...]:
         """Why health is degraded, as the checks that run with the chain see it (the
