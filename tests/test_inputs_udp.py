@@ -59,6 +59,23 @@ def test_unicast_delivery(sender: socket.socket) -> None:
     assert feed.counters.delivered == 1 and feed.counters.received == 1
 
 
+def test_payloads_are_their_own_bytes(sender: socket.socket) -> None:
+    """The reader receives into one buffer and copies each datagram out at its size: a
+    large datagram, then smaller ones, each delivered whole and alone, and unchanged by
+    the receptions after it (a view of the buffer would be overwritten)."""
+    sizes = [65_000, 12, 3_000, 12, 40_000]
+    sent = [block(n, size) for n, size in enumerate(sizes)]
+    with UdpInput("r1", UdpEndpoint("127.0.0.1", 0)) as feed:
+        port = feed.endpoints[0][1]
+        for payload in sent:
+            sender.sendto(payload, ("127.0.0.1", port))
+        wait_counters(feed, len(sent))
+        got = [feed.get(TIMEOUT_S) for _ in sent]
+    assert [type(d.payload) for d in got if d is not None] == [bytes] * len(sent)
+    assert [d.payload for d in got if d is not None] == sent
+    assert feed.counters.bytes == sum(sizes)
+
+
 def test_second_lan_duplicate_dropped_and_counted(sender: socket.socket) -> None:
     with UdpInput("r1", UdpEndpoint("127.0.0.1", 0), UdpEndpoint("127.0.0.1", 0)) as feed:
         (_, port_a), (_, port_b) = feed.endpoints
