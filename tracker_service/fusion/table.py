@@ -201,16 +201,25 @@ FRESH = {
 """A new local track's fields (the others zero)."""
 
 
+LOCAL_ROWS = 8 * (MAX_SYSTEM_NUMBER + 1)
+"""``LocalTrackTable``'s rows from the start: the system table's capacity at four local
+tracks a system track, twice over for the deleted rows ``compact`` leaves until they
+are half the table (65,536 rows, 24 MB with five models). Grown by doubling at the
+traffic's peak, the table took its memory in steps well into a service's life (on
+``artas``, 32,768 -> 65,536 rows about the 20th minute, 24 MB copied within one batch);
+allocated at once it is resident from the start, as the system table is."""
+
+
 class LocalTrackTable:
     """``rows[:n]``: every local track seen and not yet compacted away (``alive`` false
-    once deleted). ``rows`` may be replaced when it grows: read it afresh, never keep it
-    across a call that may create rows."""
+    once deleted). ``rows`` may be replaced when it grows (beyond ``capacity`` rows):
+    read it afresh, never keep it across a call that may create rows."""
 
-    def __init__(self, n_models: int, compiled: bool = False) -> None:
+    def __init__(self, n_models: int, compiled: bool = False, capacity: int = LOCAL_ROWS) -> None:
         self.n_models = n_models
         self.compiled = compiled
         """``slots`` by its compiled kernel (``fusion/kernels.py``): the same rows."""
-        self.rows = Columns.zeros(64, local_dtype(n_models))
+        self.rows = Columns.zeros(capacity, local_dtype(n_models))
         self.n = 0
         self.removed = 0
         """Rows of ``rows[:n]`` removed (not alive) since the last compaction."""
