@@ -128,7 +128,7 @@ def test_the_table_of_every_number_is_resident_from_the_start() -> None:
 def test_the_local_track_table_is_sized_for_the_system_and_resident() -> None:
     """The local-track table holds four local tracks a system number, twice over for
     the deleted rows awaiting compaction, from the start: grown by doubling at the
-    traffic's peak, it took 24 MB in one step some twenty minutes into ``artas``."""
+    traffic's peak, it took 24 MB in one step some fifteen minutes into ``artas``."""
     fuser = SystemTracker(48, FusionConfig())
     local = fuser.state.local
     assert local.rows.shape[0] == LOCAL_ROWS == 8 * (MAX_SYSTEM_NUMBER + 1)

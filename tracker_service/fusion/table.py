@@ -206,7 +206,7 @@ LOCAL_ROWS = 8 * (MAX_SYSTEM_NUMBER + 1)
 tracks a system track, twice over for the deleted rows ``compact`` leaves until they
 are half the table (65,536 rows, 24 MB with five models). Grown by doubling at the
 traffic's peak, the table took its memory in steps well into a service's life (on
-``artas``, 32,768 -> 65,536 rows about the 20th minute, 24 MB copied within one batch);
+``artas``, 32,768 -> 65,536 rows in the 16th minute, 24 MB copied within one batch);
 allocated at once it is resident from the start, as the system table is."""
 
 
