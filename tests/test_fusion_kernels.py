@@ -125,6 +125,9 @@ def _plots(rng: np.random.Generator, state: FusionState, numbers: Any) -> PlotAr
 
 SIZES = st.integers(min_value=1, max_value=40)
 SEEDS = st.integers(min_value=0, max_value=2**32 - 1)
+GROWN_FROM = 8
+"""The local-track tables' rows at first here (the service's start with
+``table.LOCAL_ROWS``): the draws create more, so that the tables grow on the way."""
 
 
 @settings(max_examples=25, deadline=None)
@@ -271,7 +274,7 @@ def test_slots_are_the_references(seed: int, k: int, max_sources: int) -> None:
     """The same rows, in the same order: most recent plot first, ties in row order (plot
     times drawn from few values), dead rows and other system tracks left out."""
     rng = np.random.default_rng(seed)
-    tables = [LocalTrackTable(5, compiled=flag) for flag in (False, True)]
+    tables = [LocalTrackTable(5, compiled=flag, capacity=GROWN_FROM) for flag in (False, True)]
     u = _local_updates(rng, k)
     rows = tables[1].find(0, u, create=True)
     assert (tables[0].find(0, u, create=True) == rows).all()
@@ -303,7 +306,7 @@ def test_radar_feeders_are_the_reference(seed: int, k: int) -> None:
     the same rows, ascending; rows of three radars moved between tracks three times, dead
     rows, numbers repeated and 0 among them."""
     rng = np.random.default_rng(seed)
-    tables = [LocalTrackTable(5, compiled=flag) for flag in (False, True)]
+    tables = [LocalTrackTable(5, compiled=flag, capacity=GROWN_FROM) for flag in (False, True)]
     radar = rng.integers(0, 3, k)
     u = _local_updates(rng, k)
     for r in range(3):
@@ -331,7 +334,7 @@ def test_store_is_the_reference(seed: int, k: int, n: int) -> None:
     rows updated several times a batch, unknown identities, flight levels missing or
     with an infinite rate, updates with and without a plot, tracks without a state."""
     rng = np.random.default_rng(seed)
-    tables = [LocalTrackTable(5, compiled=flag) for flag in (False, True)]
+    tables = [LocalTrackTable(5, compiled=flag, capacity=GROWN_FROM) for flag in (False, True)]
     rows = tables[0].find(0, _local_updates(rng, max(k, 1)), create=True)
     loc = tables[0].rows
     loc["t"][rows] = np.where(rng.random(rows.size) < 0.3, np.nan, rng.uniform(0, 9, rows.size))
