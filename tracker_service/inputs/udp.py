@@ -5,7 +5,7 @@ kernel hands the datagram over, whatever the consumer is busy with (a tracker st
 hold an event loop for milliseconds, which would both skew the reception times the plot
 clock relies on and leave the socket undrained, where the kernel drops without telling).
 Here the thread always drains the socket, and what the consumer cannot take in time is
-dropped at the queue, and counted. ``recvmsg`` waits with the GIL released and without a
+dropped at the queue, and counted. ``recvmsg_into`` waits with the GIL released and without a
 timeout, so the threads cost nothing while the feed is quiet; ``close`` shuts the sockets
 down to end the wait.
 """
