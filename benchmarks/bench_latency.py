@@ -61,6 +61,7 @@ import logging
 import math
 import re
 import shutil
+import signal
 import socket
 import statistics
 import subprocess
@@ -340,6 +341,15 @@ def main() -> int:
     own = time.process_time() - own0
     cpu_wall = time.monotonic() - cpu_wall0
     sampling.set()
+    # A process gone before its stop is a failed run, whatever the samples say (a
+    # one-process daemon that died of a segfault in its first second left only "no
+    # system track" to go by).
+    died = {
+        name: process.returncode
+        for name, process in [("daemon", daemon)]
+        + [(f"radar process {k}", p) for k, p in enumerate(radar_processes)]
+        if process.poll() is not None
+    }
     for radar_process in radar_processes:
         radar_process.terminate()
         radar_process.wait(timeout=60)
@@ -379,6 +389,11 @@ def main() -> int:
     if args.samples is not None:
         np.savetxt(args.samples, sorted(samples), fmt="%.3f", header="sent_s latency_ms")
     print(f"{len(arrivals)} system-track samples, {len(sent)} plots sent", file=sys.stderr)
+    for name, code in died.items():
+        cause = f"signal {signal.Signals(-code).name}" if code < 0 else f"exit status {code}"
+        print(f"the {name} ended during the run ({cause}): the run is void", file=sys.stderr)
+    if died:
+        return 1
     if not seen:
         print("no system track carried a plot sent here: did the subscriber connect?")
         return 1

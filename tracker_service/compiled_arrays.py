@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import numpy.typing as npt
+
+from tracker_service.numba_symbols import numba
 
 __all__ = ["maximum", "median", "minimum"]
 

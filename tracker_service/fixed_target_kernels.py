@@ -11,11 +11,11 @@ drawn and recorded batches.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
 from tracker_service.compiled_arrays import maximum, median
+from tracker_service.numba_symbols import numba
 
 __all__ = ["SETTINGS", "classify", "detect"]
 

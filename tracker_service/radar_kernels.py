@@ -18,12 +18,12 @@ from dataclasses import dataclass
 from functools import cache
 from typing import Any
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
 from tracker_service.geodesy import Atmosphere, HeightModel
 from tracker_service.ingest import DAY_S, TimeSource
+from tracker_service.numba_symbols import numba
 
 __all__ = ["LEVEL_STEPS", "PlotColumns", "level_table", "plot_columns"]
 

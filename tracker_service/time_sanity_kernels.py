@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
 from tracker_service.compiled_arrays import median
+from tracker_service.numba_symbols import numba
 
 __all__ = ["judge_times"]
 

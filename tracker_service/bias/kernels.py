@@ -11,9 +11,10 @@ ulps of the gate (tests/test_bias_kernels.py holds them to 1e-9 relative).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import numpy.typing as npt
+
+from tracker_service.numba_symbols import numba
 
 __all__ = ["gate_statistics"]
 

@@ -19,12 +19,12 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
 from tracker_service.fusion.nearby import RADIUS_MARGIN_M, RADIUS_SAFETY
 from tracker_service.fusion.table import KEY_SHIFT
+from tracker_service.numba_symbols import numba
 from tracker_service.tracking.kernels import (
     _combine_row,
     _transition,

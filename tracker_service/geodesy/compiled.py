@@ -31,7 +31,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, NamedTuple, cast
 
-import numba
 import numpy as np
 from llvmlite import ir
 from numba.core import types
@@ -44,6 +43,7 @@ from tracker_service.geodesy.ellipsoid import E2, A, FloatArray, ecef_to_geodeti
 from tracker_service.geodesy.plane import STEP_DEG, SystemPlane
 from tracker_service.geodesy.plots import MIN_COS_ELEVATION, MIN_RANGE_M
 from tracker_service.geodesy.sites import RadarSite
+from tracker_service.numba_symbols import numba
 
 __all__ = ["PlaneSteps", "convert_batch_plots", "convert_plots_compiled", "plane_jacobian_at"]
 

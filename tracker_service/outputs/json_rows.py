@@ -31,10 +31,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 import numpy.typing as npt
 from pydantic_core import to_json
+
+from tracker_service.numba_symbols import numba
 
 __all__ = [
     "HEX6",

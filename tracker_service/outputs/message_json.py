@@ -13,10 +13,10 @@ code is kept to a few calls.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.numba_symbols import numba
 from tracker_service.outputs.json_rows import (
     HEX6,
     INTEGER,

@@ -19,9 +19,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 import numpy.typing as npt
+
+from tracker_service.numba_symbols import numba
 
 __all__ = ["DAPS", "SENSORS", "StepInput", "StepResult", "SystemState"]
 

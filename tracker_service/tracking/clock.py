@@ -18,9 +18,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import numba
 import numpy as np
 import numpy.typing as npt
+
+from tracker_service.numba_symbols import numba
 
 __all__ = ["ClockStep", "DataClock"]
 

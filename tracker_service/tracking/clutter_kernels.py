@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from tracker_service.numba_symbols import numba
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 
 

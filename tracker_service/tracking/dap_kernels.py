@@ -12,11 +12,11 @@ from __future__ import annotations
 
 from typing import Any
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
 from tracker_service.geodesy.compiled import PlaneSteps, plane_jacobian_at
+from tracker_service.numba_symbols import numba
 from tracker_service.tracking.config import KNOT_M_S
 from tracker_service.tracking.daps import (
     _LIMITS,

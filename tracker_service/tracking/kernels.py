@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
+from tracker_service.numba_symbols import numba
 from tracker_service.tracking.imm import ImmPrediction, ImmUpdate
 from tracker_service.tracking.models import ModelSet
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray

@@ -30,9 +30,9 @@ from __future__ import annotations
 
 from typing import Any
 
-import numba
 import numpy as np
 
+from tracker_service.numba_symbols import numba
 from tracker_service.tracking.kernels import imm_predict, innovation_test, nan_max, nan_min
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
 

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from tracker_service.numba_symbols import numba
 from tracker_service.tracking.kernels import imm_update
 from tracker_service.tracking.plots import FloatArray, IntArray
 
