@@ -363,6 +363,20 @@ def test_the_core_freezes_survivors_while_it_runs() -> None:
         gc.unfreeze()
 
 
+def test_the_core_switches_threads_often_while_it_runs() -> None:
+    """The core's process (``open_service``) lets a waiting thread take the GIL after
+    ``SWITCH_INTERVAL_S`` (1 ms, not Python's 5), for the service's life only."""
+    config = load_service_config(REPO / "config" / "example.toml")
+    before = sys.getswitchinterval()
+    gc.unfreeze()
+    try:
+        with open_service(config, None, zenoh=False):
+            assert sys.getswitchinterval() == pytest.approx(command.SWITCH_INTERVAL_S)
+        assert sys.getswitchinterval() == before
+    finally:
+        gc.unfreeze()
+
+
 def test_survivors_of_each_full_collection_leave_the_collectors_sight() -> None:
     """``command.freeze_survivors`` (the output process's): what survives a full
     collection is frozen at its end, the next scans only what came since; garbage is

@@ -416,6 +416,28 @@ def _freeze_after_full_collection(phase: str, info: dict[str, int]) -> None:
         gc.freeze()
 
 
+SWITCH_INTERVAL_S = 0.001
+"""How long a thread of a service process may keep the GIL while another waits for it
+(Python's default: 5 ms). A plot's way through the service is a chain of threads that
+wake and need the GIL from one that computes: a radar process's UDP reader, the fusion
+process's Zenoh callback, the output process's reader of the core's calls, its Zenoh
+sink's thread; each of them waits for the computing thread to let go, at worst the whole
+interval. At 1 ms the waits shrink without any CPU seen spent on the switches
+(docs/benchmarks.md, "Session 20")."""
+
+
+@contextmanager
+def short_switch_interval() -> Iterator[None]:
+    """``SWITCH_INTERVAL_S`` while the block runs (a service's life), the interval before
+    it after (a test's process goes on)."""
+    previous = sys.getswitchinterval()
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    try:
+        yield
+    finally:
+        sys.setswitchinterval(previous)
+
+
 @contextmanager
 def open_service(
     config: ServiceConfig,
@@ -438,7 +460,7 @@ def open_service(
         ) as outputs:
             service = TrackerService(config, outputs=outputs, radar_stage=radar_stage)
             freeze_start_up()
-            with survivors_frozen():
+            with survivors_frozen(), short_switch_interval():
                 try:
                     yield service
                 finally:
@@ -447,7 +469,7 @@ def open_service(
     with open_outputs(config, mcap_dir, zenoh=zenoh) as (publisher, mcap):
         service = TrackerService(config, publisher, mcap, radar_stage=radar_stage)
         freeze_start_up()
-        with survivors_frozen():
+        with survivors_frozen(), short_switch_interval():
             try:
                 yield service
             finally:
@@ -689,6 +711,7 @@ def _serve_outputs(
             outputs.health_file = health_file
             freeze_start_up()
             freeze_survivors()
+            sys.setswitchinterval(SWITCH_INTERVAL_S)  # a process of its own: for its life
             replies.put(None)
             try:
                 told_to_stop = _make_calls(outputs, parent, calls, failed)

@@ -50,7 +50,7 @@ from tracker_service.inputs.arrivals import Arrivals
 from tracker_service.inputs.udp import InputCounters, UdpInput, kernel_drop_table
 from tracker_service.outputs.zenoh_session import zenoh_config
 from tracker_service.radar_stage import RadarState, StageStats
-from tracker_service.service.command import open_service
+from tracker_service.service.command import open_service, short_switch_interval
 from tracker_service.service.config import ServiceConfig
 from tracker_service.service.core import TrackerService, build_radar_stage, input_name
 from tracker_service.service.daemon import (
@@ -133,6 +133,10 @@ class RadarRole:
         self.name = stage_name(radars)
 
     def run(self, stop: Stop) -> int:
+        with short_switch_interval():
+            return self._run(stop)
+
+    def _run(self, stop: Stop) -> int:
         config = self.config
         mine = [r for r in config.radars if r.key in self.radars]
         arrivals = Arrivals()
