@@ -54,8 +54,10 @@ if action == "listen":
     subscriber = session.declare_subscriber(selector, show)
     print(json.dumps({"ready": True}), flush=True)
     # Until the test closes stdin, or ends on its own so that a lost sample fails the
-    # test rather than hanging it.
-    select.select([sys.stdin], [], [], 10.0)
+    # test rather than hanging it: longer than the test's own bounded waits after "ready"
+    # together (the probes up to 10 s, then the puts), which a loaded machine can spend
+    # (the fresh-clone CI ran a 10 s bound out while the test still published).
+    select.select([sys.stdin], [], [], 60.0)
 else:
     deadline = time.monotonic() + 5.0
     replies = []
