@@ -14,6 +14,7 @@ do not meet.
 from __future__ import annotations
 
 import ast
+import os
 import re
 import subprocess
 import sys
@@ -143,3 +144,22 @@ def test_every_module_compiling_takes_numba_from_numba_symbols() -> None:
             ):
                 offenders.append(f"{path.relative_to(root)}:{node.lineno}")
     assert not offenders, offenders
+
+
+def test_a_forked_child_numbers_apart_from_its_parent() -> None:
+    """A forked child draws its own start (``os.register_at_fork``): it would otherwise go
+    on from its parent's count, and the two would name their next functions alike."""
+    from numba.core.bytecode import FunctionIdentity
+
+    import tracker_service.numba_symbols  # noqa: F401  (the counter moved in this process)
+
+    read_fd, write_fd = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: its next number to the parent, and out at once
+        os.write(write_fd, str(next(FunctionIdentity._unique_ids)).encode())
+        os._exit(0)
+    os.close(write_fd)
+    child = int(os.read(read_fd, 64))
+    os.close(read_fd)
+    os.waitpid(pid, 0)
+    assert child != next(FunctionIdentity._unique_ids)
