@@ -26,6 +26,10 @@ RUN pip install --no-cache-dir -c constraints.txt . \
     && chown -R tracker /var/lib/tracker
 USER tracker
 WORKDIR /var/lib/tracker
+# numba's cache, filled as the user the service runs as (the installed package's own
+# directory is not writable to it: numba caches under ~/.cache/numba), so that a container
+# starts in seconds rather than compiling for two minutes (docs/deployment.md, "Limits").
+RUN tracker-service warm-up --config /config/tracker.toml
 # Zenoh over TLS (the command below; the configuration may add endpoints, never plaintext
 # beside TLS unless it says allow_plaintext).
 EXPOSE 7447
@@ -34,7 +38,7 @@ EXPOSE 7447
 # (the daemon stuck or gone), every radar has been silent for 60 s, or the chain is 30 s
 # behind the wall clock (`tracker-service health --help`); one radar silent or another
 # degradation is printed into the health log but stays healthy. Exit codes 0 and 1 only.
-HEALTHCHECK --interval=30s --timeout=10s --start-period=30s --retries=3 \
+HEALTHCHECK --interval=30s --timeout=10s --start-period=180s --retries=3 \
     CMD ["tracker-service", "health", "--file", "/tmp/tracker-health", "--max-age", "30", \
          "--container", "--silent-for", "60", "--behind", "30"]
 ENTRYPOINT ["tracker-service"]

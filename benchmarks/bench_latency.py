@@ -193,6 +193,13 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=180.0, help="scenario seconds")
     parser.add_argument("--holding-window", type=float, default=0.02, help="seconds")
     parser.add_argument("--no-mcap", action="store_true", help="run the daemon without log")
+    parser.add_argument(
+        "--no-warm-up",
+        action="store_true",
+        help="[system] warm_up = false: each process compiles (or loads) its kernels on the "
+        "first data instead of before it listens (with NUMBA_CACHE_DIR set to an empty "
+        "directory: the first start after an installation)",
+    )
     parser.add_argument("--profile", help="cProfile the daemon into this file")
     parser.add_argument("--samples", help="write each plot's send time (s) and latency (ms)")
     parser.add_argument(
@@ -267,6 +274,7 @@ def main() -> int:
     mcap_dir = None if args.no_mcap else work / "log"
     config = work / "tracker.json"
     doc = daemon_config(recording.metadata, ports, args.holding_window, endpoint, mcap_dir)
+    doc["system"]["warm_up"] = not args.no_warm_up
     config.write_text(json.dumps(doc), encoding="utf-8")
     radar_processes: list[subprocess.Popen[str]] = []
     if args.radar_processes:

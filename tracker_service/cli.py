@@ -145,6 +145,17 @@ def build_parser() -> argparse.ArgumentParser:
         "within --max-age seconds.",
     )
     add_health_arguments(health)
+    warm_up = commands.add_parser(
+        "warm-up",
+        help="compile the service's kernels into numba's cache (after an install, in an "
+        "image build)",
+        description="Take generated traffic through every stage of the service, so that "
+        "numba's cache holds their compiled kernels and the first start of the service is "
+        "not a two-minute compilation. Run it as the user the service runs as.",
+    )
+    from tracker_service.service.warm_up import add_arguments as add_warm_up_arguments
+
+    add_warm_up_arguments(warm_up)
     export = commands.add_parser(
         "export",
         help="write the tracks of a service log as GeoJSON, KML, CSV or Parquet",
@@ -250,6 +261,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tracker_service.export import run as export_run
 
         return export_run(args)
+    if args.command == "warm-up":
+        from tracker_service.service.warm_up import run as warm_up_run
+
+        return warm_up_run(args)
     if args.command in ("replay", "run", "health"):
         from tracker_service.service import command
 

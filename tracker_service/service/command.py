@@ -71,6 +71,7 @@ from tracker_service.service.replay import (
     parse_speed,
 )
 from tracker_service.service.signals import StopSignal, stop_on_signals
+from tracker_service.service.warm_up import OutputCalls, warm_outputs, warmed
 
 __all__ = [
     "OutputProcess",
@@ -450,15 +451,22 @@ def open_service(
     supervised: bool = True,
     health_file: Path | None = None,
     radar_stage: RadarStages | None = None,
+    warm_up: OutputCalls | None = None,
 ) -> Iterator[TrackerService]:
     """The core with its Zenoh session and MCAP log, in this process or, with
     ``output_process``, in a process of their own (which writes each status into
-    ``health_file``, and is restarted when it dies if ``supervised``: ``OutputProcess``);
-    on the way out every live track is ended, then the session and the log are closed,
-    whatever happened."""
+    ``health_file``, and is restarted when it dies if ``supervised``: ``OutputProcess``;
+    it first makes the calls of a throwaway core's warm-up, ``warm_up``, on throwaway
+    outputs); on the way out every live track is ended, then the session and the log are
+    closed, whatever happened."""
     if output_process:
         with OutputProcess(
-            config, mcap_dir, zenoh=zenoh, health_file=health_file, supervised=supervised
+            config,
+            mcap_dir,
+            zenoh=zenoh,
+            health_file=health_file,
+            supervised=supervised,
+            warm_up=warm_up,
         ) as outputs:
             service = TrackerService(config, outputs=outputs, radar_stage=radar_stage)
             freeze_start_up()
@@ -532,8 +540,12 @@ class OutputProcess:
         zenoh: bool = True,
         health_file: Path | None = None,
         supervised: bool = True,
+        warm_up: OutputCalls | None = None,
     ) -> None:
         self._args = (config, mcap_dir, zenoh, health_file)
+        self._warm_up = warm_up
+        """For the first process only: a restarted one finds its kernels in the cache
+        its predecessor filled, and the core should not wait for it any longer."""
         self._supervised = supervised
         self.summary: OutputSummary | None = None
         self.restarts = 0
@@ -559,10 +571,11 @@ class OutputProcess:
         self._replies = replies
         self._process = context.Process(
             target=_serve_outputs,
-            args=(*self._args, os.getpid(), reader, replies),
+            args=(*self._args, self._warm_up, os.getpid(), reader, replies),
             name="tracker-outputs",
         )
         self._process.start()
+        self._warm_up = None
         reader.close()  # the child's end: with it closed here, the child sees the core go
         self._next_check = 0.0
         # Started when its session and log are open: a bad endpoint fails here, as in
@@ -695,17 +708,21 @@ def _serve_outputs(
     mcap_dir: Path | None,
     zenoh: bool,
     health_file: Path | None,
+    warm_up: OutputCalls | None,
     parent: int,
     calls: Connection,
     replies: multiprocessing.Queue[str | OutputSummary | None],
 ) -> None:
     """The output process: ``Outputs`` making the calls that arrive, until told to stop
-    (then its ``OutputSummary`` into ``replies``) or until its parent is gone."""
+    (then its ``OutputSummary`` into ``replies``) or until its parent is gone; first the
+    calls of ``warm_up`` on throwaway outputs."""
     configure()
     # A signal to the process group is the parent's to handle: this process ends the
     # tracks when the parent says so, after the calls queued before.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if warm_up is not None:
+        warmed("outputs", lambda: warm_outputs(warm_up))
     failed = RateLimitedLog(log)
     try:
         with open_outputs(config, mcap_dir, zenoh=zenoh) as (publisher, mcap):

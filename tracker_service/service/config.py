@@ -181,6 +181,12 @@ class SystemConfig(_Strict):
     max_unknown_sources: Annotated[int, Field(ge=0, le=256)] = 8
     """SAC/SICs not in the configuration that are still tracked (at an assumed site, out
     of fusion); plots of further unknown sources are dropped and counted."""
+    warm_up: bool = True
+    """Live (``run``, every role): each process, its inputs bound, first takes two
+    minutes of generated traffic through throwaway copies of its stages, so that its
+    compiled kernels are ready for the first live data (``service/warm_up.py``): a few
+    seconds at each start, up to two minutes of compilation at the first after an
+    installation, instead of a chain that falls behind and sheds its first minute."""
 
 
 class ZenohConfig(_Strict):

@@ -45,6 +45,7 @@ from tracker_service.service.command import OutputProcessFailed, open_service
 from tracker_service.service.config import AdsbFeed, Lan, Radar, ServiceConfig
 from tracker_service.service.core import TrackerService, input_name
 from tracker_service.service.signals import Stop
+from tracker_service.service.warm_up import WarmUpStopped, core_warm_up
 
 __all__ = [
     "Daemon",
@@ -239,6 +240,9 @@ class Daemon:
         ``STOP_DRAIN_S``), every live track ended and the log closed."""
         config = self.config
         arrivals = Arrivals()
+        # Bound first, so that a port in use is the one line it should be at once; what
+        # arrives while the process warms up waits in the inputs' bounded queues (their
+        # overflow counted), and what is then too late is shed as any late data is.
         inputs = open_inputs(config, arrivals=arrivals)
         if not inputs:
             log.warning("no radar has an [input]: nothing will arrive")
@@ -251,9 +255,18 @@ class Daemon:
             int(system.holding_window_max_mb * 1024 * 1024),
         )
         try:
+            try:
+                warm_up = core_warm_up(config, stop)
+            except WarmUpStopped:
+                return 0
             with open_service(
-                config, config.mcap.directory, output_process=True, health_file=self.health_file
+                config,
+                config.mcap.directory,
+                output_process=True,
+                health_file=self.health_file,
+                warm_up=warm_up,
             ) as service:
+                warm_up = None  # made by the output process: nothing to keep
                 # Data time starts now, and with it the status (and the health file).
                 service.advance(time.time() - system.holding_window_s)
                 log.info("running: publishing under %s/", config.zenoh.prefix)

@@ -65,6 +65,12 @@ from tracker_service.service.daemon import (
 )
 from tracker_service.service.memory import resident_mb
 from tracker_service.service.signals import Stop
+from tracker_service.service.warm_up import (
+    WarmUpStopped,
+    core_warm_up,
+    warm_radar_stage,
+    warmed,
+)
 from tracker_service.sources import SourceCounts
 from tracker_service.stage_messages import (
     DatagramResult,
@@ -143,6 +149,13 @@ class RadarRole:
         inputs = open_inputs(
             config.model_copy(update={"radars": mine, "adsb": []}), arrivals=arrivals
         )
+        if config.system.warm_up:  # with the inputs bound: see ``Daemon.run``
+            try:
+                warmed("radar stage", lambda: warm_radar_stage(config, stop))
+            except WarmUpStopped:
+                for udp in inputs:
+                    udp.close()
+                return 0
         stage = build_radar_stage(config, incarnation=time.time_ns() // 1_000_000)
         lock = threading.Lock()
         system = config.system
@@ -374,6 +387,12 @@ class FusionRole:
         prefix = f"{config.zenoh.prefix}/stage/radars"
         window = config.system.holding_window_s
         inputs = open_inputs(config.model_copy(update={"radars": []}), arrivals=self.arrivals)
+        try:
+            warm_up = core_warm_up(config, stop, remote_radars=True)
+        except WarmUpStopped:
+            for udp in inputs:
+                udp.close()
+            return 0
         inbox = self.inbox
 
         def producer_of(key: zenoh.KeyExpr) -> str:
@@ -387,7 +406,9 @@ class FusionRole:
                 output_process=True,
                 health_file=self.health_file,
                 radar_stage=NoRadarStages(),
+                warm_up=warm_up,
             ) as service:
+                warm_up = None  # made by the output process: nothing to keep
                 service.advance(time.time() - window)
                 session.declare_subscriber(
                     f"{prefix}/*/batches",

@@ -62,10 +62,16 @@ class TwoPointInitiator:
         chosen; their order, which numbers the new tracks, is the k-d tree's that
         ``_pairs`` meets, looked up only when two or more are chosen."""
         cfg = self.config
+        # Contiguous copies of the columns (views of the rows, strided unless one row
+        # long): numba compiles a kernel for each layout it meets, and with both sides
+        # free to be either it made four copies of this one, each a compilation at its
+        # first meeting (on live data, after an installation: service/warm_up.py).
+        c = np.ascontiguousarray
         i, j, cost, reach = kernels.initiation_pairs(
-            pending.time, pending.x, pending.y, pending.R, pending.address, pending.mode3a,
-            pending.mode3a_valid, plots.time, plots.x, plots.y, plots.R, plots.address,
-            plots.mode3a, plots.mode3a_valid, cfg.max_speed_m_s, cfg.min_speed_m_s,
+            c(pending.time), c(pending.x), c(pending.y), c(pending.R), c(pending.address),
+            c(pending.mode3a), c(pending.mode3a_valid), c(plots.time), c(plots.x),
+            c(plots.y), c(plots.R), c(plots.address), c(plots.mode3a), c(plots.mode3a_valid),
+            cfg.max_speed_m_s, cfg.min_speed_m_s,
             cfg.init_min_dt_periods * cfg.scan_period_s, max_dt, NOISE_SIGMAS, SHARED_CODES,
             cfg.address_mismatch_penalty, cfg.address_bonus, cfg.mode3a_bonus, IDENTITY_SCALE,
         )  # fmt: skip

@@ -1,0 +1,203 @@
+"""The warm-up (``tracker_service.service.warm_up``): every kernel a recording's data calls
+is ready before a service listens, a warm-up that fails or is stopped costs nothing else,
+and a real daemon binds its inputs, warms its core and its output process, and then takes
+what arrived meanwhile."""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.fault_tools import DaemonProcess, plot_block, send, write_config
+from tracker_service.service.config import load_service_config
+from tracker_service.service.daemon import Daemon
+from tracker_service.service.warm_up import WarmUpStopped, warm_core, warmed
+
+REPO = Path(__file__).resolve().parents[1]
+EXAMPLE = REPO / "config" / "example.toml"
+DATA = REPO.parent / "shared" / "data" / "asterix"
+RECORDINGS = [
+    REPO / "recordings" / "three_sites.mcap",
+    DATA / "reader_network" / "canalA.gps",  # CAT001, site monitors, a real clock
+    DATA / "croatiacontrol" / "cat_034_048.pcap",
+    DATA / "reader_network" / "068test_bds30.gps",
+]
+DATAGRAMS = 6000
+"""Of each recording: canalA in full takes a minute."""
+
+# In a process of its own: a pytest worker's kernels compiled by earlier tests would
+# hide what the warm-up misses.
+_MISSED = textwrap.dedent(
+    """
+    import json, sys
+    from pathlib import Path
+    from tracker_service.evaluation.assess import (
+        DEFAULT_DAY_POSIX, _assumed_config, _capture_radars
+    )
+    from tracker_service.service.command import open_service
+    from tracker_service.service.replay import open_replay
+    from tracker_service.service.warm_up import signatures, warm_core, warm_outputs
+    from tracker_service.simulator.recording import is_mcap
+
+    paths = [Path(p) for p in sys.argv[2:]]
+    configs = []
+    for path in paths:
+        if is_mcap(path):
+            configs.append(open_replay(path).config)
+        else:
+            sources, periods, _ = _capture_radars(path)
+            configs.append(_assumed_config(sources, periods))
+    warm_outputs(warm_core(configs[0]))
+    before = signatures()
+    missed = {}
+    for path, config in zip(paths, configs):
+        replay = open_replay(path, config, DEFAULT_DAY_POSIX)
+        with open_service(replay.config, None, zenoh=False) as service:
+            for n, (name, datagram) in enumerate(replay.datagrams):
+                if n == int(sys.argv[1]):
+                    break
+                service.process(name, datagram)
+        after = signatures()
+        for kernel, types in after.items():
+            new = sorted(types - before.get(kernel, set()))
+            if new:
+                missed[f"{path.name}: {kernel}"] = new
+        before = after
+    print(json.dumps(missed))
+    """
+)
+
+
+@pytest.mark.slow
+def test_no_kernel_compiles_on_the_data_of_any_recording_after_the_warm_up() -> None:
+    """What the warm-up scenario reaches covers what real radars' data calls: after it,
+    not one kernel meets argument types it was not compiled (or loaded) for. Before, the
+    initiation kernel met a fourth layout of its columns, the picture's address table
+    its first growth and the fuser its first compaction only on live data."""
+    paths = [p for p in RECORDINGS if p.exists()]  # the real ones when ../shared is there
+    done = subprocess.run(
+        [sys.executable, "-c", _MISSED, str(DATAGRAMS), *map(str, paths)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=REPO,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    missed = json.loads(done.stdout.splitlines()[-1])
+    assert missed == {}, json.dumps(missed, indent=1)
+
+
+def test_a_warm_up_that_fails_is_logged_and_the_service_goes_on(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    def broken() -> int:
+        raise OSError("no space left on device")
+
+    with caplog.at_level(logging.INFO, logger="tracker_service.service.warm_up"):
+        assert warmed("core", broken) is None
+    failed = [r for r in caplog.records if r.levelno == logging.ERROR]
+    assert len(failed) == 1
+    assert "warm-up of the core failed: its kernels compile at their first call" in (
+        failed[0].getMessage()
+    )
+    assert "no space left on device" in caplog.text
+
+
+def test_the_throwaway_stages_say_nothing_that_reads_as_the_service(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Their summary at their end, the faults the scenario plants: kept to errors, and
+    the levels as they were afterwards."""
+    root = logging.getLogger("tracker_service")
+    level = root.level
+    with caplog.at_level(logging.INFO):
+        calls = warmed("core", lambda: warm_core(None))
+    assert calls is not None and calls.calls
+    said = {r.name for r in caplog.records}
+    assert said == {"tracker_service.service.warm_up"}, caplog.text
+    assert root.level == level
+
+
+def test_a_stop_during_the_warm_up_ends_it_and_the_daemon_opens_nothing(tmp_path: Path) -> None:
+    config_path, _ = write_config(tmp_path)
+    config = load_service_config(config_path)
+    stop = threading.Event()
+    stop.set()
+    with pytest.raises(WarmUpStopped):
+        warm_core(config, stop=stop)
+    assert Daemon(config).run(stop) == 0
+    assert not (tmp_path / "logs").exists()  # no log opened: it ended before its start
+
+
+def test_a_daemon_binds_its_inputs_then_warms_up_and_keeps_what_arrived_meanwhile(
+    tmp_path: Path,
+) -> None:
+    """A port in use must be the one line at once, so the inputs are bound first; the
+    datagrams sent during the warm-up wait in their queues and are taken after it."""
+    config, ports = write_config(tmp_path, log=False)
+    daemon = DaemonProcess(config, tmp_path / "health", wait="warming up the core")
+    try:
+        now = time.time()
+        send(ports["25/11"], [plot_block(25, 11, (now + k * 0.01) % 86400.0) for k in range(5)])
+        daemon.wait_for("running: publishing")
+        lines = daemon.log().splitlines()
+
+        def first(text: str, process: str = "MainProcess") -> int:
+            return next(i for i, line in enumerate(lines) if text in line and process in line)
+
+        listening = first("listening on")
+        core = first("warm-up of the core:")
+        outputs = first("warm-up of the outputs:", "tracker-outputs")
+        running = first("running: publishing")
+        assert listening < core < outputs < running
+        # On this machine's cache every kernel is there: loaded, not compiled.
+        assert "kernels 0 compiled" in lines[outputs], lines[outputs]
+        assert not [line for line in lines[:running] if "WARNING" in line or "ERROR" in line]
+        radar = daemon.wait_status(
+            lambda s: any(r["radar"] == "25/11" and r["last_plot_time"] for r in s["radars"])
+        )
+        mosnik = next(r for r in radar["radars"] if r["radar"] == "25/11")
+        assert mosnik["drops"] == 0 and mosnik["last_reception_time"] < now + 5.0
+    finally:
+        assert daemon.stop() == 0, daemon.log()
+        daemon.close()
+
+
+def test_warm_up_false_starts_at_once(tmp_path: Path) -> None:
+    config, _ = write_config(tmp_path, log=False, system={"warm_up": "false"})
+    daemon = DaemonProcess(config, tmp_path / "health")
+    try:
+        assert "warm" not in daemon.log()
+    finally:
+        assert daemon.stop() == 0, daemon.log()
+        daemon.close()
+
+
+def test_the_warm_up_command_says_what_it_compiled_and_where_the_cache_is() -> None:
+    """On this machine's cache (filled by the tests before): every kernel loaded, none
+    compiled; the cache named. (An empty cache takes two minutes to fill: measured by
+    hand, docs/benchmarks.md.)"""
+    done = subprocess.run(
+        [sys.executable, "-m", "tracker_service.cli", "warm-up", "--config", str(EXAMPLE)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=REPO,
+    )
+    assert done.returncode == 0, done.stderr
+    counts = re.fullmatch(
+        r"kernels (\d+) compiled, (\d+) from numba's cache in [\d.]+ s; numba's cache: (.+)",
+        done.stdout.strip(),
+    )
+    assert counts is not None, done.stdout
+    assert int(counts[1]) + int(counts[2]) >= 60
+    assert "__pycache__" in counts[3] or "numba" in counts[3]

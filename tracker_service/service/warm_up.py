@@ -1,0 +1,451 @@
+"""The kernels a service process calls, compiled (or loaded from numba's cache) before it
+takes its first live data.
+
+numba compiles a kernel at its first call in a process, or loads it from its cache
+(``__pycache__`` beside the module) when an earlier process compiled it. After an
+installation the cache is empty, and a daemon that compiled on its first live data fell
+36 s behind and shed a third of its first two minutes' datagrams (docs/reliability.md,
+finding 13); on a filled cache each process still loads some hundred kernels in its
+first batches, about a second in which the data waits. So every service process, once
+its inputs are bound (a port in use is reported at once; what arrives meanwhile waits in
+their bounded queues), first takes a generated scenario (``warm_up_scenario``: 120 s of
+30 aircraft entering and leaving, seen by a CAT048 radar on two LANs, a second one, a
+CAT001 radar and an ADS-B station, with clutter, splits, a field monitor and a test
+target) through throwaway copies of its own stages, with the service's own settings
+([tracker], [fusion], [bias] ...: they choose which kernels run), and only then runs:
+
+- ``warm_radar_stage``: a radar process (``run --role radar``);
+- ``warm_core``: the core's process (``run``, ``run --role fusion``: its radar stages
+  in other processes, ``remote_radars``); it hands back the calls its throwaway core made
+  on its outputs (``OutputCalls``), for
+- ``warm_outputs``: the output process, which makes them on throwaway ``Outputs``.
+
+None of it touches the service's own state, sessions or log. What the scenario does not
+reach (a per-radar option such as ``time_base = "reception"``, a fault seen only on real
+feeds) compiles at its first call, as before. ``[system] warm_up = false`` turns it off;
+``tracker-service warm-up`` (``run``) fills the cache without a service.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+from asterix.containers import Datagram
+from tracker_service.radar_stage import RadarStage
+from tracker_service.service.config import FoxgloveConfig, ServiceConfig
+from tracker_service.service.core import (
+    Outputs,
+    TrackerService,
+    build_radar_stage,
+    input_name,
+)
+from tracker_service.service.signals import Stop
+from tracker_service.simulator.scenario import Scenario
+from tracker_service.stage_messages import DatagramResult, decode_message, encode_message
+
+__all__ = [
+    "KernelCounts",
+    "OutputCalls",
+    "WarmUpInput",
+    "WarmUpStopped",
+    "add_arguments",
+    "core_warm_up",
+    "kernel_counts",
+    "run",
+    "signatures",
+    "warm_core",
+    "warm_outputs",
+    "warm_radar_stage",
+    "warm_up_input",
+    "warm_up_scenario",
+    "warmed",
+]
+
+log = logging.getLogger(__name__)
+
+WARM_UP_S = 120.0
+"""Long enough for tracks to be confirmed by every radar, fused, corrected for bias, sent
+as CAT062 (every 5 s) and ended (aircraft that leave): every periodic duty falls due."""
+
+_SCENARIO: dict[str, Any] = {
+    "name": "warm_up",
+    "seed": 7,
+    "start": "2026-01-01T12:00:00Z",
+    "duration_s": WARM_UP_S,
+    "system_centre": {"lat": 50.0, "lon": 10.0},
+    "radars": [
+        {
+            "name": "warm-up A",
+            "sac": 1,
+            "sic": 1,
+            "lat": 50.0,
+            "lon": 9.3,
+            "alt_m": 400.0,
+            "antenna_period_s": 4.0,
+            "max_range_nm": 120.0,
+            "dual_lan": True,
+            "bias": {"range_offset_m": 80.0, "azimuth_offset_deg": 0.05},
+            "clutter": {"persistent_per_scan": 2, "random_per_scan": 2.0},
+            "pathologies": {"split": 0.02, "missing_mode_c": 0.02, "missing_time": 0.02},
+            "field_monitor": {"lat": 50.05, "lon": 9.4, "alt_m": 300.0, "address": "FFFFF1"},
+            "test_targets": [{"range_nm": 100.0, "azimuth_deg": 45.0}],
+        },
+        {
+            "name": "warm-up B",
+            "sac": 1,
+            "sic": 2,
+            "lat": 50.2,
+            "lon": 10.6,
+            "alt_m": 500.0,
+            "antenna_period_s": 5.0,
+            "max_range_nm": 120.0,
+            "bias": {"range_offset_m": -60.0, "azimuth_offset_deg": -0.04},
+            "ehs_registers": "every_scan",
+        },
+        {
+            "name": "warm-up C",
+            "sac": 1,
+            "sic": 3,
+            "lat": 49.7,
+            "lon": 10.1,
+            "alt_m": 450.0,
+            "antenna_period_s": 6.0,
+            "max_range_nm": 120.0,
+            "mode_s": False,
+            "asterix": "cat001",
+        },
+    ],
+    "adsb_stations": [
+        {"name": "warm-up ADS-B", "sac": 1, "sic": 50, "lat": 50.0, "lon": 10.0, "alt_m": 200.0}
+    ],
+    "traffic": {
+        "count": 30,
+        "area": {"lat_min": 49.6, "lat_max": 50.4, "lon_min": 9.2, "lon_max": 10.8},
+        "turning_fraction": 0.3,
+        "climbing_fraction": 0.3,
+        "mode_s_fraction": 0.8,
+        "psr_only_fraction": 0.1,
+        "adsb_fraction": 0.6,
+        "mean_flight_s": 60.0,
+    },
+}
+
+
+def warm_up_scenario() -> Scenario:
+    """The generated traffic every service process warms up on (see the module doc)."""
+    return Scenario.model_validate(_SCENARIO)
+
+
+@dataclass
+class WarmUpInput:
+    """The warm-up scenario as a service takes it: the service's configuration over the
+    scenario's radars, and the datagrams with their input's name, in reception order."""
+
+    config: ServiceConfig
+    datagrams: list[tuple[str, Datagram]]
+
+
+def warm_up_input(config: ServiceConfig | None = None) -> WarmUpInput:
+    """``config``'s settings over the warm-up scenario's sources: its radars, ADS-B feeds
+    and system plane replaced by the scenario's, its outputs off (no Zenoh, log, ASTERIX
+    over UDP or live map: the throwaway stages send nothing anywhere). Without ``config``,
+    the scenario's own (the default settings)."""
+    # Imported here: the simulator's traffic and radar models are not otherwise loaded
+    # by a service process.
+    from tracker_service.service.replay import open_replay
+    from tracker_service.simulator.run import simulate
+
+    with tempfile.TemporaryDirectory(prefix="tracker-warm-up-") as directory:
+        path = Path(directory) / "warm_up.mcap"
+        simulate(warm_up_scenario(), path)
+        replay = open_replay(path)
+        datagrams = list(replay.datagrams)
+    scenario = replay.config
+    if config is None:
+        return WarmUpInput(scenario, datagrams)
+    system = config.system.model_copy(
+        update={
+            "centre_lat": scenario.system.centre_lat,
+            "centre_lon": scenario.system.centre_lon,
+            "sac": scenario.system.sac,
+            "sic": scenario.system.sic,
+        }
+    )
+    warm = config.model_copy(
+        update={
+            "radars": scenario.radars,
+            "adsb": scenario.adsb,
+            "system": system,
+            "atmosphere": scenario.atmosphere,
+            "asterix_udp": [],
+            "foxglove": FoxgloveConfig(),
+        }
+    )
+    return WarmUpInput(warm, datagrams)
+
+
+@dataclass
+class KernelCounts:
+    """numba's compilations and cache loads in this process so far, over every kernel of
+    the service's modules."""
+
+    compiled: int = 0
+    loaded: int = 0
+
+    def since(self, before: KernelCounts) -> KernelCounts:
+        return KernelCounts(self.compiled - before.compiled, self.loaded - before.loaded)
+
+    def __str__(self) -> str:
+        return f"{self.compiled} compiled, {self.loaded} from numba's cache"
+
+
+def _kernels() -> Iterator[Any]:
+    for name, module in list(sys.modules.items()):
+        if not (name.startswith("tracker_service.") or name.startswith("asterix.")):
+            continue
+        for value in list(vars(module).values()):
+            # numba's dispatchers, known by what is read of them (numba itself is
+            # imported by the kernels' modules, through tracker_service.numba_symbols).
+            if all(hasattr(value, a) for a in ("py_func", "signatures", "stats")):
+                yield value
+
+
+def kernel_counts() -> KernelCounts:
+    counts = KernelCounts()
+    for kernel in {id(k): k for k in _kernels()}.values():
+        stats = kernel.stats
+        counts.compiled += sum(stats.cache_misses.values())
+        counts.loaded += sum(stats.cache_hits.values())
+    return counts
+
+
+def signatures() -> dict[str, set[str]]:
+    """Every kernel of the service's modules with the argument types it is compiled for
+    in this process (a test compares them before and after real data)."""
+    out: dict[str, set[str]] = {}
+    for kernel in _kernels():
+        key = f"{kernel.py_func.__module__}.{kernel.py_func.__qualname__}"
+        out.setdefault(key, set()).update(str(s) for s in kernel.signatures)
+    return out
+
+
+T = TypeVar("T")
+
+
+def warmed(part: str, warm: Callable[[], T]) -> T | None:
+    """``warm()``, or None when it fails: a warm-up that fails (a bug, a full disk for
+    its scenario) costs the service its head start, not its start; logged."""
+    log.info(
+        "warming up the %s: kernels compiled or loaded from numba's cache (seconds; up to "
+        "two minutes at the first start after an installation)",
+        part,
+    )
+    try:
+        with _quiet():
+            return warm()
+    except WarmUpStopped:
+        raise
+    except Exception:
+        log.exception("warm-up of the %s failed: its kernels compile at their first call", part)
+        return None
+
+
+@contextmanager
+def _quiet() -> Iterator[None]:
+    """The throwaway stages' own reports kept to errors while they run: their summary at
+    their end, the faults the scenario plants, would read as the service's."""
+    loggers = [logging.getLogger(name) for name in ("tracker_service", "asterix")]
+    levels = [logger.level for logger in loggers]
+    own = log.level
+    log.setLevel(log.getEffectiveLevel())
+    for logger in loggers:
+        logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.setLevel(level)
+        log.setLevel(own)
+
+
+class WarmUpStopped(Exception):
+    """The service was told to stop while it warmed up."""
+
+
+def _check(stop: Stop | None) -> None:
+    if stop is not None and stop.is_set():
+        raise WarmUpStopped
+
+
+def warm_radar_stage(config: ServiceConfig | None, stop: Stop | None = None) -> RadarStage:
+    """A radar process's warm-up: a throwaway radar stage through the scenario (its
+    batches encoded as the process publishes them). Returns the stage (a test looks).
+    ``stop`` set: ``WarmUpStopped`` at the next datagram."""
+    started, before = time.perf_counter(), kernel_counts()
+    warm = warm_up_input(config)
+    stage = build_radar_stage(warm.config)
+    radar_inputs = {input_name(r.key) for r in warm.config.radars}
+    for name, datagram in warm.datagrams:
+        _check(stop)
+        if name not in radar_inputs or datagram.time is None:
+            continue
+        order = round(datagram.time * 1e6)
+        batches = stage.feed(datagram.payload, datagram.time, order)
+        if batches:
+            encode_message(DatagramResult(order, datagram.time, batches))
+    _done("radar stage", started, before)
+    return stage
+
+
+@dataclass
+class OutputCalls:
+    """What a throwaway core called on its outputs, in order, with the configuration to
+    build throwaway ``Outputs`` that take them (``warm_outputs``)."""
+
+    config: ServiceConfig
+    calls: list[tuple[str, tuple[Any, ...]]] = field(default_factory=list)
+
+
+class _CallRecorder:
+    """An ``OutputSink`` that keeps each call (the chain hands over nothing it reuses)."""
+
+    pid = None
+
+    def __init__(self, calls: OutputCalls) -> None:
+        self._calls = calls.calls
+
+    def __getattr__(self, method: str) -> Any:
+        def record(*args: Any) -> None:
+            self._calls.append((method, args))
+
+        return record
+
+
+def warm_core(
+    config: ServiceConfig | None, remote_radars: bool = False, stop: Stop | None = None
+) -> OutputCalls:
+    """The core's warm-up: a throwaway chain through the scenario. ``remote_radars`` (the
+    fusion process): the radar datagrams go through a radar stage here and their batches,
+    encoded and decoded as they travel, into the central stage, as the radar processes'
+    batches do; ADS-B through the chain, as the fusion process's own inputs. ``stop``
+    set: ``WarmUpStopped`` at the next datagram."""
+    started, before = time.perf_counter(), kernel_counts()
+    warm = warm_up_input(config)
+    calls = OutputCalls(warm.config)
+    recorder: Any = _CallRecorder(calls)
+    if not remote_radars:
+        service = TrackerService(warm.config, outputs=recorder)
+        for name, datagram in warm.datagrams:
+            _check(stop)
+            service.process(name, datagram)
+    else:
+        from tracker_service.service.roles import NoRadarStages
+
+        service = TrackerService(warm.config, outputs=recorder, radar_stage=NoRadarStages())
+        stage = build_radar_stage(warm.config)
+        radar_inputs = {input_name(r.key) for r in warm.config.radars}
+        for name, datagram in warm.datagrams:
+            _check(stop)
+            if name not in radar_inputs:
+                service.process(name, datagram)
+                continue
+            assert datagram.time is not None
+            order = round(datagram.time * 1e6)
+            batches = stage.feed(datagram.payload, datagram.time, order)
+            if not batches:
+                continue
+            result = decode_message(encode_message(DatagramResult(order, datagram.time, batches)))
+            for batch in result.batches:
+                service.process_batch(batch)
+    service.close()
+    _done("core", started, before)
+    return calls
+
+
+def core_warm_up(
+    config: ServiceConfig, stop: Stop, remote_radars: bool = False
+) -> OutputCalls | None:
+    """A core's process (``run``, ``run --role fusion``) before it runs, with ``[system]
+    warm_up``: ``warm_core``, and ``warm_outputs`` too, so that the kernels of the output
+    process, started next, are in numba's cache by then (it loads them, in a fraction of
+    a second, rather than compile them while data waits; a restarted one too).
+    The calls for the output process's own warm-up; None when off or failed.
+    ``WarmUpStopped`` when ``stop`` is set meanwhile."""
+    if not config.system.warm_up:
+        return None
+
+    def warm() -> OutputCalls:
+        calls = warm_core(config, remote_radars, stop)
+        warm_outputs(calls)
+        return calls
+
+    return warmed("core", warm)
+
+
+def warm_outputs(calls: OutputCalls) -> Outputs:
+    """The output process's warm-up: throwaway ``Outputs`` make a throwaway core's calls.
+    Returns them (a test looks)."""
+    started, before = time.perf_counter(), kernel_counts()
+    outputs = Outputs(calls.config)
+    for method, args in calls.calls:
+        getattr(outputs, method)(*args)
+    outputs.stop()
+    _done("outputs", started, before)
+    return outputs
+
+
+def _done(part: str, started: float, before: KernelCounts) -> None:
+    log.info(
+        "warm-up of the %s: %.1f s, kernels %s",
+        part,
+        time.perf_counter() - started,
+        kernel_counts().since(before),
+    )
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--config",
+        help="the service's configuration: its settings ([tracker], [fusion], [bias] ...) "
+        "choose which kernels run (default: the default settings)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """``tracker-service warm-up``: every stage through the warm-up scenario in this
+    process, so that numba's cache holds their kernels (as the user the service runs as:
+    an installation's own directory may not be writable to it, and numba then caches
+    per user)."""
+    from tracker_service.log_level import configure
+    from tracker_service.service.config import ConfigError, load_service_config
+
+    configure()
+    try:
+        config = None if args.config is None else load_service_config(args.config)
+    except ConfigError as exc:
+        print(f"tracker-service warm-up: {exc}", file=sys.stderr)
+        return 2
+    started, before = time.perf_counter(), kernel_counts()
+
+    def warm() -> bool:
+        warm_outputs(warm_core(config))
+        warm_outputs(warm_core(config, remote_radars=True))
+        return True
+
+    if warmed("service", warm) is None:
+        return 1
+    caches = sorted({k.stats.cache_path for k in _kernels() if k.signatures})
+    print(
+        f"kernels {kernel_counts().since(before)} in {time.perf_counter() - started:.1f} s; "
+        f"numba's cache: {', '.join(caches[:2])}{' ...' if len(caches) > 2 else ''}"
+    )
+    return 0
