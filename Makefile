@@ -34,8 +34,12 @@ lint: setup
 
 # Two workers, one test file each at a time (module fixtures are built once, in one worker),
 # in the order of tests/conftest.py (files with slow tests first), not xdist's by test count.
+# numba's cache filled first, as after an installation (docs/deployment.md): on a fresh
+# clone the kernels are compiled once, in one process, rather than by both workers and by
+# every daemon a test starts, each for up to two minutes in its warm-up.
 TEST_WORKERS ?= 2
 test: lint
+	$(BIN)/tracker-service warm-up
 	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 faults: setup

@@ -21,9 +21,11 @@ target) through throwaway copies of its own stages, with the service's own setti
 - ``warm_outputs``: the output process, which makes them on throwaway ``Outputs``.
 
 None of it touches the service's own state, sessions or log. What the scenario does not
-reach (a per-radar option such as ``time_base = "reception"``, a fault seen only on real
-feeds) compiles at its first call, as before. ``[system] warm_up = false`` turns it off;
-``tracker-service warm-up`` (``run``) fills the cache without a service.
+reach (a fault seen only on some real feed) compiles at its first call, as before; the
+per-radar options (``time_base``, ``reference``, fixed transponders) call no kernel of
+their own on three_sites (checked by hand, docs/reliability.md finding 13). ``[system]
+warm_up = false`` turns it off; ``tracker-service warm-up`` (``run``) fills the cache
+without a service.
 """
 
 from __future__ import annotations
