@@ -65,12 +65,7 @@ from tracker_service.service.daemon import (
 )
 from tracker_service.service.memory import resident_mb
 from tracker_service.service.signals import Stop
-from tracker_service.service.warm_up import (
-    WarmUpStopped,
-    core_warm_up,
-    warm_radar_stage,
-    warmed,
-)
+from tracker_service.service.warm_up import WarmUpStopped, core_warm_up, radar_warm_up
 from tracker_service.sources import SourceCounts
 from tracker_service.stage_messages import (
     DatagramResult,
@@ -149,13 +144,12 @@ class RadarRole:
         inputs = open_inputs(
             config.model_copy(update={"radars": mine, "adsb": []}), arrivals=arrivals
         )
-        if config.system.warm_up:  # with the inputs bound: see ``Daemon.run``
-            try:
-                warmed("radar stage", lambda: warm_radar_stage(config, stop))
-            except WarmUpStopped:
-                for udp in inputs:
-                    udp.close()
-                return 0
+        try:  # with the inputs bound: see ``Daemon.run``
+            radar_warm_up(config, stop)
+        except WarmUpStopped:
+            for udp in inputs:
+                udp.close()
+            return 0
         stage = build_radar_stage(config, incarnation=time.time_ns() // 1_000_000)
         lock = threading.Lock()
         system = config.system

@@ -62,6 +62,7 @@ __all__ = [
     "add_arguments",
     "core_warm_up",
     "kernel_counts",
+    "radar_warm_up",
     "run",
     "signatures",
     "warm_core",
@@ -288,24 +289,29 @@ def _check(stop: Stop | None) -> None:
         raise WarmUpStopped
 
 
-def warm_radar_stage(config: ServiceConfig | None, stop: Stop | None = None) -> RadarStage:
+def warm_radar_stage(config: ServiceConfig | None, stop: Stop | None = None) -> None:
     """A radar process's warm-up: a throwaway radar stage through the scenario (its
-    batches encoded as the process publishes them). Returns the stage (a test looks).
-    ``stop`` set: ``WarmUpStopped`` at the next datagram."""
+    batches encoded as the process publishes them). ``stop`` set: ``WarmUpStopped`` at
+    the next datagram."""
     started, before = time.perf_counter(), kernel_counts()
     warm = warm_up_input(config)
     stage = build_radar_stage(warm.config)
     radar_inputs = {input_name(r.key) for r in warm.config.radars}
     for name, datagram in warm.datagrams:
         _check(stop)
-        if name not in radar_inputs or datagram.time is None:
-            continue
-        order = round(datagram.time * 1e6)
-        batches = stage.feed(datagram.payload, datagram.time, order)
-        if batches:
-            encode_message(DatagramResult(order, datagram.time, batches))
+        if name in radar_inputs:
+            _published(stage, datagram)
     _done("radar stage", started, before)
-    return stage
+
+
+def _published(stage: RadarStage, datagram: Datagram) -> bytes | None:
+    """A radar datagram through a radar stage, its result encoded as a radar process
+    publishes it (ordered by reception in microseconds: ``roles.RadarRole``); None when
+    it made no batch."""
+    assert datagram.time is not None
+    order = round(datagram.time * 1e6)
+    batches = stage.feed(datagram.payload, datagram.time, order)
+    return encode_message(DatagramResult(order, datagram.time, batches)) if batches else None
 
 
 @dataclass
@@ -360,13 +366,8 @@ def warm_core(
             if name not in radar_inputs:
                 service.process(name, datagram)
                 continue
-            assert datagram.time is not None
-            order = round(datagram.time * 1e6)
-            batches = stage.feed(datagram.payload, datagram.time, order)
-            if not batches:
-                continue
-            result = decode_message(encode_message(DatagramResult(order, datagram.time, batches)))
-            for batch in result.batches:
+            published = _published(stage, datagram)
+            for batch in [] if published is None else decode_message(published).batches:
                 service.process_batch(batch)
     service.close()
     _done("core", started, before)
@@ -393,16 +394,22 @@ def core_warm_up(
     return warmed("core", warm)
 
 
-def warm_outputs(calls: OutputCalls) -> Outputs:
-    """The output process's warm-up: throwaway ``Outputs`` make a throwaway core's calls.
-    Returns them (a test looks)."""
+def radar_warm_up(config: ServiceConfig, stop: Stop) -> None:
+    """A radar process (``run --role radar``) before it runs, with ``[system] warm_up``:
+    ``warm_radar_stage``. ``WarmUpStopped`` when ``stop`` is set meanwhile."""
+    if config.system.warm_up:
+        warmed("radar stage", lambda: warm_radar_stage(config, stop))
+
+
+def warm_outputs(calls: OutputCalls) -> None:
+    """The output process's warm-up: throwaway ``Outputs`` make a throwaway core's
+    calls."""
     started, before = time.perf_counter(), kernel_counts()
     outputs = Outputs(calls.config)
     for method, args in calls.calls:
         getattr(outputs, method)(*args)
     outputs.stop()
     _done("outputs", started, before)
-    return outputs
 
 
 def _done(part: str, started: float, before: KernelCounts) -> None:
