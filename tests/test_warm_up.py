@@ -115,16 +115,34 @@ def test_a_warm_up_that_fails_is_logged_and_the_service_goes_on(
 def test_the_throwaway_stages_say_nothing_that_reads_as_the_service(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    """Their summary at their end, the faults the scenario plants: kept to errors, and
-    the levels as they were afterwards."""
-    root = logging.getLogger("tracker_service")
-    level = root.level
+    """Their summary at their end, the faults the scenario plants: kept to errors."""
     with caplog.at_level(logging.INFO):
         calls = warmed("core", lambda: warm_core(None))
     assert calls is not None and calls.calls
     said = {r.name for r in caplog.records}
     assert said == {"tracker_service.service.warm_up"}, caplog.text
-    assert root.level == level
+
+
+def test_the_rest_of_the_process_logs_as_before_during_a_warm_up(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The inputs' threads receive while the process warms up: their warnings stay; the
+    warm-up's own thread is kept to errors, and to nothing after it."""
+    inputs = logging.getLogger("tracker_service.inputs.udp")
+
+    def warm() -> bool:
+        inputs.warning("a stage's warning")
+        inputs.error("a stage's error")
+        other = threading.Thread(target=inputs.warning, args=("an input's warning",))
+        other.start()
+        other.join()
+        return True
+
+    with caplog.at_level(logging.INFO):
+        assert warmed("core", warm)
+        inputs.warning("after the warm-up")
+    said = [r.getMessage() for r in caplog.records if r.name == inputs.name]
+    assert said == ["a stage's error", "an input's warning", "after the warm-up"]
 
 
 def test_a_stop_during_the_warm_up_ends_it_and_the_daemon_opens_nothing(tmp_path: Path) -> None:

@@ -34,6 +34,7 @@ import argparse
 import logging
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -262,22 +263,36 @@ def warmed(part: str, warm: Callable[[], T]) -> T | None:
         return None
 
 
+class _OthersAndErrors(logging.Filter):
+    """Every record but those below ERROR that the thread ``thread`` logs outside this
+    module: the throwaway stages' own reports."""
+
+    def __init__(self, thread: int) -> None:
+        super().__init__()
+        self.thread = thread
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return (
+            record.thread != self.thread
+            or record.levelno >= logging.ERROR
+            or (record.name == log.name)
+        )
+
+
 @contextmanager
 def _quiet() -> Iterator[None]:
-    """The throwaway stages' own reports kept to errors while they run: their summary at
-    their end, the faults the scenario plants, would read as the service's."""
-    loggers = [logging.getLogger(name) for name in ("tracker_service", "asterix")]
-    levels = [logger.level for logger in loggers]
-    own = log.level
-    log.setLevel(log.getEffectiveLevel())
-    for logger in loggers:
-        logger.setLevel(logging.ERROR)
+    """The throwaway stages' own reports kept to errors while they run (their summary at
+    their end, the faults the scenario plants, would read as the service's); the rest of
+    the process, its inputs' threads already receiving, logs as before."""
+    handlers = list(logging.getLogger().handlers)
+    only = _OthersAndErrors(threading.get_ident())
+    for handler in handlers:
+        handler.addFilter(only)
     try:
         yield
     finally:
-        for logger, level in zip(loggers, levels, strict=True):
-            logger.setLevel(level)
-        log.setLevel(own)
+        for handler in handlers:
+            handler.removeFilter(only)
 
 
 class WarmUpStopped(Exception):
