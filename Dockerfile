@@ -28,7 +28,8 @@ USER tracker
 WORKDIR /var/lib/tracker
 # numba's cache, filled as the user the service runs as (the installed package's own
 # directory is not writable to it: numba caches under ~/.cache/numba), so that a container
-# starts in seconds rather than compiling for two minutes (docs/deployment.md, "Limits").
+# starts in seconds rather than compiling for two minutes, on hosts of the build host's CPU
+# model (numba keeps its cache per CPU model: docs/deployment.md, "Limits").
 RUN tracker-service warm-up --config /config/tracker.toml
 # Zenoh over TLS (the command below; the configuration may add endpoints, never plaintext
 # beside TLS unless it says allow_plaintext).

@@ -14,13 +14,15 @@ import textwrap
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from tests.fault_tools import DaemonProcess, plot_block, send, write_config
+from tracker_service.service import warm_up as warm_up_module
 from tracker_service.service.config import load_service_config
 from tracker_service.service.daemon import Daemon
-from tracker_service.service.warm_up import WarmUpStopped, warm_core, warmed
+from tracker_service.service.warm_up import warm_core, warmed
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "config" / "example.toml"
@@ -145,14 +147,39 @@ def test_the_rest_of_the_process_logs_as_before_during_a_warm_up(
     assert said == ["a stage's error", "an input's warning", "after the warm-up"]
 
 
-def test_a_stop_during_the_warm_up_ends_it_and_the_daemon_opens_nothing(tmp_path: Path) -> None:
+class _StopAfter(threading.Event):
+    """A stop request that comes while the warm-up is under way: at the ``n``-th look."""
+
+    def __init__(self, n: int) -> None:
+        super().__init__()
+        self.looks, self.n = 0, n
+
+    def is_set(self) -> bool:
+        self.looks += 1
+        if self.looks >= self.n:
+            self.set()
+        return super().is_set()
+
+
+@pytest.mark.parametrize("looks", [1, 500, 0])
+def test_a_stop_during_the_warm_up_ends_the_daemon_before_it_opens_its_log(
+    tmp_path: Path, looks: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """At the first datagram, mid-way, or (0) after the last, as the core's outputs warm
+    up: the daemon returns 0 without starting its output process or opening its log."""
     config_path, _ = write_config(tmp_path)
     config = load_service_config(config_path)
-    stop = threading.Event()
-    stop.set()
-    with pytest.raises(WarmUpStopped):
-        warm_core(config, stop=stop)
+    stop = _StopAfter(looks or 10**9)
+    if looks == 0:
+        original = warm_up_module.warm_outputs
+
+        def outputs_then_stop(calls: Any) -> None:
+            original(calls)
+            stop.set()
+
+        monkeypatch.setattr(warm_up_module, "warm_outputs", outputs_then_stop)
     assert Daemon(config).run(stop) == 0
+    assert stop.looks >= (looks or 2)
     assert not (tmp_path / "logs").exists()  # no log opened: it ended before its start
 
 
@@ -161,7 +188,8 @@ def test_a_daemon_binds_its_inputs_then_warms_up_and_keeps_what_arrived_meanwhil
 ) -> None:
     """A port in use must be the one line at once, so the inputs are bound first; the
     datagrams sent during the warm-up wait in their queues and are taken after it."""
-    config, ports = write_config(tmp_path, log=False)
+    # Kept however long the warm-up takes on a loaded machine (10 s by default).
+    config, ports = write_config(tmp_path, log=False, system={"max_behind_s": 120})
     daemon = DaemonProcess(config, tmp_path / "health", wait="warming up the core")
     try:
         now = time.time()
@@ -178,6 +206,7 @@ def test_a_daemon_binds_its_inputs_then_warms_up_and_keeps_what_arrived_meanwhil
         running = first("running: publishing")
         assert listening < core < outputs < running
         # On this machine's cache every kernel is there: loaded, not compiled.
+        assert "kernels 0 compiled" in lines[core], lines[core]
         assert "kernels 0 compiled" in lines[outputs], lines[outputs]
         assert not [line for line in lines[:running] if "WARNING" in line or "ERROR" in line]
         radar = daemon.wait_status(

@@ -544,8 +544,9 @@ class OutputProcess:
     ) -> None:
         self._args = (config, mcap_dir, zenoh, health_file)
         self._warm_up = warm_up
-        """For the first process only: a restarted one finds its kernels in the cache
-        its predecessor filled, and the core should not wait for it any longer."""
+        """For the first process only (a restarted one finds its kernels in the cache its
+        predecessor filled, and the core should not wait for it any longer); its calls are
+        dropped once that process has them, so that nothing keeps them."""
         self._supervised = supervised
         self.summary: OutputSummary | None = None
         self.restarts = 0
@@ -574,8 +575,10 @@ class OutputProcess:
             args=(*self._args, self._warm_up, os.getpid(), reader, replies),
             name="tracker-outputs",
         )
-        self._process.start()
-        self._warm_up = None
+        self._process.start()  # spawned: its arguments are pickled by now
+        if self._warm_up is not None:
+            self._warm_up.calls.clear()
+            self._warm_up = None
         reader.close()  # the child's end: with it closed here, the child sees the core go
         self._next_check = 0.0
         # Started when its session and log are open: a bad endpoint fails here, as in
@@ -723,6 +726,7 @@ def _serve_outputs(
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     if warm_up is not None:
         warmed("outputs", lambda: warm_outputs(warm_up))
+        warm_up.calls.clear()  # the process's own arguments hold it for its life
     failed = RateLimitedLog(log)
     try:
         with open_outputs(config, mcap_dir, zenoh=zenoh) as (publisher, mcap):

@@ -240,7 +240,7 @@ class Daemon:
         ``STOP_DRAIN_S``), every live track ended and the log closed."""
         config = self.config
         arrivals = Arrivals()
-        # Bound first, so that a port in use is the one line it should be at once; what
+        # Bound first, so that a UDP port in use is the one line it should be at once; what
         # arrives while the process warms up waits in the inputs' bounded queues (their
         # overflow counted), and what is then too late is shed as any late data is.
         inputs = open_inputs(config, arrivals=arrivals)
@@ -258,6 +258,8 @@ class Daemon:
             try:
                 warm_up = core_warm_up(config, stop)
             except WarmUpStopped:
+                warm_up = None
+            if stop.is_set():  # told to stop while it warmed up
                 return 0
             with open_service(
                 config,
@@ -266,7 +268,6 @@ class Daemon:
                 health_file=self.health_file,
                 warm_up=warm_up,
             ) as service:
-                warm_up = None  # made by the output process: nothing to keep
                 # Data time starts now, and with it the status (and the health file).
                 service.advance(time.time() - system.holding_window_s)
                 log.info("running: publishing under %s/", config.zenoh.prefix)

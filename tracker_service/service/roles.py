@@ -32,6 +32,7 @@ them (its tracks new to the fuser: ``stage_messages.RadarBatch.incarnation``).
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import itertools
 import logging
@@ -144,9 +145,9 @@ class RadarRole:
         inputs = open_inputs(
             config.model_copy(update={"radars": mine, "adsb": []}), arrivals=arrivals
         )
-        try:  # with the inputs bound: see ``Daemon.run``
+        with contextlib.suppress(WarmUpStopped):  # the inputs bound: see ``Daemon.run``
             radar_warm_up(config, stop)
-        except WarmUpStopped:
+        if stop.is_set():
             for udp in inputs:
                 udp.close()
             return 0
@@ -384,6 +385,8 @@ class FusionRole:
         try:
             warm_up = core_warm_up(config, stop, remote_radars=True)
         except WarmUpStopped:
+            warm_up = None
+        if stop.is_set():
             for udp in inputs:
                 udp.close()
             return 0
@@ -402,7 +405,6 @@ class FusionRole:
                 radar_stage=NoRadarStages(),
                 warm_up=warm_up,
             ) as service:
-                warm_up = None  # made by the output process: nothing to keep
                 service.advance(time.time() - window)
                 session.declare_subscriber(
                     f"{prefix}/*/batches",

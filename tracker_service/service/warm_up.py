@@ -7,7 +7,7 @@ installation the cache is empty, and a daemon that compiled on its first live da
 36 s behind and shed a third of its first two minutes' datagrams (docs/reliability.md,
 finding 13); on a filled cache each process still loads some hundred kernels in its
 first batches, about a second in which the data waits. So every service process, once
-its inputs are bound (a port in use is reported at once; what arrives meanwhile waits in
+its inputs are bound (a UDP port in use is reported at once; what arrives meanwhile waits in
 their bounded queues), first takes a generated scenario (``warm_up_scenario``: 120 s of
 30 aircraft entering and leaving, seen by a CAT048 radar on two LANs, a second one, a
 CAT001 radar and an ADS-B station, with clutter, splits, a field monitor and a test
@@ -403,7 +403,9 @@ def core_warm_up(
 
     def warm() -> OutputCalls:
         calls = warm_core(config, remote_radars, stop)
+        _check(stop)
         warm_outputs(calls)
+        _check(stop)
         return calls
 
     return warmed("core", warm)
