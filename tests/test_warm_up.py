@@ -220,6 +220,30 @@ def test_a_daemon_binds_its_inputs_then_warms_up_and_keeps_what_arrived_meanwhil
         daemon.close()
 
 
+def test_what_waited_too_long_through_the_warm_up_is_its_drop_not_the_chains(
+    tmp_path: Path,
+) -> None:
+    """With ``max_behind_s`` shorter than the warm-up, the datagrams sent during it are
+    shed when their turn comes, counted as ``warm_up``: no "overloaded", no lag."""
+    config, ports = write_config(tmp_path, log=False, system={"max_behind_s": 0.5})
+    daemon = DaemonProcess(config, tmp_path / "health", wait="warming up the core")
+    try:
+        now = time.time()
+        send(ports["25/11"], [plot_block(25, 11, (now + k * 0.01) % 86400.0) for k in range(5)])
+        daemon.wait_for("running: publishing")
+        status = daemon.wait_status(
+            lambda s: any(r["drop_causes"].get("warm_up") for r in s["radars"])
+        )
+        mosnik = next(r for r in status["radars"] if r["radar"] == "25/11")
+        assert mosnik["drop_causes"] == {"warm_up": 5}, mosnik
+        assert mosnik["last_plot_time"] is None
+        assert not [r for r in status["reasons"] if "overloaded" in r or "behind" in r]
+        assert (status["lag_s"] or 0.0) < 0.5
+    finally:
+        assert daemon.stop() == 0, daemon.log()
+        daemon.close()
+
+
 def test_warm_up_false_starts_at_once(tmp_path: Path) -> None:
     config, _ = write_config(tmp_path, log=False, system={"warm_up": "false"})
     daemon = DaemonProcess(config, tmp_path / "health")

@@ -119,6 +119,9 @@ class InputCounters:
     """Dropped unprocessed later, when their turn came more than ``[system]
     max_behind_s`` behind the wall clock (the chain overloaded: it sheds load rather than
     fall further behind); not part of the sum above either."""
+    warm_up_dropped: int = 0
+    """The same for what arrived while the process warmed up (``service/warm_up.py``):
+    late because of the start, not the chain."""
     bytes: int = 0
     last_reception: float | None = None
     """POSIX time of the last datagram received, valid or not."""

@@ -364,7 +364,8 @@ class RadarStatus(_Message):
     """What ``drops`` counts, by cause: queue (the core behind), holding_window (a burst
     beyond its bound), kernel (the socket's receive buffer full, SO_RXQ_OVFL), behind
     (the chain overloaded: dropped unprocessed, their turn more than ``[system]
-    max_behind_s`` behind the wall clock)."""
+    max_behind_s`` behind the wall clock), warm_up (the same for what arrived while the
+    process warmed up at its start)."""
     last_reception_time: float | None = None
     """Data time of the last datagram from this radar (reception, not plot time)."""
     plot_delay_s: float | None = None

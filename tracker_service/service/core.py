@@ -709,6 +709,7 @@ class Outputs:
                 "holding_window": inputs.held_dropped,
                 "kernel": inputs.kernel_drops,
                 "behind": inputs.behind_dropped,
+                "warm_up": inputs.warm_up_dropped,
             }
             errors = {kind: counters.errors[kind] for kind in ERROR_KINDS if counters.errors[kind]}
             if counters.time is not None:

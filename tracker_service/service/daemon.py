@@ -24,6 +24,7 @@ from __future__ import annotations
 import errno
 import heapq
 import logging
+import math
 import time
 from collections import Counter
 from collections.abc import Iterator
@@ -186,21 +187,31 @@ class Lateness:
     more than ``max_behind`` seconds behind, an item is dropped unprocessed and counted
     by input name (``drop_causes.behind``). Skipping costs next to nothing, so an
     overloaded chain catches up to ``max_behind`` at once and stays there, its backlog
-    (and memory) bounded, instead of falling ever further behind."""
+    (and memory) bounded, instead of falling ever further behind.
+
+    What was received before ``started`` (the process's warm-up, ``service/warm_up.py``:
+    its inputs bound, their data waiting) is late because of the start, not the chain:
+    shed all the same when too late, but counted apart (``drop_causes.warm_up``) and left
+    out of the lag."""
 
     def __init__(self, window: float, max_behind: float) -> None:
         self.window = window
         self.max_behind = max_behind
         self.dropped: Counter[str] = Counter()
+        self.warm_up_dropped: Counter[str] = Counter()
+        self.started = -math.inf
+        """When the process began to take its inputs' data (POSIX s)."""
         self._lag = 0.0
 
     def admit(self, name: str, received: float) -> bool:
         """Whether the item of input ``name`` received at ``received`` (POSIX s) is to
         be processed now; False: it is dropped, and counted."""
         behind = time.time() - received - self.window
-        self._lag = max(self._lag, behind)
+        waited = received < self.started
+        if not waited:
+            self._lag = max(self._lag, behind)
         if behind > self.max_behind:
-            self.dropped[name] += 1
+            (self.warm_up_dropped if waited else self.dropped)[name] += 1
             return False
         return True
 
@@ -221,6 +232,7 @@ def input_counters(
             udp.counters_with(drop_table),
             held_dropped=merger.dropped[udp.name],
             behind_dropped=lateness.dropped[udp.name],
+            warm_up_dropped=lateness.warm_up_dropped[udp.name],
         )
         for udp in inputs
     }
@@ -261,6 +273,7 @@ class Daemon:
                 warm_up = None
             if stop.is_set():  # told to stop while it warmed up
                 return 0
+            self.lateness.started = time.time()
             with open_service(
                 config,
                 config.mcap.directory,

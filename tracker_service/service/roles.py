@@ -151,6 +151,7 @@ class RadarRole:
             for udp in inputs:
                 udp.close()
             return 0
+        started = time.time()
         stage = build_radar_stage(config, incarnation=time.time_ns() // 1_000_000)
         lock = threading.Lock()
         system = config.system
@@ -160,6 +161,7 @@ class RadarRole:
             int(system.holding_window_max_mb * 1024 * 1024),
         )
         lateness = Lateness(system.holding_window_s, system.max_behind_s)
+        lateness.started = started
         base = f"{config.zenoh.prefix}/stage/radars/{self.name}"
         watermark = _micro(time.time() - system.holding_window_s)
         session = _session(config, self.listen, self.connect)
@@ -390,6 +392,7 @@ class FusionRole:
             for udp in inputs:
                 udp.close()
             return 0
+        self.lateness.started = time.time()
         inbox = self.inbox
 
         def producer_of(key: zenoh.KeyExpr) -> str:
@@ -525,6 +528,9 @@ class FusionRole:
         for name, n in self.lateness.dropped.items():
             entry = counters.setdefault(name, InputCounters())
             entry.behind_dropped += n
+        for name, n in self.lateness.warm_up_dropped.items():
+            entry = counters.setdefault(name, InputCounters())
+            entry.warm_up_dropped += n
         service.set_input_counters(counters)
         lost = sum(self.inbox.dropped.values())
         if lost > self._inbox_counted:
