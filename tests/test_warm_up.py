@@ -13,6 +13,8 @@ import sys
 import textwrap
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -183,18 +185,31 @@ def test_a_stop_during_the_warm_up_ends_the_daemon_before_it_opens_its_log(
     assert not (tmp_path / "logs").exists()  # no log opened: it ended before its start
 
 
+@contextmanager
+def _fed_during_warm_up(
+    tmp_path: Path, max_behind_s: float
+) -> Iterator[tuple[DaemonProcess, float]]:
+    """A daemon sent five plots of 25/11 (timed from the moment returned) while its core
+    warms up, once it runs; stopped cleanly after."""
+    config, ports = write_config(tmp_path, log=False, system={"max_behind_s": max_behind_s})
+    daemon = DaemonProcess(config, tmp_path / "health", wait="warming up the core")
+    try:
+        now = time.time()
+        send(ports["25/11"], [plot_block(25, 11, (now + k * 0.01) % 86400.0) for k in range(5)])
+        daemon.wait_for("running: publishing")
+        yield daemon, now
+    finally:
+        assert daemon.stop() == 0, daemon.log()
+        daemon.close()
+
+
 def test_a_daemon_binds_its_inputs_then_warms_up_and_keeps_what_arrived_meanwhile(
     tmp_path: Path,
 ) -> None:
     """A port in use must be the one line at once, so the inputs are bound first; the
     datagrams sent during the warm-up wait in their queues and are taken after it."""
     # Kept however long the warm-up takes on a loaded machine (10 s by default).
-    config, ports = write_config(tmp_path, log=False, system={"max_behind_s": 120})
-    daemon = DaemonProcess(config, tmp_path / "health", wait="warming up the core")
-    try:
-        now = time.time()
-        send(ports["25/11"], [plot_block(25, 11, (now + k * 0.01) % 86400.0) for k in range(5)])
-        daemon.wait_for("running: publishing")
+    with _fed_during_warm_up(tmp_path, 120.0) as (daemon, now):
         lines = daemon.log().splitlines()
 
         def first(text: str, process: str = "MainProcess") -> int:
@@ -215,9 +230,6 @@ def test_a_daemon_binds_its_inputs_then_warms_up_and_keeps_what_arrived_meanwhil
         mosnik = next(r for r in radar["radars"] if r["radar"] == "25/11")
         # The plots sent during the warm-up (their own times), none dropped.
         assert mosnik["drops"] == 0 and abs(mosnik["last_plot_time"] - (now + 0.04)) < 0.01
-    finally:
-        assert daemon.stop() == 0, daemon.log()
-        daemon.close()
 
 
 def test_what_waited_too_long_through_the_warm_up_is_its_drop_not_the_chains(
@@ -225,12 +237,7 @@ def test_what_waited_too_long_through_the_warm_up_is_its_drop_not_the_chains(
 ) -> None:
     """With ``max_behind_s`` shorter than the warm-up, the datagrams sent during it are
     shed when their turn comes, counted as ``warm_up``: no "overloaded", no lag."""
-    config, ports = write_config(tmp_path, log=False, system={"max_behind_s": 0.5})
-    daemon = DaemonProcess(config, tmp_path / "health", wait="warming up the core")
-    try:
-        now = time.time()
-        send(ports["25/11"], [plot_block(25, 11, (now + k * 0.01) % 86400.0) for k in range(5)])
-        daemon.wait_for("running: publishing")
+    with _fed_during_warm_up(tmp_path, 0.5) as (daemon, _):
         status = daemon.wait_status(
             lambda s: any(r["drop_causes"].get("warm_up") for r in s["radars"])
         )
@@ -239,9 +246,6 @@ def test_what_waited_too_long_through_the_warm_up_is_its_drop_not_the_chains(
         assert mosnik["last_plot_time"] is None
         assert not [r for r in status["reasons"] if "overloaded" in r or "behind" in r]
         assert (status["lag_s"] or 0.0) < 0.5
-    finally:
-        assert daemon.stop() == 0, daemon.log()
-        daemon.close()
 
 
 def test_warm_up_false_starts_at_once(tmp_path: Path) -> None:
