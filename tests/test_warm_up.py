@@ -42,14 +42,16 @@ DATAGRAMS = 6000
 # hide what the warm-up misses.
 _MISSED = textwrap.dedent(
     """
-    import json, sys
+    import itertools, json, sys
     from pathlib import Path
     from tracker_service.evaluation.assess import (
         DEFAULT_DAY_POSIX, _assumed_config, _capture_radars
     )
-    from tracker_service.service.command import open_service
+    from tracker_service.service.core import Outputs
     from tracker_service.service.replay import open_replay
-    from tracker_service.service.warm_up import signatures, warm_core, warm_outputs
+    from tracker_service.service.warm_up import (
+        feed_core, signatures, warm_core, warm_outputs
+    )
     from tracker_service.simulator.recording import is_mcap
 
     paths = [Path(p) for p in sys.argv[2:]]
@@ -60,22 +62,21 @@ _MISSED = textwrap.dedent(
         else:
             sources, periods, _ = _capture_radars(path)
             configs.append(_assumed_config(sources, periods))
-    warm_outputs(warm_core(configs[0]))
+    for remote in (False, True):
+        warm_outputs(warm_core(configs[0], remote_radars=remote))
     before = signatures()
     missed = {}
     for path, config in zip(paths, configs):
-        replay = open_replay(path, config, DEFAULT_DAY_POSIX)
-        with open_service(replay.config, None, zenoh=False) as service:
-            for n, (name, datagram) in enumerate(replay.datagrams):
-                if n == int(sys.argv[1]):
-                    break
-                service.process(name, datagram)
-        after = signatures()
-        for kernel, types in after.items():
-            new = sorted(types - before.get(kernel, set()))
-            if new:
-                missed[f"{path.name}: {kernel}"] = new
-        before = after
+        for remote in (False, True):  # one process; the fusion process's path
+            replay = open_replay(path, config, DEFAULT_DAY_POSIX)
+            datagrams = itertools.islice(replay.datagrams, int(sys.argv[1]))
+            feed_core(replay.config, datagrams, Outputs(replay.config), remote)
+            after = signatures()
+            for kernel, types in after.items():
+                new = sorted(types - before.get(kernel, set()))
+                if new:
+                    missed[f"{path.name} ({'fusion' if remote else 'one'}): {kernel}"] = new
+            before = after
     print(json.dumps(missed))
     """
 )
@@ -83,10 +84,12 @@ _MISSED = textwrap.dedent(
 
 @pytest.mark.slow
 def test_no_kernel_compiles_on_the_data_of_any_recording_after_the_warm_up() -> None:
-    """What the warm-up scenario reaches covers what real radars' data calls: after it,
-    not one kernel meets argument types it was not compiled (or loaded) for. Before, the
-    initiation kernel met a fourth layout of its columns, the picture's address table
-    its first growth and the fuser its first compaction only on live data."""
+    """What the warm-up scenario reaches covers what real radars' data calls, in one
+    process and in the fusion process's path (its radar batches encoded and decoded):
+    after it, not one kernel meets argument types it was not compiled (or loaded) for.
+    Before, the initiation kernel met a fourth layout of its columns, the picture's
+    address table its first growth and the fuser its first compaction only on live
+    data."""
     paths = [p for p in RECORDINGS if p.exists()]  # the real ones when ../shared is there
     done = subprocess.run(
         [sys.executable, "-c", _MISSED, str(DATAGRAMS), *map(str, paths)],

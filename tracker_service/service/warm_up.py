@@ -36,7 +36,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,6 +62,7 @@ __all__ = [
     "WarmUpStopped",
     "add_arguments",
     "core_warm_up",
+    "feed_core",
     "kernel_counts",
     "radar_warm_up",
     "run",
@@ -356,27 +357,41 @@ class _CallRecorder:
 def warm_core(
     config: ServiceConfig | None, remote_radars: bool = False, stop: Stop | None = None
 ) -> OutputCalls:
-    """The core's warm-up: a throwaway chain through the scenario. ``remote_radars`` (the
-    fusion process): the radar datagrams go through a radar stage here and their batches,
-    encoded and decoded as they travel, into the central stage, as the radar processes'
-    batches do; ADS-B through the chain, as the fusion process's own inputs. ``stop``
-    set: ``WarmUpStopped`` at the next datagram."""
+    """The core's warm-up: a throwaway chain through the scenario (``feed_core``), the
+    calls it made on its outputs kept. ``stop`` set: ``WarmUpStopped`` at the next
+    datagram."""
     started, before = time.perf_counter(), kernel_counts()
     warm = warm_up_input(config)
     calls = OutputCalls(warm.config)
-    recorder: Any = _CallRecorder(calls)
+    feed_core(warm.config, warm.datagrams, _CallRecorder(calls), remote_radars, stop)
+    _done("core", started, before)
+    return calls
+
+
+def feed_core(
+    config: ServiceConfig,
+    datagrams: Iterable[tuple[str, Datagram]],
+    outputs: Any,
+    remote_radars: bool = False,
+    stop: Stop | None = None,
+) -> None:
+    """``datagrams`` through a core of ``config`` whose outputs are ``outputs`` (an
+    ``OutputSink``), closed after. ``remote_radars`` (the fusion process): the radar
+    datagrams go through a radar stage here and their batches, encoded and decoded as
+    they travel, into the central stage, as the radar processes' batches do; ADS-B
+    through the chain, as the fusion process's own inputs."""
     if not remote_radars:
-        service = TrackerService(warm.config, outputs=recorder)
-        for name, datagram in warm.datagrams:
+        service = TrackerService(config, outputs=outputs)
+        for name, datagram in datagrams:
             _check(stop)
             service.process(name, datagram)
     else:
         from tracker_service.service.roles import NoRadarStages
 
-        service = TrackerService(warm.config, outputs=recorder, radar_stage=NoRadarStages())
-        stage = build_radar_stage(warm.config)
-        radar_inputs = {input_name(r.key) for r in warm.config.radars}
-        for name, datagram in warm.datagrams:
+        service = TrackerService(config, outputs=outputs, radar_stage=NoRadarStages())
+        stage = build_radar_stage(config)
+        radar_inputs = {input_name(r.key) for r in config.radars}
+        for name, datagram in datagrams:
             _check(stop)
             if name not in radar_inputs:
                 service.process(name, datagram)
@@ -385,8 +400,6 @@ def warm_core(
             for batch in [] if published is None else decode_message(published).batches:
                 service.process_batch(batch)
     service.close()
-    _done("core", started, before)
-    return calls
 
 
 def core_warm_up(
