@@ -47,10 +47,12 @@ _MISSED = textwrap.dedent(
     from tracker_service.evaluation.assess import (
         DEFAULT_DAY_POSIX, _assumed_config, _capture_radars
     )
+    import pickle
+    from tracker_service.service.call_pickle import CallPickler
     from tracker_service.service.core import Outputs
     from tracker_service.service.replay import open_replay
     from tracker_service.service.warm_up import (
-        feed_core, signatures, warm_core, warm_outputs
+        OutputCalls, _CallRecorder, feed_core, signatures, warm_core, warm_outputs
     )
     from tracker_service.simulator.recording import is_mcap
 
@@ -70,7 +72,15 @@ _MISSED = textwrap.dedent(
         for remote in (False, True):  # one process; the fusion process's path
             replay = open_replay(path, config, DEFAULT_DAY_POSIX)
             datagrams = itertools.islice(replay.datagrams, int(sys.argv[1]))
-            feed_core(replay.config, datagrams, Outputs(replay.config), remote)
+            # The calls on the outputs as the output process takes them: through the
+            # core's pickler, each made on Outputs after its trip.
+            calls = OutputCalls(replay.config)
+            feed_core(replay.config, datagrams, _CallRecorder(calls), remote)
+            outputs, pickler = Outputs(replay.config), CallPickler()
+            for call in calls.calls:
+                method, args = pickle.loads(pickler.dumps(call))
+                getattr(outputs, method)(*args)
+            outputs.stop()
             after = signatures()
             for kernel, types in after.items():
                 new = sorted(types - before.get(kernel, set()))
@@ -85,7 +95,8 @@ _MISSED = textwrap.dedent(
 @pytest.mark.slow
 def test_no_kernel_compiles_on_the_data_of_any_recording_after_the_warm_up() -> None:
     """What the warm-up scenario reaches covers what real radars' data calls, in one
-    process and in the fusion process's path (its radar batches encoded and decoded):
+    process and in the fusion process's path (its radar batches encoded and decoded),
+    and in the output process (the calls pickled as the core sends them):
     after it, not one kernel meets argument types it was not compiled (or loaded) for.
     Before, the initiation kernel met a fourth layout of its columns, the picture's
     address table its first growth and the fuser its first compaction only on live
