@@ -24,7 +24,7 @@ from tests.fault_tools import DaemonProcess, plot_block, send, write_config
 from tracker_service.service import warm_up as warm_up_module
 from tracker_service.service.config import load_service_config
 from tracker_service.service.daemon import Daemon
-from tracker_service.service.warm_up import warm_core, warmed
+from tracker_service.service.warm_up import warm_core, warm_up_input, warmed
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "config" / "example.toml"
@@ -52,7 +52,8 @@ _MISSED = textwrap.dedent(
     from tracker_service.service.core import Outputs
     from tracker_service.service.replay import open_replay
     from tracker_service.service.warm_up import (
-        OutputCalls, _CallRecorder, feed_core, signatures, warm_core, warm_outputs
+        OutputCalls, _CallRecorder, feed_core, signatures, warm_core, warm_outputs,
+        warm_up_input,
     )
     from tracker_service.simulator.recording import is_mcap
 
@@ -65,7 +66,7 @@ _MISSED = textwrap.dedent(
             sources, periods, _ = _capture_radars(path)
             configs.append(_assumed_config(sources, periods))
     for remote in (False, True):
-        warm_outputs(warm_core(configs[0], remote_radars=remote))
+        warm_outputs(warm_core(warm_up_input(configs[0]), remote_radars=remote))
     before = signatures()
     missed = {}
     for path, config in zip(paths, configs):
@@ -135,7 +136,7 @@ def test_the_throwaway_stages_say_nothing_that_reads_as_the_service(
 ) -> None:
     """Their summary at their end, the faults the scenario plants: kept to errors."""
     with caplog.at_level(logging.INFO):
-        calls = warmed("core", lambda: warm_core(None))
+        calls = warmed("core", lambda: warm_core(warm_up_input()))
     assert calls is not None and calls.calls
     said = {r.name for r in caplog.records}
     assert said == {"tracker_service.service.warm_up"}, caplog.text

@@ -97,7 +97,9 @@ def stage_name(radars: list[str]) -> str:
     return "-".join(input_name(r) for r in sorted(radars, key=source_order))
 
 
-def _micro(t: float) -> int:
+def reception_order(t: float) -> int:
+    """A radar process's order of a datagram (and its watermarks): its reception time
+    in microseconds."""
     return round(t * 1e6)
 
 
@@ -163,7 +165,7 @@ class RadarRole:
         lateness = Lateness(system.holding_window_s, system.max_behind_s)
         lateness.started = started
         base = f"{config.zenoh.prefix}/stage/radars/{self.name}"
-        watermark = _micro(time.time() - system.holding_window_s)
+        watermark = reception_order(time.time() - system.holding_window_s)
         session = _session(config, self.listen, self.connect)
 
         def answer(query: zenoh.Query) -> None:
@@ -192,7 +194,7 @@ class RadarRole:
                     assert datagram.time is not None
                     if not lateness.admit(name, datagram.time):
                         continue
-                    order = _micro(datagram.time)
+                    order = reception_order(datagram.time)
                     with lock:
                         batches = stage.feed(datagram.payload, datagram.time, order)
                     if batches:
@@ -208,7 +210,7 @@ class RadarRole:
                             )
                         )
                 if now >= next_beat:
-                    watermark = _micro(now - system.holding_window_s)
+                    watermark = reception_order(now - system.holding_window_s)
                     beat = DatagramResult(watermark, watermark / 1e6)
                     if now >= next_counters:
                         beat.inputs = input_counters(inputs, merger, lateness)
@@ -283,7 +285,9 @@ class StageMerge:
 
     def push_datagram(self, name: str, datagram: Datagram) -> None:
         assert datagram.time is not None
-        heapq.heappush(self._heap, (_micro(datagram.time), (), next(self._seq), (name, datagram)))
+        heapq.heappush(
+            self._heap, (reception_order(datagram.time), (), next(self._seq), (name, datagram))
+        )
 
     def release(self, now: float) -> Iterator[RadarBatch | tuple[str, Datagram]]:
         """What every live producer has passed at ``now``, in order, taken one at a time:
@@ -486,7 +490,7 @@ class FusionRole:
             for name, datagram in take_ready(inputs, ready):
                 merge.push_datagram(name, datagram)
             if inputs:
-                merge.note(LOCAL, _micro(now - window), now)
+                merge.note(LOCAL, reception_order(now - window), now)
             deadline = now + SLICE_S
             for item in merge.release(now):
                 last_data = now

@@ -305,12 +305,11 @@ def _check(stop: Stop | None) -> None:
         raise WarmUpStopped
 
 
-def warm_radar_stage(config: ServiceConfig | None, stop: Stop | None = None) -> None:
+def warm_radar_stage(warm: WarmUpInput, stop: Stop | None = None) -> None:
     """A radar process's warm-up: a throwaway radar stage through the scenario (its
     batches encoded as the process publishes them). ``stop`` set: ``WarmUpStopped`` at
     the next datagram."""
     started, before = time.perf_counter(), kernel_counts()
-    warm = warm_up_input(config)
     stage = build_radar_stage(warm.config)
     radar_inputs = {input_name(r.key) for r in warm.config.radars}
     for name, datagram in warm.datagrams:
@@ -322,10 +321,11 @@ def warm_radar_stage(config: ServiceConfig | None, stop: Stop | None = None) -> 
 
 def _published(stage: RadarStage, datagram: Datagram) -> bytes | None:
     """A radar datagram through a radar stage, its result encoded as a radar process
-    publishes it (ordered by reception in microseconds: ``roles.RadarRole``); None when
-    it made no batch."""
+    publishes it (``roles.RadarRole``); None when it made no batch."""
+    from tracker_service.service.roles import reception_order
+
     assert datagram.time is not None
-    order = round(datagram.time * 1e6)
+    order = reception_order(datagram.time)
     batches = stage.feed(datagram.payload, datagram.time, order)
     return encode_message(DatagramResult(order, datagram.time, batches)) if batches else None
 
@@ -355,13 +355,12 @@ class _CallRecorder:
 
 
 def warm_core(
-    config: ServiceConfig | None, remote_radars: bool = False, stop: Stop | None = None
+    warm: WarmUpInput, remote_radars: bool = False, stop: Stop | None = None
 ) -> OutputCalls:
     """The core's warm-up: a throwaway chain through the scenario (``feed_core``), the
     calls it made on its outputs kept. ``stop`` set: ``WarmUpStopped`` at the next
     datagram."""
     started, before = time.perf_counter(), kernel_counts()
-    warm = warm_up_input(config)
     calls = OutputCalls(warm.config)
     feed_core(warm.config, warm.datagrams, _CallRecorder(calls), remote_radars, stop)
     _done("core", started, before)
@@ -415,10 +414,9 @@ def core_warm_up(
         return None
 
     def warm() -> OutputCalls:
-        calls = warm_core(config, remote_radars, stop)
-        _check(stop)
+        calls = warm_core(warm_up_input(config), remote_radars, stop)
+        _check(stop)  # after it, the caller looks
         warm_outputs(calls)
-        _check(stop)
         return calls
 
     return warmed("core", warm)
@@ -428,7 +426,7 @@ def radar_warm_up(config: ServiceConfig, stop: Stop) -> None:
     """A radar process (``run --role radar``) before it runs, with ``[system] warm_up``:
     ``warm_radar_stage``. ``WarmUpStopped`` when ``stop`` is set meanwhile."""
     if config.system.warm_up:
-        warmed("radar stage", lambda: warm_radar_stage(config, stop))
+        warmed("radar stage", lambda: warm_radar_stage(warm_up_input(config), stop))
 
 
 def warm_outputs(calls: OutputCalls) -> None:
@@ -476,8 +474,9 @@ def run(args: argparse.Namespace) -> int:
     started, before = time.perf_counter(), kernel_counts()
 
     def warm() -> bool:
-        warm_outputs(warm_core(config))
-        warm_outputs(warm_core(config, remote_radars=True))
+        scenario = warm_up_input(config)  # simulated once for both of the core's paths
+        warm_outputs(warm_core(scenario))
+        warm_outputs(warm_core(scenario, remote_radars=True))
         return True
 
     if warmed("service", warm) is None:
