@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,7 +24,11 @@ from tracker_service.cli import main
 from tracker_service.log_level import LOG_LEVEL_VARIABLE
 from tracker_service.outputs.messages import StatusMessage
 from tracker_service.outputs.zenoh_out import ZenohPublisher
-from tracker_service.outputs.zenoh_session import zenoh_config
+from tracker_service.outputs.zenoh_session import (
+    ZenohEndpointError,
+    check_listen_endpoints,
+    zenoh_config,
+)
 from tracker_service.service.command import OutputProcess
 from tracker_service.service.config import load_service_config
 from tracker_service.service.core import TrackerService
@@ -79,6 +84,12 @@ def _listening_sockets() -> list[str]:
     return found
 
 
+def _in_time_wait(port: int) -> bool:
+    """Whether a TCP socket of 127.0.0.1:``port`` is in TIME_WAIT (state 06), from /proc."""
+    lines = Path("/proc/net/tcp").read_text().splitlines()[1:]
+    return any(f[1] == f"0100007F:{port:04X}" and f[3] == "06" for f in map(str.split, lines))
+
+
 def test_a_radar_port_in_use_is_one_line(tmp_path: Path) -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as taken:
         taken.bind(("127.0.0.1", 0))
@@ -94,19 +105,99 @@ def test_a_radar_port_in_use_is_one_line(tmp_path: Path) -> None:
     assert "already bound" in lines[0]
 
 
-def test_a_zenoh_port_in_use_is_one_line_for_run(tmp_path: Path, occupied_tcp: int) -> None:
+@pytest.mark.parametrize(
+    ("options", "fix"),
+    [
+        (["--zenoh-listen"], "(--zenoh-listen, [zenoh] listen)"),
+        (["--role", "fusion", "--stage-listen"], "(--stage-listen)"),
+        (["--role", "radar", "--radars", "25/11", "--stage-listen"], "(--stage-listen)"),
+    ],
+    ids=["daemon", "fusion role", "radar role"],
+)
+def test_a_zenoh_port_in_use_is_one_line_for_run_before_the_warm_up(
+    tmp_path: Path, occupied_tcp: int, options: list[str], fix: str
+) -> None:
     config = _config(tmp_path, free_port(socket.SOCK_DGRAM))
     endpoint = f"tcp/127.0.0.1:{occupied_tcp}"
     done = subprocess.run(
-        [*CLI, "run", "--config", str(config), "--zenoh-listen", endpoint],
+        [*CLI, "run", "--config", str(config), *options, endpoint],
         capture_output=True,
         text=True,
         timeout=60,
     )
     assert done.returncode == 2, done.stderr
-    errors = [line for line in done.stderr.splitlines() if "tracker-service run" in line]
-    assert len(errors) == 1 and "Traceback" not in done.stderr, done.stderr
-    assert f"zenoh listen endpoint {endpoint}: the port is already in use" in errors[0]
+    # The only line: said at start-up, before the minutes an empty numba cache's warm-up
+    # can take (nothing logged, no input bound).
+    assert done.stderr.strip().splitlines() == [
+        f"tracker-service run: zenoh listen endpoint {endpoint}: the port is already in use "
+        f"(a second tracker-service?): stop it (`ss -tlpn 'sport = :{occupied_tcp}'` names "
+        f"it) or listen on another port {fix}"
+    ]
+
+
+def test_a_log_directory_that_cannot_be_written_is_one_line_before_the_warm_up(
+    tmp_path: Path,
+) -> None:
+    config = _config(tmp_path, free_port(socket.SOCK_DGRAM))
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a directory")
+    text = config.read_text(encoding="utf-8")
+    config.write_text(
+        text.replace("[mcap]\n", f'[mcap]\ndirectory = "{blocked}/logs"\n'), encoding="utf-8"
+    )
+    done = subprocess.run(
+        [*CLI, "run", "--config", str(config)], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines() == [
+        f"tracker-service run: [mcap] directory {blocked}/logs: Not a directory: give a "
+        "directory the service's user can write, or none for no log"
+    ]
+
+
+def test_listen_endpoints_are_checked_as_zenoh_would_bind_them(occupied_tcp: int) -> None:
+    taken = f"tcp/127.0.0.1:{occupied_tcp}"
+    with pytest.raises(ZenohEndpointError, match="the port is already in use"):
+        check_listen_endpoints(zenoh_config(listen=[f"{taken}#iface=lo"]))
+    with pytest.raises(ZenohEndpointError, match=f"{taken}: the port is already in use"):
+        check_listen_endpoints(zenoh_config(listen=[f"tcp/127.0.0.1:{free_port()}", taken]))
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as datagrams:
+        datagrams.bind(("127.0.0.1", 0))
+        port = datagrams.getsockname()[1]
+        with pytest.raises(ZenohEndpointError, match="already in use"):
+            check_listen_endpoints(zenoh_config(listen=[f"udp/127.0.0.1:{port}"]))
+    # TEST-NET-1 (RFC 5737): an address no host here has.
+    with pytest.raises(ZenohEndpointError, match="not one of this host's"):
+        check_listen_endpoints(zenoh_config(listen=["tcp/192.0.2.1:7447"]))
+    # A port left in TIME_WAIT by a server just stopped (it closed first) is free; the
+    # server's socket ``SO_REUSEADDR`` as Zenoh's listener (tokio's) has it.
+    with socket.socket() as server:
+        server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        stopped = server.getsockname()[1]
+        with socket.create_connection(("127.0.0.1", stopped)) as client:
+            accepted, _ = server.accept()
+            accepted.close()
+            client.recv(1)
+    assert _in_time_wait(stopped)
+    check_listen_endpoints(zenoh_config(listen=[f"tcp/127.0.0.1:{stopped}"]))
+    # Free, ephemeral, what it cannot read (left to Zenoh): no error.
+    check_listen_endpoints(
+        zenoh_config(
+            listen=[
+                f"tcp/127.0.0.1:{free_port()}",
+                "tcp/127.0.0.1:0",
+                f"udp/127.0.0.1:{free_port(socket.SOCK_DGRAM)}",
+                f"unixsock-stream/{tempfile.gettempdir()}/tracker-zenoh.sock",
+            ]
+        )
+    )
+    # The probe holds nothing: the port it checked is the session's.
+    port = free_port()
+    check_listen_endpoints(zenoh_config(listen=[f"tcp/127.0.0.1:{port}"]))
+    with ZenohPublisher(listen=[f"tcp/127.0.0.1:{port}"]):
+        pass
 
 
 def test_a_zenoh_port_in_use_is_one_line_for_replay(

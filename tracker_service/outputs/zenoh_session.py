@@ -17,9 +17,11 @@ Nothing given anywhere is silently dropped, and TLS never silently becomes plain
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
+import socket
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Literal, get_args
@@ -27,11 +29,13 @@ from typing import Literal, get_args
 import zenoh
 
 __all__ = [
+    "LISTEN_FIX",
     "TLS_PROTOCOLS",
     "Mode",
     "PlaintextEndpointError",
     "ZenohConfigError",
     "ZenohEndpointError",
+    "check_listen_endpoints",
     "endpoint_protocol",
     "open_session",
     "zenoh_config",
@@ -78,11 +82,32 @@ class ZenohEndpointError(ZenohConfigError):
 
 
 _LISTENER = re.compile(r"bound to (\S+?): \[")
+_HOST_PORT = re.compile(r"^\[?(?P<host>[^\]]*?)\]?:(?P<port>\d+)$")
+_STREAM_PROTOCOLS = frozenset({"tcp", "tls", "ws"})
+_DATAGRAM_PROTOCOLS = frozenset({"udp", "quic"})
+
+LISTEN_FIX = "listen on another port (--zenoh-listen, [zenoh] listen)"
+"""Where the service's own session's endpoints come from, for the errors below."""
 
 
-def open_session(config: zenoh.Config) -> zenoh.Session:
+def _endpoint_error(endpoint: str, in_use: bool, fix: str) -> ZenohEndpointError:
+    """The one line for a listen endpoint that cannot be had: its port ``in_use``, or
+    its address not one of this host's."""
+    port = endpoint.rpartition(":")[2]
+    if in_use:
+        return ZenohEndpointError(
+            f"zenoh listen endpoint {endpoint}: the port is already in use (a second "
+            f"tracker-service?): stop it (`ss -tlpn 'sport = :{port}'` names it) or {fix}"
+        )
+    return ZenohEndpointError(
+        f"zenoh listen endpoint {endpoint}: the address is not one of this host's: "
+        "give one of its addresses, or 0.0.0.0 for all"
+    )
+
+
+def open_session(config: zenoh.Config, fix: str = LISTEN_FIX) -> zenoh.Session:
     """``zenoh.open(config)``; an endpoint it cannot listen on is a ``ZenohEndpointError``
-    of one line, naming it."""
+    of one line, naming it and ``fix``."""
     try:
         return zenoh.open(config)
     except zenoh.ZError as exc:
@@ -90,19 +115,42 @@ def open_session(config: zenoh.Config) -> zenoh.Session:
         found = _LISTENER.search(text)
         listen = json.loads(config.get_json("listen/endpoints"))
         endpoint = found.group(1) if found else ", ".join(map(str, listen)) or "?"
-        port = endpoint.rpartition(":")[2]
         if "Address already in use" in text:
-            raise ZenohEndpointError(
-                f"zenoh listen endpoint {endpoint}: the port is already in use (a second "
-                f"tracker-service?): stop it (`ss -tlpn 'sport = :{port}'` names it) or "
-                "listen on another port (--zenoh-listen, [zenoh] listen)"
-            ) from None
+            raise _endpoint_error(endpoint, True, fix) from None
         if "Cannot assign requested address" in text:
-            raise ZenohEndpointError(
-                f"zenoh listen endpoint {endpoint}: the address is not one of this host's: "
-                "give one of its addresses, or 0.0.0.0 for all"
-            ) from None
+            raise _endpoint_error(endpoint, False, fix) from None
         raise
+
+
+def check_listen_endpoints(config: zenoh.Config, fix: str = LISTEN_FIX) -> None:
+    """Whether the session ``config`` describes could listen on its endpoints now: each
+    with an address and a port is bound for a moment (``SO_REUSEADDR``, as Zenoh binds:
+    a port in TIME_WAIT is free, one listened on is not). A ``ZenohEndpointError`` of
+    one line, at start-up, rather than from ``open_session`` after the process's
+    warm-up (minutes on an empty numba cache). ``config`` is ``zenoh_config``'s (its
+    endpoints one list); endpoints it cannot read (a Unix socket, a serial line) are
+    left to ``open_session``."""
+    for endpoint in json.loads(config.get_json("listen/endpoints")):
+        protocol, _, rest = str(endpoint).partition("/")
+        address = re.split(r"[?#]", rest, maxsplit=1)[0]
+        found = _HOST_PORT.match(address)
+        if found is None or protocol not in _STREAM_PROTOCOLS | _DATAGRAM_PROTOCOLS:
+            continue
+        host, port = found.group("host"), int(found.group("port"))
+        if port == 0:
+            continue
+        kind = socket.SOCK_STREAM if protocol in _STREAM_PROTOCOLS else socket.SOCK_DGRAM
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        try:
+            with socket.socket(family, kind) as probe:
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                probe.bind((host, port))
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                raise _endpoint_error(endpoint, True, fix) from None
+            if exc.errno == errno.EADDRNOTAVAIL:
+                raise _endpoint_error(endpoint, False, fix) from None
+            # A name that does not resolve, a family this host lacks: Zenoh says at open.
 
 
 class PlaintextEndpointError(ZenohConfigError):

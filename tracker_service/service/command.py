@@ -14,6 +14,7 @@ import pickle
 import queue
 import signal
 import sys
+import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -39,6 +40,8 @@ from tracker_service.outputs.zenoh_session import (
     TLS_PROTOCOLS,
     PlaintextEndpointError,
     ZenohConfigError,
+    ZenohEndpointError,
+    check_listen_endpoints,
     endpoint_protocol,
     zenoh_config,
 )
@@ -280,7 +283,8 @@ def add_health_arguments(parser: argparse.ArgumentParser) -> None:
 def _with_cli(config: ServiceConfig, args: argparse.Namespace) -> ServiceConfig:
     """The configuration with the command line's Zenoh settings on top: endpoints
     added, scouting and plaintext when either asks. Checked here, so that a Zenoh file
-    or endpoint that cannot work, or TLS turned plaintext, is one line at start-up."""
+    or endpoint that cannot work (a listen port in use), or TLS turned plaintext, is
+    one line at start-up, not after the warm-up."""
     zenoh = config.zenoh
     updates: dict[str, object] = {
         "listen": list(dict.fromkeys([*zenoh.listen, *args.zenoh_listen])),
@@ -292,14 +296,18 @@ def _with_cli(config: ServiceConfig, args: argparse.Namespace) -> ServiceConfig:
         updates["config_file"] = Path(args.zenoh_config)
     zenoh = zenoh.model_copy(update=updates)
     try:
-        zenoh_config(
-            zenoh.mode,
-            zenoh.listen,
-            zenoh.connect,
-            zenoh.config_file,
-            scouting=zenoh.scouting,
-            allow_plaintext=zenoh.allow_plaintext,
+        check_listen_endpoints(
+            zenoh_config(
+                zenoh.mode,
+                zenoh.listen,
+                zenoh.connect,
+                zenoh.config_file,
+                scouting=zenoh.scouting,
+                allow_plaintext=zenoh.allow_plaintext,
+            )
         )
+    except ZenohEndpointError as exc:
+        raise ConfigError(str(exc)) from None
     except PlaintextEndpointError as exc:
         cli = {"listen": args.zenoh_listen, "connect": args.zenoh_connect}[exc.direction]
         if exc.endpoint in cli:
@@ -943,13 +951,39 @@ def _container_health(status: StatusMessage, age: float, silent_for: float, behi
     return 0
 
 
+def _check_log_directory(directory: Path | None) -> None:
+    """Whether the log can be written in ``directory`` (made if missing), said at
+    start-up rather than by the output process after the warm-up."""
+    if directory is None:
+        return
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as exc:
+        raise ConfigError(
+            f"[mcap] directory {directory}: {exc.strerror or exc}: give a directory the "
+            "service's user can write, or none for no log"
+        ) from None
+
+
 def run(args: argparse.Namespace) -> int:
     from tracker_service.service.daemon import Daemon, InputError
-    from tracker_service.service.roles import FusionRole, RadarRole
+    from tracker_service.service.roles import (
+        STAGE_LISTEN_FIX,
+        FusionRole,
+        RadarRole,
+        stage_session_config,
+    )
 
     try:
         config = _with_cli(load_service_config(args.config), args)
-    except ConfigError as exc:
+        if args.role is not None:
+            stage = stage_session_config(config, args.stage_listen, args.stage_connect)
+            check_listen_endpoints(stage, STAGE_LISTEN_FIX)
+        if args.role != "radar":
+            _check_log_directory(config.mcap.directory)
+    except (ConfigError, ZenohConfigError) as exc:
         print(f"tracker-service run: {exc}", file=sys.stderr)
         return 2
     if args.radars and args.role != "radar":
@@ -972,6 +1006,7 @@ def run(args: argparse.Namespace) -> int:
         except OutputProcessFailed as exc:
             print(f"tracker-service run: {exc}", file=sys.stderr)
             return 1
-        except OutputStartFailed as exc:
+        except (OutputStartFailed, ZenohEndpointError) as exc:
+            # ZenohEndpointError: a stage endpoint taken since the check at start-up.
             print(f"tracker-service run: {exc}", file=sys.stderr)
             return 2

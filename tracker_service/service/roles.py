@@ -49,7 +49,7 @@ from asterix.containers import Datagram
 from tracker_service.chain import source_order
 from tracker_service.inputs.arrivals import Arrivals
 from tracker_service.inputs.udp import InputCounters, UdpInput, kernel_drop_table
-from tracker_service.outputs.zenoh_session import zenoh_config
+from tracker_service.outputs.zenoh_session import open_session, zenoh_config
 from tracker_service.radar_stage import RadarState, StageStats
 from tracker_service.service.command import open_service, short_switch_interval
 from tracker_service.service.config import ServiceConfig
@@ -103,18 +103,27 @@ def reception_order(t: float) -> int:
     return round(t * 1e6)
 
 
-def _session(config: ServiceConfig, listen: list[str], connect: list[str]) -> zenoh.Session:
+STAGE_LISTEN_FIX = "listen on another port (--stage-listen)"
+"""Where the stage session's endpoints come from, for its errors."""
+
+
+def stage_session_config(
+    config: ServiceConfig, listen: list[str], connect: list[str]
+) -> zenoh.Config:
+    """The stage session's: ``[zenoh]``'s file, mode and scouting, the role's endpoints."""
     z = config.zenoh
-    return zenoh.open(
-        zenoh_config(
-            z.mode,
-            listen,
-            connect,
-            z.config_file,
-            scouting=z.scouting,
-            allow_plaintext=z.allow_plaintext,
-        )
+    return zenoh_config(
+        z.mode,
+        listen,
+        connect,
+        z.config_file,
+        scouting=z.scouting,
+        allow_plaintext=z.allow_plaintext,
     )
+
+
+def _session(config: ServiceConfig, listen: list[str], connect: list[str]) -> zenoh.Session:
+    return open_session(stage_session_config(config, listen, connect), STAGE_LISTEN_FIX)
 
 
 class RadarRole:

@@ -7,12 +7,14 @@ installation the cache is empty, and a daemon that compiled on its first live da
 36 s behind and shed a third of its first two minutes' datagrams (docs/reliability.md,
 finding 13); on a filled cache each process still loads some hundred kernels in its
 first batches, about a second in which the data waits. So every service process, once
-its inputs are bound (a UDP port in use is reported at once; what arrives meanwhile waits in
-their bounded queues), first takes a generated scenario (``warm_up_scenario``: 120 s of
-30 aircraft entering and leaving, seen by a CAT048 radar on two LANs, a second one, a
-CAT001 radar and an ADS-B station, with clutter, splits, a field monitor and a test
-target) through throwaway copies of its own stages, with the service's own settings
-([tracker], [fusion], [bias] ...: they choose which kernels run), and only then runs:
+its inputs are bound (a UDP port in use is reported at once, as a Zenoh endpoint in use
+and a log directory that cannot be written are by the command's checks before it; what
+arrives meanwhile waits in their bounded queues), first takes a generated scenario
+(``warm_up_scenario``: 120 s of 30 aircraft entering and leaving, seen by a CAT048 radar
+on two LANs, a second one, a CAT001 radar and an ADS-B station, with clutter, splits, a
+field monitor and a test target) through throwaway copies of its own stages, with the
+service's own settings ([tracker], [fusion], [bias] ...: they choose which kernels run),
+and only then runs:
 
 - ``warm_radar_stage``: a radar process (``run --role radar``);
 - ``warm_core``: the core's process (``run``, ``run --role fusion``: its radar stages
