@@ -32,7 +32,7 @@ The stages and what each wraps:
 | bias references | ``SystemTracker.references`` (the fuser's references for the bias) |
 | fusion | ``SystemTracker.process`` |
 | messages | ``Outputs.batch``, ``publish_cat062`` and the periodic messages, less the rest |
-| CAT062 | ``encode_system_batch`` and ``encode_cat065`` |
+| CAT062 | ``PeriodRecords.update`` and ``block`` (the records, the block), ``encode_cat065`` |
 | MCAP | ``McapSink``'s calls (the log's writer thread) |
 | Foxglove map | ``FoxgloveSink``'s calls less its ``McapSink`` calls (the map in the log) |
 | Zenoh | ``ZenohSink``'s calls (the publisher's thread) |
@@ -63,6 +63,7 @@ from asterix.containers import Datagram
 from tracker_service import radar_stage as radar_stage_module
 from tracker_service.central_stage import CentralStage
 from tracker_service.fusion import SystemTracker
+from tracker_service.outputs.cat062 import PeriodRecords
 from tracker_service.outputs.foxglove_sink import FoxgloveSink
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.mcap_sink import McapSink
@@ -154,7 +155,8 @@ def instrumented(clock: StageClock) -> Iterator[None]:
         (Outputs, "publish_bias", "messages"),
         (Outputs, "publish_status", "messages"),
         (Outputs, "close", "messages"),
-        (core_module, "encode_system_batch", "CAT062"),
+        (PeriodRecords, "update", "CAT062"),
+        (PeriodRecords, "block", "CAT062"),
         (core_module, "encode_cat065", "CAT062"),
     ]
     targets += [(McapSink, call, "MCAP") for call in SINK_CALLS]
