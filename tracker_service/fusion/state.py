@@ -194,14 +194,16 @@ class PairEvidence:
     def _sweep_if(self, held: int) -> None:
         """Sweep when the entries and drop stamps ``held`` have doubled since the last."""
         if held >= self._sweep_at:
-            self._sweep()
+            self.sweep()
 
     @property
     def held(self) -> int:
         """Entries and drop stamps held (what the sweep bounds)."""
         return len(self._of_pair) + len(self._dropped)
 
-    def _sweep(self) -> None:
+    def sweep(self) -> None:
+        """The entries that no longer count swept out now (what ``_sweep_if`` does when
+        the evidence has doubled: the warm-up calls it, as 30 aircraft never get there)."""
         if self.compiled:
             from tracker_service.fusion.kernels import evidence_sweep
 

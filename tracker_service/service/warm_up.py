@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 import tempfile
 import threading
@@ -45,6 +46,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from asterix.containers import Datagram
+from tracker_service.fusion.state import PairEvidence
 from tracker_service.radar_stage import RadarStage
 from tracker_service.service.config import FoxgloveConfig, ServiceConfig
 from tracker_service.service.core import (
@@ -56,6 +58,7 @@ from tracker_service.service.core import (
 from tracker_service.service.signals import Stop
 from tracker_service.simulator.scenario import Scenario
 from tracker_service.stage_messages import DatagramResult, decode_message, encode_message
+from tracker_service.tracking.association.gate import scipy_trees_only
 
 __all__ = [
     "KernelCounts",
@@ -309,16 +312,49 @@ def _check(stop: Stop | None) -> None:
 
 def warm_radar_stage(warm: WarmUpInput, stop: Stop | None = None) -> None:
     """A radar process's warm-up: a throwaway radar stage through the scenario (its
-    batches encoded as the process publishes them). ``stop`` set: ``WarmUpStopped`` at
-    the next datagram."""
+    batches encoded as the process publishes them), then ``_warm_rare_radar_paths``.
+    ``stop`` set: ``WarmUpStopped`` at the next datagram."""
     started, before = time.perf_counter(), kernel_counts()
-    stage = build_radar_stage(warm.config)
+    _feed_radar_stage(build_radar_stage(warm.config), warm, stop)
+    _warm_rare_radar_paths(warm, stop)
+    _done("radar stage", started, before)
+
+
+RARE_PATHS_S = 30.0
+"""Of the scenario, what a throwaway stage of the rare paths takes: tracks on every
+radar, and batches for them."""
+
+
+def _feed_radar_stage(
+    stage: RadarStage, warm: WarmUpInput, stop: Stop | None, until_s: float = math.inf
+) -> None:
+    """The scenario's radar datagrams (their first ``until_s`` seconds) through
+    ``stage``, published as a radar process publishes them."""
     radar_inputs = {input_name(r.key) for r in warm.config.radars}
+    first = warm.datagrams[0][1].time if warm.datagrams else None
     for name, datagram in warm.datagrams:
         _check(stop)
+        assert datagram.time is not None and first is not None
+        if datagram.time - first > until_s:
+            break
         if name in radar_inputs:
             _published(stage, datagram)
-    _done("radar stage", started, before)
+
+
+def _warm_rare_radar_paths(warm: WarmUpInput, stop: Stop | None) -> None:
+    """Kernels of a radar stage's paths that data takes too rarely for any scenario of
+    minutes: the gate's fallback to scipy's trees (``gate.scipy_trees_only``; two
+    batches in 60 s of ``scale``, none in the scenario), through a throwaway stage whose
+    gates all take it."""
+    with scipy_trees_only():
+        _feed_radar_stage(build_radar_stage(warm.config), warm, stop, RARE_PATHS_S)
+
+
+def _warm_rare_core_paths() -> None:
+    """Kernels of the core's duties that the scenario's 30 aircraft never call: the
+    exchange evidence's sweep (due once 4,096 pairs are held; ``artas`` and ``scale``
+    get there within a minute)."""
+    PairEvidence(compiled=True).sweep()
 
 
 def _published(stage: RadarStage, datagram: Datagram) -> bytes | None:
@@ -360,11 +396,15 @@ def warm_core(
     warm: WarmUpInput, remote_radars: bool = False, stop: Stop | None = None
 ) -> OutputCalls:
     """The core's warm-up: a throwaway chain through the scenario (``feed_core``), the
-    calls it made on its outputs kept. ``stop`` set: ``WarmUpStopped`` at the next
-    datagram."""
+    calls it made on its outputs kept, then the rare paths (``_warm_rare_radar_paths``
+    where the core runs the radar stages, ``_warm_rare_core_paths``). ``stop`` set:
+    ``WarmUpStopped`` at the next datagram."""
     started, before = time.perf_counter(), kernel_counts()
     calls = OutputCalls(warm.config)
     feed_core(warm.config, warm.datagrams, _CallRecorder(calls), remote_radars, stop)
+    if not remote_radars:  # the fusion process runs no radar stage but its warm-up's
+        _warm_rare_radar_paths(warm, stop)
+    _warm_rare_core_paths()
     _done("core", started, before)
     return calls
 

@@ -9,7 +9,8 @@ associator sees the same ``GatedPairs``; only what it makes of them differs.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -114,7 +115,7 @@ class Gate:
         self._turn_max = float(np.abs(models.turn_rates_rad_s).max())
         self._widest_gate = max(config.gate, config.address_gate)
         self._compiled = config.implementation == "compiled"
-        self._tree_port = self._compiled and tree_port_follows_scipy()
+        self._tree_port = self._compiled and not _scipy_trees_only and tree_port_follows_scipy()
         """``gate_kernels``' own k-d tree build gives scipy's leaf orders here, else the
         compiled gate takes scipy's trees for every batch."""
         self._shared_codes = np.array(SHARED_MODE3A_CODES, dtype=np.int64)
@@ -294,6 +295,24 @@ class Gate:
 
 
 _NO_TREE = np.zeros(0, dtype=np.int64)
+
+
+_scipy_trees_only = False
+
+
+@contextmanager
+def scipy_trees_only() -> Iterator[None]:
+    """Gates made meanwhile take scipy's trees for every batch, as where the compiled
+    build does not follow scipy's (``tree_port_follows_scipy``): the warm-up's way to
+    that path's kernels, which data here takes only at the rare points where libstdc++'s
+    introselect gives up (``gate_kernels._nth_element``; two batches in 60 s of
+    ``scale``), else compiled then, on live data."""
+    global _scipy_trees_only
+    _scipy_trees_only = True
+    try:
+        yield
+    finally:
+        _scipy_trees_only = False
 
 
 @functools.cache
