@@ -2194,6 +2194,100 @@ def near_local_system(
     return free[i_l], candidates[j_s]
 
 
+@numba.njit(cache=True)
+def exchange_pairs(
+    n_used: int,
+    loc_alive: npt.NDArray[np.bool_],
+    loc_system: IntArray,
+    loc_status: npt.NDArray[np.int8],
+    loc_radar: IntArray,
+    loc_key: IntArray,
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    loc_extra: FloatArray,
+    head: IntArray,
+    next_row: IntArray,
+    tested: IntArray,
+    radar: int,
+    confirmed: int,
+    sys_x: FloatArray,
+    sys_P: FloatArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
+    largest_bias: FloatArray,
+    sys_t: FloatArray,
+    from_models: bool,
+    gate: float,
+    q_max: float,
+    turn_max: float,
+    q: float,
+) -> tuple[bool, IntArray, IntArray, IntArray, IntArray, FloatArray, BoolArray]:  # pragma: no cover
+    """``associate._exchange_pairs`` in one call, its four steps' kernels in a row: the
+    feeding sets over the ``n_used`` rows in use (``exchange_feeding``), the
+    pre-selection of the confirmed rows ``tested`` of ``radar`` near the tracks its rows
+    feed (``near_local_system``, the bias bound over every fed track), the pairs and
+    their witnesses (``exchange_witnesses``) and the votes (``exchange_votes``).
+    Returns whether more than one radar feeds a system track (when not, the rest is
+    empty), the pairs' rows l and l', their keys' lower and higher, each pair's delta
+    and whether every vote favours the exchange. One call where four took 7 to 17
+    arrays each, and none of the arrays between them leaves the compiled code (the
+    system-track numbers are those below ``head.size``, one list of feeders each)."""
+    several, fed, own = exchange_feeding(
+        loc_alive[:n_used],
+        loc_system[:n_used],
+        loc_status[:n_used],
+        loc_radar[:n_used],
+        confirmed,
+        radar,
+        head.size,
+    )
+    empty = np.zeros(0, dtype=np.int64)
+    if not several:
+        return False, empty, empty, empty, empty, np.zeros(0), np.zeros(0, dtype=np.bool_)
+    li, sj = near_local_system(
+        loc_t,
+        loc_x,
+        loc_P,
+        loc_extra,
+        tested,
+        sys_x,
+        sys_P,
+        moments,
+        sensitivity,
+        largest_bias,
+        sys_t,
+        own,
+        fed,
+        from_models,
+        gate,
+        q_max,
+        turn_max,
+    )
+    pair_a, pair_b, closer, farther, witness, ends = exchange_witnesses(
+        li,
+        sj,
+        head,
+        next_row,
+        loc_alive,
+        loc_status,
+        confirmed,
+        loc_system,
+        loc_radar,
+        loc_key,
+        head.size,
+    )
+    low = np.empty(pair_a.size, dtype=np.int64)
+    high = np.empty(pair_a.size, dtype=np.int64)
+    for p in range(pair_a.size):
+        ka, kb = loc_key[pair_a[p]], loc_key[pair_b[p]]
+        low[p], high[p] = min(ka, kb), max(ka, kb)
+    deltas, favoured = exchange_votes(
+        loc_t, loc_x, loc_P, loc_extra, closer, farther, witness, ends, q
+    )
+    return True, pair_a, pair_b, low, high, deltas, favoured
+
+
 BOUND_RELATIVE = 1e-9
 BOUND_MARGIN_M = 1e-6
 """``_within_bound``'s radius exceeds ``_radius``'s by this much at least (its terms
