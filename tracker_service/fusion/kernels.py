@@ -1747,6 +1747,93 @@ def reference_sources(
 
 
 @numba.njit(cache=True)
+def absorb_plots(
+    rows: IntArray,
+    loc_system: IntArray,
+    has_plot: BoolArray,
+    created: IntArray,
+    plot_ids: IntArray,
+    wanted: IntArray,
+    plot_time: FloatArray,
+    plot_x: FloatArray,
+    plot_y: FloatArray,
+    plot_R: FloatArray,
+    extra: FloatArray,
+    radar: int,
+    max_backward: float,
+    mx: FloatArray,
+    mP: FloatArray,
+    mM: FloatArray,
+    mu: FloatArray,
+    x: FloatArray,
+    P: FloatArray,
+    M: FloatArray,
+    B: FloatArray,
+    t: FloatArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
+    largest_bias: FloatArray,
+    omega: FloatArray,
+    q: FloatArray,
+    sojourn: FloatArray,
+) -> tuple[IntArray, IntArray, int, int]:  # pragma: no cover - compiled
+    """``PlotFilterEstimator.absorb``'s plots without DAPs in one call, its steps' kernels
+    in a row: the plotted updates (``plotted_updates``), then round by round
+    ``_filter_round``: the plots more than ``max_backward`` seconds older than their
+    system track skipped, the radar's residual biases ``extra`` (of the batch's updates)
+    written, ``filter_round`` and ``refresh_moments``. Returns the updates used and their
+    system tracks, the plot ids not found and the late plots skipped. One call where each
+    round took some fifteen numpy calls and two kernel calls."""
+    use, systems, found, rank, unknown = plotted_updates(
+        rows, loc_system, has_plot, created, plot_ids, wanted
+    )
+    k = use.size
+    numbers = np.empty(k, dtype=np.int64)
+    time = np.empty(k)
+    z = np.empty((k, 2))
+    R = np.empty((k, 2, 2))
+    late = 0
+    rounds = rank.max() + 1 if k else 0
+    for r in range(rounds):
+        n = 0
+        for i in range(k):
+            if rank[i] != r:
+                continue
+            number, plot = systems[i], found[i]
+            if plot_time[plot] - t[number] < -max_backward:
+                late += 1
+                continue
+            numbers[n], time[n] = number, plot_time[plot]
+            z[n, 0], z[n, 1] = plot_x[plot], plot_y[plot]
+            R[n] = plot_R[plot]
+            B[number, radar] = extra[use[i]]
+            n += 1
+        if n == 0:
+            continue
+        filter_round(
+            mx,
+            mP,
+            mM,
+            mu,
+            x,
+            P,
+            M,
+            B,
+            t,
+            numbers[:n],
+            time[:n],
+            z[:n],
+            R[:n],
+            radar,
+            omega,
+            q,
+            sojourn,
+        )
+        refresh_moments(mx, mP, mu, M, B, numbers[:n], moments, sensitivity, largest_bias)
+    return use, systems, unknown, late
+
+
+@numba.njit(cache=True)
 def refresh_moments(
     mx: FloatArray,
     mP: FloatArray,
