@@ -163,6 +163,44 @@ def test_filter_round_updates_the_table_in_place_as_the_reference(
         close_per_track(reference.sys[name], compiled.sys[name], name)
 
 
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=SIZES, n_radars=st.integers(1, 4), updates=st.integers(0, 30))
+def test_absorb_is_the_reference(seed: int, k: int, n_radars: int, updates: int) -> None:
+    """A batch's plots absorbed in one compiled call (``kernels.absorb_plots``) against
+    the numpy path's rounds: the same system tables (1e-9 of each track's scale), the
+    same statistics and the pre-selection's terms of the updated tracks as
+    ``nearby.refresh`` computes them; local rows feeding a track several times in the
+    batch (several rounds), late plots, plot ids not found, created tracks and rows
+    feeding none among the draws."""
+    compiled, reference, rng = _states(seed, n_radars, k)
+    local = compiled.local  # both states' (``_states``)
+    local.rows["system"][:k] = rng.integers(0, k + 1, k)
+    local.relink()
+    rows = rng.integers(0, k, updates)
+    numbers = np.maximum(local.rows["system"][rows], 1)
+    plots = _plots(rng, compiled, numbers)
+    plots.rows["plot_id"] = np.arange(updates)
+    late = rng.random(updates) < 0.15
+    plots.rows["time"][late] = compiled.sys["t"][numbers[late]] - 6.0
+    u = _local_updates(rng, updates)
+    u["plot_id"] = np.where(rng.random(updates) < 0.1, updates + 1, np.arange(updates))
+    has_plot = rng.random(updates) < 0.85
+    created = rng.choice(np.arange(1, k + 1), int(rng.integers(0, min(k, 3) + 1)), replace=False)
+    extra = _spd(rng, (updates,), np.array([50.0, 50.0]))
+    radar = int(rng.integers(0, n_radars))
+    t_before = compiled.sys["t"].copy()
+    for state in (compiled, reference):
+        estimator_plots.PlotFilterEstimator().absorb(
+            state, radar, rows, u, extra, has_plot, plots, created
+        )
+    assert compiled.stats == reference.stats
+    for name in ("mx", "mP", "mM", "mu", "x", "P", "M", "B", "t"):
+        close_per_track(reference.sys[name], compiled.sys[name], name)
+    nearby.refresh(reference.sys, np.flatnonzero(reference.sys["t"] != t_before), compiled=True)
+    for name in ("moments", "sensitivity", "largest_bias"):
+        close(reference.sys[name], compiled.sys[name])
+
+
 def close_per_track(reference: FloatArray, compiled: FloatArray, name: str) -> None:
     """Equal to 1e-9 of each track's scale: covariances (..., 4, 4) in units of their
     diagonal's standard deviations (correlation units), states' positions and velocities
