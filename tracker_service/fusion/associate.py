@@ -200,7 +200,7 @@ def _exchange_pairs(
             sys["t"],
             estimator.coarse_from_models,
             cfg.gate,
-            *reach_constants(state),
+            *state.reach_constants,
             cfg.q,
         )
         return tuple(pairs) if several else None  # type: ignore[return-value]
@@ -452,7 +452,7 @@ def _near(
     if free.size == 0 or candidates.size == 0:
         return empty, empty
     loc, sys, cfg = state.local.rows, state.sys, state.config
-    q, turn = reach_constants(state)
+    q, turn = state.reach_constants
     if state.compiled:
         from tracker_service.fusion.kernels import near_local_system  # numba when compiled
 
@@ -506,13 +506,6 @@ def _near(
     )
     i, j = nearby.near_pairs(xy_l, r_l, xy_s, r_s)
     return free[i], candidates[j]
-
-
-def reach_constants(state: FusionState) -> tuple[float, float]:
-    """The pre-selection's bounds of a track's motion (``nearby.py``): the largest
-    process noise of the models and of the constant-velocity prediction, and the
-    largest turn rate."""
-    return max(float(state.models.q.max()), state.config.q), state.turn_max
 
 
 def open_systems(state: FusionState, radar: int) -> IntArray:

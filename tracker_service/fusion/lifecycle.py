@@ -13,7 +13,7 @@ import numpy.typing as npt
 
 from tracker_service.fusion import consider, nearby
 from tracker_service.fusion.arrays import among, is_member, kernel_indices, marked_numbers
-from tracker_service.fusion.associate import compatible_pairs, reach_constants
+from tracker_service.fusion.associate import compatible_pairs
 from tracker_service.fusion.config import FusionConfig
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import cv_prediction
@@ -351,7 +351,7 @@ def _merge_candidates(state: FusionState, touched: IntArray) -> tuple[IntArray, 
     (a, b); compiled: in one call (``kernels.merge_candidates``), the same pairs."""
     sys, cfg = state.sys, state.config
     empty = np.zeros(0, dtype=np.int64)
-    q, turn = reach_constants(state)
+    q, turn = state.reach_constants
     if state.compiled:
         from tracker_service.fusion.kernels import merge_candidates  # numba when compiled
 
