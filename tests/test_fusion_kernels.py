@@ -31,7 +31,7 @@ from tracker_service.fusion import (
 )
 from tracker_service.fusion.estimator import SystemEstimator
 from tracker_service.fusion.estimator_tracks import TrackFusionEstimator, fuse_local_tracks
-from tracker_service.fusion.messages import COASTING, ENDED
+from tracker_service.fusion.messages import COASTING, ENDED, MAX_SYSTEM_NUMBER
 from tracker_service.fusion.references import References, references
 from tracker_service.fusion.state import FusionState, PairEvidence
 from tracker_service.fusion.table import Columns, LocalTrackTable
@@ -161,6 +161,44 @@ def test_filter_round_updates_the_table_in_place_as_the_reference(
     assert compiled.stats == reference.stats
     for name in ("mx", "mP", "mM", "mu", "x", "P", "M", "B", "t"):
         close_per_track(reference.sys[name], compiled.sys[name], name)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, k=SIZES, n_radars=st.integers(1, 4), updates=st.integers(0, 30))
+def test_absorb_is_the_reference(seed: int, k: int, n_radars: int, updates: int) -> None:
+    """A batch's plots absorbed in one compiled call (``kernels.absorb_plots``) against
+    the numpy path's rounds: the same system tables (1e-9 of each track's scale), the
+    same statistics and the pre-selection's terms of the updated tracks as
+    ``nearby.refresh`` computes them; local rows feeding a track several times in the
+    batch (several rounds), late plots, plot ids not found, created tracks and rows
+    feeding none among the draws."""
+    compiled, reference, rng = _states(seed, n_radars, k)
+    local = compiled.local  # both states' (``_states``)
+    local.rows["system"][:k] = rng.integers(0, k + 1, k)
+    local.relink()
+    rows = rng.integers(0, k, updates)
+    numbers = np.maximum(local.rows["system"][rows], 1)
+    plots = _plots(rng, compiled, numbers)
+    plots.rows["plot_id"] = np.arange(updates)
+    late = rng.random(updates) < 0.15
+    plots.rows["time"][late] = compiled.sys["t"][numbers[late]] - 6.0
+    u = _local_updates(rng, updates)
+    u["plot_id"] = np.where(rng.random(updates) < 0.1, updates + 1, np.arange(updates))
+    has_plot = rng.random(updates) < 0.85
+    created = rng.choice(np.arange(1, k + 1), int(rng.integers(0, min(k, 3) + 1)), replace=False)
+    extra = _spd(rng, (updates,), np.array([50.0, 50.0]))
+    radar = int(rng.integers(0, n_radars))
+    t_before = compiled.sys["t"].copy()
+    for state in (compiled, reference):
+        estimator_plots.PlotFilterEstimator().absorb(
+            state, radar, rows, u, extra, has_plot, plots, created
+        )
+    assert compiled.stats == reference.stats
+    for name in ("mx", "mP", "mM", "mu", "x", "P", "M", "B", "t"):
+        close_per_track(reference.sys[name], compiled.sys[name], name)
+    nearby.refresh(reference.sys, np.flatnonzero(reference.sys["t"] != t_before), compiled=True)
+    for name in ("moments", "sensitivity", "largest_bias"):
+        close(reference.sys[name], compiled.sys[name])
 
 
 def close_per_track(reference: FloatArray, compiled: FloatArray, name: str) -> None:
@@ -366,10 +404,13 @@ def test_store_is_the_reference(seed: int, k: int, n: int) -> None:
 @settings(max_examples=50, deadline=None)
 @given(seed=SEEDS, n=st.integers(1, 60), candidates=st.integers(0, 80))
 def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int) -> None:
-    """The exchange test's pairs and votes by the kernel against the numpy path, every
-    array equal: local rows of four radars feeding eight system tracks, candidates
-    repeating pairs from either side, near system tracks with and without a row of the
-    candidate's radar or of another."""
+    """The exchange test's feeding sets and its pairs and votes by their kernels
+    (``kernels.exchange_feeding``, ``kernels.exchange_witnesses``) against the numpy
+    path, every array equal: local rows of four radars feeding eight system tracks,
+    candidates repeating pairs from either side, near system tracks with and without a
+    row of the candidate's radar or of another."""
+    from tracker_service.fusion.kernels import exchange_feeding, exchange_witnesses
+
     rng = np.random.default_rng(seed)
     states = [
         FusionState(
@@ -395,8 +436,11 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
         state.local.relink()
         state.local.remove(removed)
     feeding = associate.confirmed_feeding(states[1])
+    used = states[0].local.used
+    columns = (used["alive"], used["system"], used["status"], used["radar"])
     for radar in range(4):
-        compiled_sets, numpy_sets = (associate._feeding(state, radar) for state in states)
+        compiled_sets = exchange_feeding(*columns, LOCAL_CONFIRMED, radar, MAX_SYSTEM_NUMBER + 1)
+        numpy_sets = associate._feeding(states[1], radar)
         assert compiled_sets[0] == numpy_sets[0]
         for a, b in zip(compiled_sets[1:], numpy_sets[1:], strict=True):
             np.testing.assert_array_equal(a, b)
@@ -404,7 +448,19 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
     # As in use, S' is fed by a feeding row (of the candidate's radar or not; the
     # candidate's own system track among them, which is no candidate).
     sj = rng.choice(system[feeding], li.size) if feeding.size else li
-    got, want = (associate._exchange_witnesses(state, li, sj) for state in states)
+    got = exchange_witnesses(
+        li,
+        sj,
+        *states[0].local.feeder_lists(),
+        loc["alive"],
+        loc["status"],
+        LOCAL_CONFIRMED,
+        loc["system"],
+        loc["radar"],
+        loc["key"],
+        MAX_SYSTEM_NUMBER + 1,
+    )
+    want = associate._exchange_witnesses(states[1], li, sj)
     assert np.array_equal(loc["key"], states[1].local.rows["key"])
     for a, b in zip(want, got, strict=True):
         np.testing.assert_array_equal(a, b)
@@ -516,6 +572,8 @@ def test_exchange_votes_are_the_reference(seed: int, k: int, pairs: int) -> None
     """The exchange test's deltas and agreements in one pass (``kernels.exchange_votes``)
     against ``associate._votes``'s numpy path: deltas to 1e-9, agreements equal; a pair
     of 1 to 8 votes, witnesses repeating, some votes unanimous."""
+    from tracker_service.fusion.kernels import exchange_votes
+
     compiled, reference, rng = _states(seed, 2, k)
     ends = np.concatenate([[0], np.cumsum(rng.integers(1, 9, pairs))]).astype(np.int64)
     n = int(ends[-1])
@@ -523,7 +581,18 @@ def test_exchange_votes_are_the_reference(seed: int, k: int, pairs: int) -> None
     # A witness that is the track it should be farther from favours the exchange.
     same = rng.random(n) < 0.5
     witness[same] = farther[same]
-    got = associate._votes(compiled, closer, farther, witness, ends)
+    loc = compiled.local.rows
+    got = exchange_votes(
+        loc["t"],
+        loc["x"],
+        loc["P"],
+        loc["extra"],
+        closer,
+        farther,
+        witness,
+        ends,
+        compiled.config.q,
+    )
     want = associate._votes(reference, closer, farther, witness, ends)
     np.testing.assert_allclose(got[0], want[0], rtol=TOLERANCE, atol=0.0)
     np.testing.assert_array_equal(got[1], want[1])
@@ -608,6 +677,56 @@ def test_near_pairs_of_local_tracks_are_the_reference(
             want = associate._near(reference, estimator, free, candidates, bias_over)
             for a, b in zip(want, got, strict=True):
                 np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=1, max_value=12), n_radars=st.integers(1, 4))
+def test_exchange_pairs_are_the_reference(seed: int, k: int, n_radars: int) -> None:
+    """The exchange test from the batch's confirmed rows to its pairs' votes in one
+    compiled call (``kernels.exchange_pairs``) against ``associate._exchange_pairs``'s
+    numpy path (its four steps): the same pairs and keys, deltas to 1e-9, the same
+    agreements; system tracks within a few kilometres of each other, each radar's rows
+    about them, feeding some (confirmed or tentative, some removed), one radar alone
+    (no pairs) among the draws."""
+    compiled, reference, rng = _states(seed, n_radars, k)
+    sys, local = compiled.sys, compiled.local
+    n = np.arange(1, k + 1)
+    m = compiled.models.n_models
+    sys["mx"][n, :, :2] = rng.uniform(-5e3, 5e3, (k, 1, 2)) + rng.normal(0, 200, (k, m, 2))
+    sys["x"][n] = sys["mx"][n, -1]
+    sys["P"][n] = sys["mP"][n, -1]
+    nearby.refresh(sys, n, compiled=True)
+    reference.sys.put(slice(None), sys)
+    for radar in range(1, n_radars):
+        rows_of_radar = local.find(radar, _local_updates(rng, k), create=True)
+        for name in ("t", "x", "P", "extra"):
+            local.rows[name][rows_of_radar] = local.rows[name][rows_of_radar - radar * k]
+    loc, used = local.rows, local.n
+    system = rng.integers(0, k + 1, used)
+    loc["x"][:used, :2] = sys["moments"][np.maximum(system, 1), :2] + rng.normal(0, 1e3, (used, 2))
+    loc["system"][:used] = system
+    loc["status"][:used] = np.where(rng.random(used) < 0.8, LOCAL_CONFIRMED, LOCAL_TENTATIVE)
+    local.relink()
+    local.remove(np.flatnonzero(rng.random(used) < 0.1))
+    radar = int(rng.integers(0, n_radars))
+    confirmed = np.flatnonzero(
+        loc["alive"][:used]
+        & (loc["radar"][:used] == radar)
+        & (loc["system"][:used] > 0)
+        & (loc["status"][:used] == LOCAL_CONFIRMED)
+    )
+    for estimator in (estimator_plots.PlotFilterEstimator(), associate.STRAIGHT_LINE):
+        got = associate._exchange_pairs(compiled, estimator, confirmed, radar)
+        want = associate._exchange_pairs(reference, estimator, confirmed, radar)
+        assert (got is None) == (want is None)
+        if got is None or want is None:
+            continue
+        *got_rows, got_deltas, got_favoured = got
+        *want_rows, want_deltas, want_favoured = want
+        for a, b in zip(want_rows, got_rows, strict=True):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_allclose(got_deltas, want_deltas, rtol=TOLERANCE, atol=0.0)
+        np.testing.assert_array_equal(got_favoured, want_favoured)
 
 
 @settings(max_examples=25, deadline=None)

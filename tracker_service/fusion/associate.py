@@ -129,28 +129,14 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
         return
     confirmed = held[loc["status"][held] == LOCAL_CONFIRMED]
     tested = loc["key"][confirmed]
-    # Only a system track that a track of the batch's radar feeds can hold the l' of a
-    # pair (``_exchange_witnesses``): the pre-selection reaches those alone (a fifth of
-    # the fed ones on ``scale``), with the bias bound of every fed one as before, so
-    # that each pair it finds is one it found among them all.
-    several, fed, own = _feeding(state, int(loc["radar"][held[0]]))
-    if not several:
+    pairs = _exchange_pairs(state, estimator, confirmed, int(loc["radar"][held[0]]))
+    if pairs is None:
         # One radar feeds the picture (canalA): no other radar's track can tell the two
         # assignments apart, so the pair search is skipped (a quarter of the fuser's cost
         # there); the tested tracks' evidence ends as below.
         evidence.drop(tested)
         return
-    li, sj = _near(state, estimator, confirmed, own, bias_over=fed)
-    # The pairs and their witnesses by array operations, then every distance in two
-    # batched calls (one call per pair cost 60 % of the whole chain on ``scale``, the
-    # pairs built in Python a third of the fuser).
-    pair_a, pair_b, closer, farther, witness, ends = _exchange_witnesses(state, li, sj)
-    ka, kb = loc["key"][pair_a], loc["key"][pair_b]
-    low, high = np.minimum(ka, kb), np.maximum(ka, kb)
-    if low.size:
-        deltas, favoured = _votes(state, closer, farther, witness, ends)
-    else:
-        deltas, favoured = np.zeros(0), np.zeros(0, dtype=bool)
+    pair_a, pair_b, low, high, deltas, favoured = pairs
     # Each pair's running means, over the batch's pairs at once. Every other radar's
     # track must favour it (in EXCHANGE_AGREEMENT of the updates): where the system
     # tracks are mixtures (each radar's first joins made at one moment), an exchange
@@ -175,23 +161,75 @@ def _exchange(state: FusionState, estimator: SystemEstimator, held: IntArray) ->
     evidence.drop(np.array(sorted(done), dtype=np.int64))
 
 
+ExchangePairs = tuple[IntArray, IntArray, IntArray, IntArray, FloatArray, BoolArray]
+"""The exchange test's pairs: their rows l and l', their keys' lower and higher, each
+pair's delta and whether all its votes favour the exchange."""
+
+
+def _exchange_pairs(
+    state: FusionState, estimator: SystemEstimator, confirmed: IntArray, radar: int
+) -> ExchangePairs | None:
+    """The pairs of the confirmed local rows ``confirmed`` of ``radar`` (None: a single
+    radar feeds the system tracks) and their votes. Compiled: the four steps below in one
+    kernel call (``kernels.exchange_pairs``), where four calls took 7 to 17 arrays each
+    and the arrays between them went through Python; the same bits."""
+    loc, sys, cfg = state.local.rows, state.sys, state.config
+    if state.compiled:
+        from tracker_service.fusion.kernels import exchange_pairs  # numba only when compiled
+
+        several, *pairs = exchange_pairs(
+            state.local.n,
+            loc["alive"],
+            loc["system"],
+            loc["status"],
+            loc["radar"],
+            loc["key"],
+            loc["t"],
+            loc["x"],
+            loc["P"],
+            loc["extra"],
+            *state.local.feeder_lists(),
+            kernel_indices(confirmed),
+            radar,
+            LOCAL_CONFIRMED,
+            sys["x"],
+            sys["P"],
+            sys["moments"],
+            sys["sensitivity"],
+            sys["largest_bias"],
+            sys["t"],
+            estimator.coarse_from_models,
+            cfg.gate,
+            *state.reach_constants,
+            cfg.q,
+        )
+        return tuple(pairs) if several else None  # type: ignore[return-value]
+    # Only a system track that a track of the batch's radar feeds can hold the l' of a
+    # pair (``_exchange_witnesses``): the pre-selection reaches those alone (a fifth of
+    # the fed ones on ``scale``), with the bias bound of every fed one as before, so
+    # that each pair it finds is one it found among them all.
+    several, fed, own = _feeding(state, radar)
+    if not several:
+        return None
+    li, sj = _near(state, estimator, confirmed, own, bias_over=fed)
+    # The pairs and their witnesses by array operations, then every distance in two
+    # batched calls (one call per pair cost 60 % of the whole chain on ``scale``, the
+    # pairs built in Python a third of the fuser).
+    pair_a, pair_b, closer, farther, witness, ends = _exchange_witnesses(state, li, sj)
+    ka, kb = loc["key"][pair_a], loc["key"][pair_b]
+    low, high = np.minimum(ka, kb), np.maximum(ka, kb)
+    if low.size:
+        deltas, favoured = _votes(state, closer, farther, witness, ends)
+    else:
+        deltas, favoured = np.zeros(0), np.zeros(0, dtype=bool)
+    return pair_a, pair_b, low, high, deltas, favoured
+
+
 def _feeding(state: FusionState, radar: int) -> tuple[bool, IntArray, IntArray]:
     """Whether more than one radar's rows are among the confirmed live local rows
     feeding a system track, the system tracks they feed and those that ``radar``'s
-    feed (ascending)."""
+    feed (ascending); the numpy path (compiled: ``kernels.exchange_feeding``)."""
     used = state.local.used
-    if state.compiled:
-        from tracker_service.fusion.kernels import exchange_feeding  # numba only when compiled
-
-        return exchange_feeding(
-            used["alive"],
-            used["system"],
-            used["status"],
-            used["radar"],
-            LOCAL_CONFIRMED,
-            radar,
-            MAX_SYSTEM_NUMBER + 1,
-        )
     feeding = confirmed_feeding(state)
     feeding_radar = used["radar"][feeding]
     several = feeding.size > 0 and not bool((feeding_radar == feeding_radar[0]).all())
@@ -226,23 +264,6 @@ def _exchange_witnesses(
     # Each candidate row feeds a system track: with none, no row feeds any.
     if li.size == 0:
         return empty, empty, empty, empty, empty, np.zeros(1, dtype=np.int64)
-    if state.compiled:
-        from tracker_service.fusion.kernels import exchange_witnesses  # numba when compiled
-
-        # The involved rows from the lists of the candidates' tracks' feeders, where
-        # two passes over the confirmed fed rows (some 20,000 on ``artas``) grouped them.
-        return exchange_witnesses(
-            kernel_indices(li),
-            kernel_indices(sj),
-            *state.local.feeder_lists(),
-            loc["alive"],
-            loc["status"],
-            LOCAL_CONFIRMED,
-            loc["system"],
-            loc["radar"],
-            loc["key"],
-            MAX_SYSTEM_NUMBER + 1,
-        )
     feeding = confirmed_feeding(state)
     other = sj != loc["system"][li]
     li, sj = li[other], sj[other]
@@ -311,23 +332,8 @@ def _votes(
 ) -> tuple[FloatArray, BoolArray]:
     """The exchange test's pairs' deltas (each the sum of its votes: a witness's distance
     to the track it should be closer to less that to the other) and whether all of a
-    pair's votes favour the exchange; compiled: in one pass (``kernels.exchange_votes``),
-    the same bits."""
-    if state.compiled:
-        from tracker_service.fusion.kernels import exchange_votes  # numba only when compiled
-
-        loc = state.local.rows
-        return exchange_votes(
-            loc["t"],
-            loc["x"],
-            loc["P"],
-            loc["extra"],
-            kernel_indices(closer),
-            kernel_indices(farther),
-            kernel_indices(witness),
-            ends,
-            state.config.q,
-        )
+    pair's votes favour the exchange; the numpy path (compiled: in one pass,
+    ``kernels.exchange_votes``, the same bits)."""
     votes = track_distance(state, closer, witness)
     votes -= track_distance(state, farther, witness)
     deltas = np.array([votes[lo:hi].sum() for lo, hi in itertools.pairwise(ends.tolist())])
@@ -446,7 +452,7 @@ def _near(
     if free.size == 0 or candidates.size == 0:
         return empty, empty
     loc, sys, cfg = state.local.rows, state.sys, state.config
-    q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
+    q, turn = state.reach_constants
     if state.compiled:
         from tracker_service.fusion.kernels import near_local_system  # numba when compiled
 

@@ -84,16 +84,20 @@ class PlotFilterEstimator:
     ) -> None:
         """Update each system track's IMM with the batch's plots of its local tracks, in
         time order; a system track created by this batch already holds its founder's, and
-        one its founder alone has fed follows it (``_follow_founder``)."""
-        use, systems, found, rank, unknown = _plotted_updates(
-            state, rows, u, has_plot, plots, created
-        )
-        state.stats.unknown_plot_ids += unknown
+        one its founder alone has fed follows it (``_follow_founder``). Compiled without
+        DAPs: one call (``kernels.absorb_plots``), the rounds below in a row."""
+        if state.compiled and state.daps is None:
+            use, systems = _absorb_compiled(state, radar, rows, u, extra, has_plot, plots, created)
+        else:
+            use, systems, found, rank, unknown = _plotted_updates(
+                state, rows, u, has_plot, plots, created
+            )
+            state.stats.unknown_plot_ids += unknown
+            for r in range(int(rank.max(initial=-1)) + 1):
+                now = rank == r
+                _filter_round(state, radar, systems[now], plots.take(found[now]), extra[use[now]])
         if use.size == 0:
             return
-        for r in range(int(rank.max(initial=-1)) + 1):
-            now = rank == r
-            _filter_round(state, radar, systems[now], plots.take(found[now]), extra[use[now]])
         solo = state.sys["solo"][systems]
         _follow_founder(state, systems[solo], u[use[solo]])
 
@@ -133,6 +137,58 @@ class PlotFilterEstimator:
         p[solo] = v["P"].reshape(-1, 4, 4)
         p += consider.bias_share(m_comb, sys["B"][numbers])
         return x, p
+
+
+def _absorb_compiled(
+    state: FusionState,
+    radar: int,
+    rows: IntArray,
+    u: npt.NDArray[Any],
+    extra: FloatArray,
+    has_plot: BoolArray,
+    plots: PlotArrays,
+    created: IntArray,
+) -> tuple[IntArray, IntArray]:
+    """``absorb``'s plotted updates and filter rounds in one kernel call
+    (``kernels.absorb_plots``: ``_plotted_updates``, then each round's ``_filter_round``
+    without DAPs, the same bits); returns the updates used and their system tracks."""
+    from tracker_service.fusion.kernels import absorb_plots  # numba only when compiled
+
+    sys, c = state.sys, state.model_constants
+    # Contiguous float64 and int64 whatever the plots' layout: one compiled signature.
+    use, systems, unknown, late = absorb_plots(
+        kernel_indices(rows),
+        state.local.rows["system"],
+        has_plot,
+        kernel_indices(created),
+        kernel_indices(plots.plot_id),
+        kernel_indices(u["plot_id"]),
+        np.ascontiguousarray(plots.time, dtype=np.float64),
+        np.ascontiguousarray(plots.x, dtype=np.float64),
+        np.ascontiguousarray(plots.y, dtype=np.float64),
+        np.ascontiguousarray(plots.R, dtype=np.float64),
+        np.ascontiguousarray(extra, dtype=np.float64),
+        radar,
+        state.config.max_backward_s,
+        sys["mx"],
+        sys["mP"],
+        sys["mM"],
+        sys["mu"],
+        sys["x"],
+        sys["P"],
+        sys["M"],
+        sys["B"],
+        sys["t"],
+        sys["moments"],
+        sys["sensitivity"],
+        sys["largest_bias"],
+        c.omega,
+        c.q,
+        c.sojourn,
+    )
+    state.stats.unknown_plot_ids += unknown
+    state.stats.late_plots_skipped += late
+    return use, systems
 
 
 def _plotted_updates(

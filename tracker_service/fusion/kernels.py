@@ -646,13 +646,14 @@ def exchange_votes(
     return segment_sums(votes, ends), favoured
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _quadratic_form_lu(
     s: FloatArray, d: FloatArray, y: FloatArray, solution: FloatArray
 ) -> float:  # pragma: no cover - compiled
     """d^T s^-1 d for a 4x4 s by Gaussian elimination with partial pivoting (LAPACK's
     gesv, as ``np.linalg.solve``); s is overwritten; y and solution: working arrays (4,)
-    (allocated per pair, they cost as much as the elimination)."""
+    (allocated per pair, they cost as much as the elimination). Inlined into its
+    callers' loops: a call cost an eighth of the exchange test's distance."""
     y[:] = d
     for col in range(4):
         pivot = col
@@ -1746,6 +1747,93 @@ def reference_sources(
 
 
 @numba.njit(cache=True)
+def absorb_plots(
+    rows: IntArray,
+    loc_system: IntArray,
+    has_plot: BoolArray,
+    created: IntArray,
+    plot_ids: IntArray,
+    wanted: IntArray,
+    plot_time: FloatArray,
+    plot_x: FloatArray,
+    plot_y: FloatArray,
+    plot_R: FloatArray,
+    extra: FloatArray,
+    radar: int,
+    max_backward: float,
+    mx: FloatArray,
+    mP: FloatArray,
+    mM: FloatArray,
+    mu: FloatArray,
+    x: FloatArray,
+    P: FloatArray,
+    M: FloatArray,
+    B: FloatArray,
+    t: FloatArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
+    largest_bias: FloatArray,
+    omega: FloatArray,
+    q: FloatArray,
+    sojourn: FloatArray,
+) -> tuple[IntArray, IntArray, int, int]:  # pragma: no cover - compiled
+    """``PlotFilterEstimator.absorb``'s plots without DAPs in one call, its steps' kernels
+    in a row: the plotted updates (``plotted_updates``), then round by round
+    ``_filter_round``: the plots more than ``max_backward`` seconds older than their
+    system track skipped, the radar's residual biases ``extra`` (of the batch's updates)
+    written, ``filter_round`` and ``refresh_moments``. Returns the updates used and their
+    system tracks, the plot ids not found and the late plots skipped. One call where each
+    round took some fifteen numpy calls and two kernel calls."""
+    use, systems, found, rank, unknown = plotted_updates(
+        rows, loc_system, has_plot, created, plot_ids, wanted
+    )
+    k = use.size
+    numbers = np.empty(k, dtype=np.int64)
+    time = np.empty(k)
+    z = np.empty((k, 2))
+    R = np.empty((k, 2, 2))
+    late = 0
+    rounds = rank.max() + 1 if k else 0
+    for r in range(rounds):
+        n = 0
+        for i in range(k):
+            if rank[i] != r:
+                continue
+            number, plot = systems[i], found[i]
+            if plot_time[plot] - t[number] < -max_backward:
+                late += 1
+                continue
+            numbers[n], time[n] = number, plot_time[plot]
+            z[n, 0], z[n, 1] = plot_x[plot], plot_y[plot]
+            R[n] = plot_R[plot]
+            B[number, radar] = extra[use[i]]
+            n += 1
+        if n == 0:
+            continue
+        filter_round(
+            mx,
+            mP,
+            mM,
+            mu,
+            x,
+            P,
+            M,
+            B,
+            t,
+            numbers[:n],
+            time[:n],
+            z[:n],
+            R[:n],
+            radar,
+            omega,
+            q,
+            sojourn,
+        )
+        refresh_moments(mx, mP, mu, M, B, numbers[:n], moments, sensitivity, largest_bias)
+    return use, systems, unknown, late
+
+
+@numba.njit(cache=True)
 def refresh_moments(
     mx: FloatArray,
     mP: FloatArray,
@@ -2192,6 +2280,100 @@ def near_local_system(
     )
     i_l, j_s = near_pairs(xy_l, r_l, xy_s, r_s)
     return free[i_l], candidates[j_s]
+
+
+@numba.njit(cache=True)
+def exchange_pairs(
+    n_used: int,
+    loc_alive: npt.NDArray[np.bool_],
+    loc_system: IntArray,
+    loc_status: npt.NDArray[np.int8],
+    loc_radar: IntArray,
+    loc_key: IntArray,
+    loc_t: FloatArray,
+    loc_x: FloatArray,
+    loc_P: FloatArray,
+    loc_extra: FloatArray,
+    head: IntArray,
+    next_row: IntArray,
+    tested: IntArray,
+    radar: int,
+    confirmed: int,
+    sys_x: FloatArray,
+    sys_P: FloatArray,
+    moments: FloatArray,
+    sensitivity: FloatArray,
+    largest_bias: FloatArray,
+    sys_t: FloatArray,
+    from_models: bool,
+    gate: float,
+    q_max: float,
+    turn_max: float,
+    q: float,
+) -> tuple[bool, IntArray, IntArray, IntArray, IntArray, FloatArray, BoolArray]:  # pragma: no cover
+    """``associate._exchange_pairs`` in one call, its four steps' kernels in a row: the
+    feeding sets over the ``n_used`` rows in use (``exchange_feeding``), the
+    pre-selection of the confirmed rows ``tested`` of ``radar`` near the tracks its rows
+    feed (``near_local_system``, the bias bound over every fed track), the pairs and
+    their witnesses (``exchange_witnesses``) and the votes (``exchange_votes``).
+    Returns whether more than one radar feeds a system track (when not, the rest is
+    empty), the pairs' rows l and l', their keys' lower and higher, each pair's delta
+    and whether every vote favours the exchange. One call where four took 7 to 17
+    arrays each, and none of the arrays between them leaves the compiled code (the
+    system-track numbers are those below ``head.size``, one list of feeders each)."""
+    several, fed, own = exchange_feeding(
+        loc_alive[:n_used],
+        loc_system[:n_used],
+        loc_status[:n_used],
+        loc_radar[:n_used],
+        confirmed,
+        radar,
+        head.size,
+    )
+    empty = np.zeros(0, dtype=np.int64)
+    if not several:
+        return False, empty, empty, empty, empty, np.zeros(0), np.zeros(0, dtype=np.bool_)
+    li, sj = near_local_system(
+        loc_t,
+        loc_x,
+        loc_P,
+        loc_extra,
+        tested,
+        sys_x,
+        sys_P,
+        moments,
+        sensitivity,
+        largest_bias,
+        sys_t,
+        own,
+        fed,
+        from_models,
+        gate,
+        q_max,
+        turn_max,
+    )
+    pair_a, pair_b, closer, farther, witness, ends = exchange_witnesses(
+        li,
+        sj,
+        head,
+        next_row,
+        loc_alive,
+        loc_status,
+        confirmed,
+        loc_system,
+        loc_radar,
+        loc_key,
+        head.size,
+    )
+    low = np.empty(pair_a.size, dtype=np.int64)
+    high = np.empty(pair_a.size, dtype=np.int64)
+    for p in range(pair_a.size):
+        ka, kb = loc_key[pair_a[p]], loc_key[pair_b[p]]
+        low[p], high[p] = min(ka, kb), max(ka, kb)
+    deltas, favoured = exchange_votes(
+        loc_t, loc_x, loc_P, loc_extra, closer, farther, witness, ends, q
+    )
+    return True, pair_a, pair_b, low, high, deltas, favoured
 
 
 BOUND_RELATIVE = 1e-9

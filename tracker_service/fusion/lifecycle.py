@@ -351,7 +351,7 @@ def _merge_candidates(state: FusionState, touched: IntArray) -> tuple[IntArray, 
     (a, b); compiled: in one call (``kernels.merge_candidates``), the same pairs."""
     sys, cfg = state.sys, state.config
     empty = np.zeros(0, dtype=np.int64)
-    q, turn = max(float(state.models.q.max()), cfg.q), state.turn_max
+    q, turn = state.reach_constants
     if state.compiled:
         from tracker_service.fusion.kernels import merge_candidates  # numba when compiled
 

@@ -254,10 +254,16 @@ class FusionState:
             return None
         return DapUpdate(self.config.plot_filter, self.models, self.stats)
 
-    @property
-    def turn_max(self) -> float:
-        """The largest turn rate (rad/s) of the system tracks' models."""
-        return float(np.abs(self.models.turn_rates_rad_s).max())
+    @cached_property
+    def reach_constants(self) -> tuple[float, float]:
+        """The pre-selection's bounds of a track's motion (``nearby.py``): the largest
+        process noise of the models and of the constant-velocity prediction, and the
+        largest turn rate (rad/s) of the models. Cached: two numpy reductions a call,
+        in each of the exchange test's, association's and merging's pre-selections."""
+        return (
+            max(float(self.models.q.max()), self.config.q),
+            float(np.abs(self.models.turn_rates_rad_s).max()),
+        )
 
     def __post_init__(self) -> None:
         self.local = LocalTrackTable(self.models.n_models, compiled=self.compiled)
