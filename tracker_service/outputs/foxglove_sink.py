@@ -15,7 +15,6 @@ from __future__ import annotations
 import functools
 import json
 import logging
-import socket
 from collections.abc import Sequence
 from typing import Protocol
 
@@ -34,6 +33,7 @@ from tracker_service.outputs.messages import (
     StatusMessage,
     SystemTrackMessage,
 )
+from tracker_service.outputs.port_probe import bind_probe
 from tracker_service.outputs.sink import Sink
 from tracker_service.outputs.updates import LocalUpdate, SystemBatch, SystemUpdate
 
@@ -110,13 +110,8 @@ def check_listen(text: str) -> tuple[str, int]:
             "--foxglove-listen needs the Foxglove SDK: pip install 'tracker-service[foxglove]'"
         ) from None
     if port:
-        # Bound, not listening: a client that tries the port meanwhile is refused, not
-        # accepted by this probe and reset. SO_REUSEADDR as the server has it: a port
-        # left in TIME_WAIT by a daemon just stopped is free, one listened on is not.
         try:
-            with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
-                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                probe.bind((host, port))
+            bind_probe(host, port)
         except OSError as exc:
             raise FoxgloveListenError(
                 f"--foxglove-listen {text}: {exc.strerror or exc} (another tracker-service or "

@@ -28,6 +28,8 @@ from typing import Literal, get_args
 
 import zenoh
 
+from tracker_service.outputs.port_probe import bind_probe
+
 __all__ = [
     "LISTEN_FIX",
     "TLS_PROTOCOLS",
@@ -124,12 +126,11 @@ def open_session(config: zenoh.Config, fix: str = LISTEN_FIX) -> zenoh.Session:
 
 def check_listen_endpoints(config: zenoh.Config, fix: str = LISTEN_FIX) -> None:
     """Whether the session ``config`` describes could listen on its endpoints now: each
-    with an address and a port is bound for a moment (``SO_REUSEADDR``, as Zenoh binds:
-    a port in TIME_WAIT is free, one listened on is not). A ``ZenohEndpointError`` of
-    one line, at start-up, rather than from ``open_session`` after the process's
-    warm-up (minutes on an empty numba cache). ``config`` is ``zenoh_config``'s (its
-    endpoints one list); endpoints it cannot read (a Unix socket, a serial line) are
-    left to ``open_session``."""
+    with an address and a port is bound for a moment (``port_probe.bind_probe``). A
+    ``ZenohEndpointError`` of one line, at start-up, rather than from ``open_session``
+    after the process's warm-up (minutes on an empty numba cache). ``config`` is
+    ``zenoh_config``'s (its endpoints one list); endpoints it cannot read (a Unix socket,
+    a serial line) are left to ``open_session``."""
     for endpoint in json.loads(config.get_json("listen/endpoints")):
         protocol, _, rest = str(endpoint).partition("/")
         address = re.split(r"[?#]", rest, maxsplit=1)[0]
@@ -140,11 +141,8 @@ def check_listen_endpoints(config: zenoh.Config, fix: str = LISTEN_FIX) -> None:
         if port == 0:
             continue
         kind = socket.SOCK_STREAM if protocol in _STREAM_PROTOCOLS else socket.SOCK_DGRAM
-        family = socket.AF_INET6 if ":" in host else socket.AF_INET
         try:
-            with socket.socket(family, kind) as probe:
-                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                probe.bind((host, port))
+            bind_probe(host, port, kind)
         except OSError as exc:
             if exc.errno == errno.EADDRINUSE:
                 raise _endpoint_error(endpoint, True, fix) from None

@@ -331,11 +331,10 @@ def _feed_radar_stage(
     """The scenario's radar datagrams (their first ``until_s`` seconds) through
     ``stage``, published as a radar process publishes them."""
     radar_inputs = {input_name(r.key) for r in warm.config.radars}
-    first = warm.datagrams[0][1].time if warm.datagrams else None
-    for name, datagram in warm.datagrams:
+    times = [datagram.time or 0.0 for _, datagram in warm.datagrams]  # simulated: all set
+    for (name, datagram), t in zip(warm.datagrams, times, strict=True):
         _check(stop)
-        assert datagram.time is not None and first is not None
-        if datagram.time - first > until_s:
+        if t - times[0] > until_s:
             break
         if name in radar_inputs:
             _published(stage, datagram)
