@@ -7,9 +7,10 @@ stage, and publishes under ``<prefix>/stage/radars/<name>/`` (``name``: its rada
 "25_11-25_12"):
 
 - ``batches``: a ``stage_messages.DatagramResult`` per datagram with plots, ordered by
-  reception time in microseconds; and every ``HEARTBEAT_S`` one without batches whose
-  order is a watermark (the process will send nothing older), every ``COUNTERS_S`` with
-  its inputs' counters (duplicates, drops by cause) for the fusion process's status;
+  reception time in microseconds; and, when it has sent nothing for ``watermark_period``, one
+  without batches whose order is a watermark (the process will send nothing older), every
+  ``COUNTERS_S`` one with its inputs' counters (duplicates, drops by cause) for the fusion
+  process's status;
 - ``alive``: a liveliness token, gone when the process is (a SIGKILL closes its links:
   the fusion process learns it at once and stops waiting for it);
 - ``live``: a queryable that answers with its radars' live local tracks (``LIVE_TRACKS``).
@@ -81,8 +82,22 @@ __all__ = ["FusionRole", "RadarRole", "StageMerge", "stage_name"]
 
 log = logging.getLogger(__name__)
 
-HEARTBEAT_S = 0.1
-"""A radar process's watermark period: the latency it adds to fusion at most."""
+WATERMARK_MAX_S = 0.1
+WATERMARK_MIN_S = 0.005
+
+
+def watermark_period(holding_window_s: float) -> float:
+    """How long a radar process stays silent before it sends its watermark: the latency it
+    adds to fusion at most. Fusion holds a batch until every other radar process has
+    passed its time, so with several of them each batch waits for the latest of their
+    next watermarks: at 0.1 s, 67 ms more on the median of three_sites in three radar
+    processes (docs/benchmarks.md, session 23). Each watermark costs ~0.25 ms of CPU at
+    either end (Zenoh's wake-ups), and a busy process sends none (its batches carry the
+    order): half the holding window, so that a service configured for a short one waits
+    little, within 5 ms and 0.1 s."""
+    return min(max(holding_window_s / 2, WATERMARK_MIN_S), WATERMARK_MAX_S)
+
+
 STALLED_S = 2.0
 """A live radar process silent this long (no batch, no heartbeat) is not waited for."""
 LIVE_QUERY_S = 2.0
@@ -173,6 +188,7 @@ class RadarRole:
         )
         lateness = Lateness(system.holding_window_s, system.max_behind_s)
         lateness.started = started
+        period = watermark_period(system.holding_window_s)
         base = f"{config.zenoh.prefix}/stage/radars/{self.name}"
         watermark = reception_order(time.time() - system.holding_window_s)
         session = _session(config, self.listen, self.connect)
@@ -194,7 +210,7 @@ class RadarRole:
             token = session.liveliness().declare_token(f"{base}/alive")
             queryable = session.declare_queryable(f"{base}/live", answer)
             log.info("radar stage %s: publishing under %s/", ", ".join(self.radars), base)
-            next_beat = next_counters = 0.0
+            last_sent = next_counters = 0.0
             while not stop.is_set():
                 for name, datagram in take_ready(inputs, arrivals.take()):
                     merger.push(name, datagram)
@@ -218,7 +234,8 @@ class RadarRole:
                                 )
                             )
                         )
-                if now >= next_beat:
+                        last_sent = now
+                if now - last_sent >= period or now >= next_counters:
                     watermark = reception_order(now - system.holding_window_s)
                     beat = DatagramResult(watermark, watermark / 1e6)
                     if now >= next_counters:
@@ -226,9 +243,9 @@ class RadarRole:
                         beat.resident_mb = resident_mb()
                         next_counters = now + COUNTERS_S
                     publisher.put(encode_message(beat))
-                    next_beat = now + HEARTBEAT_S
-                # Until data comes, the oldest datagram held is due, or the next beat.
-                arrivals.wait_until(merger.due(), next_beat)
+                    last_sent = now
+                # Until data comes, the oldest datagram held is due, or the next watermark.
+                arrivals.wait_until(merger.due(), last_sent + period)
             queryable.undeclare()  # type: ignore[no-untyped-call]
             token.undeclare()  # type: ignore[no-untyped-call]
         finally:
