@@ -167,9 +167,14 @@ class Merger:
         self.bytes += size
         return True
 
+    def oldest(self) -> float | None:
+        """The reception time (POSIX s) of the oldest datagram held; None when empty."""
+        return self._heap[0][0] if self._heap else None
+
     def due(self) -> float | None:
         """When the oldest datagram held is ``window`` old (POSIX s); None when empty."""
-        return self._heap[0][0] + self.window if self._heap else None
+        oldest = self.oldest()
+        return None if oldest is None else oldest + self.window
 
     def release(self, now: float) -> list[tuple[str, Datagram]]:
         """What is at least ``window`` old at ``now`` (everything when ``now`` is inf)."""

@@ -87,15 +87,29 @@ WATERMARK_MIN_S = 0.005
 
 
 def watermark_period(holding_window_s: float) -> float:
-    """How long a radar process stays silent before it sends its watermark: the latency it
-    adds to fusion at most. Fusion holds a batch until every other radar process has
-    passed its time, so with several of them each batch waits for the latest of their
-    next watermarks: at 0.1 s, 67 ms more on the median of three_sites in three radar
-    processes (docs/benchmarks.md, session 23). Each watermark costs ~0.25 ms of CPU at
-    either end (Zenoh's wake-ups), and a busy process sends none (its batches carry the
-    order): half the holding window, so that a service configured for a short one waits
-    little, within 5 ms and 0.1 s."""
+    """How long a radar process stays silent before it sends its watermark. Fusion holds a
+    batch until every other radar process has passed its time, so with several of them
+    each batch waited for the latest of their next watermarks: every 0.1 s, that was 67
+    ms more on the median of three_sites in three radar processes (docs/benchmarks.md,
+    session 23). A watermark now runs ``radar_watermark``'s half window ahead of the
+    merger's release, so that one sent within the last half window has passed any batch
+    another radar process can have published: no wait. Each costs ~0.25 ms of CPU at
+    either end (Zenoh's wake-ups) and a busy process sends none (its batches carry the
+    order): half the holding window, within 5 ms and 0.1 s."""
     return min(max(holding_window_s / 2, WATERMARK_MIN_S), WATERMARK_MAX_S)
+
+
+def radar_watermark(oldest_held: float | None, taken: float, holding_window_s: float) -> float:
+    """The reception time (POSIX s) before which a radar process will send nothing more:
+    the oldest datagram its merger holds, else half a holding window before it last took
+    its inputs' queues (``taken``). A datagram is stamped on reception and queued a few
+    bytecodes later: one stamped before ``taken`` but queued after it is the only thing
+    that could come older, and the half window is its margin, as the window itself is
+    the one-process merger's. Not the merger's release (``taken`` less the whole window):
+    that trails what another radar process publishes by the window, so every batch of
+    theirs waited for this one's next watermark."""
+    lead = taken - holding_window_s / 2
+    return lead if oldest_held is None else min(oldest_held, lead)
 
 
 STALLED_S = 2.0
@@ -212,6 +226,7 @@ class RadarRole:
             log.info("radar stage %s: publishing under %s/", ", ".join(self.radars), base)
             last_sent = next_counters = 0.0
             while not stop.is_set():
+                taken = time.time()
                 for name, datagram in take_ready(inputs, arrivals.take()):
                     merger.push(name, datagram)
                 now = time.time()
@@ -234,9 +249,14 @@ class RadarRole:
                                 )
                             )
                         )
+                        # The live tracks' order too (``answer``): a busy process sends
+                        # no watermarks, and its tracks are of this datagram by now.
+                        watermark = order
                         last_sent = now
                 if now - last_sent >= period or now >= next_counters:
-                    watermark = reception_order(now - system.holding_window_s)
+                    watermark = reception_order(
+                        radar_watermark(merger.oldest(), taken, system.holding_window_s)
+                    )
                     beat = DatagramResult(watermark, watermark / 1e6)
                     if now >= next_counters:
                         beat.inputs = input_counters(inputs, merger, lateness)
