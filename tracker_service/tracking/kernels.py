@@ -93,6 +93,34 @@ def add_white_acceleration_q(p: FloatArray, t: float, q: float) -> None:  # prag
     p[3, 3] += q_vel
 
 
+@numba.njit(cache=True, inline="always")
+def imm_mixing(
+    t: float, sojourn: FloatArray, mu: FloatArray, pi: FloatArray, c: FloatArray, w: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """The IMM's mixing over a step of ``t`` s (>= 0) from the model probabilities ``mu``
+    (M,): Markov switching by mean sojourn times into pi (M, M)
+    (``models.ModelSet.switching``), the predicted model probabilities into c (M,) and
+    the mixing weights into w (M, M) (``imm.mixing``); shared by the local tracker's
+    horizontal and vertical IMMs and the fuser's."""
+    m = mu.shape[0]
+    for i in range(m):
+        if m == 1:
+            pi[i, i] = 1.0
+            continue
+        stay = math.exp(-t / sojourn[i])
+        leave = (1.0 - stay) / (m - 1)
+        for j in range(m):
+            pi[i, j] = stay if i == j else leave
+    for j in range(m):
+        total = 0.0
+        for i in range(m):
+            total += pi[i, j] * mu[i]
+        c[j] = total
+        denominator = max(total, TINY)
+        for i in range(m):
+            w[i, j] = pi[i, j] * mu[i] / denominator
+
+
 @numba.njit(cache=True)
 def imm_predict(
     x: FloatArray,
@@ -122,24 +150,7 @@ def imm_predict(
     for r in range(k):
         step = dt[r]
         t = abs(step)
-        # Markov switching over the step (models.ModelSet.switching).
-        for i in range(m):
-            if m == 1:
-                pi[i, i] = 1.0
-                continue
-            stay = math.exp(-t / sojourn[i])
-            leave = (1.0 - stay) / (m - 1)
-            for j in range(m):
-                pi[i, j] = stay if i == j else leave
-        # Predicted model probabilities and mixing weights (imm.mixing).
-        for j in range(m):
-            total = 0.0
-            for i in range(m):
-                total += pi[i, j] * mu[r, i]
-            c[r, j] = total
-            denominator = max(total, TINY)
-            for i in range(m):
-                w[i, j] = pi[i, j] * mu[r, i] / denominator
+        imm_mixing(t, sojourn, mu[r], pi, c[r], w)
         for j in range(m):
             # Mixed initial condition of model j (imm.mix_and_move).
             for a in range(4):
@@ -404,17 +415,7 @@ def vertical_update(
         if not restart:
             dt = t[n] - t_fl[row]
             tt = abs(dt)
-            for i in range(m):
-                stay = math.exp(-tt / sojourn[i])
-                for j in range(m):
-                    pi[i, j] = stay if i == j else (1.0 - stay) / (m - 1)
-            for j in range(m):
-                total = 0.0
-                for i in range(m):
-                    total += pi[i, j] * muv[row, i]
-                c[j] = total
-                for i in range(m):
-                    w[i, j] = pi[i, j] * muv[row, i] / max(total, TINY)
+            imm_mixing(tt, sojourn, muv[row], pi, c, w)
             for j in range(m):
                 x0 = 0.0
                 r0 = 0.0
