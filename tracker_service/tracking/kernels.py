@@ -367,6 +367,30 @@ def _vertical_scalar(
     return log_likelihood
 
 
+@numba.njit(cache=True, inline="always")
+def _level_moments(
+    weights: FloatArray, x: FloatArray, p: FloatArray
+) -> tuple[float, float, float, float, float]:  # pragma: no cover - compiled
+    """The vertical IMM's moment matching: the mean (level, rate) and covariance (its
+    three terms) of the mixture of the models' x (M, 2) and p (M, 2, 2) by ``weights``
+    (M,): a model's mixed initial condition (its column of mixing weights) or the
+    combination (the model probabilities)."""
+    m = weights.shape[0]
+    x0 = 0.0
+    r0 = 0.0
+    for i in range(m):
+        x0 += weights[i] * x[i, 0]
+        r0 += weights[i] * x[i, 1]
+    p00 = p01 = p11 = 0.0
+    for i in range(m):
+        d0 = x[i, 0] - x0
+        d1 = x[i, 1] - r0
+        p00 += weights[i] * (p[i, 0, 0] + d0 * d0)
+        p01 += weights[i] * (p[i, 0, 1] + d0 * d1)
+        p11 += weights[i] * (p[i, 1, 1] + d1 * d1)
+    return x0, r0, p00, p01, p11
+
+
 @numba.njit(cache=True)
 def vertical_update(
     rows: IntArray,
@@ -417,18 +441,7 @@ def vertical_update(
             tt = abs(dt)
             imm_mixing(tt, sojourn, muv[row], pi, c, w)
             for j in range(m):
-                x0 = 0.0
-                r0 = 0.0
-                for i in range(m):
-                    x0 += w[i, j] * xv[row, i, 0]
-                    r0 += w[i, j] * xv[row, i, 1]
-                p00 = p01 = p11 = 0.0
-                for i in range(m):
-                    d0 = xv[row, i, 0] - x0
-                    d1 = xv[row, i, 1] - r0
-                    p00 += w[i, j] * (pvm[row, i, 0, 0] + d0 * d0)
-                    p01 += w[i, j] * (pvm[row, i, 0, 1] + d0 * d1)
-                    p11 += w[i, j] * (pvm[row, i, 1, 1] + d1 * d1)
+                x0, r0, p00, p01, p11 = _level_moments(w[:, j], xv[row], pvm[row])
                 if j == 0:
                     xp[j, 0] = x0
                     xp[j, 1] = 0.0
@@ -490,18 +503,7 @@ def vertical_update(
                     for b in range(2):
                         pvm[row, j, a, b] = pp[j, a, b]
         # The combination: the track's level, rate and their covariance.
-        f0 = 0.0
-        r0 = 0.0
-        for j in range(m):
-            f0 += muv[row, j] * xv[row, j, 0]
-            r0 += muv[row, j] * xv[row, j, 1]
-        p00 = p01 = p11 = 0.0
-        for j in range(m):
-            d0 = xv[row, j, 0] - f0
-            d1 = xv[row, j, 1] - r0
-            p00 += muv[row, j] * (pvm[row, j, 0, 0] + d0 * d0)
-            p01 += muv[row, j] * (pvm[row, j, 0, 1] + d0 * d1)
-            p11 += muv[row, j] * (pvm[row, j, 1, 1] + d1 * d1)
+        f0, r0, p00, p01, p11 = _level_moments(muv[row], xv[row], pvm[row])
         fl[row] = f0
         rate[row] = r0
         pv[row, 0, 0] = p00
