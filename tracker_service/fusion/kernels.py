@@ -56,16 +56,16 @@ def _predict_track(
     mp: FloatArray,
     c: FloatArray,
     r: int,
-    active: BoolArray,
+    sensors: IntArray,
     scratch: tuple[FloatArray, ...],
 ) -> None:  # pragma: no cover - compiled
     """``consider.predict`` of system track n (rows of the table's fields mx, mP, mM, mu)
     over ``step``: per-model states, covariances, sensitivities and predicted
     probabilities into row r of xp (k, M, 4), pp (k, M, 4, 4), mp (k, M, L, 4, 2), c (k, M);
-    the sensitivities only to the radars ``active`` (L,) (the others' left unset);
-    ``scratch``: ``_prediction_scratch``'s arrays, allocated once per kernel call."""
+    the sensitivities only to the radars ``sensors`` (``_active_sensors``: ascending, the
+    others' left unset); ``scratch``: ``_prediction_scratch``'s arrays, allocated once
+    per kernel call."""
     m = mx.shape[1]
-    n_radars = mM.shape[2]
     t = abs(step)
     pi, w, x0, p0, m0, fp, f, d = scratch
     # Markov switching by mean sojourn times (models.ModelSet.switching).
@@ -94,9 +94,8 @@ def _predict_track(
                 acc += w[i, j] * mx[n, i, a]
             x0[a] = acc
         p0[:, :] = 0.0
-        for sensor in range(n_radars):
-            if active[sensor]:  # the others are neither summed nor read
-                m0[sensor] = 0.0
+        for sensor in sensors:  # the others are neither summed nor read
+            m0[sensor] = 0.0
         for i in range(m):
             wij = w[i, j]
             for a in range(4):
@@ -104,18 +103,14 @@ def _predict_track(
             for a in range(4):
                 for b in range(4):
                     p0[a, b] += wij * mP[n, i, a, b] + wij * d[a] * d[b]
-            for sensor in range(n_radars):
-                if not active[sensor]:
-                    continue
+            for sensor in sensors:
                 for a in range(4):
                     m0[sensor, a, 0] += wij * mM[n, i, sensor, a, 0]
                     m0[sensor, a, 1] += wij * mM[n, i, sensor, a, 1]
         _transition(step, omega[j], f)
         propagate(f, x0, p0, fp, xp[r, j], pp[r, j])
         add_white_acceleration_q(pp[r, j], step, q[j])
-        for sensor in range(n_radars):
-            if not active[sensor]:
-                continue
+        for sensor in sensors:
             for a in range(4):
                 for b in range(2):
                     acc = 0.0
@@ -138,6 +133,20 @@ def _prediction_scratch(m: int, n_radars: int) -> tuple[FloatArray, ...]:  # pra
         np.empty((4, 4)),
         np.empty(4),
     )
+
+
+@numba.njit(cache=True, inline="always")
+def _active_sensors(active: BoolArray, sensors: IntArray) -> IntArray:  # pragma: no cover
+    """The radars ``active`` (L,) marks, ascending, in the first entries of ``sensors``
+    (L,): a track's loops over its few sensitive radars (4 of ``artas``' 51 sources)
+    take those alone, where a pass over all L with a test each, some thirty passes a
+    prediction, cost more than the arithmetic."""
+    n = 0
+    for sensor in range(active.size):
+        if active[sensor]:
+            sensors[n] = sensor
+            n += 1
+    return sensors[:n]
 
 
 @numba.njit(cache=True, inline="always")
@@ -222,11 +231,13 @@ def consider_predict(
     one_m = np.empty((1, n_radars, 4, 2))
     d = np.empty(4)
     active = np.empty(n_radars, dtype=np.bool_)
+    order = np.empty(n_radars, dtype=np.int64)
     scratch = _prediction_scratch(m, n_radars)
     for r in range(k):
         _sensitive(mM, numbers[r], -1, active)
+        sensors = _active_sensors(active, order)
         _predict_track(
-            mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, active, scratch
+            mx, mP, mM, mu, numbers[r], dt[r], omega, q, sojourn, xp, pp, mp, c, 0, sensors, scratch
         )
         _combine_row(xp, pp, c, 0, one_x, one_p, d)
         _combine_sensitivities(mp, c, 0, one_m, active)
@@ -410,6 +421,7 @@ def gate_distances(
     gb = np.empty((4, 2))
     out = np.empty(k)
     active = np.empty(n_radars, dtype=np.bool_)
+    order = np.empty(n_radars, dtype=np.int64)
     scratch = _prediction_scratch(m, n_radars)
     for r in range(k):
         n, row = system[r], local[r]
@@ -423,6 +435,7 @@ def gate_distances(
                 or B[n, sensor, 1, 0] != 0.0
                 or B[n, sensor, 1, 1] != 0.0
             )
+        sensors = _active_sensors(active, order)
         _predict_track(
             mx,
             mP,
@@ -438,16 +451,14 @@ def gate_distances(
             mp,
             c,
             0,
-            active,
+            sensors,
             scratch,
         )
         _combine_row(xp, pp, c, 0, one_x, one_p, d)
         for a in range(4):
             for b in range(4):
                 s[a, b] = loc_P[row, a, b] + one_p[0, a, b]
-        for sensor in range(n_radars):
-            if not active[sensor]:
-                continue
+        for sensor in sensors:
             # g = [sensor == radar] POSITION - M_sensor (M combined over the models); the
             # local track's own radar's bias covariance is its own (extra), the others'
             # the system track's.
@@ -818,12 +829,14 @@ def filter_round(
     log_post = np.empty(m)
     d = np.empty(4)
     active = np.empty(n_radars, dtype=np.bool_)
+    order = np.empty(n_radars, dtype=np.int64)
     scratch = _prediction_scratch(m, n_radars)
     for r in range(k):
         n = numbers[r]
         _sensitive(mM, n, radar, active)
+        sensors = _active_sensors(active, order)
         _predict_track(
-            mx, mP, mM, mu, n, time[r] - t[n], omega, q, sojourn, xp, pp, mp, c, 0, active, scratch
+            mx, mP, mM, mu, n, time[r] - t[n], omega, q, sojourn, xp, pp, mp, c, 0, sensors, scratch
         )
         r00, r01, r10, r11 = R[r, 0, 0], R[r, 0, 1], R[r, 1, 0], R[r, 1, 1]
         for j in range(m):
@@ -835,9 +848,7 @@ def filter_round(
             for a in range(4):
                 cross[a, 0] = pp[0, j, a, 0]
                 cross[a, 1] = pp[0, j, a, 1]
-            for sensor in range(n_radars):
-                if not active[sensor]:
-                    continue
+            for sensor in sensors:
                 for a in range(2):
                     for b in range(2):
                         g[sensor, a, b] = mp[0, j, sensor, a, b]
