@@ -280,7 +280,7 @@ def plot_filter_output(
         for a in range(4):
             for b in range(4):
                 p[r, a, b] = v["P"][4 * a + b]
-    share = bias_share(m_comb, B[numbers])
+    share = bias_share(m_comb, B, numbers)
     for r in range(k):
         for a in range(4):
             for b in range(4):
@@ -765,17 +765,33 @@ def _quadratic_form_lu(s: FloatArray, d: FloatArray) -> float:  # pragma: no cov
 
 
 @numba.njit(cache=True)
-def bias_share(M: FloatArray, B: FloatArray) -> FloatArray:  # pragma: no cover - compiled
-    """``consider.bias_share``: sum_l M_l B_l M_l^T (k, 4, 4) for M (k, L, 4, 2), B (k, L, 2, 2)."""
+def bias_share(M: FloatArray, B: FloatArray, rows: IntArray) -> FloatArray:  # pragma: no cover
+    """``consider.bias_share`` of M (k, L, 4, 2) and B[rows] (B: the system table's field,
+    (n, L, 2, 2)): sum_l M_l B_l M_l^T (k, 4, 4), where the numpy reference takes the
+    rows of B copied. A radar whose sensitivities are all zero adds nothing when its
+    bias is finite (each term +0.0 or -0.0, added to a sum that starts at +0.0 and so
+    is never -0.0): skipped, the same bits (most of artas' 51 sources for a track)."""
     k, n_radars = M.shape[0], M.shape[1]
     out = np.zeros((k, 4, 4))
     mb = np.empty((4, 2))
     for r in range(k):
+        n = rows[r]
         for sensor in range(n_radars):
+            insensitive = True
             for a in range(4):
                 for b in range(2):
-                    mb[a, b] = M[r, sensor, a, 0] * B[r, sensor, 0, b] + (
-                        M[r, sensor, a, 1] * B[r, sensor, 1, b]
+                    insensitive = insensitive and M[r, sensor, a, b] == 0.0
+            if insensitive and (
+                math.isfinite(B[n, sensor, 0, 0])
+                and math.isfinite(B[n, sensor, 0, 1])
+                and math.isfinite(B[n, sensor, 1, 0])
+                and math.isfinite(B[n, sensor, 1, 1])
+            ):
+                continue
+            for a in range(4):
+                for b in range(2):
+                    mb[a, b] = M[r, sensor, a, 0] * B[n, sensor, 0, b] + (
+                        M[r, sensor, a, 1] * B[n, sensor, 1, b]
                     )
             for a in range(4):
                 for b in range(4):
