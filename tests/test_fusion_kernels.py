@@ -45,6 +45,7 @@ from tracker_service.tracking.plots import (
     as_plot_arrays,
 )
 from tracker_service.tracking.tracker import CONFIRMED as LOCAL_CONFIRMED
+from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
 from tracker_service.tracking.tracker import TENTATIVE as LOCAL_TENTATIVE
 
 FloatArray = npt.NDArray[np.float64]
@@ -142,8 +143,33 @@ def test_consider_prediction_and_bias_share(seed: int, k: int, n_radars: int) ->
         close(a, b)
     from tracker_service.fusion.kernels import bias_share
 
-    b = compiled.sys["B"][numbers]
-    close(consider.bias_share(want[2], b), bias_share(got[2], b))
+    b = compiled.sys["B"]
+    close(consider.bias_share(want[2], b[numbers]), bias_share(got[2], b, numbers))
+    # The radars without sensitivities skipped, to the bit of the sum over all of them
+    # (a non-finite bias of such a radar still counts: 0 times infinity is NaN).
+    m = got[2].copy()
+    m[:, rng.uniform(size=n_radars) < 0.5] = 0.0
+    m[rng.uniform(size=m.shape) < 0.1] = -0.0
+    b = b.copy()
+    b[numbers[0], rng.integers(0, n_radars)] = np.inf
+    want_bits = _textbook_bias_share(m, b[numbers])
+    assert bias_share(m, b, numbers).tobytes() == want_bits.tobytes()
+
+
+def _textbook_bias_share(M: FloatArray, B: FloatArray) -> FloatArray:
+    """sum_l M_l B_l M_l^T in Python floats, every radar's terms added in order."""
+    k, n_radars = M.shape[:2]
+    out = np.zeros((k, 4, 4))
+    for r, sensor, a, b in itertools.product(range(k), range(n_radars), range(4), range(4)):
+        mb = [
+            float(M[r, sensor, a, 0]) * float(B[r, sensor, 0, c])
+            + float(M[r, sensor, a, 1]) * float(B[r, sensor, 1, c])
+            for c in range(2)
+        ]
+        out[r, a, b] = float(out[r, a, b]) + (
+            mb[0] * float(M[r, sensor, b, 0]) + mb[1] * float(M[r, sensor, b, 1])
+        )
+    return out
 
 
 @settings(max_examples=25, deadline=None)
@@ -312,7 +338,7 @@ def test_slots_are_the_references(seed: int, k: int, max_sources: int) -> None:
     """The same rows, in the same order: most recent plot first, ties in row order (plot
     times drawn from few values), dead rows and other system tracks left out."""
     rng = np.random.default_rng(seed)
-    tables = [LocalTrackTable(5, compiled=flag, capacity=GROWN_FROM) for flag in (False, True)]
+    tables = [LocalTrackTable(5, 3, compiled=flag, capacity=GROWN_FROM) for flag in (False, True)]
     u = _local_updates(rng, k)
     rows = tables[1].find(0, u, create=True)
     assert (tables[0].find(0, u, create=True) == rows).all()
@@ -344,7 +370,7 @@ def test_radar_feeders_are_the_reference(seed: int, k: int) -> None:
     the same rows, ascending; rows of three radars moved between tracks three times, dead
     rows, numbers repeated and 0 among them."""
     rng = np.random.default_rng(seed)
-    tables = [LocalTrackTable(5, compiled=flag, capacity=GROWN_FROM) for flag in (False, True)]
+    tables = [LocalTrackTable(5, 3, compiled=flag, capacity=GROWN_FROM) for flag in (False, True)]
     radar = rng.integers(0, 3, k)
     u = _local_updates(rng, k)
     for r in range(3):
@@ -372,7 +398,7 @@ def test_store_is_the_reference(seed: int, k: int, n: int) -> None:
     rows updated several times a batch, unknown identities, flight levels missing or
     with an infinite rate, updates with and without a plot, tracks without a state."""
     rng = np.random.default_rng(seed)
-    tables = [LocalTrackTable(5, compiled=flag, capacity=GROWN_FROM) for flag in (False, True)]
+    tables = [LocalTrackTable(5, 3, compiled=flag, capacity=GROWN_FROM) for flag in (False, True)]
     rows = tables[0].find(0, _local_updates(rng, max(k, 1)), create=True)
     loc = tables[0].rows
     loc["t"][rows] = np.where(rng.random(rows.size) < 0.3, np.nan, rng.uniform(0, 9, rows.size))
@@ -401,15 +427,61 @@ def test_store_is_the_reference(seed: int, k: int, n: int) -> None:
         np.testing.assert_array_equal(want[name], got[name], err_msg=name)
 
 
+def _counted_feeders(table: LocalTrackTable) -> npt.NDArray[np.int64]:
+    """``LocalTrackTable.confirmed_feeders``' counts from the columns, by numpy."""
+    used = table.used
+    counted = used["alive"] & (used["system"] > 0) & (used["status"] == LOCAL_CONFIRMED)
+    want = np.zeros_like(table.confirmed_feeders())
+    radars = want.shape[0] - 1
+    np.add.at(want, (used["radar"][counted], used["system"][counted]), 1)
+    want[:radars, 0] = want[:radars].sum(axis=1)
+    want[radars] = want[:radars].sum(axis=0)
+    return want
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=SEEDS, k=st.integers(min_value=1, max_value=30), rounds=st.integers(1, 8))
+def test_confirmed_feeders_are_counted_as_the_columns_say(seed: int, k: int, rounds: int) -> None:
+    """The counts of confirmed live feeders per radar and system track that ``feed``,
+    ``store``, ``remove`` and ``relink`` keep (the exchange test's sets without a pass
+    over the table) against a count of the columns after every step: rows of three
+    radars created, stored with every status (confirmed, tentative, deleted), moved
+    between tracks (to none too, rows given twice), removed, the table grown and
+    compacted (its rows moved)."""
+    rng = np.random.default_rng(seed)
+    table = LocalTrackTable(5, 3, compiled=True, capacity=GROWN_FROM)
+    for _ in range(rounds):
+        radar = int(rng.integers(0, 3))
+        u = _local_updates(rng, k)
+        u["track_number"] = rng.integers(1, 2 * k + 1, k)
+        u["status"] = rng.choice([LOCAL_CONFIRMED, LOCAL_TENTATIVE, LOCAL_DELETED], k)
+        rows = table.find(radar, u, create=True)
+        known = rows >= 0
+        u, rows = u[known], rows[known]
+        table.store(rows, u, np.zeros((rows.size, 2, 2)), rng.random(rows.size) < 0.5)
+        np.testing.assert_array_equal(table.confirmed_feeders(), _counted_feeders(table))
+        live = np.flatnonzero(table.used["alive"])
+        moved = rng.choice(live, int(rng.integers(0, 2 * live.size + 1))) if live.size else live
+        table.feed(moved, rng.integers(0, 6, moved.size))
+        np.testing.assert_array_equal(table.confirmed_feeders(), _counted_feeders(table))
+        deleted = np.unique(rows[table.rows["status"][rows] == LOCAL_DELETED])
+        table.remove(deleted)
+        table.compact()
+        np.testing.assert_array_equal(table.confirmed_feeders(), _counted_feeders(table))
+    relinked = copy.deepcopy(table)
+    relinked.relink()
+    np.testing.assert_array_equal(relinked.confirmed_feeders(), table.confirmed_feeders())
+
+
 @settings(max_examples=50, deadline=None)
 @given(seed=SEEDS, n=st.integers(1, 60), candidates=st.integers(0, 80))
 def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int) -> None:
     """The exchange test's feeding sets and its pairs and votes by their kernels
-    (``kernels.exchange_feeding``, ``kernels.exchange_witnesses``) against the numpy
-    path, every array equal: local rows of four radars feeding eight system tracks,
-    candidates repeating pairs from either side, near system tracks with and without a
-    row of the candidate's radar or of another."""
-    from tracker_service.fusion.kernels import exchange_feeding, exchange_witnesses
+    (``kernels.feeding_sets`` from the table's counts, ``kernels.exchange_witnesses``)
+    against the numpy path, every array equal: local rows of four radars feeding eight
+    system tracks, candidates repeating pairs from either side, near system tracks with
+    and without a row of the candidate's radar or of another."""
+    from tracker_service.fusion.kernels import exchange_witnesses, feeding_sets
 
     rng = np.random.default_rng(seed)
     states = [
@@ -436,10 +508,8 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
         state.local.relink()
         state.local.remove(removed)
     feeding = associate.confirmed_feeding(states[1])
-    used = states[0].local.used
-    columns = (used["alive"], used["system"], used["status"], used["radar"])
     for radar in range(4):
-        compiled_sets = exchange_feeding(*columns, LOCAL_CONFIRMED, radar, MAX_SYSTEM_NUMBER + 1)
+        compiled_sets = feeding_sets(states[0].local.confirmed_feeders(), radar)
         numpy_sets = associate._feeding(states[1], radar)
         assert compiled_sets[0] == numpy_sets[0]
         for a, b in zip(compiled_sets[1:], numpy_sets[1:], strict=True):
@@ -596,6 +666,67 @@ def test_exchange_votes_are_the_reference(seed: int, k: int, pairs: int) -> None
     want = associate._votes(reference, closer, farther, witness, ends)
     np.testing.assert_allclose(got[0], want[0], rtol=TOLERANCE, atol=0.0)
     np.testing.assert_array_equal(got[1], want[1])
+
+
+def _textbook_quadratic_form(s: FloatArray, d: FloatArray) -> float:
+    """d^T s^-1 d by Gaussian elimination with partial pivoting over lists, in Python
+    floats (IEEE doubles, a zero pivot's division raising as the kernels' does)."""
+    a, y, x = [[float(v) for v in row] for row in s], [float(v) for v in d], [0.0] * 4
+    for col in range(4):
+        pivot = col
+        for r in range(col + 1, 4):
+            if abs(a[r][col]) > abs(a[pivot][col]):
+                pivot = r
+        a[col], a[pivot] = a[pivot], a[col]
+        y[col], y[pivot] = y[pivot], y[col]
+        for r in range(col + 1, 4):
+            factor = a[r][col] / a[col][col]
+            for b in range(col, 4):
+                a[r][b] -= factor * a[col][b]
+            y[r] -= factor * y[col]
+    for row in range(3, -1, -1):
+        acc = y[row]
+        for b in range(row + 1, 4):
+            acc -= a[row][b] * x[b]
+        x[row] = acc / a[row][row]
+    total = 0.0
+    for row in range(4):
+        total += float(d[row]) * x[row]
+    return total
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=SEEDS, kind=st.sampled_from(["spd", "scaled", "nan", "inf", "singular"]))
+def test_quadratic_form_is_the_textbook_elimination_to_the_bit(seed: int, kind: str) -> None:
+    """The 4x4 quadratic form in scalars (``kernels._quadratic_form4``, through
+    ``_quadratic_form_lu``) against the textbook loop, bit for bit: covariances, rows
+    scaled by up to 1e12 so that the pivots come in every order, NaN and infinite
+    entries, a zero pivot (both raise)."""
+    from tracker_service.fusion.kernels import _quadratic_form_lu
+
+    rng = np.random.default_rng(seed)
+    d = rng.normal(0.0, 1e3, 4)
+    if kind == "spd":
+        s = _spd(rng, (), np.array([300.0, 300.0, 20.0, 20.0]))
+    else:
+        s = rng.normal(0.0, 1.0, (4, 4)) * 10.0 ** rng.uniform(-6, 6, (4, 1))
+        s = s[rng.permutation(4)]
+    if kind in ("nan", "inf"):
+        s[rng.integers(0, 4), rng.integers(0, 4)] = np.nan if kind == "nan" else -np.inf
+    if kind == "singular":
+        s[:, int(rng.integers(0, 4))] = 0.0
+    try:
+        want = _textbook_quadratic_form(s, d)
+    except ZeroDivisionError:
+        with pytest.raises(ZeroDivisionError):
+            _quadratic_form_lu(s, d)
+        return
+    got = _quadratic_form_lu(s, d)
+    assert np.array([got]).tobytes() == np.array([want]).tobytes() or (
+        np.isnan(got) and np.isnan(want)
+    )
+    if kind == "spd":
+        assert got == pytest.approx(float(d @ np.linalg.solve(s, d)), rel=TOLERANCE)
 
 
 @settings(max_examples=50, deadline=None)

@@ -178,7 +178,7 @@ def _exchange_pairs(
         from tracker_service.fusion.kernels import exchange_pairs  # numba only when compiled
 
         several, *pairs = exchange_pairs(
-            state.local.n,
+            state.local.confirmed_feeders(),
             loc["alive"],
             loc["system"],
             loc["status"],
@@ -228,7 +228,8 @@ def _exchange_pairs(
 def _feeding(state: FusionState, radar: int) -> tuple[bool, IntArray, IntArray]:
     """Whether more than one radar's rows are among the confirmed live local rows
     feeding a system track, the system tracks they feed and those that ``radar``'s
-    feed (ascending); the numpy path (compiled: ``kernels.exchange_feeding``)."""
+    feed (ascending); the numpy path (compiled: ``kernels.feeding_sets``, from the
+    counts the local table keeps)."""
     used = state.local.used
     feeding = confirmed_feeding(state)
     feeding_radar = used["radar"][feeding]

@@ -266,6 +266,6 @@ class FusionState:
         )
 
     def __post_init__(self) -> None:
-        self.local = LocalTrackTable(self.models.n_models, compiled=self.compiled)
+        self.local = LocalTrackTable(self.models.n_models, self.n_radars, compiled=self.compiled)
         self.sys = new_system_table(self.models.n_models, self.n_radars)
         self.exchange_evidence = PairEvidence(self.compiled)

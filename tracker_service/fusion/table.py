@@ -23,6 +23,7 @@ from tracker_service.fusion.arrays import (
 from tracker_service.fusion.messages import MAX_SOURCES, MAX_SYSTEM_NUMBER
 from tracker_service.resident_arrays import resident_zeros
 from tracker_service.tracking.plots import BoolArray, FloatArray, IntArray
+from tracker_service.tracking.tracker import CONFIRMED as LOCAL_CONFIRMED
 from tracker_service.tracking.tracker import DELETED as LOCAL_DELETED
 
 KEY_SHIFT = 32
@@ -215,7 +216,9 @@ class LocalTrackTable:
     once deleted). ``rows`` may be replaced when it grows (beyond ``capacity`` rows):
     read it afresh, never keep it across a call that may create rows."""
 
-    def __init__(self, n_models: int, compiled: bool = False, capacity: int = LOCAL_ROWS) -> None:
+    def __init__(
+        self, n_models: int, n_radars: int, compiled: bool = False, capacity: int = LOCAL_ROWS
+    ) -> None:
         self.n_models = n_models
         self.compiled = compiled
         """``slots`` by its compiled kernel (``fusion/kernels.py``): the same rows."""
@@ -230,6 +233,13 @@ class LocalTrackTable:
         # column ``system`` calls, so that ``slots`` needs no pass over the table.
         self._feeder_head = np.full(MAX_SYSTEM_NUMBER + 1, -1, dtype=np.int64)
         self._feeder_next = np.full(self.rows.shape[0], -1, dtype=np.int64)
+        # Compiled: the confirmed live rows feeding a system track, counted per radar
+        # (rows 0..n_radars-1; the last row: all radars) and system track (columns
+        # 1..MAX_SYSTEM_NUMBER; column 0: all tracks), kept by ``feed``, ``store`` and
+        # ``relink``, the writers of the columns ``system`` and ``status`` (a row leaves
+        # by ``remove``'s ``feed``), so that the exchange test's sets of the tracks they
+        # feed need no pass over the table (``kernels.feeding_sets``).
+        self._confirmed_feeders = np.zeros((n_radars + 1, MAX_SYSTEM_NUMBER + 1), dtype=np.int64)
 
     @property
     def used(self) -> Head:
@@ -312,7 +322,15 @@ class LocalTrackTable:
             self.rows["system"],
             self._feeder_head,
             self._feeder_next,
+            self.rows["status"],
+            *self._counted_columns(),
         )
+
+    def _counted_columns(self) -> tuple[BoolArray, IntArray, int, IntArray]:
+        """What the kernels that keep ``confirmed_feeders`` read besides the columns
+        ``system`` and ``status``."""
+        loc = self.rows
+        return loc["alive"], loc["radar"], LOCAL_CONFIRMED, self._confirmed_feeders
 
     def radar_feeders(self, numbers: IntArray, radar: int) -> IntArray:
         """The live rows of ``radar`` feeding one of the system tracks ``numbers`` (which
@@ -339,20 +357,32 @@ class LocalTrackTable:
         the first row of each track's list and each row's next, -1 ending a list."""
         return self._feeder_head, self._feeder_next
 
+    def confirmed_feeders(self) -> IntArray:
+        """Compiled: the confirmed live rows feeding each system track, counted per radar
+        and track (n_radars + 1, MAX_SYSTEM_NUMBER + 1): row L all radars', column 0
+        all tracks'."""
+        return self._confirmed_feeders
+
     def relink(self) -> None:
-        """The lists of feeders built afresh from the column ``system`` (after rows
-        moved, or a test wrote the column)."""
+        """The lists of feeders and the counts of confirmed feeders built afresh from the
+        columns (after rows moved, or a test wrote them)."""
         if self.compiled:
             from tracker_service.fusion.kernels import link_feeders
 
-            link_feeders(self.rows["system"][: self.n], self._feeder_head, self._feeder_next)
+            link_feeders(
+                self.rows["system"][: self.n],
+                self._feeder_head,
+                self._feeder_next,
+                self.rows["status"],
+                *self._counted_columns(),
+            )
 
     def remove(self, rows: IntArray) -> None:
         """Deleted local tracks (distinct rows) leave their system tracks and the index."""
         if rows.size:
             self.removed += int(np.count_nonzero(self.rows["alive"][rows]))
+            self.feed(rows, 0)  # while alive: counted out of the confirmed feeders
             self.rows["alive"][rows] = False
-            self.feed(rows, 0)
             kept = ~is_member(self._index_rows, rows)
             self._index_keys = self._index_keys[kept]
             self._index_rows = self._index_rows[kept]
@@ -385,6 +415,8 @@ class LocalTrackTable:
                 extra,
                 has_plot,
                 u.dtype["model_probabilities"].shape == (self.n_models,),
+                loc["system"],
+                *self._counted_columns(),
                 *(loc[name] for name in STORED),
             )
             return

@@ -76,13 +76,18 @@ def propagate(
 
 
 @numba.njit(cache=True, inline="always")
-def add_white_acceleration_q(p: FloatArray, t: float, q: float) -> None:  # pragma: no cover
-    """p (4, 4) += the white-acceleration Q(|t|) (``models.white_acceleration_q``)."""
+def white_acceleration_terms(t: float, q: float) -> tuple[float, float, float]:  # pragma: no cover
+    """The white-acceleration Q(|t|)'s position, cross and velocity terms
+    (``models.white_acceleration_q``)."""
     t = abs(t)
     t2 = t * t
-    q_pos = q * t2 * t / 3.0
-    q_cross = q * t2 / 2.0
-    q_vel = q * t
+    return q * t2 * t / 3.0, q * t2 / 2.0, q * t
+
+
+@numba.njit(cache=True, inline="always")
+def add_white_acceleration_q(p: FloatArray, t: float, q: float) -> None:  # pragma: no cover
+    """p (4, 4) += the white-acceleration Q(|t|) (``white_acceleration_terms``)."""
+    q_pos, q_cross, q_vel = white_acceleration_terms(t, q)
     p[0, 0] += q_pos
     p[1, 1] += q_pos
     p[0, 2] += q_cross
