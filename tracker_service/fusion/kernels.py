@@ -29,6 +29,7 @@ from tracker_service.tracking.kernels import (
     _combine_row,
     _transition,
     add_white_acceleration_q,
+    imm_mixing,
     propagate,
     white_acceleration_terms,
 )
@@ -68,24 +69,7 @@ def _predict_track(
     m = mx.shape[1]
     t = abs(step)
     pi, w, x0, p0, m0, fp, f, d = scratch
-    # Markov switching by mean sojourn times (models.ModelSet.switching).
-    for i in range(m):
-        if m == 1:
-            pi[i, i] = 1.0
-            continue
-        stay = math.exp(-t / sojourn[i])
-        leave = (1.0 - stay) / (m - 1)
-        for j in range(m):
-            pi[i, j] = stay if i == j else leave
-    # Predicted model probabilities and mixing weights (imm.mixing).
-    for j in range(m):
-        total = 0.0
-        for i in range(m):
-            total += pi[i, j] * mu[n, i]
-        c[r, j] = total
-        denominator = max(total, TINY)
-        for i in range(m):
-            w[i, j] = pi[i, j] * mu[n, i] / denominator
+    imm_mixing(t, sojourn, mu[n], pi, c[r], w)
     for j in range(m):
         # Model j's mixed initial condition, sensitivities included (imm.mix_and_move).
         for a in range(4):
