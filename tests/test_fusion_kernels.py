@@ -527,7 +527,6 @@ def test_exchange_witnesses_are_the_reference(seed: int, n: int, candidates: int
         LOCAL_CONFIRMED,
         loc["system"],
         loc["radar"],
-        loc["key"],
         MAX_SYSTEM_NUMBER + 1,
     )
     want = associate._exchange_witnesses(states[1], li, sj)

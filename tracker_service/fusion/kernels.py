@@ -1553,7 +1553,6 @@ def exchange_witnesses(
     confirmed: int,
     loc_system: IntArray,
     loc_radar: IntArray,
-    loc_key: IntArray,
     size: int,
 ) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray, IntArray]:  # pragma: no cover
     """``associate._exchange_witnesses`` from the local table's fields: the confirmed
@@ -2432,7 +2431,6 @@ def exchange_pairs(
         confirmed,
         loc_system,
         loc_radar,
-        loc_key,
         head.size,
     )
     low = np.empty(pair_a.size, dtype=np.int64)
