@@ -450,6 +450,18 @@ def main() -> int:
             f"{lags[-1] if lags else 0.0:.2f} s, health {last['health']}"
             + "".join(f"; {reason}" for reason in last.get("reasons", []))
         )
+        busy: dict[str, list[float]] = {}
+        for status in statuses:
+            for role, share in status.get("busy", {}).items():
+                busy.setdefault(role, []).append(share)
+        if busy:
+            print(
+                "busy share of each process's loop, per status (median, max): "
+                + ", ".join(
+                    f"{role} {statistics.median(v):.2f} {max(v):.2f}"
+                    for role, v in sorted(busy.items())
+                )
+            )
     rss = [(s.at - wall0, s.rss_mb) for s in samples_taken]
     if rss:
         print(

@@ -211,6 +211,11 @@ def test_a_radar_process_killed_and_a_fusion_process_restarted(
     everyone = {"core", "outputs", "radar 25_11-25_12", "radar 25_13"}
     assert any(set(m) == everyone for m in roles_mb), roles_mb
     assert all(mb > 20.0 for m in roles_mb for mb in m.values()), roles_mb
+    # And how busy each one's loop was since the last status (the radar processes' as
+    # their heartbeats said): from a process's second status on (its first totals are
+    # the base of its share), so seen over the run, each one's restarts included.
+    roles_busy = [s["busy"] for s in statuses]
+    assert set().union(*roles_busy) == everyone, roles_busy
 
 
 def test_the_watermark_period_is_half_the_holding_window_within_bounds() -> None:

@@ -171,6 +171,10 @@ def test_health_exit_codes_and_a_supervised_output_process(tmp_path: Path) -> No
         assert set(memory) == {"core", "outputs"}
         assert memory["core"] == pytest.approx(resident_mb(daemon.process.pid), rel=0.2)
         assert memory["outputs"] == pytest.approx(resident_mb(first), rel=0.2)
+        # How busy its loops were since the last status: the core and the output process
+        # wait for data nearly all the time here.
+        busy = daemon.wait_status(lambda s: set(s["busy"]) == {"core", "outputs"})["busy"]
+        assert all(0.0 <= share < 0.5 for share in busy.values()), busy
 
         # The output process killed: the core restarts it and says so.
         subprocess.run(["kill", "-KILL", str(first)], check=True)

@@ -15,6 +15,7 @@ from tracker_service.central_stage import corrected
 from tracker_service.chain import Chain, RadarStage
 from tracker_service.geodesy import convert_plots
 from tracker_service.inputs.udp import InputCounters
+from tracker_service.loop_load import LoopTotals
 from tracker_service.service.core import build_chain, build_radar_stage, config_from_recording
 from tracker_service.simulator.recording import read_recording
 from tracker_service.stage_messages import (
@@ -266,3 +267,13 @@ def test_a_radar_process_input_counters_and_memory_cross_on_its_watermark() -> N
     wrong = payload.replace(b"'behind_dropped'", b"'behind_droppes'")
     with pytest.raises(StageMessageError, match="incomplete"):
         decode_message(wrong)
+
+
+def test_a_radar_process_loop_totals_cross_on_its_watermark() -> None:
+    beat = decode_message(encode_message(DatagramResult(7, 7e-6, loop=LoopTotals(12.5, 3.25))))
+    assert beat.loop == LoopTotals(12.5, 3.25)
+    assert decode_message(encode_message(DatagramResult(7, 7e-6))).loop is None
+    # Figures no loop has are dropped, not the message (the status would refuse them).
+    for elapsed, busy in ((1.0, 2.0), (1.0, -0.5), (math.nan, 0.0), (math.inf, 1.0)):
+        forged = DatagramResult(7, 7e-6, loop=LoopTotals(elapsed, busy))
+        assert decode_message(encode_message(forged)).loop is None

@@ -40,6 +40,7 @@ import numpy.typing as npt
 
 from tracker_service.bias.reception import no_evidence
 from tracker_service.inputs.udp import InputCounters
+from tracker_service.loop_load import LoopTotals
 from tracker_service.sources import SourceCounts
 from tracker_service.time_sanity import TimeReport
 
@@ -131,6 +132,9 @@ class DatagramResult:
     resident_mb: float | None = None
     """A radar process's resident memory (MB), on the watermarks that carry its
     counters: the fusion process's status shows it (``memory_mb``)."""
+    loop: LoopTotals | None = None
+    """A radar process's loop's seconds since it started and those it was busy, on the
+    same watermarks: the fusion process's status shows its busy share (``busy``)."""
 
 
 _META = np.dtype(
@@ -336,6 +340,8 @@ def encode_message(result: DatagramResult) -> bytes:
         sections.append(_section("inputs", _inputs_array(result.inputs)))
     if result.resident_mb is not None:
         sections.append(_section("memory", np.array([result.resident_mb])))
+    if result.loop is not None:
+        sections.append(_section("load", np.array([result.loop.elapsed_s, result.loop.busy_s])))
     head = _HEAD.pack(MAGIC, int(result.kind), len(sections))
     return b"".join([head, *itertools.chain.from_iterable(sections)])
 
@@ -416,6 +422,7 @@ def decode_message(payload: bytes) -> DatagramResult:
             # A figure no process has is dropped, not the batches beside it (the status,
             # whose model refuses it, would fail on every beat after).
             memory = None
+        loop = _loop_totals(arrays["load"]) if "load" in arrays else None
     except (KeyError, IndexError, ValueError) as exc:
         raise StageMessageError(f"incomplete message: {exc!r}") from None
     return DatagramResult(
@@ -431,4 +438,14 @@ def decode_message(payload: bytes) -> DatagramResult:
         kind=kind,
         inputs=inputs,
         resident_mb=memory,
+        loop=loop,
     )
+
+
+def _loop_totals(values: npt.NDArray[Any]) -> LoopTotals | None:
+    """A radar process's loop totals; None for figures no loop has (the status's model
+    would refuse a share outside 0-1 on every beat after), not the message."""
+    elapsed, busy = (float(v) for v in values[:2])
+    if not 0.0 <= busy <= elapsed < math.inf:
+        return None
+    return LoopTotals(elapsed, busy)

@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable
 
 __all__ = ["WAIT_CAP_S", "Arrivals"]
 
@@ -44,10 +45,13 @@ class Arrivals:
     """The names of the inputs that have queued something since the consumer last took
     them, and an event set when a name is added (see the module docstring)."""
 
-    def __init__(self) -> None:
+    def __init__(self, waited: Callable[[float], None] | None = None) -> None:
         self._lock = threading.Lock()
         self._ready: set[str] = set()
         self._event = threading.Event()
+        self._waited = waited
+        """Told how long each wait lasted: the consumer's loop is busy the rest of the
+        time (``tracker_service.loop_load``)."""
 
     def notify(self, name: str) -> None:
         """From a producer thread, after its item is queued where the consumer takes it."""
@@ -59,7 +63,13 @@ class Arrivals:
 
     def wait(self, timeout: float) -> bool:
         """Until a producer notifies (True) or ``timeout`` seconds pass (False)."""
-        return self._event.wait(max(timeout, 0.0))
+        if self._waited is None:
+            return self._event.wait(max(timeout, 0.0))
+        began = time.monotonic()
+        try:
+            return self._event.wait(max(timeout, 0.0))
+        finally:
+            self._waited(time.monotonic() - began)
 
     def wait_until(self, *deadlines: float | None) -> bool:
         """Until a producer notifies (True) or the earliest of ``deadlines`` (POSIX s; None

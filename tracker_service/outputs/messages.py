@@ -419,6 +419,14 @@ class StatusMessage(_Message):
     of a fusion process, as it last said); empty in a replay (whose status is
     a function of its recording) and where the platform does not tell (Linux /proc
     does)."""
+    busy: dict[str, Annotated[float, Field(ge=0.0, le=1.0)]] = Field(default_factory=dict)
+    """How busy each of a live service's process loops was since the last status: the
+    share of the wall clock it spent not waiting for work, by the roles of ``memory_mb``.
+    Its headroom, which a share of a core does not show on a host whose cores other
+    processes share: near 1 a loop takes each item as soon as it is done with the last,
+    and a burst or a slower second puts it behind (at ``artas`` on two cores, the
+    latency's tail came in the seconds the fusion process's loop was busy more than 0.8
+    of the time). Empty in a replay and in the first status."""
 
 
 MODELS: tuple[type[BaseModel], ...] = (

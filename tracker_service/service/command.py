@@ -32,6 +32,7 @@ from tracker_service.chain import BatchOutput, RadarStageFailed, RadarStages
 from tracker_service.distribution import RemoteRadarStages
 from tracker_service.inputs.udp import InputCounters
 from tracker_service.log_level import configure
+from tracker_service.loop_load import LoopLoad
 from tracker_service.outputs.foxglove_sink import FoxgloveListenError, check_listen
 from tracker_service.outputs.mcap_log import McapLog
 from tracker_service.outputs.messages import StatusMessage
@@ -762,8 +763,12 @@ def _serve_outputs(
 
 def _make_calls(outputs: Outputs, parent: int, calls: Connection, failed: RateLimitedLog) -> bool:
     """The calls that arrive, until told to stop (True) or until the parent is gone."""
+    loop = outputs.loop = LoopLoad()
     while True:
-        if not calls.poll(1.0):
+        began = time.monotonic()
+        arrived = calls.poll(1.0)
+        loop.waited(time.monotonic() - began)
+        if not arrived:
             if os.getppid() != parent:
                 log.error("the core's process is gone: stopping")
                 return False

@@ -50,6 +50,7 @@ from tracker_service.fusion import FusionConfig
 from tracker_service.fusion.lifecycle import number_shortage_reasons
 from tracker_service.geodesy import RadarSite, SystemPlane
 from tracker_service.inputs.udp import InputCounters, block_chain_error
+from tracker_service.loop_load import LoadShares, LoopLoad, LoopTotals
 from tracker_service.outputs.asterix_udp import AsterixUdpSink
 from tracker_service.outputs.cat062 import PeriodRecords, encode_cat065
 from tracker_service.outputs.foxglove_scene import MapRadar
@@ -331,6 +332,9 @@ class CoreState:
     memory_mb: tuple[tuple[str, float], ...] = ()
     """A live service's processes by role and their resident memory, lately
     (``TrackerService.note_live``; the status's ``memory_mb``)."""
+    busy: tuple[tuple[str, float], ...] = ()
+    """A live service's process loops by role and their busy share since the last status
+    (``TrackerService.note_live``; the status's ``busy``)."""
 
 
 @dataclass
@@ -412,6 +416,10 @@ class Outputs:
         self._warn = RateLimitedLog(log)
         self.health_file: Path | None = None
         """Where each status is also written, as JSON (``tracker-service health``)."""
+        self.loop: LoopLoad | None = None
+        """The output process's loop (its pipe's calls), when it runs in one: its busy
+        share joins the core's (``busy["outputs"]``)."""
+        self._loop_shares = LoadShares()
 
     @property
     def live_tracks(self) -> list[int]:
@@ -769,7 +777,14 @@ class Outputs:
             lag_s=lag,
             unattributed=dict(sorted(unattributed.items())),
             memory_mb=dict(self._core.memory_mb),
+            busy=self._busy(),
         )
+
+    def _busy(self) -> dict[str, float]:
+        busy = dict(self._core.busy)
+        if self.loop is not None:
+            busy.update(self._loop_shares.shares({"outputs": self.loop.totals()}))
+        return busy
 
     def _behind_dropped(self) -> int:
         return sum(c.behind_dropped for c in self.input_counters.values())
@@ -930,6 +945,8 @@ class TrackerService:
         self._input_counters: dict[str, InputCounters] | None = None
         self.core = CoreState()
         """The daemon's part of the status (lag, restarts of the output process)."""
+        self._loops: dict[str, LoopTotals] = {}
+        self._loop_shares = LoadShares()
 
     @property
     def local(self) -> Outputs:
@@ -1084,14 +1101,29 @@ class TrackerService:
         self.outputs.set_core_state(self.core_state())
 
     def core_state(self) -> CoreState:
-        """What the status needs of the core; the daemon adds the lag, the memory
-        (``note_live``) and the restarts."""
-        return replace(self.core, sources=self.chain.admission.counts, reasons=self.core_reasons())
+        """What the status needs of the core; the daemon adds the lag, the memory and the
+        loops (``note_live``: their busy shares since the last call here) and the
+        restarts."""
+        busy = tuple(sorted(self._loop_shares.shares(self._loops).items()))
+        return replace(
+            self.core,
+            sources=self.chain.admission.counts,
+            reasons=self.core_reasons(),
+            busy=busy,
+        )
 
-    def note_live(self, lag_s: float | None, others_mb: Mapping[str, float] | None = None) -> None:
+    def note_live(
+        self,
+        lag_s: float | None,
+        others_mb: Mapping[str, float] | None = None,
+        loops: Mapping[str, LoopTotals] | None = None,
+    ) -> None:
         """What only a live service's status tells (a replay's is a function of its
-        recording): its lag behind the wall clock, and the memory of this process, of its
-        output process and of the processes that feed it (``others_mb``, by role)."""
+        recording): its lag behind the wall clock, the memory of this process, of its
+        output process and of the processes that feed it (``others_mb``, by role), and
+        the totals of their loops (``loops``, by the same roles)."""
+        if loops is not None:
+            self._loops = dict(loops)
         memory = {"core": resident_mb()}
         if self.outputs.pid is not None:
             memory["outputs"] = resident_mb(self.outputs.pid)

@@ -41,6 +41,7 @@ from tracker_service.inputs.udp import (
     UdpInput,
     kernel_drop_table,
 )
+from tracker_service.loop_load import LoopLoad
 from tracker_service.ratelimit import RateLimitedLog
 from tracker_service.service.command import OutputProcessFailed, open_service
 from tracker_service.service.config import AdsbFeed, Lan, Radar, ServiceConfig
@@ -251,12 +252,14 @@ class Daemon:
         self._warn = RateLimitedLog(log)
         system = config.system
         self.lateness = Lateness(system.holding_window_s, system.max_behind_s)
+        self.load = LoopLoad()
+        """Its loop's: the status's ``busy["core"]``."""
 
     def run(self, stop: Stop) -> int:
         """Until ``stop`` is set; then what the merger holds is processed (for at most
         ``STOP_DRAIN_S``), every live track ended and the log closed."""
         config = self.config
-        arrivals = Arrivals()
+        arrivals = Arrivals(self.load.waited)
         # Bound first, so that a UDP port in use is the one line it should be at once; what
         # arrives while the process warms up waits in the inputs' bounded queues (their
         # overflow counted), and what is then too late is shed as any late data is.
@@ -342,7 +345,7 @@ class Daemon:
         self, service: TrackerService, inputs: list[UdpInput], merger: Merger
     ) -> None:
         service.set_input_counters(input_counters(inputs, merger, self.lateness))
-        service.note_live(self.lateness.take_lag())
+        service.note_live(self.lateness.take_lag(), loops={"core": self.load.totals()})
 
     @staticmethod
     def _collect(inputs: list[UdpInput], ready: set[str], merger: Merger) -> bool:

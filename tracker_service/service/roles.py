@@ -50,6 +50,7 @@ from asterix.containers import Datagram
 from tracker_service.chain import source_order
 from tracker_service.inputs.arrivals import Arrivals
 from tracker_service.inputs.udp import InputCounters, UdpInput, kernel_drop_table
+from tracker_service.loop_load import LoopLoad, LoopTotals
 from tracker_service.outputs.zenoh_session import open_session, zenoh_config
 from tracker_service.radar_stage import RadarState, StageStats
 from tracker_service.service.command import open_service, short_switch_interval
@@ -181,7 +182,8 @@ class RadarRole:
     def _run(self, stop: Stop) -> int:
         config = self.config
         mine = [r for r in config.radars if r.key in self.radars]
-        arrivals = Arrivals()
+        load = LoopLoad()
+        arrivals = Arrivals(load.waited)
         inputs = open_inputs(
             config.model_copy(update={"radars": mine, "adsb": []}), arrivals=arrivals
         )
@@ -261,6 +263,7 @@ class RadarRole:
                     if now >= next_counters:
                         beat.inputs = input_counters(inputs, merger, lateness)
                         beat.resident_mb = resident_mb()
+                        beat.loop = load.totals()
                         next_counters = now + COUNTERS_S
                     publisher.put(encode_message(beat))
                     last_sent = now
@@ -420,13 +423,17 @@ class FusionRole:
         self.health_file = health_file
         system = config.system
         self.lateness = Lateness(system.holding_window_s, system.max_behind_s)
-        self.arrivals = Arrivals()
+        self.load = LoopLoad()
+        """Its loop's: the status's ``busy["core"]``."""
+        self.arrivals = Arrivals(self.load.waited)
         """Heard by the Zenoh callbacks (through the inbox) and by the own inputs."""
         self.inbox = StageInbox(int(system.holding_window_max_mb * 1024 * 1024), self.arrivals)
         self.remote_inputs: dict[str, dict[str, InputCounters]] = {}
         """Per radar process, its inputs' counters (from its watermarks)."""
         self.remote_memory: dict[str, float] = {}
         """Per live radar process, its resident memory, MB (from its watermarks)."""
+        self.remote_loops: dict[str, LoopTotals] = {}
+        """Per live radar process, its loop's totals (from its watermarks)."""
         self._inbox_counted = 0
 
     def run(self, stop: Stop) -> int:
@@ -513,10 +520,13 @@ class FusionRole:
                     self.remote_inputs[producer] = result.inputs
                 if result.resident_mb is not None:
                     self.remote_memory[producer] = result.resident_mb
+                if result.loop is not None:
+                    self.remote_loops[producer] = result.loop
             elif kind.endswith("DELETE"):
                 log.warning("radar stage %s gone: its radars coast", producer)
                 merge.gone(producer)
                 self.remote_memory.pop(producer, None)
+                self.remote_loops.pop(producer, None)
             else:
                 merge.note(producer, -1, now)
 
@@ -586,7 +596,10 @@ class FusionRole:
         if lost > self._inbox_counted:
             service.outputs.count("stage", "stage_inbox_full", lost - self._inbox_counted)
             self._inbox_counted = lost
+        loops = {"core": self.load.totals()}
+        loops.update((f"radar {name}", t) for name, t in sorted(self.remote_loops.items()))
         service.note_live(
             self.lateness.take_lag(),
             {f"radar {name}": mb for name, mb in sorted(self.remote_memory.items())},
+            loops,
         )
