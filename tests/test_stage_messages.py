@@ -19,11 +19,13 @@ from tracker_service.loop_load import LoopTotals
 from tracker_service.service.core import build_chain, build_radar_stage, config_from_recording
 from tracker_service.simulator.recording import read_recording
 from tracker_service.stage_messages import (
+    _HEAD,
     MAGIC,
     DatagramResult,
     MessageKind,
     StageMessageError,
     _npy,
+    _section,
     decode_message,
     encode_message,
     read_npy,
@@ -277,3 +279,10 @@ def test_a_radar_process_loop_totals_cross_on_its_watermark() -> None:
     for elapsed, busy in ((1.0, 2.0), (1.0, -0.5), (math.nan, 0.0), (math.inf, 1.0)):
         forged = DatagramResult(7, 7e-6, loop=LoopTotals(elapsed, busy))
         assert decode_message(encode_message(forged)).loop is None
+    # A section of another shape refuses the message with the decoder's error (it raised
+    # a TypeError past the fusion loop's handling), not half read.
+    payload = encode_message(DatagramResult(7, 7e-6))
+    magic, kind, count = _HEAD.unpack_from(payload)
+    bent = b"".join(_section("load", np.zeros((2, 2))))
+    with pytest.raises(StageMessageError, match="incomplete"):
+        decode_message(_HEAD.pack(magic, kind, count + 1) + payload[_HEAD.size :] + bent)

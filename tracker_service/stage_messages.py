@@ -423,7 +423,7 @@ def decode_message(payload: bytes) -> DatagramResult:
             # whose model refuses it, would fail on every beat after).
             memory = None
         loop = _loop_totals(arrays["load"]) if "load" in arrays else None
-    except (KeyError, IndexError, ValueError) as exc:
+    except (KeyError, IndexError, TypeError, ValueError) as exc:
         raise StageMessageError(f"incomplete message: {exc!r}") from None
     return DatagramResult(
         order=int(meta["order"]),

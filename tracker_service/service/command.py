@@ -551,7 +551,9 @@ class OutputProcess:
         supervised: bool = True,
         warm_up: OutputCalls | None = None,
     ) -> None:
-        self._args = (config, mcap_dir, zenoh, health_file)
+        # A live (supervised) output process measures its loop for the status's busy; a
+        # replay's status stays a function of its recording.
+        self._args = (config, mcap_dir, zenoh, health_file, supervised)
         self._warm_up = warm_up
         """For the first process only (a restarted one finds its kernels in the cache its
         predecessor filled, and the core should not wait for it any longer); its calls are
@@ -720,6 +722,7 @@ def _serve_outputs(
     mcap_dir: Path | None,
     zenoh: bool,
     health_file: Path | None,
+    live: bool,
     warm_up: OutputCalls | None,
     parent: int,
     calls: Connection,
@@ -746,7 +749,7 @@ def _serve_outputs(
             sys.setswitchinterval(SWITCH_INTERVAL_S)  # a process of its own: for its life
             replies.put(None)
             try:
-                told_to_stop = _make_calls(outputs, parent, calls, failed)
+                told_to_stop = _make_calls(outputs, parent, calls, failed, live)
             finally:
                 # The outputs' threads finish before the session and the log close.
                 outputs.stop()
@@ -761,9 +764,14 @@ def _serve_outputs(
         raise
 
 
-def _make_calls(outputs: Outputs, parent: int, calls: Connection, failed: RateLimitedLog) -> bool:
-    """The calls that arrive, until told to stop (True) or until the parent is gone."""
-    loop = outputs.loop = LoopLoad()
+def _make_calls(
+    outputs: Outputs, parent: int, calls: Connection, failed: RateLimitedLog, live: bool
+) -> bool:
+    """The calls that arrive, until told to stop (True) or until the parent is gone;
+    ``live``: the loop's waits counted for the status's ``busy["outputs"]``."""
+    loop = LoopLoad()
+    if live:
+        outputs.loop = loop
     while True:
         began = time.monotonic()
         arrived = calls.poll(1.0)
