@@ -769,13 +769,12 @@ def _make_calls(
 ) -> bool:
     """The calls that arrive, until told to stop (True) or until the parent is gone;
     ``live``: the loop's waits counted for the status's ``busy["outputs"]``."""
-    loop = LoopLoad()
-    if live:
-        outputs.loop = loop
+    loop = outputs.loop = LoopLoad() if live else None
     while True:
         began = time.monotonic()
         arrived = calls.poll(1.0)
-        loop.waited(time.monotonic() - began)
+        if loop is not None:
+            loop.waited(time.monotonic() - began)
         if not arrived:
             if os.getppid() != parent:
                 log.error("the core's process is gone: stopping")
