@@ -69,9 +69,10 @@ import sys
 import tempfile
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -161,21 +162,40 @@ def serve(config_path: str, profile: str | None, role: str | None, stage: str | 
         return code
 
 
+class LogTail:
+    """The last lines of a service process's log, read on by a thread to its end: a
+    30-minute run's log is too long to keep whole, and a process that died during a run
+    left nothing to say why without them."""
+
+    LINES = 30
+
+    def __init__(self, stream: IO[str], ready: str) -> None:
+        """Reads ``stream`` up to the line that has ``ready`` (or its end), then starts the
+        thread that reads the rest."""
+        self._lines: deque[str] = deque(maxlen=self.LINES)
+        for line in stream:
+            self._lines.append(line)
+            if ready in line:
+                break
+        self._reader = threading.Thread(target=self._lines.extend, args=(stream,), daemon=True)
+        self._reader.start()
+
+    def text(self) -> str:
+        """The last lines, once the log has ended (its process gone: a few seconds)."""
+        self._reader.join(timeout=5.0)
+        return "".join(list(self._lines))
+
+
 def start_service(
     config: Path, args: argparse.Namespace, ready: str, role: list[str] | None = None
-) -> subprocess.Popen[str]:
-    """A ``--serve`` process, returned once its log says ``ready``; the rest of its log is
-    read (and dropped) by a thread."""
+) -> tuple[subprocess.Popen[str], LogTail]:
+    """A ``--serve`` process, returned once its log says ``ready``, and its log's tail."""
     command = [sys.executable, __file__, "--serve", str(config), *(role or [])]
     if args.profile is not None and (role is None or "fusion" in role):
         command += ["--profile", args.profile]
     process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
     assert process.stderr is not None
-    for line in process.stderr:
-        if ready in line:
-            break
-    threading.Thread(target=process.stderr.read, daemon=True).start()
-    return process
+    return process, LogTail(process.stderr, ready)
 
 
 def main() -> int:
@@ -277,17 +297,21 @@ def main() -> int:
     doc["system"]["warm_up"] = not args.no_warm_up
     config.write_text(json.dumps(doc), encoding="utf-8")
     radar_processes: list[subprocess.Popen[str]] = []
+    logs: dict[str, LogTail] = {}
     if args.radar_processes:
         stage = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
         fusion = ["--role", "fusion", "--stage", stage]
-        daemon = start_service(config, args, "fusion: taking", fusion)
+        daemon, logs["daemon"] = start_service(config, args, "fusion: taking", fusion)
         radars = [f"{r['sac']}/{r['sic']}" for r in doc["radars"] if "input" in r]
         for k in range(args.radar_processes):
             mine = ",".join(radars[k :: args.radar_processes])
             role = ["--role", f"radar:{mine}", "--stage", stage]
-            radar_processes.append(start_service(config, args, "publishing under", role))
+            radar_process, logs[f"radar process {k}"] = start_service(
+                config, args, "publishing under", role
+            )
+            radar_processes.append(radar_process)
     else:
-        daemon = start_service(config, args, "running: publishing")
+        daemon, logs["daemon"] = start_service(config, args, "running: publishing")
 
     arrivals: list[tuple[float, bytes]] = []
     zconfig = zenoh.Config()
@@ -400,6 +424,7 @@ def main() -> int:
     for name, code in died.items():
         cause = f"signal {signal.Signals(-code).name}" if code < 0 else f"exit status {code}"
         print(f"the {name} ended during the run ({cause}): the run is void", file=sys.stderr)
+        print(f"its log's last lines:\n{logs[name].text()}", file=sys.stderr)
     if died:
         return 1
     if not seen:
